@@ -1,0 +1,72 @@
+"""The `gma-ffc` console script: one parser, one module per subcommand (see shared/spec/cli.md).
+
+Each subcommand module exposes ``register(subparsers)``, which adds its parser and sets
+``func(args) -> int``. Errors raised on purpose (`GmaError`) become one line on stderr and the
+contract's exit code (2 bad input, 1 run-time fault); nothing else prints a traceback unless
+``GMA_FFC_DEBUG=1``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from typing import Sequence
+
+from ..errors import GmaError
+
+# Order here is the order in `gma-ffc --help`.
+SUBCOMMAND_MODULES = ("identify", "simulate", "invert", "diagnose", "run", "service", "demo")
+
+DESCRIPTION = """\
+Model, invert and control hysteretic giant magnetostrictive actuators (GMA) with a
+stress-dependent Prandtl-Ishlinskii (SDPI) model.
+
+typical session:
+  gma-ffc identify rec_11MPa.csv rec_15MPa.csv rec_19MPa.csv -o model.yaml
+  gma-ffc simulate --model model.yaml rec_24MPa.csv -o predicted.csv
+  gma-ffc invert --model model.yaml reference.csv -o drive.csv
+  gma-ffc diagnose --model model.yaml long_run.csv --out diagnosis/
+  gma-ffc start --config config/sim.yaml && gma-ffc status && gma-ffc stop
+  gma-ffc demo            # everything above on the built-in simulated actuator
+"""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but bad usage is one line and exit 2, as the CLI contract says."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="gma-ffc", description=DESCRIPTION,
+                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    from .. import __version__
+
+    parser.add_argument("--version", action="version", version=f"gma-ffc {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    for name in SUBCOMMAND_MODULES:
+        importlib.import_module(f"{__name__}.{name}").register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except GmaError as exc:
+        if os.environ.get("GMA_FFC_DEBUG"):
+            raise
+        print(f"gma-ffc {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print(f"gma-ffc {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

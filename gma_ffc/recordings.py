@@ -1,0 +1,279 @@
+"""Recordings: read, validate and write the format of shared/spec/recordings.md.
+
+A recording is a CSV file (optional ``# key: value`` metadata lines, a header, numeric rows) or a
+MATLAB ``.mat`` file with the same variable names. Every command reads and writes this one format,
+so every output can be fed back in. Violations raise `RecordingError` naming the file, the line
+and what is wrong.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+import yaml
+
+from .atomic import atomic_write
+from .errors import RecordingError
+
+DRIVE_COLUMNS = ("current_A", "voltage_V")
+TIME = "time_s"
+DISPLACEMENT = "displacement_um"
+STRESS = "stress_MPa"
+REFERENCE = "reference_um"
+
+# Quantities users commonly write without a unit; the message suggests the spec's name.
+_UNITLESS_HINTS = {
+    "time": TIME, "t": TIME, "current": "current_A", "i": "current_A", "voltage": "voltage_V",
+    "displacement": DISPLACEMENT, "disp": DISPLACEMENT, "x": DISPLACEMENT, "y": DISPLACEMENT,
+    "stress": STRESS, "sigma": STRESS, "reference": REFERENCE, "force": "force_N",
+    "temperature": "temperature_C", "temp": "temperature_C",
+}
+_NAME_WITH_UNIT = re.compile(r"^[A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)*_[A-Za-z%]+[A-Za-z0-9]*$")
+
+
+@dataclass
+class Recording:
+    """One experiment: columns of equal length keyed by their unit-bearing names, plus metadata."""
+
+    columns: dict[str, np.ndarray]
+    metadata: dict[str, Any] = field(default_factory=dict)
+    source: str = "<memory>"
+
+    def __post_init__(self) -> None:
+        self.columns = {k: np.ascontiguousarray(v, dtype=float) for k, v in self.columns.items()}
+        lengths = {len(v) for v in self.columns.values()}
+        if len(lengths) > 1:
+            raise RecordingError(f"{self.source}: columns have different lengths {sorted(lengths)}")
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+    @property
+    def name(self) -> str:
+        return Path(self.source).name
+
+    @property
+    def time_s(self) -> np.ndarray:
+        return self.columns[TIME]
+
+    @property
+    def drive_name(self) -> str:
+        for name in DRIVE_COLUMNS:
+            if name in self.columns:
+                return name
+        raise RecordingError(f"{self.source}: no drive column (one of {', '.join(DRIVE_COLUMNS)})")
+
+    @property
+    def drive(self) -> np.ndarray:
+        return self.columns[self.drive_name]
+
+    @property
+    def displacement_um(self) -> np.ndarray | None:
+        return self.columns.get(DISPLACEMENT)
+
+    @property
+    def stress_MPa(self) -> np.ndarray | None:
+        return self.columns.get(STRESS)
+
+    @property
+    def sample_period_s(self) -> float:
+        """Median sample period (sampling need not be uniform)."""
+        return float(np.median(np.diff(self.time_s))) if len(self) > 1 else float("nan")
+
+    def with_column(self, name: str, values: np.ndarray) -> "Recording":
+        """A copy with one column added or replaced (for predictions and drives)."""
+        cols = dict(self.columns)
+        cols[name] = np.asarray(values, dtype=float)
+        return Recording(cols, dict(self.metadata), self.source)
+
+
+def check_column_name(name: str, source: str, line: int) -> None:
+    if _NAME_WITH_UNIT.match(name):
+        return
+    hint = _UNITLESS_HINTS.get(name.strip().lower())
+    suggestion = f" (did you mean '{hint}'?)" if hint else " (names end in a unit, e.g. time_s, current_A)"
+    raise RecordingError(f"{source}, line {line}: column '{name}' has no unit{suggestion}")
+
+
+def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEMENT),
+             header_line: int = 1) -> Recording:
+    """Check a recording against the spec; `require` may name 'drive' for current_A/voltage_V."""
+    src = rec.source
+    for name in require:
+        if name == "drive":
+            if not any(d in rec.columns for d in DRIVE_COLUMNS):
+                raise RecordingError(
+                    f"{src}, line {header_line}: missing drive column: need current_A "
+                    f"(or voltage_V for a voltage-driven actuator); found {', '.join(rec.columns)}")
+        elif name not in rec.columns:
+            raise RecordingError(
+                f"{src}, line {header_line}: missing required column '{name}'; found {', '.join(rec.columns)}")
+    if len(rec) < 2:
+        raise RecordingError(f"{src}: needs at least two samples, has {len(rec)}")
+    required_cols = [TIME] + [c for c in require if c != "drive" and c != TIME]
+    if "drive" in require:
+        required_cols.append(rec.drive_name)
+    for name in required_cols:
+        bad = ~np.isfinite(rec.columns[name])
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise RecordingError(
+                f"{src}, line {header_line + 1 + row}: '{name}' is {rec.columns[name][row]} "
+                f"(NaN or infinite values are not allowed in required columns)")
+    steps = np.diff(rec.time_s)
+    if (steps <= 0).any():
+        row = int(np.argmax(steps <= 0)) + 1
+        raise RecordingError(
+            f"{src}, line {header_line + 1 + row}: time does not increase "
+            f"({rec.time_s[row - 1]:.9g} s then {rec.time_s[row]:.9g} s)")
+    return rec
+
+
+def _parse_metadata(lines: Iterable[tuple[int, str]], source: str) -> dict[str, Any]:
+    meta: dict[str, Any] = {}
+    for lineno, text in lines:
+        body = text.lstrip("#").strip()
+        if not body:
+            continue
+        try:
+            parsed = yaml.safe_load(body)
+        except yaml.YAMLError:
+            parsed = None
+        if isinstance(parsed, dict):
+            meta.update(parsed)
+        # A comment that is not "key: value" is kept out of metadata but is not an error.
+    return meta
+
+
+def read_csv(path: Path, require: Sequence[str]) -> Recording:
+    source = str(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RecordingError(f"{source}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecordingError(f"{source}: cannot read ({exc})") from None
+    lines = text.splitlines()
+    meta_lines: list[tuple[int, str]] = []
+    header_idx = None
+    for idx, line in enumerate(lines):
+        stripped = line.strip()
+        if stripped.startswith("#"):
+            meta_lines.append((idx + 1, stripped))
+        elif stripped:
+            header_idx = idx
+            break
+    if header_idx is None:
+        raise RecordingError(f"{source}: no header line (expected e.g. 'time_s,current_A,displacement_um')")
+    names = [n.strip() for n in lines[header_idx].split(",")]
+    header_line = header_idx + 1
+    for name in names:
+        check_column_name(name, source, header_line)
+    if len(set(names)) != len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise RecordingError(f"{source}, line {header_line}: column '{dup}' appears twice")
+    body = lines[header_idx + 1:]
+    data = _parse_rows(body, len(names), source, header_line)
+    rec = Recording({n: data[:, k] for k, n in enumerate(names)}, _parse_metadata(meta_lines, source), source)
+    return validate(rec, require, header_line)
+
+
+def _parse_rows(body: list[str], ncols: int, source: str, header_line: int) -> np.ndarray:
+    """Fast numpy parse; on failure, find the first offending line and say what is wrong there."""
+    rows = [ln for ln in body if ln.strip() and not ln.lstrip().startswith("#")]
+    if not rows:
+        raise RecordingError(f"{source}: header but no data rows")
+    try:
+        data = np.loadtxt(io.StringIO("\n".join(rows)), delimiter=",", ndmin=2, dtype=float)
+        if data.shape[1] == ncols:
+            return data
+    except ValueError:
+        pass
+    for offset, line in enumerate(body):
+        lineno = header_line + 1 + offset
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        cells = line.split(",")
+        if len(cells) != ncols:
+            raise RecordingError(f"{source}, line {lineno}: {len(cells)} cells, header has {ncols}")
+        for col, cell in enumerate(cells):
+            try:
+                float(cell)
+            except ValueError:
+                raise RecordingError(
+                    f"{source}, line {lineno}: cell {col + 1} '{cell.strip()}' is not a number") from None
+    raise RecordingError(f"{source}: could not parse the data rows")
+
+
+def read_mat(path: Path, require: Sequence[str]) -> Recording:
+    import scipy.io
+
+    source = str(path)
+    try:
+        raw = scipy.io.loadmat(str(path), squeeze_me=True, struct_as_record=False)
+    except NotImplementedError:
+        raise RecordingError(
+            f"{source}: MATLAB v7.3 (HDF5) files are not supported; save with `save(..., '-v7')`") from None
+    except (OSError, ValueError, TypeError) as exc:
+        raise RecordingError(f"{source}: not a readable .mat file ({exc})") from None
+    columns: dict[str, np.ndarray] = {}
+    meta: dict[str, Any] = {}
+    for key, value in raw.items():
+        if key.startswith("__"):
+            continue
+        arr = np.asarray(value)
+        if arr.dtype.kind in "fiub" and arr.ndim == 1 and arr.size > 1:
+            check_column_name(key, source, 0)
+            columns[key] = arr.astype(float)
+        elif arr.dtype.kind in "fiu" and arr.size == 1:
+            meta[key] = arr.item()
+        elif arr.dtype.kind == "U":
+            meta[key] = str(arr)
+    rec = Recording(columns, meta, source)
+    return validate(rec, require, header_line=0)
+
+
+def read_recording(path: str | Path, require: Sequence[str] = (TIME, "drive", DISPLACEMENT)) -> Recording:
+    """Read and validate a recording (.csv or .mat); raises RecordingError on any violation."""
+    p = Path(path)
+    if p.suffix.lower() == ".mat":
+        return read_mat(p, require)
+    return read_csv(p, require)
+
+
+def _format_meta(meta: Mapping[str, Any]) -> str:
+    out = []
+    for key, value in meta.items():
+        dumped = yaml.safe_dump({key: value}, default_flow_style=True, width=10_000).strip()
+        if dumped.startswith("{") and dumped.endswith("}"):
+            dumped = dumped[1:-1]
+        out.append(f"# {dumped}\n")
+    return "".join(out)
+
+
+def write_recording(path: str | Path, rec: Recording, precision: int = 9) -> None:
+    """Write atomically: the file appears complete or not at all."""
+    p = Path(path)
+    names = list(rec.columns)
+    data = np.column_stack([rec.columns[n] for n in names]) if names else np.empty((0, 0))
+    if p.suffix.lower() == ".mat":
+        import scipy.io
+
+        with atomic_write(p, "wb") as fh:
+            scipy.io.savemat(fh, {**{k: v for k, v in rec.columns.items()},
+                                  **{k: v for k, v in rec.metadata.items() if isinstance(v, (int, float, str))}})
+        return
+    with atomic_write(p, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(_format_meta(rec.metadata))
+        fh.write(",".join(names) + "\n")
+        np.savetxt(fh, data, delimiter=",", fmt=f"%.{precision}g")
+
+
+def finite_or_none(value: float) -> float | None:
+    return value if math.isfinite(value) else None
