@@ -1,0 +1,435 @@
+"""Identification of SDPI and MPI models from recordings (seed paper sections 2.4 and 3.3).
+
+`SDPIIdentifier` follows scikit-learn's conventions: the constructor takes settings, `fit` learns,
+learned attributes end in an underscore (`model_`, `report_`).
+
+The steps, as in the paper, with what the paper leaves open made explicit:
+
+1. MPI at the reference stress (the least compressive one: preload only). Thresholds are equal
+   intervals over the data: play thresholds over the drive's half-range, inverse dead-zone
+   thresholds over the displacement's half-range. The weights come from the linear
+   least-squares fit of (15), w_s'^T S'[y] = w_h^T H[x], with the inverse dead-zone's centre slope
+   fixed to 1 (the equation is homogeneous) and Proposition 3.1 as bounds: weights are
+   parametrised by the slopes of the linear pieces, so "cumulative weights >= eps" becomes
+   "slopes >= eps". The forward dead-zone thresholds follow analytically (11)-(14). The fit is
+   then refined in output error (displacement residual) with the thresholds held.
+2.+3. With play weights and all thresholds held, the dead-zone weights are fitted as quadratic
+   functions of stress directly on all recordings at once (a linear least-squares problem in the
+   coefficients), with Proposition 3.1 imposed at every stress of the range: a quadratic program
+   whose constraints are enforced on a grid and then verified exactly (ends and vertex), adding
+   any violating stress and re-solving until none is left. Fitting the quadratics directly, not
+   per-stress weights then curves, uses recordings whose stress changes during the run too.
+
+Initial states are explicit: models start in the state a drive history that came down to the
+first sample leaves ("descending"), and the fit ignores each recording until the drive has swept
+from one extreme to the other (after that the play states no longer depend on where they began).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from scipy import optimize
+
+from . import operators as ops
+from .errors import InputError
+from .inverse import deadzone_inverse
+from .model import SDPIModel, rms
+from .recordings import Recording
+
+
+@dataclass
+class RecordingFit:
+    """How well the model fits one recording."""
+
+    name: str
+    stress_MPa: float | None
+    rms_um: float
+    stroke_um: float
+    max_abs_um: float
+
+    @property
+    def rms_pct_stroke(self) -> float:
+        return 100.0 * self.rms_um / self.stroke_um if self.stroke_um > 0 else float("nan")
+
+
+@dataclass
+class _Data:
+    """One recording prepared for fitting: play outputs, burn-in mask, decimated rows."""
+
+    name: str
+    x: np.ndarray
+    y: np.ndarray
+    sigma: np.ndarray | None
+    plays: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
+    rows: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=int))
+
+
+def slope_basis(z: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """phi_k(z): the length of z's path inside each linear piece of a dead-zone superposition.
+
+    sum_k s_k phi_k(z) equals sum_j w_j S_{r_j}(z) when s are the pieces' slopes (the cumulative
+    weights from the centre outwards), so bounds on s are Proposition 3.1.
+    """
+    m = len(r)
+    c = (m - 1) // 2
+    out = np.empty((len(z), m))
+    lo = r[c - 1] if c > 0 else -np.inf
+    hi = r[c + 1] if c + 1 < m else np.inf
+    out[:, c] = np.clip(z, lo, hi)
+    for k in range(c + 1, m):
+        top = r[k + 1] if k + 1 < m else np.inf
+        out[:, k] = np.clip(z, r[k], top) - r[k]
+    for k in range(c - 1, -1, -1):
+        bottom = r[k - 1] if k > 0 else -np.inf
+        out[:, k] = np.clip(z, bottom, r[k]) - r[k]
+    return out
+
+
+def slopes_to_weights(s: np.ndarray) -> np.ndarray:
+    """Slopes of the linear pieces -> dead-zone weights (works on the last axis, any leading axes)."""
+    s = np.asarray(s, dtype=float)
+    m = s.shape[-1]
+    c = (m - 1) // 2
+    w = np.empty_like(s)
+    w[..., c] = s[..., c]
+    w[..., c + 1:] = np.diff(s[..., c:], axis=-1)
+    w[..., :c] = s[..., :c] - s[..., 1: c + 1]
+    return w
+
+
+def weights_to_slopes(w: np.ndarray) -> np.ndarray:
+    w = np.asarray(w, dtype=float)
+    m = w.shape[-1]
+    c = (m - 1) // 2
+    s = np.empty_like(w)
+    s[..., c:] = np.cumsum(w[..., c:], axis=-1)
+    s[..., : c + 1] = np.cumsum(w[..., c::-1], axis=-1)[..., ::-1]
+    return s
+
+
+def burn_in_end(x: np.ndarray, tol: float = 0.02) -> int:
+    """First sample after the drive has swept from one extreme to the other (play states then
+    no longer depend on their initial values); 0 if it never does."""
+    lo, hi = float(x.min()), float(x.max())
+    span = hi - lo
+    if span <= 0:
+        return 0
+    near_lo = np.flatnonzero(x <= lo + tol * span)
+    near_hi = np.flatnonzero(x >= hi - tol * span)
+    end = max(int(near_lo[0]), int(near_hi[0]))
+    return end if end < len(x) - 10 else 0
+
+
+@dataclass
+class SDPIIdentifier:
+    """Fit an SDPI (several stresses) or an MPI (one stress, or no stress column) to recordings.
+
+    Settings:
+        n_play                number of play operators (paper: 10)
+        n_deadzone            number of dead-zone operators, odd (paper: 7)
+        reference_stress_MPa  stress of step 1; default the least compressive one in the data
+        stress_tolerance_MPa  stresses closer than this count as one level
+        max_rows              samples per recording used by the least-squares fits (evenly
+                              spaced after burn-in); play outputs are always computed at full rate
+        refine                output-error refinement of step 1 (off = the paper's (15) alone)
+        progress              optional callback(stage: str) for long fits
+    Learned:
+        model_, report_ (list of RecordingFit), stress_levels_MPa_, notes_ (what was assumed)
+    """
+
+    n_play: int = 10
+    n_deadzone: int = 7
+    reference_stress_MPa: float | None = None
+    stress_tolerance_MPa: float = 0.5
+    max_rows: int = 6000
+    refine: bool = True
+    initial_state: str = "descending"
+    progress: Callable[[str], None] | None = None
+
+    def _say(self, stage: str) -> None:
+        if self.progress is not None:
+            self.progress(stage)
+
+    # -- public ------------------------------------------------------------------------------
+    def fit(self, recordings: Sequence[Recording]) -> "SDPIIdentifier":
+        self._check_settings()
+        data = self._prepare(recordings)
+        self.notes_: list[str] = []
+        levels, per_rec_stress = self._stress_levels(data)
+        self.stress_levels_MPa_ = levels
+        x_all = np.concatenate([d.x for d in data])
+        x_lo, x_hi = float(x_all.min()), float(x_all.max())
+        x_c = 0.5 * (x_lo + x_hi)
+        half = 0.5 * (x_hi - x_lo)
+        if half <= 0:
+            raise InputError("the drive is constant in every recording; a hysteresis model needs a swept drive")
+        r_h = np.arange(self.n_play) * half / self.n_play
+        for d in data:
+            y0 = d.x[0] - x_c + (r_h if self.initial_state == "descending" else 0.0)
+            d.plays = np.empty((len(d.x), self.n_play))
+            ops.play_outputs(np.ascontiguousarray(d.x - x_c), r_h, y0, d.plays)
+
+        stress_dependent = len(levels) > 1
+        if stress_dependent:
+            ref = self.reference_stress_MPa if self.reference_stress_MPa is not None else max(levels)
+            ref_level = min(levels, key=lambda s: abs(s - ref))
+            ref_data = [d for d, s in zip(data, per_rec_stress) if abs(s - ref_level) <= self.stress_tolerance_MPa]
+        else:
+            ref_level = levels[0] if levels else None
+            ref_data = data
+            if levels:
+                self.notes_.append(f"all recordings are at one stress ({levels[0]:.3g} MPa): fitted a "
+                                   "stress-independent MPI; give recordings at several stresses for an SDPI")
+            else:
+                self.notes_.append("recordings have no stress_MPa column: fitted a stress-independent MPI")
+
+        self._say("step 1: MPI at the reference stress")
+        w_h, r_s, slopes, y_c = self._fit_mpi(ref_data)
+        if self.refine:
+            self._say("step 1: output-error refinement")
+            w_h, slopes, y_c = self._refine_mpi(ref_data, w_h, r_s, slopes, y_c)
+
+        if stress_dependent:
+            self._say("steps 2-3: quadratic dead-zone weights over stress")
+            s_lo = min(float(d.sigma.min()) for d in data)
+            s_hi = max(float(d.sigma.max()) for d in data)
+            coeffs, out_coeffs = self._fit_stress(data, w_h, r_s, (s_lo, s_hi), len(levels))
+            stress_range: tuple[float, float] | None = (s_lo, s_hi)
+        else:
+            coeffs = np.zeros((3, len(r_s)))
+            coeffs[0] = slopes_to_weights(slopes)
+            out_coeffs = np.array([y_c, 0.0, 0.0])
+            stress_range = None
+
+        self.model_ = SDPIModel(
+            play_thresholds=r_h, play_weights=w_h, deadzone_thresholds=r_s, deadzone_coeffs=coeffs,
+            output_coeffs=out_coeffs, input_offset=x_c, stress_range_MPa=stress_range,
+            reference_stress_MPa=ref_level, drive_range=(x_lo, x_hi),
+            drive_name=recordings[0].drive_name, initial_state=self.initial_state,
+            provenance={"tool": "gma-ffc identify", "recordings": [d.name for d in data],
+                        "settings": {"n_play": self.n_play, "n_deadzone": self.n_deadzone,
+                                     "refine": self.refine}, "notes": list(self.notes_)},
+        )
+        violations = self.model_.invertibility_violations()
+        if violations:  # cannot happen by construction; refuse rather than hand out a bad inverse
+            raise InputError("identified model violates Proposition 3.1: " + "; ".join(map(str, violations)))
+        self.report_ = [self._score(d) for d in data]
+        self.model_.provenance["fit_rms_um"] = {f.name: round(f.rms_um, 6) for f in self.report_}
+        return self
+
+    # -- preparation -------------------------------------------------------------------------
+    def _check_settings(self) -> None:
+        if self.n_play < 1:
+            raise InputError(f"n_play must be at least 1, got {self.n_play}")
+        if self.n_deadzone < 1 or self.n_deadzone % 2 == 0:
+            raise InputError(f"n_deadzone must be odd (2l+1: l negative, one centre, l positive), got {self.n_deadzone}")
+
+    def _prepare(self, recordings: Sequence[Recording]) -> list[_Data]:
+        if not recordings:
+            raise InputError("no recordings given")
+        has_stress = [r.stress_MPa is not None for r in recordings]
+        if any(has_stress) and not all(has_stress):
+            missing = [r.name for r, h in zip(recordings, has_stress) if not h]
+            raise InputError(f"some recordings have stress_MPa and some do not ({', '.join(missing)}); "
+                             "give all or none a stress column")
+        drives = {r.drive_name for r in recordings}
+        if len(drives) > 1:
+            raise InputError(f"recordings mix drives {sorted(drives)}; identify one kind at a time")
+        data = []
+        for r in recordings:
+            if r.displacement_um is None:
+                raise InputError(f"{r.source}: identification needs a displacement_um column")
+            data.append(_Data(r.name, r.drive.copy(), r.displacement_um.copy(),
+                              None if r.stress_MPa is None else r.stress_MPa.copy()))
+        return data
+
+    def _stress_levels(self, data: list[_Data]) -> tuple[list[float], list[float | None]]:
+        if data[0].sigma is None:
+            return [], [None] * len(data)
+        per_rec = [float(np.median(d.sigma)) for d in data]
+        samples = np.sort(np.concatenate([d.sigma for d in data]))
+        levels: list[float] = []
+        for s in np.unique(np.round(samples / self.stress_tolerance_MPa) * self.stress_tolerance_MPa):
+            if not levels or abs(s - levels[-1]) > self.stress_tolerance_MPa:
+                levels.append(float(s))
+        return levels, per_rec
+
+    def _rows(self, d: _Data) -> np.ndarray:
+        start = burn_in_end(d.x)
+        n = len(d.x) - start
+        step = max(1, n // self.max_rows)
+        return np.arange(start, len(d.x), step)
+
+    # -- step 1 ------------------------------------------------------------------------------
+    def _fit_mpi(self, data: list[_Data]) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """Equation-error fit of (15) in the inverse domain, Proposition 3.1 as slope bounds."""
+        y_all = np.concatenate([d.y for d in data])
+        y_c = 0.5 * (float(y_all.min()) + float(y_all.max()))
+        y_half = 0.5 * (float(y_all.max()) - float(y_all.min()))
+        if y_half <= 0:
+            raise InputError("the displacement is constant: nothing to identify")
+        l = (self.n_deadzone - 1) // 2
+        r_inv = np.arange(-l, l + 1) * y_half / (l + 1)
+        H, Phi = [], []
+        for d in data:
+            rows = self._rows(d)
+            H.append(d.plays[rows])
+            Phi.append(slope_basis(d.y[rows] - y_c, r_inv))
+        H, Phi = np.vstack(H), np.vstack(Phi)
+        c = l
+        others = [k for k in range(self.n_deadzone) if k != c]
+        A = np.hstack([H, -Phi[:, others]])
+        b = Phi[:, c]
+        scale = np.linalg.norm(A, axis=0)
+        scale[scale == 0] = 1.0
+        eps_w = 1e-6
+        lower = np.r_[eps_w, np.zeros(self.n_play - 1), np.full(len(others), 1e-3)] * scale
+        res = optimize.lsq_linear(A / scale, b, bounds=(lower, np.inf), lsmr_tol="auto", max_iter=2000)
+        theta = res.x / scale
+        w_h = theta[: self.n_play]
+        s_inv = np.ones(self.n_deadzone)
+        s_inv[others] = theta[self.n_play:]
+        # Forward dead-zones from the inverse ones, analytically: the inverse of the inverse.
+        r_s, w_s = deadzone_inverse(r_inv, slopes_to_weights(s_inv))
+        r_s[c] = 0.0
+        return w_h, r_s, weights_to_slopes(w_s), y_c
+
+    def _refine_mpi(self, data: list[_Data], w_h: np.ndarray, r_s: np.ndarray, slopes: np.ndarray,
+                    y_c: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """Output-error refinement with thresholds held: minimise the displacement residual."""
+        H = np.vstack([d.plays[self._rows(d)] for d in data])
+        y = np.concatenate([d.y[self._rows(d)] for d in data])
+        n_h, n_s = self.n_play, self.n_deadzone
+        edges = np.r_[-np.inf, r_s[: (n_s - 1) // 2], r_s[(n_s + 1) // 2:], np.inf]
+
+        def unpack(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+            return theta[:n_h], theta[n_h: n_h + n_s], theta[-1]
+
+        def resid(theta: np.ndarray) -> np.ndarray:
+            wh, s, yc = unpack(theta)
+            return yc + slope_basis(H @ wh, r_s) @ s - y
+
+        def jac(theta: np.ndarray) -> np.ndarray:
+            wh, s, _ = unpack(theta)
+            z = H @ wh
+            seg = np.searchsorted(edges, z, side="right") - 1
+            local_slope = s[np.clip(seg, 0, n_s - 1)]
+            return np.hstack([H * local_slope[:, None], slope_basis(z, r_s), np.ones((len(z), 1))])
+
+        theta0 = np.r_[w_h, slopes, y_c]
+        s_floor = 1e-3 * float(np.max(slopes))
+        lower = np.r_[1e-6 * max(w_h[0], 1e-12), np.zeros(n_h - 1), np.full(n_s, s_floor), -np.inf]
+        theta0 = np.where(np.isfinite(lower), np.maximum(theta0, lower), theta0)
+        res = optimize.least_squares(resid, theta0, jac=jac, bounds=(lower, np.inf), method="trf",
+                                     x_scale="jac", max_nfev=200)
+        if rms(res.fun) < rms(resid(np.r_[w_h, slopes, y_c])):
+            return unpack(res.x)
+        return w_h, slopes, y_c
+
+    # -- steps 2 and 3 -----------------------------------------------------------------------
+    def _fit_stress(self, data: list[_Data], w_h: np.ndarray, r_s: np.ndarray,
+                    stress_range: tuple[float, float], n_levels: int) -> tuple[np.ndarray, np.ndarray]:
+        """Slopes and output offset as polynomials (degree <= 2) in stress, Proposition 3.1 imposed."""
+        lo, hi = stress_range
+        mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        degree = min(2, n_levels - 1)
+        n_s = len(r_s)
+        blocks, targets = [], []
+        for d in data:
+            rows = self._rows(d)
+            u = (d.sigma[rows] - mid) / half
+            powers = np.vstack([u ** p for p in range(degree + 1)]).T  # (rows, degree+1)
+            phi = slope_basis(d.plays[rows] @ w_h, r_s)
+            feats = (phi[:, None, :] * powers[:, :, None]).reshape(len(rows), -1)  # [p, k] order
+            blocks.append(np.hstack([feats, powers]))
+            targets.append(d.y[rows])
+        A, y = np.vstack(blocks), np.concatenate(targets)
+        n_coef = (degree + 1) * n_s
+        col_scale = np.linalg.norm(A, axis=0)
+        col_scale[col_scale == 0] = 1.0
+        As = A / col_scale
+        G, g = As.T @ As, As.T @ y
+        G += 1e-12 * np.trace(G) / len(G) * np.eye(len(G))
+
+        def slope_rows(u_pts: np.ndarray) -> np.ndarray:
+            """Linear map theta -> slopes at stresses u_pts, one row per (u, k)."""
+            rows = np.zeros((len(u_pts) * n_s, A.shape[1]))
+            for a, u in enumerate(u_pts):
+                for p in range(degree + 1):
+                    for k in range(n_s):
+                        rows[a * n_s + k, p * n_s + k] = u ** p
+            return rows / col_scale
+
+        theta_s = np.linalg.solve(G, g)
+        first_slopes = theta_s[:n_coef].copy()
+        s_scale = float(np.max(np.abs(slope_rows(np.array([0.0])) @ theta_s))) or 1.0
+        eps = 1e-3 * s_scale
+        grid = list(np.linspace(-1.0, 1.0, 21))
+        for _ in range(10):
+            C = slope_rows(np.array(grid))
+            if np.all(C @ theta_s >= eps * (1 - 1e-9)):
+                worst_u, worst_v = self._min_slope(theta_s * col_scale, degree, n_s)
+                if worst_v >= eps * (1 - 1e-6):
+                    break
+                grid.append(worst_u)
+                C = slope_rows(np.array(grid))
+            res = optimize.minimize(
+                lambda t: 0.5 * t @ G @ t - g @ t, theta_s, jac=lambda t: G @ t - g, method="SLSQP",
+                constraints=[{"type": "ineq", "fun": lambda t, C=C: C @ t - eps, "jac": lambda t, C=C: C}],
+                options={"maxiter": 500, "ftol": 1e-14})
+            theta_s = res.x
+        del first_slopes
+        theta = theta_s / col_scale
+        slope_poly = theta[:n_coef].reshape(degree + 1, n_s)
+        offset_poly = theta[n_coef:]
+        # Back from normalised u = (sigma - mid)/half to plain sigma, coefficients (c0, c1, c2).
+        to_sigma = self._poly_in_sigma(mid, half, degree)
+        slope_coeffs = to_sigma @ slope_poly  # (3, n_s)
+        out_coeffs = to_sigma @ offset_poly
+        return slopes_to_weights(slope_coeffs), out_coeffs
+
+    @staticmethod
+    def _poly_in_sigma(mid: float, half: float, degree: int) -> np.ndarray:
+        """Matrix T with [c0, c1, c2] = T @ [a0..a_degree] for sum a_p u^p, u = (sigma - mid)/half."""
+        T = np.zeros((3, degree + 1))
+        T[0, 0] = 1.0
+        if degree >= 1:
+            T[0, 1], T[1, 1] = -mid / half, 1.0 / half
+        if degree >= 2:
+            T[0, 2], T[1, 2], T[2, 2] = mid * mid / half ** 2, -2 * mid / half ** 2, 1.0 / half ** 2
+        return T
+
+    @staticmethod
+    def _min_slope(theta: np.ndarray, degree: int, n_s: int) -> tuple[float, float]:
+        """Exact minimum over u in [-1, 1] of every slope polynomial: (where, value)."""
+        poly = theta[: (degree + 1) * n_s].reshape(degree + 1, n_s)
+        worst_u, worst_v = 0.0, np.inf
+        for k in range(n_s):
+            a = poly[:, k]
+            cands = [-1.0, 1.0]
+            if degree == 2 and a[2] > 0:
+                v = -a[1] / (2 * a[2])
+                if -1 < v < 1:
+                    cands.append(float(v))
+            for u in cands:
+                val = sum(a[p] * u ** p for p in range(degree + 1))
+                if val < worst_v:
+                    worst_u, worst_v = u, val
+        return worst_u, float(worst_v)
+
+    # -- scoring -----------------------------------------------------------------------------
+    def _score(self, d: _Data) -> RecordingFit:
+        pred = self.model_.simulate(None, d.x, d.sigma)
+        start = burn_in_end(d.x)
+        err = pred[start:] - d.y[start:]
+        stroke = float(d.y.max() - d.y.min())
+        stress = None if d.sigma is None else float(np.median(d.sigma))
+        return RecordingFit(d.name, stress, rms(err), stroke, float(np.max(np.abs(err))))
+
+
+def identify(recordings: Sequence[Recording], **settings: Any) -> SDPIModel:
+    """Convenience: `SDPIIdentifier(**settings).fit(recordings).model_`."""
+    return SDPIIdentifier(**settings).fit(recordings).model_

@@ -1,0 +1,349 @@
+"""The SDPI model (seed paper (16)) and its stress-independent special case, the MPI (6).
+
+A model is plain data: thresholds, weights, stress-quadratic coefficients, the ranges it was
+identified on and where it came from. Behaviour (simulate, invert, steppers) runs the numba
+kernels of `operators`. Proposition 3.1 (unique invertibility) is checked exactly over the whole
+stress range, not on a grid: each cumulative dead-zone weight is a quadratic in stress, so its
+minimum on an interval is at an end or at the vertex.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from . import operators as ops
+from .errors import ModelError
+from .inverse import play_inverse, play_inverse_initial_state
+
+INITIAL_STATES = ("descending", "relaxed")
+
+
+@dataclass(frozen=True)
+class Violation:
+    """One failed invertibility constraint of Proposition 3.1."""
+
+    constraint: str
+    stress_MPa: float | None
+    value: float
+    required: float
+
+    def __str__(self) -> str:
+        where = "" if self.stress_MPa is None else f" at {self.stress_MPa:.3g} MPa"
+        return f"{self.constraint} = {self.value:.6g}{where}, needs >= {self.required:.3g} " \
+               f"(short by {self.required - self.value:.3g})"
+
+
+@dataclass(eq=False)
+class SDPIModel:
+    """y = c(sigma) + sum_j w_sj(sigma) S_{r_sj}[ sum_i w_hi H_{r_hi}[x - x_c] ].
+
+    play_thresholds   r_h, ascending, r_h[0] = 0 (drive units)
+    play_weights      w_h (um per drive unit after the dead-zones' unit centre slope)
+    deadzone_thresholds r_s, ascending, odd count, centre one = 0 (intermediate units)
+    deadzone_coeffs   (3, n_s): w_sj(sigma) = C0 + C1 sigma + C2 sigma^2, sigma in MPa
+    output_coeffs     (3,): output offset c(sigma) = o0 + o1 sigma + o2 sigma^2 (um)
+    input_offset      x_c: the drive value the operators are centred on
+    stress_range_MPa  (lo, hi) identified on, None for a stress-independent MPI
+    initial_state     "descending": plays start as if the drive came down to its first value (a
+                      rig that ended its last run at 0 A); "relaxed": plays start centred on it
+    """
+
+    play_thresholds: np.ndarray
+    play_weights: np.ndarray
+    deadzone_thresholds: np.ndarray
+    deadzone_coeffs: np.ndarray
+    output_coeffs: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    input_offset: float = 0.0
+    stress_range_MPa: tuple[float, float] | None = None
+    reference_stress_MPa: float | None = None
+    drive_range: tuple[float, float] = (-np.inf, np.inf)
+    drive_name: str = "current_A"
+    initial_state: str = "descending"
+    provenance: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.play_thresholds = np.ascontiguousarray(self.play_thresholds, dtype=float)
+        self.play_weights = np.ascontiguousarray(self.play_weights, dtype=float)
+        self.deadzone_thresholds = np.ascontiguousarray(self.deadzone_thresholds, dtype=float)
+        coeffs = np.asarray(self.deadzone_coeffs, dtype=float)
+        if coeffs.ndim == 1:
+            coeffs = np.vstack([coeffs, np.zeros_like(coeffs), np.zeros_like(coeffs)])
+        self.deadzone_coeffs = np.ascontiguousarray(coeffs)
+        self.output_coeffs = np.ascontiguousarray(np.resize(np.asarray(self.output_coeffs, float), 3)
+                                                  if np.size(self.output_coeffs) else np.zeros(3))
+        if self.stress_range_MPa is not None:
+            lo, hi = (float(v) for v in self.stress_range_MPa)
+            self.stress_range_MPa = (lo, hi)
+        self.drive_range = tuple(float(v) for v in self.drive_range)  # type: ignore[assignment]
+        self._validate_structure()
+        r_inv, w_inv = play_inverse(self.play_thresholds, self.play_weights)
+        lo, hi = self.stress_range_MPa if self.stress_range_MPa else (-np.inf, np.inf)
+        if self.stress_range_MPa is None:
+            # An MPI ignores stress: collapse the quadratic so any stress value gives the same weights.
+            self.deadzone_coeffs[1:] = 0.0
+            self.output_coeffs[1:] = 0.0
+            lo, hi = 0.0, 0.0
+        self._packed = ops.pack(self.input_offset, (lo, hi), self.output_coeffs, self.play_thresholds,
+                                self.play_weights, r_inv, w_inv, self.deadzone_thresholds,
+                                self.deadzone_coeffs)
+
+    # -- structure ---------------------------------------------------------------------------
+    @property
+    def kind(self) -> str:
+        return "mpi" if self.stress_range_MPa is None else "sdpi"
+
+    @property
+    def n_play(self) -> int:
+        return len(self.play_thresholds)
+
+    @property
+    def n_deadzone(self) -> int:
+        return len(self.deadzone_thresholds)
+
+    def _validate_structure(self) -> None:
+        r_h, w_h, r_s = self.play_thresholds, self.play_weights, self.deadzone_thresholds
+        arrays = {"play thresholds": r_h, "play weights": w_h, "dead-zone thresholds": r_s,
+                  "dead-zone weight coefficients": self.deadzone_coeffs, "output offset": self.output_coeffs}
+        for name, arr in arrays.items():
+            if arr.size == 0 or not np.all(np.isfinite(arr)):
+                raise ModelError(f"{name} must be non-empty and finite")
+        if r_h.ndim != 1 or w_h.shape != r_h.shape:
+            raise ModelError(f"play thresholds ({r_h.size}) and weights ({w_h.size}) must be 1-D and equally long")
+        if r_h[0] != 0.0 or np.any(np.diff(r_h) <= 0):
+            raise ModelError("play thresholds must start at 0 and strictly increase (paper eq. 3)")
+        n_s = r_s.size
+        if r_s.ndim != 1 or n_s % 2 == 0:
+            raise ModelError(f"dead-zone thresholds must be an odd number (2l+1), got {n_s}")
+        if r_s[(n_s - 1) // 2] != 0.0 or np.any(np.diff(r_s) <= 0):
+            raise ModelError("dead-zone thresholds must strictly increase with the centre one at 0 (paper eq. 5)")
+        if self.deadzone_coeffs.shape != (3, n_s):
+            raise ModelError(f"dead-zone weight coefficients must be {n_s} triples (c0, c1, c2)")
+        if self.stress_range_MPa is not None:
+            lo, hi = self.stress_range_MPa
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+                raise ModelError(f"stress range must be two finite values, low < high, got {self.stress_range_MPa}")
+        if self.initial_state not in INITIAL_STATES:
+            raise ModelError(f"initial_state must be one of {INITIAL_STATES}, got {self.initial_state!r}")
+
+    # -- stress dependence -------------------------------------------------------------------
+    def deadzone_weights(self, stress_MPa: float | None = None) -> np.ndarray:
+        """w_s(sigma) (paper eq. 16); stress is ignored by an MPI."""
+        s = 0.0 if self.stress_range_MPa is None or stress_MPa is None else float(stress_MPa)
+        c = self.deadzone_coeffs
+        return c[0] + s * (c[1] + s * c[2])
+
+    def output_offset(self, stress_MPa: float | None = None) -> float:
+        s = 0.0 if self.stress_range_MPa is None or stress_MPa is None else float(stress_MPa)
+        o = self.output_coeffs
+        return float(o[0] + s * (o[1] + s * o[2]))
+
+    def invertibility_violations(self, eps: float | None = None) -> list[Violation]:
+        """Proposition 3.1 over the whole stress range; [] when the inverse exists uniquely.
+
+        Play weights: w_h0 >= eps, w_hi >= 0. Dead-zones: every cumulative weight from the centre
+        outwards (the slope of each linear piece) >= eps at every stress in the range.
+        """
+        w_h = self.play_weights
+        c = self.deadzone_coeffs
+        centre = (self.n_deadzone - 1) // 2
+        if eps is None:
+            eps = 1e-9 * max(abs(w_h[0]), abs(c[0, centre]), 1e-300)
+        out = []
+        if w_h[0] < eps:
+            out.append(Violation("w_h0", None, float(w_h[0]), eps))
+        for i in np.flatnonzero(w_h[1:] < 0) + 1:
+            out.append(Violation(f"w_h{i}", None, float(w_h[i]), 0.0))
+        cum_pos = np.cumsum(c[:, centre:], axis=1)
+        cum_neg = np.cumsum(c[:, centre::-1], axis=1)
+        labels = [f"sum w_s0..w_s{k}" for k in range(cum_pos.shape[1])] + \
+                 [f"sum w_s{-k}..w_s0" for k in range(1, cum_neg.shape[1])]
+        quads = np.hstack([cum_pos, cum_neg[:, 1:]])
+        for label, (a, b, q) in zip(labels, quads.T):
+            s_min, v_min = self._quadratic_min(a, b, q)
+            if v_min < eps:
+                out.append(Violation(label, s_min, v_min, eps))
+        return out
+
+    def _quadratic_min(self, a: float, b: float, q: float) -> tuple[float | None, float]:
+        if self.stress_range_MPa is None:
+            return None, float(a)
+        lo, hi = self.stress_range_MPa
+        cands = [lo, hi]
+        if q > 0:
+            v = -b / (2 * q)
+            if lo < v < hi:
+                cands.append(v)
+        vals = [a + s * (b + s * q) for s in cands]
+        k = int(np.argmin(vals))
+        return float(cands[k]), float(vals[k])
+
+    # -- batch -------------------------------------------------------------------------------
+    def _stress_array(self, stress_MPa: Any, n: int) -> np.ndarray:
+        if self.stress_range_MPa is None:
+            return np.zeros(n)
+        if stress_MPa is None:
+            raise ModelError("this SDPI model needs a stress (stress_MPa column or value)")
+        s = np.broadcast_to(np.asarray(stress_MPa, dtype=float), (n,))
+        if not np.all(np.isfinite(s)):
+            raise ModelError("stress contains NaN or infinite values")
+        lo, hi = self.stress_range_MPa
+        tol = 1e-6 * max(1.0, abs(lo), abs(hi))
+        if s.min() < lo - tol or s.max() > hi + tol:
+            raise ModelError(
+                f"stress {s.min():.3g}..{s.max():.3g} MPa is outside the model's identified range "
+                f"{lo:.3g}..{hi:.3g} MPa; identify with recordings covering it")
+        return np.ascontiguousarray(np.clip(s, lo, hi))
+
+    def forward_state(self, initial_drive: float) -> np.ndarray:
+        """Play states at the start of a run whose first drive value is `initial_drive`."""
+        v = initial_drive - self.input_offset
+        state = np.zeros(ops.state_size(self.n_play, self.n_deadzone))
+        state[: self.n_play] = v + (self.play_thresholds if self.initial_state == "descending" else 0.0)
+        return state
+
+    def inverse_state(self, initial_drive: float) -> np.ndarray:
+        """Inverse-play states (10) consistent with the forward states at `initial_drive`."""
+        state = self.forward_state(initial_drive)
+        state[: self.n_play] = play_inverse_initial_state(self.play_weights, state[: self.n_play])
+        return state
+
+    def simulate(self, time_s: Any, drive: Any, stress_MPa: Any = None,
+                 initial_drive: float | None = None) -> np.ndarray:
+        """Displacement (um) for a drive history; time is unused (rate-independent)."""
+        x = np.ascontiguousarray(drive, dtype=float)
+        if x.ndim != 1 or x.size == 0 or not np.all(np.isfinite(x)):
+            raise ModelError("drive must be a non-empty 1-D array of finite values")
+        s = self._stress_array(stress_MPa, x.size)
+        state = self.forward_state(x[0] if initial_drive is None else initial_drive)
+        out = np.empty_like(x)
+        ops.forward_batch(x, s, self._packed, state, out)
+        return out
+
+    def invert(self, time_s: Any, reference_um: Any, stress_MPa: Any = None,
+               initial_drive: float | None = None) -> np.ndarray:
+        """The drive that makes the model follow `reference_um` (analytic inverse, eq. 17)."""
+        y = np.ascontiguousarray(reference_um, dtype=float)
+        if y.ndim != 1 or y.size == 0 or not np.all(np.isfinite(y)):
+            raise ModelError("reference must be a non-empty 1-D array of finite values")
+        s = self._stress_array(stress_MPa, y.size)
+        x0 = self.drive_range[0] if initial_drive is None else initial_drive
+        if not np.isfinite(x0):
+            x0 = 0.0
+        state = self.inverse_state(x0)
+        out = np.empty_like(y)
+        ops.inverse_batch(y, s, self._packed, state, out)
+        return out
+
+    # -- steppers ----------------------------------------------------------------------------
+    def forward_stepper(self, dt_s: float = 0.0, initial_drive: float = 0.0) -> "ForwardStepper":
+        return ForwardStepper(self, initial_drive)
+
+    def inverse_stepper(self, dt_s: float = 0.0, initial_drive: float = 0.0) -> "InverseStepper":
+        return InverseStepper(self, initial_drive)
+
+    # -- data --------------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        n_s = self.n_deadzone
+        centre = (n_s - 1) // 2
+        return {
+            "format": "gma-ffc-model",
+            "version": 1,
+            "kind": self.kind,
+            "units": {"drive": self.drive_name.rsplit("_", 1)[-1], "displacement": "um", "stress": "MPa"},
+            "drive_name": self.drive_name,
+            "input_offset": float(self.input_offset),
+            "initial_state": self.initial_state,
+            "play": {
+                "thresholds": [float(v) for v in self.play_thresholds],
+                "weights": [float(v) for v in self.play_weights],
+            },
+            "deadzone": {
+                "thresholds": [float(v) for v in self.deadzone_thresholds],
+                "weight_coeffs": [[float(v) for v in self.deadzone_coeffs[:, j]] for j in range(n_s)],
+                "index_of_r0": centre,
+            },
+            "output_offset_coeffs": [float(v) for v in self.output_coeffs],
+            "stress_dependence": "w_s(sigma) = c0 + c1*sigma + c2*sigma^2, sigma in MPa (compression < 0)",
+            "stress_range_MPa": None if self.stress_range_MPa is None else list(self.stress_range_MPa),
+            "reference_stress_MPa": self.reference_stress_MPa,
+            "drive_range": list(self.drive_range),
+            "provenance": self.provenance,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "SDPIModel":
+        try:
+            play, dz = d["play"], d["deadzone"]
+            coeffs = np.asarray(dz["weight_coeffs"], dtype=float)
+            if coeffs.ndim != 2 or coeffs.shape[1] != 3:
+                raise ModelError("deadzone.weight_coeffs must be a list of [c0, c1, c2] triples")
+            sr = d.get("stress_range_MPa")
+            model = cls(
+                play_thresholds=np.asarray(play["thresholds"], dtype=float),
+                play_weights=np.asarray(play["weights"], dtype=float),
+                deadzone_thresholds=np.asarray(dz["thresholds"], dtype=float),
+                deadzone_coeffs=coeffs.T,
+                output_coeffs=np.asarray(d.get("output_offset_coeffs", [0.0, 0.0, 0.0]), dtype=float),
+                input_offset=float(d.get("input_offset", 0.0)),
+                stress_range_MPa=None if sr is None else (float(sr[0]), float(sr[1])),
+                reference_stress_MPa=d.get("reference_stress_MPa"),
+                drive_range=tuple(float(v) for v in d.get("drive_range", (-np.inf, np.inf))),
+                drive_name=str(d.get("drive_name", "current_A")),
+                initial_state=str(d.get("initial_state", "descending")),
+                provenance=dict(d.get("provenance") or {}),
+            )
+        except ModelError:
+            raise
+        except KeyError as exc:
+            raise ModelError(f"missing key {exc.args[0]!r}") from None
+        except (TypeError, ValueError, IndexError) as exc:
+            raise ModelError(f"malformed values ({exc})") from None
+        declared = d.get("kind")
+        if declared not in (None, model.kind):
+            raise ModelError(f"kind says {declared!r} but the stress range makes it {model.kind!r}")
+        bad = model.invertibility_violations()
+        if bad:
+            raise ModelError("violates Proposition 3.1 (no unique inverse): " + "; ".join(map(str, bad[:3])))
+        return model
+
+
+class ForwardStepper:
+    """One sample in, one displacement out; state kept between calls; nothing allocated per step."""
+
+    __slots__ = ("_p", "_state", "_model")
+
+    def __init__(self, model: SDPIModel, initial_drive: float = 0.0) -> None:
+        self._model = model
+        self._p = model._packed
+        self._state = model.forward_state(initial_drive)
+
+    def reset(self, initial_drive: float = 0.0) -> None:
+        self._state[:] = self._model.forward_state(initial_drive)
+
+    def step(self, drive: float, stress_MPa: float = 0.0) -> float:
+        return ops.forward_step(drive, stress_MPa, self._p, self._state)
+
+
+class InverseStepper:
+    """One reference sample in, one drive out (analytic inverse); state kept, no allocation."""
+
+    __slots__ = ("_p", "_state", "_model")
+
+    def __init__(self, model: SDPIModel, initial_drive: float = 0.0) -> None:
+        self._model = model
+        self._p = model._packed
+        self._state = model.inverse_state(initial_drive)
+
+    def reset(self, initial_drive: float = 0.0) -> None:
+        self._state[:] = self._model.inverse_state(initial_drive)
+
+    def step(self, reference_um: float, stress_MPa: float = 0.0) -> float:
+        return ops.inverse_step(reference_um, stress_MPa, self._p, self._state)
+
+
+def rms(a: Sequence[float] | np.ndarray) -> float:
+    a = np.asarray(a, dtype=float)
+    return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")

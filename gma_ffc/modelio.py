@@ -1,0 +1,81 @@
+"""Model files: versioned YAML, validated on load, written atomically.
+
+Each model kind names the class that reads it as a lazy import string, so loading an SDPI file
+never imports the diagnose tool, and the diagnose tool's extended model loads like any other.
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .atomic import atomic_write
+from .errors import ModelError
+
+FORMAT = "gma-ffc-model"
+VERSION = 1
+KINDS: dict[str, str] = {
+    "sdpi": "gma_ffc.model:SDPIModel",
+    "mpi": "gma_ffc.model:SDPIModel",
+    "extended": "gma_ffc.diagnose.extended:ExtendedModel",
+}
+
+
+def _class_for(kind: str) -> Any:
+    target = KINDS.get(kind)
+    if target is None:
+        raise ModelError(f"unknown model kind {kind!r}; known kinds: {', '.join(sorted(KINDS))}")
+    module, _, name = target.partition(":")
+    try:
+        return getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as exc:
+        raise ModelError(f"model kind {kind!r} is not available in this installation ({exc})") from None
+
+
+def model_from_dict(d: Any, source: str = "<dict>") -> Any:
+    """Build the model a dict describes; ModelError (naming `source`) if it is not a valid model."""
+    if not isinstance(d, dict):
+        raise ModelError(f"{source}: not a model file (expected a YAML mapping)")
+    if d.get("format") != FORMAT:
+        raise ModelError(f"{source}: not a gma-ffc model file (format is {d.get('format')!r}, expected {FORMAT!r})")
+    version = d.get("version")
+    if not isinstance(version, int) or version > VERSION or version < 1:
+        raise ModelError(f"{source}: model file version {version!r} is not supported (this gma-ffc reads 1..{VERSION})")
+    kind = d.get("kind")
+    try:
+        return _class_for(str(kind)).from_dict(d)
+    except ModelError as exc:
+        if str(exc).startswith(source):
+            raise
+        raise ModelError(f"{source}: {exc}") from None
+
+
+def load_model(path: str | Path) -> Any:
+    """Read and validate a model file of any registered kind."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ModelError(f"{p}: no such model file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ModelError(f"{p}: cannot read model file ({exc})") from None
+    try:
+        d = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        raise ModelError(f"{p}: damaged model file, not valid YAML{where}") from None
+    return model_from_dict(d, str(p))
+
+
+def save_model(model: Any, path: str | Path) -> None:
+    """Write `model.to_dict()` as YAML; the file appears whole or not at all."""
+    d = model.to_dict()
+    header = (f"# gma-ffc model ({d.get('kind')}). Units: drive in A (or V), displacement in um, stress in MPa,\n"
+              "# compression negative. Edit with care: the file is validated on load.\n")
+    with atomic_write(path, "w", encoding="utf-8") as fh:
+        fh.write(header)
+        yaml.safe_dump(d, fh, sort_keys=False, default_flow_style=None, width=100)

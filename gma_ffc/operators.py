@@ -1,0 +1,140 @@
+"""Hysteresis operators as numba kernels: one implementation of the maths, two ways to run it.
+
+The elementary operators are the play (seed paper (1)-(2)) and the one-sided dead-zone (4). The
+SDPI model (16) is  y = c(sigma) + sum_j w_sj(sigma) S_{r_sj}[ sum_i w_hi H_{r_hi}[x - x_c] ],
+with w_sj(sigma) and the output offset c(sigma) quadratic in stress; an MPI (6) is the special
+case without stress terms. Its analytic inverse (17) runs the inverse dead-zone superposition
+(whose parameters depend on stress, so they are recomputed each sample, in place) and then the
+inverse PI.
+
+`forward_step`/`inverse_step` advance one sample and are what the control loop calls; the batch
+functions loop over them, so batch and step forms agree sample for sample by construction. All
+parameters travel in one packed float64 vector and all state in one preallocated state vector, so
+a step allocates nothing and crosses the Python/numba boundary with just four arguments.
+
+Packed parameter layout (see `pack`):
+    [n_h, n_s, x_c, sigma_lo, sigma_hi, o0, o1, o2,
+     r_h(n_h), w_h(n_h), r_h'(n_h), w_h'(n_h), r_s(n_s), C0(n_s), C1(n_s), C2(n_s)]
+State layout: [play states (n_h) | scratch w_s (n_s) | scratch r_s' (n_s) | scratch w_s' (n_s)].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .inverse import deadzone_inverse_into
+
+HEADER = 8
+
+
+def pack(x_c: float, sigma_range: tuple[float, float], offset_coeffs: np.ndarray,
+         r_h: np.ndarray, w_h: np.ndarray, r_h_inv: np.ndarray, w_h_inv: np.ndarray,
+         r_s: np.ndarray, coeffs: np.ndarray) -> np.ndarray:
+    """Pack model parameters for the kernels; `coeffs` is (3, n_s): w_s(sigma) = C0 + C1 s + C2 s^2."""
+    n_h, n_s = len(r_h), len(r_s)
+    head = [n_h, n_s, x_c, sigma_range[0], sigma_range[1], *np.asarray(offset_coeffs, float)]
+    return np.ascontiguousarray(np.concatenate(
+        [np.asarray(head, float), r_h, w_h, r_h_inv, w_h_inv, r_s, coeffs[0], coeffs[1], coeffs[2]]),
+        dtype=np.float64)
+
+
+def state_size(n_h: int, n_s: int) -> int:
+    return n_h + 3 * n_s
+
+
+@njit(cache=True, nogil=True, inline="always")
+def play(x: float, r: float, y_prev: float) -> float:
+    """Play operator (1): y = max(x - r, min(x + r, y_prev))."""
+    return max(x - r, min(x + r, y_prev))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def deadzone(z: float, r: float) -> float:
+    """One-sided dead-zone operator (4)."""
+    if r > 0.0:
+        return max(z - r, 0.0)
+    if r < 0.0:
+        return min(z - r, 0.0)
+    return z
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _clamp(v: float, lo: float, hi: float) -> float:
+    return min(max(v, lo), hi)
+
+
+@njit(cache=True, nogil=True)
+def forward_step(x: float, sigma: float, p: np.ndarray, state: np.ndarray) -> float:
+    """One sample of the SDPI forward model; updates the play states in `state`."""
+    n_h = int(p[0])
+    n_s = int(p[1])
+    s = _clamp(sigma, p[3], p[4])
+    o_rh = HEADER
+    o_wh = o_rh + n_h
+    o_rs = o_wh + 3 * n_h
+    o_c0 = o_rs + n_s
+    v = x - p[2]
+    z = 0.0
+    for i in range(n_h):
+        q = play(v, p[o_rh + i], state[i])
+        state[i] = q
+        z += p[o_wh + i] * q
+    y = p[5] + s * (p[6] + s * p[7])
+    for j in range(n_s):
+        w = p[o_c0 + j] + s * (p[o_c0 + n_s + j] + s * p[o_c0 + 2 * n_s + j])
+        y += w * deadzone(z, p[o_rs + j])
+    return y
+
+
+@njit(cache=True, nogil=True)
+def inverse_step(y_ref: float, sigma: float, p: np.ndarray, state: np.ndarray) -> float:
+    """One sample of the analytic inverse (17): inverse dead-zones at this stress, then inverse PI."""
+    n_h = int(p[0])
+    n_s = int(p[1])
+    s = _clamp(sigma, p[3], p[4])
+    o_rhi = HEADER + 2 * n_h
+    o_whi = o_rhi + n_h
+    o_rs = o_whi + n_h
+    o_c0 = o_rs + n_s
+    ws = state[n_h: n_h + n_s]
+    rs_inv = state[n_h + n_s: n_h + 2 * n_s]
+    ws_inv = state[n_h + 2 * n_s: n_h + 3 * n_s]
+    for j in range(n_s):
+        ws[j] = p[o_c0 + j] + s * (p[o_c0 + n_s + j] + s * p[o_c0 + 2 * n_s + j])
+    deadzone_inverse_into(p[o_rs: o_rs + n_s], ws, rs_inv, ws_inv)
+    v = y_ref - (p[5] + s * (p[6] + s * p[7]))
+    z = 0.0
+    for j in range(n_s):
+        z += ws_inv[j] * deadzone(v, rs_inv[j])
+    x = 0.0
+    for i in range(n_h):
+        q = play(z, p[o_rhi + i], state[i])
+        state[i] = q
+        x += p[o_whi + i] * q
+    return x + p[2]
+
+
+@njit(cache=True, nogil=True)
+def forward_batch(x: np.ndarray, sigma: np.ndarray, p: np.ndarray, state: np.ndarray,
+                  out: np.ndarray) -> None:
+    for k in range(x.shape[0]):
+        out[k] = forward_step(x[k], sigma[k], p, state)
+
+
+@njit(cache=True, nogil=True)
+def inverse_batch(y: np.ndarray, sigma: np.ndarray, p: np.ndarray, state: np.ndarray,
+                  out: np.ndarray) -> None:
+    for k in range(y.shape[0]):
+        out[k] = inverse_step(y[k], sigma[k], p, state)
+
+
+@njit(cache=True, nogil=True)
+def play_outputs(x: np.ndarray, r: np.ndarray, y0: np.ndarray, out: np.ndarray) -> None:
+    """All play outputs H_{r_i}[x](t_k) into out[k, i]: the regressors of identification."""
+    n = r.shape[0]
+    for i in range(n):
+        out[0, i] = play(x[0], r[i], y0[i])
+    for k in range(1, x.shape[0]):
+        for i in range(n):
+            out[k, i] = play(x[k], r[i], out[k - 1, i])
