@@ -1,0 +1,236 @@
+"""Controller configuration: load a YAML file, validate every key, fill defaults.
+
+Errors are `ConfigError`s that name the dotted key and say what is wrong; unknown keys are
+refused with a did-you-mean. The driver section is validated by the driver plugin itself
+(`Driver.validate_config`), so a lab's own driver gets the same checks.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from ..errors import ConfigError
+from .schema import Field, pair, validate_section
+
+DEFAULT_ROD_DIAMETER_MM = 7.0
+
+TOP = {
+    "rate_hz": Field("float", 1000.0, min=0.0, min_exclusive=True, max=100_000.0),
+    "clock": Field("choice", "real", choices=("real", "simulated")),
+    "model": Field("str", help="path to a model file (from `gma-ffc identify`)"),
+    "driver": Field("map", help="the driver section, with 'kind' (sim, modbus, serial or a plugin)"),
+    "reference": Field("map", help="the reference section, with 'kind' (sine, triangle, multisine, playback)"),
+    "stress": Field("map", {}),
+    "limits": Field("map", help="current and slew limits are required"),
+    "sensor": Field("map", {}),
+    "comms": Field("map", {}),
+    "telemetry": Field("map", {}),
+    "scheduler": Field("map", {}),
+    "watchdog_s": Field("float", 0.5, min=0.0, min_exclusive=True),
+}
+
+STRESS = {
+    "rod_diameter_mm": Field("float", DEFAULT_ROD_DIAMETER_MM, min=0.0, min_exclusive=True),
+    "source": Field("choice", "force", choices=("force", "stress")),
+    "out_of_range": Field("choice", "clamp", choices=("clamp", "fault")),
+    "valid_range_MPa": Field("list", [-80.0, 10.0], check=pair),
+}
+
+LIMITS = {
+    "current_min_A": Field("float"),
+    "current_max_A": Field("float"),
+    "slew_A_per_s": Field("float", min=0.0, min_exclusive=True),
+    "safe_current_A": Field("float", 0.0),
+    "stop_ramp_max_s": Field("float", 2.0, min=0.0),
+}
+
+SENSOR = {
+    "bad_ticks": Field("int", 3, min=1),
+    "stale_ticks": Field("int", 0, min=0, help="0 disables the stuck-sensor check"),
+    "force_limit_N": Field("float", 5000.0, min=0.0, min_exclusive=True),
+}
+
+COMMS = {
+    "on_fault": Field("choice", "reconnect", choices=("reconnect", "stop")),
+    "backoff_initial_s": Field("float", 0.1, min=0.0, min_exclusive=True),
+    "backoff_max_s": Field("float", 2.0, min=0.0, min_exclusive=True),
+    "max_attempts": Field("int", 5, min=0, help="0 retries forever"),
+}
+
+TELEMETRY = {
+    "path": Field("str", None, nullable=True),
+    "flush_interval_s": Field("float", 0.5, min=0.01, max=1.0),
+    "buffer_s": Field("float", 4.0, min=0.1),
+}
+
+SCHEDULER = {
+    "spin_us": Field("float", 300.0, min=0.0, max=100_000.0),
+    "stats_window_s": Field("float", 120.0, min=1.0),
+}
+
+REFERENCE_KINDS = ("sine", "triangle", "multisine", "playback")
+
+
+def _component(value: Any, key: str) -> dict[str, float]:
+    return validate_section(value, {
+        "frequency_hz": Field("float", min=0.0, min_exclusive=True),
+        "amplitude_um": Field("float", min=0.0),
+        "phase_deg": Field("float", 0.0),
+    }, key)
+
+
+def _components(value: list, key: str) -> list[dict[str, float]]:
+    if not value:
+        raise ConfigError(f"config key '{key}' must list at least one component")
+    return [_component(v, f"{key}[{i}]") for i, v in enumerate(value)]
+
+
+REFERENCE = {
+    "sine": {
+        "kind": Field("choice", choices=REFERENCE_KINDS),
+        "frequency_hz": Field("float", min=0.0, min_exclusive=True),
+        "amplitude_um": Field("float", min=0.0),
+        "offset_um": Field("float", 0.0),
+        "phase_deg": Field("float", -90.0),
+        "lead_s": Field("float", 0.0, min=0.0),
+    },
+    "triangle": {
+        "kind": Field("choice", choices=REFERENCE_KINDS),
+        "frequency_hz": Field("float", min=0.0, min_exclusive=True),
+        "amplitude_um": Field("float", min=0.0),
+        "offset_um": Field("float", 0.0),
+        "lead_s": Field("float", 0.0, min=0.0),
+    },
+    "multisine": {
+        "kind": Field("choice", choices=REFERENCE_KINDS),
+        "components": Field("list", check=_components),
+        "offset_um": Field("float", 0.0),
+        "lead_s": Field("float", 0.0, min=0.0),
+    },
+    "playback": {
+        "kind": Field("choice", choices=REFERENCE_KINDS),
+        "file": Field("str", help="a recording with time_s and reference_um"),
+        "loop": Field("bool", False),
+        "lead_s": Field("float", 0.0, min=0.0),
+    },
+}
+
+
+@dataclass
+class ControllerConfig:
+    """A validated configuration: plain dicts per section, defaults filled in."""
+
+    rate_hz: float
+    clock: str
+    model: str
+    driver: dict[str, Any]
+    reference: dict[str, Any]
+    stress: dict[str, Any]
+    limits: dict[str, Any]
+    sensor: dict[str, Any]
+    comms: dict[str, Any]
+    telemetry: dict[str, Any]
+    scheduler: dict[str, Any]
+    watchdog_s: float
+    source: str = "<memory>"
+    raw: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.rate_hz
+
+    @property
+    def rod_area_mm2(self) -> float:
+        return math.pi * (self.stress["rod_diameter_mm"] / 2.0) ** 2
+
+
+def _resolve(path: str, base: Path | None) -> str:
+    p = Path(os.path.expanduser(path))
+    if not p.is_absolute() and base is not None:
+        p = base / p
+    return str(p)
+
+
+def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | None = None) -> ControllerConfig:
+    """Validate a parsed config mapping; relative file paths resolve against `base_dir`."""
+    from ..drivers import driver_class   # late: drivers import control.schema
+
+    top = validate_section(data, TOP, "")
+    base = Path(base_dir) if base_dir is not None else None
+
+    ref_raw = top["reference"]
+    kind = ref_raw.get("kind")
+    if kind is None:
+        raise ConfigError(f"config key 'reference.kind' is required: one of {', '.join(REFERENCE_KINDS)}")
+    if kind not in REFERENCE:
+        validate_section({"kind": kind}, {"kind": Field("choice", choices=REFERENCE_KINDS)}, "reference")
+    reference = validate_section(ref_raw, REFERENCE[kind], "reference")
+    if kind == "playback":
+        reference["file"] = _resolve(reference["file"], base)
+
+    limits = validate_section(top["limits"], LIMITS, "limits")
+    if not limits["current_min_A"] < limits["current_max_A"]:
+        raise ConfigError("config key 'limits.current_min_A' must be below 'limits.current_max_A' "
+                          f"({limits['current_min_A']} >= {limits['current_max_A']})")
+    if not limits["current_min_A"] <= limits["safe_current_A"] <= limits["current_max_A"]:
+        raise ConfigError(f"config key 'limits.safe_current_A' ({limits['safe_current_A']}) must lie within "
+                          f"[limits.current_min_A, limits.current_max_A]")
+
+    drv_raw = top["driver"]
+    if "kind" not in drv_raw:
+        raise ConfigError("config key 'driver.kind' is required (sim, modbus, serial or a plugin's name)")
+    cls = driver_class(drv_raw["kind"], key="driver.kind")
+    driver = cls.validate_config(drv_raw, "driver", base)
+
+    comms = validate_section(top["comms"], COMMS, "comms")
+    if comms["backoff_max_s"] < comms["backoff_initial_s"]:
+        raise ConfigError("config key 'comms.backoff_max_s' must be >= 'comms.backoff_initial_s'")
+    telemetry = validate_section(top["telemetry"], TELEMETRY, "telemetry")
+    if telemetry["path"] is not None:
+        telemetry["path"] = _resolve(telemetry["path"], base)
+
+    return ControllerConfig(
+        rate_hz=top["rate_hz"],
+        clock=top["clock"],
+        model=_resolve(top["model"], base),
+        driver=driver,
+        reference=reference,
+        stress=validate_section(top["stress"], STRESS, "stress"),
+        limits=limits,
+        sensor=validate_section(top["sensor"], SENSOR, "sensor"),
+        comms=comms,
+        telemetry=telemetry,
+        scheduler=validate_section(top["scheduler"], SCHEDULER, "scheduler"),
+        watchdog_s=top["watchdog_s"],
+        source=source,
+        raw=dict(data),
+    )
+
+
+def load_config(path: str | os.PathLike) -> ControllerConfig:
+    """Read and validate a YAML config file; relative paths inside resolve against its folder."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no such config file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: cannot read the config ({exc})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f", line {mark.line + 1}" if mark is not None else ""
+        raise ConfigError(f"{p}{where}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{p}: the config must be a mapping of keys to values")
+    try:
+        return validate_config(data, source=str(p), base_dir=p.parent)
+    except ConfigError as exc:
+        raise ConfigError(f"{p}: {exc}") from None

@@ -1,0 +1,475 @@
+"""The controller: a fixed-rate inverse-SDPI feedforward loop with safety and telemetry.
+
+Each tick: read the load cell and scale it to stress (sigma = -F / A_rod), take the reference
+sample, step the inverse model, apply current and slew limits, write the command, and push a
+telemetry row. The hot path allocates no containers, does no I/O of its own besides the
+driver's, and logs nothing; faults are recorded in preallocated state and reported by
+`status()`. See `gma_ffc.control.safety` for which faults go to the safe current at once and
+which ramp there.
+
+Every exit from `run` - normal end, stop request, fault, exception - writes the safe current
+through the driver BEFORE the driver and the telemetry file are closed.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from typing import Any
+
+import numpy as np
+
+from ..drivers import Driver, DriverError, Inputs, driver_class
+from ..drivers.base import CURRENT, DISPLACEMENT, FORCE, STRESS
+from ..errors import ConfigError, GmaError
+from . import safety
+from .config import ControllerConfig
+from .reference import Reference, build_reference
+from .scheduler import MonotonicClock, Scheduler, SimulatedClock, TickStats
+from .telemetry import Telemetry
+
+RUNNING, STOPPING = 0, 1
+_RESTART_KEYS = ("rate_hz", "clock", "driver", "telemetry", "scheduler")
+
+
+class _TickFault(Exception):
+    """Raised inside a tick to leave it for the fault path (only on the rare fault branch)."""
+
+    def __init__(self, name: str, message: str) -> None:
+        super().__init__(message)
+        self.name = name
+
+
+class Controller:
+    """Builds the model, driver, reference and telemetry from a validated config and runs the loop.
+
+    `model`, `driver` and `clock` may be given (tests, the demo); by default they are built from
+    the config. `run` returns a summary dict; `summary["ok"]` is False when it ended on a fault.
+    """
+
+    def __init__(self, cfg: ControllerConfig, *, model: Any = None, driver: Driver | None = None,
+                 clock: Any = None) -> None:
+        self.cfg = cfg
+        self.period_s = cfg.period_s
+        if model is None:
+            from ..modelio import load_model
+
+            model = load_model(cfg.model)
+        self.model = model
+        if clock is None:
+            clock = SimulatedClock() if cfg.clock == "simulated" else \
+                MonotonicClock(cfg.scheduler["spin_us"] * 1e-6)
+        self.clock = clock
+        self.driver = driver if driver is not None else \
+            driver_class(cfg.driver["kind"])(cfg.driver, self.period_s)
+        self.reference: Reference = build_reference(cfg.reference)
+        lim = cfg.limits
+        self.safe_A = lim["safe_current_A"]
+        self.limiter = safety.Limiter(lim["current_min_A"], lim["current_max_A"], lim["slew_A_per_s"],
+                                      self.period_s, self.safe_A)
+        self.monitor = self._make_monitor(cfg)
+        self.stepper = model.inverse_stepper(self.period_s, initial_drive=self.safe_A)
+        self._set_stress_range(model)
+        self.stats = TickStats(self.period_s, cfg.scheduler["stats_window_s"])
+        self.inputs = Inputs()
+        self.telemetry: Telemetry | None = None
+        self._lock = threading.Lock()
+        self._pending: tuple | None = None
+        self._stop_reason: str | None = None
+        self.state = "idle"
+        self.active_faults: dict[str, str] = {}
+        self.fault_history: list[dict[str, Any]] = []
+        self.stress_clamped_ticks = 0
+        self.reconnects = 0
+        self.exit_reason = ""
+        self.started_unix_s: float | None = None
+        self.last_reference_um = math.nan
+        self.last_cmd_A = math.nan
+        self.last_current_A = math.nan
+        self.last_stress_MPa = math.nan
+        self.last_displacement_um = math.nan
+        self._heartbeat = math.nan
+        self._watchdog_tripped = False
+
+    # ---- construction helpers ------------------------------------------------------------
+    @staticmethod
+    def _make_monitor(cfg: ControllerConfig) -> safety.SensorMonitor:
+        return safety.SensorMonitor(cfg.stress["source"], cfg.rod_area_mm2, tuple(cfg.stress["valid_range_MPa"]),
+                                    cfg.sensor["force_limit_N"], cfg.sensor["bad_ticks"], cfg.sensor["stale_ticks"])
+
+    def _set_stress_range(self, model: Any) -> None:
+        rng = getattr(model, "stress_range_MPa", None)
+        self.stress_lo, self.stress_hi = (float(rng[0]), float(rng[1])) if rng is not None else (-math.inf, math.inf)
+        self.stress_policy_fault = self.cfg.stress["out_of_range"] == "fault"
+
+    # ---- requests from other threads -----------------------------------------------------
+    def request_stop(self, reason: str = "stop requested") -> None:
+        """Ask the loop to ramp to the safe current and stop (thread-safe, signal-safe)."""
+        if self._stop_reason is None:
+            self._stop_reason = reason
+
+    def reload(self, new_cfg: ControllerConfig, model: Any = None) -> None:
+        """Swap model, reference, limits and sensor settings at the next tick, bumplessly.
+
+        Everything is built and validated here, in the caller's thread; on any error the old
+        configuration keeps running and the error propagates. Rate, clock, driver, telemetry
+        and scheduler changes need a restart and are refused.
+        """
+        for key in _RESTART_KEYS:
+            if getattr(new_cfg, key) != getattr(self.cfg, key):
+                raise ConfigError(f"config key '{key}' changed: that needs a restart, not a reload "
+                                  f"(the running configuration is kept)")
+        if model is None:
+            from ..modelio import load_model
+
+            model = load_model(new_cfg.model)
+        reference = build_reference(new_cfg.reference)
+        last = self.limiter.last
+        stepper = model.inverse_stepper(self.period_s, initial_drive=last)
+        monitor = self._make_monitor(new_cfg)
+        with self._lock:
+            self._pending = (new_cfg, model, reference, stepper, monitor)
+        if self.state in ("idle", "stopped", "fault"):
+            self._apply_pending()
+
+    def _apply_pending(self) -> None:
+        with self._lock:
+            pending, self._pending = self._pending, None
+        if pending is None:
+            return
+        cfg, model, reference, stepper, monitor = pending
+        lim = cfg.limits
+        last = self.limiter.last
+        # Bumpless: the new inverse starts relaxed at the current command; limits keep `last`.
+        stepper.reset(last)
+        monitor.stress = self.monitor.stress
+        monitor.last_raw = self.monitor.last_raw
+        self.limiter = safety.Limiter(lim["current_min_A"], lim["current_max_A"], lim["slew_A_per_s"],
+                                      self.period_s, last)
+        self.safe_A = lim["safe_current_A"]
+        self.cfg, self.model, self.reference, self.stepper, self.monitor = cfg, model, reference, stepper, monitor
+        self._set_stress_range(model)
+
+    # ---- faults ----------------------------------------------------------------------------
+    def _raise_fault(self, name: str, message: str) -> None:
+        with self._lock:
+            self.active_faults[name] = message
+            self.fault_history.append({"fault": name, "message": message, "at_unix_s": time.time(),
+                                       "tick": self.stats.count})
+
+    def _clear_fault(self, name: str) -> None:
+        with self._lock:
+            self.active_faults.pop(name, None)
+
+    def _write_safe(self) -> None:
+        """The safe current, at once, outside the limiter; a failure is recorded, never raised."""
+        try:
+            self.driver.safe(self.safe_A)
+            self.last_cmd_A = self.safe_A
+        except Exception as exc:  # the device may be gone; nothing more can be done from here
+            self._raise_fault("safe_write_failed", f"could not write the safe current: {type(exc).__name__}: {exc}")
+        self.limiter.force(self.safe_A)
+
+    # ---- the loop ----------------------------------------------------------------------------
+    def _columns(self) -> list[str]:
+        cols = ["time_s", "reference_um", "current_cmd_A", "current_A", "stress_MPa"]
+        ch = self.driver.channels
+        if DISPLACEMENT in ch:
+            cols.append(DISPLACEMENT)
+        if FORCE in ch:
+            cols.append(FORCE)
+        return cols
+
+    def _open_driver(self, stop_event: threading.Event) -> bool:
+        """Open, retrying with backoff when the policy says reconnect; False when it gave up."""
+        try:
+            self.driver.open()
+            return True
+        except DriverError as exc:
+            self._raise_fault(safety.COMMS_ERROR if exc.reason != "timeout" else safety.COMMS_TIMEOUT,
+                              f"cannot open the driver: {exc}")
+            if self.cfg.comms["on_fault"] != "reconnect":
+                return False
+            return self._reconnect(stop_event)
+
+    def _reconnect(self, stop_event: threading.Event) -> bool:
+        """Reconnect with exponential backoff; True when the driver answers again."""
+        self.state = "reconnecting"
+        comms = self.cfg.comms
+        delay = comms["backoff_initial_s"]
+        attempt = 0
+        while comms["max_attempts"] == 0 or attempt < comms["max_attempts"]:
+            attempt += 1
+            if self._wait(delay, stop_event):
+                return False
+            try:
+                self.driver.reconnect()
+            except DriverError as exc:
+                self.driver.last_error = str(exc)
+                delay = min(delay * 2.0, comms["backoff_max_s"])
+                continue
+            except Exception as exc:
+                self._raise_fault(safety.EXCEPTION, f"reconnect raised {type(exc).__name__}: {exc}")
+                return False
+            self.reconnects += 1
+            self._clear_fault(safety.COMMS_ERROR)
+            self._clear_fault(safety.COMMS_TIMEOUT)
+            return True
+        self._raise_fault("reconnect_failed", f"gave up after {attempt} reconnect attempts")
+        return False
+
+    def _wait(self, delay: float, stop_event: threading.Event) -> bool:
+        """Sleep `delay` on the controller's clock; True if a stop came meanwhile."""
+        if self.clock.simulated:
+            self.clock.advance(delay)
+        else:
+            stop_event.wait(delay)
+        return stop_event.is_set() or self._stop_reason is not None
+
+    def run(self, stop_event: threading.Event | None = None, duration_s: float | None = None) -> dict[str, Any]:
+        """Blocking fixed-rate loop; the safe current is written on every way out."""
+        stop_event = stop_event or threading.Event()
+        self.state = "starting"
+        self.exit_reason = ""
+        self.started_unix_s = time.time()
+        watchdog: threading.Thread | None = None
+        wd_stop = threading.Event()
+        opened = False
+        try:
+            opened = self._open_driver(stop_event)
+            if not opened:
+                self.exit_reason = "driver could not be opened"
+                return self._finish(opened, None, wd_stop)
+            cols = self._columns()
+            tcfg = self.cfg.telemetry
+            self.telemetry = Telemetry(
+                tcfg["path"], cols,
+                {"source": "gma-ffc controller", "start_unix_s": self.started_unix_s,
+                 "sample_rate_hz": self.cfg.rate_hz, "driver": self.cfg.driver["kind"],
+                 "model_kind": getattr(self.model, "kind", "?"), "config": self.cfg.source,
+                 "current_A_is": "measured" if CURRENT in self.driver.channels else "commanded"},
+                capacity=int(tcfg["buffer_s"] * self.cfg.rate_hz), flush_interval_s=tcfg["flush_interval_s"],
+                block_when_full=self.clock.simulated)
+            self.telemetry.start()
+            if not self.clock.simulated:
+                watchdog = threading.Thread(target=self._watchdog, args=(wd_stop,), name="gma-ffc-watchdog",
+                                            daemon=True)
+                watchdog.start()
+            self._loop(stop_event, duration_s)
+        except GmaError as exc:
+            self._raise_fault(safety.EXCEPTION if not isinstance(exc, DriverError) else safety.COMMS_ERROR, str(exc))
+            self.exit_reason = str(exc)
+        except BaseException as exc:  # anything at all: safe current first, then report
+            self._raise_fault(safety.EXCEPTION, f"{type(exc).__name__}: {exc}")
+            self.exit_reason = f"{type(exc).__name__}: {exc}"
+        finally:
+            if self.state not in ("stopped", "fault"):
+                self._finish(opened, watchdog, wd_stop)
+        return self._summary()
+
+    def _finish(self, opened: bool, watchdog: threading.Thread | None, wd_stop: threading.Event) -> dict[str, Any]:
+        """Safe current first, then stop the watchdog, flush telemetry, close the driver."""
+        wd_stop.set()
+        if opened:
+            self._write_safe()
+        if watchdog is not None:
+            watchdog.join(timeout=2.0)
+        if self.telemetry is not None:
+            self.telemetry.close()
+            if self.telemetry.error:
+                self._raise_fault("telemetry", self.telemetry.error)
+        try:
+            self.driver.close()
+        except Exception as exc:
+            self._raise_fault("close_failed", f"{type(exc).__name__}: {exc}")
+        hard = [f for f in self.active_faults if f != safety.STRESS_RANGE or self.stress_policy_fault]
+        self.state = "fault" if hard else "stopped"
+        return self._summary()
+
+    def _watchdog(self, stop: threading.Event) -> None:
+        """Trip when the loop makes no progress for watchdog_s (a hung driver call, a stall)."""
+        limit = self.cfg.watchdog_s
+        while not stop.wait(limit / 4.0):
+            hb = self._heartbeat
+            if hb == hb and self.clock.now() - hb > limit and not self._watchdog_tripped:
+                self._watchdog_tripped = True
+                self._raise_fault(safety.WATCHDOG, f"the loop made no progress for over {limit:g} s")
+
+    def _loop(self, stop_event: threading.Event, duration_s: float | None) -> None:
+        clock, stats, inputs, driver = self.clock, self.stats, self.inputs, self.driver
+        tel = self.telemetry
+        assert tel is not None
+        ncols = len(tel.columns)
+        row = np.zeros(ncols)
+        has_current = CURRENT in driver.channels
+        disp_col = tel.columns.index(DISPLACEMENT) if DISPLACEMENT in tel.columns else -1
+        force_col = tel.columns.index(FORCE) if FORCE in tel.columns else -1
+        sched = Scheduler(clock, self.period_s)
+        t0 = sched.start()
+        mode = RUNNING
+        stop_started = 0.0
+        end_t = math.inf if duration_s is None else duration_s
+        watchdog_s = self.cfg.watchdog_s
+        self.state = "running"
+        while True:
+            deadline = sched.wait()
+            t_start = clock.now()
+            self._heartbeat = t_start
+            t = deadline - t0
+            if mode == RUNNING and (t >= end_t or stop_event.is_set() or self._stop_reason is not None):
+                mode = STOPPING
+                stop_started = t
+                self.exit_reason = self._stop_reason or ("stop requested" if stop_event.is_set() else "duration reached")
+                self.state = "stopping"
+            if self._pending is not None:
+                self._apply_pending()
+            try:
+                if self._watchdog_tripped:
+                    raise _TickFault(safety.WATCHDOG, self.active_faults.get(safety.WATCHDOG, "watchdog"))
+                inputs.clear()
+                driver.read(inputs)
+                bad = self.monitor.update(inputs.force_N, inputs.stress_MPa)
+                if bad:
+                    raise _TickFault(bad, self._sensor_message(bad, inputs))
+                stress = self.monitor.stress
+                ref = self.reference.value(t)
+                if mode == RUNNING and stress == stress:
+                    if stress < self.stress_lo or stress > self.stress_hi:
+                        self._stress_out_of_range(stress)
+                        if self.stress_policy_fault:
+                            mode = STOPPING
+                            stop_started = t
+                            self.exit_reason = self.active_faults[safety.STRESS_RANGE]
+                            self.state = "stopping"
+                    elif self.stress_clamped_ticks and safety.STRESS_RANGE in self.active_faults:
+                        self._clear_fault(safety.STRESS_RANGE)
+                if mode == RUNNING and stress == stress:
+                    u = self.stepper.step(ref, stress)
+                    if u != u:
+                        raise _TickFault(safety.EXCEPTION, "the inverse model returned NaN")
+                else:
+                    u = self.safe_A      # stopping, or no good stress yet: head for the safe current
+                cmd = self.limiter.apply(u)
+                driver.write(cmd)
+            except _TickFault as fault:
+                self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
+                                 disp_col, force_col, tel, safe=True)
+                self._raise_fault(fault.name, str(fault))
+                self._write_safe()
+                self.exit_reason = str(fault)
+                return
+            except DriverError as exc:
+                name = safety.COMMS_TIMEOUT if exc.reason == "timeout" else safety.COMMS_ERROR
+                self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
+                                 disp_col, force_col, tel, safe=True)
+                self._raise_fault(name, str(exc))
+                self._write_safe()
+                if mode == RUNNING and self.cfg.comms["on_fault"] == "reconnect" and self._reconnect(stop_event):
+                    self.stepper.reset(self.safe_A)
+                    self.monitor.bad_run = 0
+                    self.monitor.stale_run = 0
+                    self.state = "running"
+                    sched.next_deadline = clock.now()
+                    continue
+                self.exit_reason = str(exc)
+                return
+            except Exception as exc:
+                self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
+                                 disp_col, force_col, tel, safe=True)
+                self._raise_fault(safety.EXCEPTION, f"{type(exc).__name__}: {exc}")
+                self._write_safe()
+                self.exit_reason = f"exception in the tick: {type(exc).__name__}: {exc}"
+                return
+            self.last_reference_um = ref
+            self.last_cmd_A = cmd
+            self.last_stress_MPa = stress
+            self._record_row(row, t_start - t0, ref, cmd, inputs, has_current, disp_col, force_col, tel)
+            compute = clock.now() - t_start
+            stats.record(t_start, compute)
+            stats.overruns = sched.overruns
+            stats.missed = sched.missed
+            if compute > watchdog_s:
+                self._raise_fault(safety.WATCHDOG, f"a tick took {compute:.3f} s (watchdog {watchdog_s:g} s)")
+                self._write_safe()
+                self.exit_reason = "watchdog"
+                return
+            if mode == STOPPING and (cmd == self.safe_A or t - stop_started >= self.cfg.limits["stop_ramp_max_s"]):
+                return
+
+    def _record_row(self, row: np.ndarray, t: float, ref: float, cmd: float, inputs: Inputs, has_current: bool,
+                    disp_col: int, force_col: int, tel: Telemetry, safe: bool = False) -> None:
+        """One telemetry row; on a fault tick the command recorded is the safe current."""
+        if safe:
+            cmd = self.safe_A
+        row[0] = t
+        row[1] = ref
+        row[2] = cmd
+        meas = inputs.current_A
+        row[3] = meas if has_current else cmd
+        row[4] = self.monitor.stress
+        if disp_col >= 0:
+            row[disp_col] = inputs.displacement_um
+        if force_col >= 0:
+            row[force_col] = inputs.force_N
+        self.last_current_A = row[3]
+        self.last_displacement_um = inputs.displacement_um
+        tel.push(row)
+
+    def _stress_out_of_range(self, stress: float) -> None:
+        self.stress_clamped_ticks += 1
+        if safety.STRESS_RANGE not in self.active_faults:
+            verb = "fault (stress.out_of_range: fault)" if self.stress_policy_fault else "clamped to the model's range"
+            self._raise_fault(safety.STRESS_RANGE, f"stress {stress:.2f} MPa outside the model's range "
+                                                   f"[{self.stress_lo:.2f}, {self.stress_hi:.2f}] MPa: {verb}")
+
+    def _sensor_message(self, bad: str, inputs: Inputs) -> str:
+        n = self.monitor.stale_ticks if bad == safety.SENSOR_STALE else self.monitor.bad_ticks
+        what = {safety.SENSOR_NAN: "missing or NaN", safety.SENSOR_ABSURD: "absurd (outside the plausible range)",
+                safety.SENSOR_STALE: "stuck (unchanged)"}[bad]
+        raw = inputs.force_N if self.monitor.source_force else inputs.stress_MPa
+        return f"load-cell reading {what} for {n} ticks (last value {raw!r})"
+
+    # ---- reporting -----------------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        """Thread-safe snapshot for the service, the CLI and tests."""
+        s = self.stats.summary()
+        with self._lock:
+            faults = dict(self.active_faults)
+            history = list(self.fault_history)
+        tel = self.telemetry
+        return {
+            "state": self.state,
+            "target_rate_hz": self.cfg.rate_hz,
+            **s,
+            "stress_MPa": _finite(self.last_stress_MPa),
+            "current_cmd_A": _finite(self.last_cmd_A),
+            "current_A": _finite(self.last_current_A),
+            "reference_um": _finite(self.last_reference_um),
+            "displacement_um": _finite(self.last_displacement_um),
+            "faults": sorted(faults),
+            "fault_messages": faults,
+            "fault_history": history,
+            "stress_clamped_ticks": self.stress_clamped_ticks,
+            "reconnects": self.reconnects,
+            "exit_reason": self.exit_reason,
+            "started_unix_s": self.started_unix_s,
+            "model_kind": getattr(self.model, "kind", None),
+            "driver": self.driver.health(),
+            "telemetry": None if tel is None else {"path": str(tel.path) if tel.path else None,
+                                                   "rows": tel.head, "rows_written": tel.rows_written,
+                                                   "dropped": tel.dropped},
+        }
+
+    def _summary(self) -> dict[str, Any]:
+        snap = self.status()
+        snap["ok"] = snap["state"] != "fault"
+        return snap
+
+
+def ref_or_nan(ctrl: Controller) -> float:
+    return ctrl.last_reference_um
+
+
+def _finite(x: float) -> float | None:
+    return x if x == x and not math.isinf(x) else None

@@ -1,0 +1,109 @@
+"""The driver interface: what the controller needs from the hardware, and nothing more.
+
+Lifecycle: ``open()``, then per tick ``read(inputs)`` and ``write(current_A)``, then
+``safe(current_A)`` and ``close()``. Comms failures raise `DriverError`; the controller, not the
+driver, decides what is safe. ``read`` fills a preallocated `Inputs` record, so the hot path
+allocates no containers.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from pathlib import Path
+from typing import Any
+
+from ..errors import FaultError
+
+NAN = math.nan
+
+# Channel names a driver may provide; they double as telemetry column names.
+FORCE = "force_N"
+STRESS = "stress_MPa"
+CURRENT = "current_A"
+DISPLACEMENT = "displacement_um"
+CHANNELS = (FORCE, STRESS, CURRENT, DISPLACEMENT)
+
+
+class DriverError(FaultError):
+    """A comms or device failure; `reason` is a short machine-readable cause."""
+
+    def __init__(self, message: str, reason: str = "comms") -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+class Inputs:
+    """One tick's measurements; NaN where a channel is missing or was not read."""
+
+    __slots__ = ("force_N", "stress_MPa", "current_A", "displacement_um")
+
+    def __init__(self) -> None:
+        self.force_N = NAN
+        self.stress_MPa = NAN
+        self.current_A = NAN
+        self.displacement_um = NAN
+
+    def clear(self) -> None:
+        self.force_N = NAN
+        self.stress_MPa = NAN
+        self.current_A = NAN
+        self.displacement_um = NAN
+
+
+class Driver(ABC):
+    """Base class of every driver plugin.
+
+    Subclasses set `channels` (which of CHANNELS `read` fills) after `open()` at the latest and
+    implement `validate_config` for their config section (use gma_ffc.control.schema).
+    """
+
+    kind: str = "abstract"
+
+    def __init__(self, cfg: dict[str, Any], period_s: float) -> None:
+        self.cfg = cfg
+        self.period_s = period_s
+        self.channels: tuple[str, ...] = ()
+        self.last_written_A = NAN
+        self.errors = 0
+        self.last_error = ""
+
+    @classmethod
+    @abstractmethod
+    def validate_config(cls, section: dict[str, Any], prefix: str, base_dir: Path | None) -> dict[str, Any]:
+        """Validated copy of the driver's config section (ConfigError naming the key)."""
+
+    @abstractmethod
+    def open(self) -> None:
+        """Connect; raise DriverError when the device cannot be reached."""
+
+    @abstractmethod
+    def read(self, inputs: Inputs) -> None:
+        """Fill `inputs` with this tick's measurements (NaN for what is missing)."""
+
+    @abstractmethod
+    def write(self, current_A: float) -> None:
+        """Command the amplifier's current."""
+
+    def safe(self, current_A: float) -> None:
+        """Put the amplifier at its safe current, best effort, never raising past a timeout.
+
+        The default writes the current; drivers with an output-enable also use it.
+        """
+        self.write(current_A)
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the connection; idempotent."""
+
+    def reconnect(self) -> None:
+        """Drop and re-open the connection after a comms fault."""
+        try:
+            self.close()
+        finally:
+            self.open()
+
+    def health(self) -> dict[str, Any]:
+        """Comms state for the status page."""
+        return {"kind": self.kind, "errors": self.errors, "last_error": self.last_error,
+                "last_written_A": None if math.isnan(self.last_written_A) else self.last_written_A}
