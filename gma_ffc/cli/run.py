@@ -1,16 +1,65 @@
-"""`gma-ffc run`: placeholder until its issue lands (it exits 1 and says so)."""
+"""`gma-ffc run`: the controller in the foreground, as systemd runs it (Type=notify)."""
 
 from __future__ import annotations
 
 import argparse
+import logging
+import math
+import sys
+from pathlib import Path
 
-from ..errors import FaultError
+from ..errors import ConfigError
+
+
+def positive_seconds(text: str) -> float:
+    """argparse type: a finite duration > 0 (bad ones become one line and exit 2)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number of seconds > 0")
+    return value
+
+
+def add_runtime_dir(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--runtime-dir", metavar="DIR",
+                   help="private directory for the control socket, pid file and log (default: "
+                        "$GMA_FFC_RUNTIME_DIR, $RUNTIME_DIRECTORY, $XDG_RUNTIME_DIR/gma-ffc, "
+                        "/run/gma-ffc for root, else /tmp/gma-ffc-UID)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("run", help="(not built yet)")
+    p = sub.add_parser(
+        "run", help="run the controller in the foreground (what the systemd unit runs)",
+        description="Run the controller in the foreground until --duration ends, SIGTERM/SIGINT "
+                    "or 'gma-ffc stop'. Speaks systemd's notify protocol when NOTIFY_SOCKET is "
+                    "set (READY, STATUS, WATCHDOG while the loop progresses, STOPPING). SIGHUP "
+                    "re-reads the config and model; a bad one is refused and the old keeps "
+                    "running. 'gma-ffc status' and 'gma-ffc stop' reach it over its control socket.")
+    p.add_argument("--config", required=True, metavar="CFG.yaml", help="controller configuration")
+    p.add_argument("--duration", type=positive_seconds, metavar="S",
+                   help="stop after S seconds (default: run until stopped)")
+    p.add_argument("--stats-json", metavar="F", help="write the final status to F (atomically)")
+    add_runtime_dir(p)
+    p.add_argument("--no-socket", action="store_true",
+                   help="do not serve the control socket (several scripted runs side by side)")
+    p.add_argument("--log-level", default="INFO",
+                   choices=("DEBUG", "INFO", "WARNING", "ERROR"), help="default INFO")
     p.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
-    raise FaultError("'run' is not built yet")
+    from ..service.paths import runtime_paths
+    from ..service.runner import Service
+
+    config = Path(args.config)
+    if not config.is_file():
+        raise ConfigError(f"config file {config} not found")
+    logging.basicConfig(stream=sys.stderr, level=getattr(logging, args.log_level),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    runtime = None if args.no_socket else runtime_paths(args.runtime_dir)
+    service = Service(config, duration_s=args.duration, stats_json=args.stats_json, runtime=runtime)
+    code = service.run()
+    logging.getLogger("gma_ffc.service").info("stopped: %s", service.status()["service"]["stop_reason"])
+    return code

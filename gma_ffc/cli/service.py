@@ -1,16 +1,84 @@
-"""`gma-ffc service`: placeholder until its issue lands (it exits 1 and says so)."""
+"""`gma-ffc start` / `stop` / `status`: the controller as a background service."""
 
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 
-from ..errors import FaultError
+from .run import add_runtime_dir, positive_seconds
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("service", help="(not built yet)")
-    p.set_defaults(func=_run)
+    p = sub.add_parser("start", help="start the controller as a background service",
+                       description="Start 'gma-ffc run' in the background (own session, pid file "
+                                   "and log in the runtime directory) and return once it reports "
+                                   "ready, or fail with its reason.")
+    p.add_argument("--config", required=True, metavar="CFG.yaml", help="controller configuration")
+    p.add_argument("--duration", type=positive_seconds, metavar="S",
+                   help="stop after S seconds (default: run until 'gma-ffc stop')")
+    p.add_argument("--timeout", type=positive_seconds, default=60.0, metavar="S",
+                   help="how long to wait for the controller to be ready (default 60)")
+    add_runtime_dir(p)
+    p.set_defaults(func=_start)
+
+    p = sub.add_parser("stop", help="stop the background controller",
+                       description="Ask the controller to stop over its socket (it puts the "
+                                   "amplifier at its safe current first), wait, and escalate to "
+                                   "SIGTERM if it does not stop.")
+    p.add_argument("--timeout", type=positive_seconds, default=10.0, metavar="S",
+                   help="how long to wait before SIGTERM (default 10)")
+    add_runtime_dir(p)
+    p.set_defaults(func=_stop)
+
+    p = sub.add_parser("status", help="show the running controller's status",
+                       description="State, achieved rate, period jitter p50/p99/max, overruns, "
+                                   "last stress, current and reference, active faults.")
+    p.add_argument("--json", action="store_true", help="machine-readable JSON")
+    add_runtime_dir(p)
+    p.set_defaults(func=_status)
 
 
-def _run(args: argparse.Namespace) -> int:
-    raise FaultError("'service' is not built yet")
+def _start(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..service.daemon import start
+    from ..service.paths import runtime_paths
+
+    runtime = runtime_paths(args.runtime_dir)
+    started = start(Path(args.config), runtime, duration_s=args.duration, timeout_s=args.timeout)
+    print(f"started: pid {started.pid}, socket {runtime.socket}, log {runtime.log_file}")
+    if started.status:
+        print(started.status)
+    return 0
+
+
+def _stop(args: argparse.Namespace) -> int:
+    from ..service.daemon import stop
+    from ..service.paths import runtime_paths
+    from ..service.status import faults_of
+
+    result = stop(runtime_paths(args.runtime_dir), timeout_s=args.timeout)
+    faults = faults_of(result.final_status or {})
+    print(f"{result.how} (pid {result.pid or '?'})"
+          + (f"; active faults were: {', '.join(faults)}" if faults else ""))
+    return 0
+
+
+def _status(args: argparse.Namespace) -> int:
+    from ..errors import FaultError
+    from ..service.control_socket import _jsonable, request
+    from ..service.paths import runtime_paths
+    from ..service.status import format_table
+
+    runtime = runtime_paths(args.runtime_dir)
+    reply = request(runtime.socket, {"cmd": "status"})
+    if not reply.get("ok"):
+        raise FaultError(str(reply.get("error", "the controller refused the request")))
+    status = reply["status"]
+    if args.json:
+        json.dump(status, sys.stdout, indent=2, default=_jsonable)
+        sys.stdout.write("\n")
+    else:
+        print(format_table(status))
+    return 0

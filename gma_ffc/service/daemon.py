@@ -1,0 +1,179 @@
+"""`gma-ffc start` / `stop`: the foreground service (`gma-ffc run`) as a background process.
+
+`start` spawns `gma-ffc run` in its own session with its output in the log file and listens on
+a private notify socket of its own, exactly as systemd would: it returns when the child sends
+READY=1, or reports the child's own error line when it exits first. `stop` asks over the control
+socket, waits, escalates to SIGTERM, and reports. It never sends SIGKILL on its own: that would
+skip the controller's safe-current exit path.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import ConfigError, FaultError, GmaError, InputError
+from .control_socket import is_answering, request
+from .paths import RuntimePaths, ensure_private_dir
+
+POLL_S = 0.05
+
+
+@dataclass
+class Started:
+    pid: int
+    status: str
+
+
+def process_alive(pid: int) -> bool:
+    """True while `pid` runs (a zombie, exited but not yet reaped, counts as gone)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return True
+    return stat.rsplit(")", 1)[-1].split()[0] != "Z"
+
+
+def read_pid(path: Path) -> int | None:
+    try:
+        pid = int(path.read_text().strip())
+    except (OSError, ValueError):
+        return None
+    return pid if pid > 0 else None
+
+
+def start(config: Path, runtime: RuntimePaths, *, duration_s: float | None = None,
+          timeout_s: float = 60.0, python: str = sys.executable) -> Started:
+    """Spawn the service and wait until it is ready; raise with its reason if it is not."""
+    config = Path(config)
+    if not config.is_file():
+        raise ConfigError(f"config file {config} not found")
+    ensure_private_dir(runtime.directory)
+    if is_answering(runtime.socket):
+        raise FaultError(f"a controller is already running (pid {read_pid(runtime.pid_file) or '?'}, "
+                         f"socket {runtime.socket}); stop it first with 'gma-ffc stop'")
+    notify_path = runtime.directory / f"start-{os.getpid()}.notify"
+    with contextlib.suppress(FileNotFoundError):
+        notify_path.unlink()
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+    old_umask = os.umask(0o177)
+    try:
+        listener.bind(str(notify_path))
+    finally:
+        os.umask(old_umask)
+    cmd = [python, "-m", "gma_ffc.cli", "run", "--config", str(config.resolve()),
+           "--runtime-dir", str(runtime.directory)]
+    if duration_s is not None:
+        cmd += ["--duration", repr(float(duration_s))]
+    env = dict(os.environ, NOTIFY_SOCKET=str(notify_path))
+    for key in ("WATCHDOG_USEC", "WATCHDOG_PID", "LISTEN_FDS", "LISTEN_PID"):
+        env.pop(key, None)
+    log_offset = runtime.log_file.stat().st_size if runtime.log_file.exists() else 0
+    try:
+        fd = os.open(runtime.log_file, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_CLOEXEC, 0o600)
+        with os.fdopen(fd, "ab") as log:
+            child = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
+                                     env=env, start_new_session=True, close_fds=True)
+        return _wait_ready(child, listener, runtime, log_offset, timeout_s)
+    finally:
+        listener.close()
+        with contextlib.suppress(FileNotFoundError):
+            notify_path.unlink()
+
+
+def _wait_ready(child: subprocess.Popen, listener: socket.socket, runtime: RuntimePaths,
+                log_offset: int, timeout_s: float) -> Started:
+    deadline = time.monotonic() + timeout_s
+    listener.settimeout(POLL_S)
+    while time.monotonic() < deadline:
+        try:
+            message = listener.recv(65536).decode("utf-8", "replace")
+        except socket.timeout:
+            message = ""
+        fields = dict(line.split("=", 1) for line in message.splitlines() if "=" in line)
+        if fields.get("READY") == "1":
+            return Started(int(fields.get("MAINPID", child.pid)), fields.get("STATUS", ""))
+        code = child.poll()
+        if code is not None:
+            reason = _last_error(runtime.log_file, log_offset) or f"it exited with code {code}"
+            error: type[GmaError] = InputError if code == 2 else FaultError
+            raise error(f"the controller did not start: {reason} (log: {runtime.log_file})")
+    with contextlib.suppress(ProcessLookupError):
+        child.send_signal(signal.SIGTERM)
+    raise FaultError(f"the controller did not report ready within {timeout_s:g} s; it was sent "
+                     f"SIGTERM (log: {runtime.log_file})")
+
+
+def _last_error(log_file: Path, offset: int) -> str | None:
+    """The child's one-line error (the CLI prints 'gma-ffc run: error: ...')."""
+    try:
+        with open(log_file, "rb") as fh:
+            fh.seek(offset)
+            lines = fh.read().decode("utf-8", "replace").splitlines()
+    except OSError:
+        return None
+    for line in reversed(lines):
+        if ": error: " in line:
+            return line.split(": error: ", 1)[1].strip()
+    for line in reversed(lines):
+        if line.strip():
+            return line.strip()
+    return None
+
+
+@dataclass
+class Stopped:
+    pid: int | None
+    how: str
+    final_status: dict | None
+
+
+def stop(runtime: RuntimePaths, *, timeout_s: float = 10.0, term_timeout_s: float = 5.0) -> Stopped:
+    """Ask the controller to stop; SIGTERM if it does not; report what happened."""
+    pid = read_pid(runtime.pid_file)
+    final: dict | None = None
+    try:
+        final = request(runtime.socket, {"cmd": "status"}, timeout_s=2.0).get("status")
+        reply = request(runtime.socket, {"cmd": "stop", "reason": "gma-ffc stop"}, timeout_s=2.0)
+        pid = int(reply.get("pid") or pid or 0) or None
+        asked = True
+    except FaultError:
+        if pid is None or not process_alive(pid):
+            raise FaultError(f"no controller running (socket {runtime.socket})") from None
+        asked = False
+    if pid is None:  # it answered but we cannot watch the process: wait for the socket to go
+        if _wait(lambda: not runtime.socket.exists(), timeout_s):
+            return Stopped(None, "stopped on request", final)
+        raise FaultError(f"the controller did not stop within {timeout_s:g} s (socket {runtime.socket})")
+    if asked and _wait(lambda: not process_alive(pid), timeout_s):
+        return Stopped(pid, "stopped on request", final)
+    with contextlib.suppress(ProcessLookupError):
+        os.kill(pid, signal.SIGTERM)
+    if _wait(lambda: not process_alive(pid), term_timeout_s):
+        how = "stopped with SIGTERM" + (" after it ignored the request" if asked else
+                                        " (its socket did not answer)")
+        return Stopped(pid, how, final)
+    raise FaultError(f"the controller (pid {pid}) did not stop, even on SIGTERM; check the "
+                     f"amplifier, then 'kill -KILL {pid}' (log: {runtime.log_file})")
+
+
+def _wait(done, timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if done():
+            return True
+        time.sleep(POLL_S)
+    return done()

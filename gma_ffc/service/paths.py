@@ -1,0 +1,74 @@
+"""Where the service keeps its socket, pid file and log: one private directory per user.
+
+The directory is 0700 and owned by us, the socket inside it 0600, so only the owner can reach
+the controller (the socket additionally checks the peer's uid, see `control_socket`). The
+location is, in order: --runtime-dir, $GMA_FFC_RUNTIME_DIR, $RUNTIME_DIRECTORY (set by systemd's
+RuntimeDirectory=), $XDG_RUNTIME_DIR/gma-ffc, /run/gma-ffc for root, /tmp/gma-ffc-<uid> otherwise.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import ConfigError
+
+SOCKET_NAME = "control.sock"
+PID_NAME = "gma-ffc.pid"
+LOG_NAME = "gma-ffc.log"
+
+
+@dataclass(frozen=True)
+class RuntimePaths:
+    """The service's files inside its private runtime directory."""
+
+    directory: Path
+
+    @property
+    def socket(self) -> Path:
+        return self.directory / SOCKET_NAME
+
+    @property
+    def pid_file(self) -> Path:
+        return self.directory / PID_NAME
+
+    @property
+    def log_file(self) -> Path:
+        return self.directory / LOG_NAME
+
+
+def default_runtime_dir(environ: dict[str, str] | None = None) -> Path:
+    """The runtime directory when none is given on the command line."""
+    env = os.environ if environ is None else environ
+    for key in ("GMA_FFC_RUNTIME_DIR", "RUNTIME_DIRECTORY"):
+        if env.get(key):
+            # systemd may pass several directories separated by ':'; the first is ours.
+            return Path(env[key].split(":")[0])
+    if env.get("XDG_RUNTIME_DIR"):
+        return Path(env["XDG_RUNTIME_DIR"]) / "gma-ffc"
+    uid = os.geteuid()
+    return Path("/run/gma-ffc") if uid == 0 else Path(f"/tmp/gma-ffc-{uid}")
+
+
+def runtime_paths(directory: str | os.PathLike | None = None) -> RuntimePaths:
+    """Resolve the directory without touching the file system (clients only read)."""
+    return RuntimePaths(Path(directory) if directory else default_runtime_dir())
+
+
+def ensure_private_dir(path: Path) -> None:
+    """Create `path` as 0700, or accept it if it is ours; refuse one someone else owns."""
+    try:
+        path.mkdir(mode=0o700, parents=True, exist_ok=True)
+        info = path.lstat()
+    except OSError as exc:
+        raise ConfigError(f"runtime directory {path}: cannot create it ({exc.strerror}); "
+                          "pass --runtime-dir or set GMA_FFC_RUNTIME_DIR") from None
+    if not stat.S_ISDIR(info.st_mode):
+        raise ConfigError(f"runtime directory {path} is not a directory; pass --runtime-dir")
+    if info.st_uid != os.geteuid():
+        raise ConfigError(f"runtime directory {path} belongs to uid {info.st_uid}, not to us "
+                          f"(uid {os.geteuid()}); pass --runtime-dir with a directory of your own")
+    if stat.S_IMODE(info.st_mode) != 0o700:
+        os.chmod(path, 0o700)

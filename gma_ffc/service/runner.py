@@ -1,0 +1,287 @@
+"""`gma-ffc run`: one controller in the foreground, supervised, reachable over the control socket.
+
+Threads: the controller's fixed-rate loop runs in its own thread and is never disturbed by
+service work; the main thread supervises it (systemd notifications, watchdog pings while the
+loop makes progress, SIGHUP reloads) and the control socket answers in a third. Signal handlers
+only set flags. Whatever happens, the controller is asked to stop and its thread joined before
+the process leaves, so its own exit path puts the amplifier at the safe current.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from ..atomic import atomic_write
+from ..errors import FaultError, GmaError
+from .control_socket import ControlServer, _jsonable, is_answering
+from .notify import Notifier
+from .paths import RuntimePaths, ensure_private_dir
+from .status import progress_count, status_line
+
+log = logging.getLogger("gma_ffc.service")
+
+ConfigLoader = Callable[[Path], Any]
+ControllerFactory = Callable[[Any], Any]
+
+SUPERVISE_PERIOD_S = 0.05
+STATUS_PERIOD_S = 1.0
+JOIN_TIMEOUT_S = 10.0
+
+
+def _default_loader(path: Path) -> Any:
+    from ..control.config import load_config
+
+    return load_config(path)
+
+
+def _default_factory(cfg: Any) -> Any:
+    from ..control.controller import Controller
+
+    return Controller(cfg)
+
+
+@dataclass
+class ReloadResult:
+    """What the last reload did, reported in the status."""
+
+    ok: bool
+    message: str
+    at_unix: float = field(default_factory=time.time)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"ok": self.ok, "message": self.message, "at_unix": self.at_unix}
+
+
+class Service:
+    """Run one controller until its duration ends, a stop is requested, or it fails."""
+
+    def __init__(self, config_path: str | os.PathLike, *, duration_s: float | None = None,
+                 stats_json: str | os.PathLike | None = None,
+                 runtime: RuntimePaths | None = None, notifier: Notifier | None = None,
+                 load_config: ConfigLoader = _default_loader,
+                 make_controller: ControllerFactory = _default_factory,
+                 install_signal_handlers: bool = True) -> None:
+        self.config_path = Path(config_path)
+        self.duration_s = duration_s
+        self.stats_json = Path(stats_json) if stats_json else None
+        self.runtime = runtime
+        self.notifier = notifier or Notifier()
+        self._load_config = load_config
+        self._make_controller = make_controller
+        self._install_signals = install_signal_handlers
+        self._stop_event = threading.Event()
+        self._reload_flag = threading.Event()
+        self._reload_lock = threading.Lock()
+        self._stop_reason: str | None = None
+        self._last_reload: ReloadResult | None = None
+        self._started_unix = time.time()
+        self._ready = False
+        self.controller: Any = None
+        self.summary: Any = None
+        self._error: BaseException | None = None
+        self._server: ControlServer | None = None
+
+    # ---- requests from signals and the socket --------------------------------------------
+    def request_stop(self, reason: str) -> None:
+        """Ask the loop to stop (safe current first, which the controller does on exit)."""
+        if self._stop_reason is None:
+            self._stop_reason = reason
+        if self.controller is not None:
+            self.controller.request_stop(reason)
+        self._stop_event.set()
+
+    def reload(self) -> ReloadResult:
+        """Re-read the config (and with it the model); refuse a bad one and keep the old."""
+        with self._reload_lock:
+            self.notifier.reloading()
+            try:
+                new_cfg = self._load_config(self.config_path)
+                self.controller.reload(new_cfg)
+            except Exception as exc:  # any failure: the running config stays
+                message = str(exc) if isinstance(exc, GmaError) else f"{type(exc).__name__}: {exc}"
+                result = ReloadResult(False, f"reload refused, old config kept: {message}")
+                log.error("%s", result.message)
+            else:
+                result = ReloadResult(True, f"reloaded {self.config_path}")
+                log.info("%s", result.message)
+            self._last_reload = result
+            self.notifier.ready(status=result.message)
+            return result
+
+    def status(self) -> dict[str, Any]:
+        """The controller's snapshot plus what the service adds (pid, reloads, stop reason)."""
+        snap = dict(self.controller.status()) if self.controller is not None else {}
+        snap["service"] = {
+            "pid": os.getpid(),
+            "config": str(self.config_path),
+            "started_unix": self._started_unix,
+            "ready": self._ready,
+            "stop_reason": self._stop_reason,
+            "last_reload": self._last_reload.as_dict() if self._last_reload else None,
+            "socket": str(self.runtime.socket) if self.runtime else None,
+        }
+        return snap
+
+    def handle_request(self, request: dict[str, Any]) -> dict[str, Any]:
+        """The control socket's commands."""
+        cmd = request.get("cmd")
+        if cmd == "ping":
+            return {"ok": True, "pid": os.getpid()}
+        if cmd == "status":
+            return {"ok": True, "status": self.status()}
+        if cmd == "stop":
+            self.request_stop(str(request.get("reason") or "stop requested over the socket"))
+            return {"ok": True, "pid": os.getpid()}
+        if cmd == "reload":
+            result = self.reload()
+            return {"ok": result.ok, "message": result.message,
+                    **({} if result.ok else {"error": result.message})}
+        return {"ok": False, "error": f"unknown command {cmd!r} (status, stop, reload, ping)"}
+
+    # ---- the run ----------------------------------------------------------------------------
+    def run(self) -> int:
+        """Blocking; returns the exit code (0 stopped as asked, 1 the loop ended on a fault)."""
+        cfg = self._load_config(self.config_path)
+        self.controller = self._make_controller(cfg)
+        previous_handlers: dict[int, Any] = {}
+        try:
+            if self.runtime is not None:
+                self._open_runtime(self.runtime)
+            if self._install_signals:
+                previous_handlers = self._install_handlers()
+            thread = threading.Thread(target=self._run_controller, name="gma-ffc-loop", daemon=True)
+            thread.start()
+            self._supervise(thread)
+        finally:
+            self.request_stop(self._stop_reason or "service exiting")
+            self.notifier.stopping(status=f"stopping: {self._stop_reason}")
+            thread_alive = False
+            with contextlib.suppress(NameError):
+                thread.join(timeout=JOIN_TIMEOUT_S)
+                thread_alive = thread.is_alive()
+            for signum, handler in previous_handlers.items():
+                signal.signal(signum, handler)
+            final = self.status()
+            self._close_runtime()
+            if self.stats_json is not None:
+                self._write_stats(final)
+            self.notifier.close()
+        if thread_alive:
+            raise FaultError(f"the control loop did not stop within {JOIN_TIMEOUT_S:g} s")
+        if self._error is not None:
+            if isinstance(self._error, GmaError):
+                raise self._error
+            raise FaultError(f"the control loop crashed: {type(self._error).__name__}: "
+                             f"{self._error}") from self._error
+        fault = _fault_from(final)
+        if fault and not self._stop_requested_by_user():
+            raise FaultError(f"the controller stopped on a fault: {fault}")
+        return 0
+
+    def _stop_requested_by_user(self) -> bool:
+        return self._stop_reason not in (None, "service exiting", "control loop ended")
+
+    def _run_controller(self) -> None:
+        try:
+            self.summary = self.controller.run(self._stop_event, self.duration_s)
+        except BaseException as exc:  # reported by the main thread
+            self._error = exc
+            log.error("control loop crashed: %s", exc)
+
+    def _supervise(self, thread: threading.Thread) -> None:
+        """Notify READY once ticks advance, ping the watchdog only while they keep advancing."""
+        last_count = -1
+        last_ping = 0.0
+        last_status_t = 0.0
+        last_status_text = ""
+        interval = self.notifier.watchdog_interval_s
+        while thread.is_alive():
+            if self._reload_flag.is_set():
+                self._reload_flag.clear()
+                self.reload()
+            snap = self.controller.status()
+            count = progress_count(snap)
+            now = time.monotonic()
+            progressed = count > last_count and last_count >= 0
+            if not self._ready and count > 0:
+                self._ready = True
+                text = status_line(snap)
+                log.info("ready: %s", text)
+                self.notifier.ready(status=text)
+                last_status_t, last_status_text = now, text
+            if self._ready and progressed and interval is not None and now - last_ping >= interval:
+                self.notifier.watchdog()
+                last_ping = now
+            if self._ready and now - last_status_t >= STATUS_PERIOD_S:
+                text = status_line(snap)
+                if text != last_status_text:
+                    self.notifier.status(text)
+                    last_status_text = text
+                last_status_t = now
+            if progressed or last_count < 0:
+                last_count = count
+            thread.join(timeout=SUPERVISE_PERIOD_S)
+        if self._stop_reason is None:
+            self._stop_reason = "control loop ended"
+
+    # ---- runtime files and signals ------------------------------------------------------------
+    def _open_runtime(self, runtime: RuntimePaths) -> None:
+        ensure_private_dir(runtime.directory)
+        if is_answering(runtime.socket):
+            pid = _read_pid(runtime.pid_file)
+            raise FaultError(f"a controller is already running (pid {pid or '?'}, socket "
+                             f"{runtime.socket}); stop it first with 'gma-ffc stop'")
+        self._server = ControlServer(runtime.socket, self.handle_request).start()
+        with atomic_write(runtime.pid_file) as fh:
+            fh.write(f"{os.getpid()}\n")
+
+    def _close_runtime(self) -> None:
+        if self._server is not None:
+            self._server.close()
+            self._server = None
+            if self.runtime is not None and _read_pid(self.runtime.pid_file) == os.getpid():
+                with contextlib.suppress(FileNotFoundError):
+                    self.runtime.pid_file.unlink()
+
+    def _install_handlers(self) -> dict[int, Any]:
+        def on_stop(signum: int, _frame: Any) -> None:
+            self.request_stop(signal.Signals(signum).name)
+
+        def on_hup(_signum: int, _frame: Any) -> None:
+            self._reload_flag.set()
+
+        previous = {}
+        for signum, handler in ((signal.SIGTERM, on_stop), (signal.SIGINT, on_stop),
+                                (signal.SIGHUP, on_hup)):
+            previous[signum] = signal.signal(signum, handler)
+        return previous
+
+    def _write_stats(self, final: dict[str, Any]) -> None:
+        payload = {"status": final, "summary": self.summary}
+        with atomic_write(self.stats_json) as fh:
+            json.dump(payload, fh, indent=2, default=_jsonable)
+            fh.write("\n")
+
+
+def _fault_from(status: dict[str, Any]) -> str | None:
+    """The reason the loop stopped on its own, if it was a fault."""
+    if str(status.get("state", "")).lower() in ("fault", "faulted", "failed", "error"):
+        faults = status.get("faults") or status.get("active_faults") or []
+        return ", ".join(map(str, faults)) if faults else str(status.get("state"))
+    return None
+
+
+def _read_pid(path: Path) -> int | None:
+    try:
+        return int(path.read_text().strip())
+    except (OSError, ValueError):
+        return None

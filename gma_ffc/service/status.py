@@ -1,0 +1,107 @@
+"""Reading and presenting the controller's status snapshot (one line for systemd, a table for people).
+
+The controller's `status()` dict is the source; these helpers only read it, tolerating keys a
+driver or controller version does not provide (shown as '-').
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+from typing import Any, Mapping
+
+# Keys the controller may use for its tick counter, most specific first.
+_TICK_KEYS = ("ticks", "tick", "tick_count", "n_ticks", "iterations")
+
+
+def progress_count(status: Mapping[str, Any]) -> int:
+    """The loop's tick counter: it grows while the control loop makes progress."""
+    for key in _TICK_KEYS:
+        value = status.get(key)
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return int(value)
+    return 0
+
+
+def _get(status: Mapping[str, Any], *keys: str) -> Any:
+    """First present key; dotted keys look inside nested dicts ('jitter_us.p99')."""
+    for key in keys:
+        node: Any = status
+        for part in key.split("."):
+            if not isinstance(node, Mapping) or part not in node:
+                node = None
+                break
+            node = node[part]
+        if node is not None:
+            return node
+    return None
+
+
+def _num(value: Any, fmt: str, unit: str = "") -> str:
+    if value is None:
+        return "-"
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    if math.isnan(x):
+        return "nan"
+    return f"{x:{fmt}}{unit}"
+
+
+def faults_of(status: Mapping[str, Any]) -> list[str]:
+    faults = _get(status, "faults", "active_faults")
+    if not faults:
+        return []
+    if isinstance(faults, Mapping):
+        return [f"{k}: {v}" if v not in (None, True, "") else str(k) for k, v in faults.items()]
+    if isinstance(faults, (list, tuple)):
+        return [str(f) for f in faults]
+    return [str(faults)]
+
+
+def fields(status: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """(label, value) rows for the human table."""
+    svc = status.get("service") or {}
+    rate = _get(status, "rate_hz", "achieved_rate_hz", "achieved_hz")
+    target = _get(status, "target_rate_hz", "rate_target_hz", "configured_rate_hz")
+    jit = {q: _get(status, f"jitter_us.{q}", f"period_jitter_us.{q}", f"jitter_{q}_us")
+           for q in ("p50", "p99", "max")}
+    rows = [
+        ("state", str(_get(status, "state") or "-")),
+        ("pid", str(svc.get("pid", "-"))),
+        ("rate", _num(rate, ".1f", " Hz") + (f" (target {_num(target, 'g', ' Hz')})" if target else "")),
+        ("period jitter", "p50 " + _num(jit["p50"], ".1f", " us") + "  p99 "
+         + _num(jit["p99"], ".1f", " us") + "  max " + _num(jit["max"], ".1f", " us")),
+        ("overruns", _num(_get(status, "overruns"), ".0f")),
+        ("ticks", str(progress_count(status))),
+        ("stress", _num(_get(status, "stress_MPa", "last_stress_MPa"), ".2f", " MPa")),
+        ("current", _num(_get(status, "current_A", "current_cmd_A", "last_current_A"), ".4f", " A")),
+        ("reference", _num(_get(status, "reference_um", "last_reference_um"), ".3f", " um")),
+        ("faults", ", ".join(faults_of(status)) or "none"),
+    ]
+    reload = svc.get("last_reload")
+    if reload:
+        when = _dt.datetime.fromtimestamp(reload.get("at_unix", 0)).strftime("%H:%M:%S")
+        rows.append(("last reload", f"{'ok' if reload.get('ok') else 'REFUSED'} at {when}: "
+                                    f"{reload.get('message', '')}"))
+    if svc.get("config"):
+        rows.append(("config", str(svc["config"])))
+    return rows
+
+
+def format_table(status: Mapping[str, Any]) -> str:
+    rows = fields(status)
+    width = max(len(label) for label, _ in rows)
+    return "\n".join(f"{label:<{width}}  {value}" for label, value in rows)
+
+
+def status_line(status: Mapping[str, Any]) -> str:
+    """One line for systemd's STATUS=: what `systemctl status` shows."""
+    rate = _num(_get(status, "rate_hz", "achieved_rate_hz", "achieved_hz"), ".0f", " Hz")
+    p99 = _num(_get(status, "jitter_us.p99", "period_jitter_us.p99", "jitter_p99_us"), ".0f", " us")
+    stress = _num(_get(status, "stress_MPa", "last_stress_MPa"), ".1f", " MPa")
+    faults = ", ".join(faults_of(status)) or "none"
+    state = _get(status, "state") or "-"
+    return (f"{state}: {rate}, jitter p99 {p99}, overruns "
+            f"{_num(_get(status, 'overruns'), '.0f')}, stress {stress}, faults: {faults}")

@@ -1,0 +1,391 @@
+"""The service in-process with a small fake controller that obeys the Controller contract:
+notify messages, watchdog only while the loop progresses, SIGHUP/socket reloads (a bad config is
+refused and the old one keeps running), stop requests, stats JSON, the control socket's
+permissions and peer-credential check."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import shutil
+import stat
+import tempfile
+import threading
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from gma_ffc.errors import ConfigError, FaultError
+from gma_ffc.service import control_socket
+from gma_ffc.service.notify import Notifier
+from gma_ffc.service.paths import RuntimePaths, ensure_private_dir
+from gma_ffc.service.runner import Service
+
+
+class FakeController:
+    """Contract: run(stop_event, duration_s) -> summary; status(); request_stop(); reload()."""
+
+    def __init__(self, cfg: dict) -> None:
+        self.cfg = cfg
+        self.ticks = 0
+        self.state = "idle"
+        self.stop_reason: str | None = None
+        self.stall = threading.Event()       # while set, the loop makes no progress
+        self.fault: str | None = None         # when set, the loop ends on this fault
+        self.stress_MPa = -15.2
+        self.safe_on_exit = False
+        self._lock = threading.Lock()
+
+    def run(self, stop_event: threading.Event, duration_s: float | None = None) -> dict:
+        self.state = "running"
+        t_end = None if duration_s is None else time.monotonic() + duration_s
+        try:
+            while not stop_event.is_set() and (t_end is None or time.monotonic() < t_end):
+                if self.fault:
+                    self.state = "fault"
+                    break
+                if not self.stall.is_set():
+                    with self._lock:
+                        self.ticks += 1
+                stop_event.wait(0.002)
+        finally:
+            self.safe_on_exit = True
+            if self.state != "fault":
+                self.state = "stopped"
+        return {"ticks": self.ticks, "stop_reason": self.stop_reason}
+
+    def status(self) -> dict[str, Any]:
+        with self._lock:
+            return {"state": self.state, "ticks": self.ticks, "rate_hz": 500.0,
+                    "jitter_us": {"p50": 3.0, "p99": 20.0, "max": 40.0}, "overruns": 0,
+                    "stress_MPa": self.stress_MPa, "current_A": 0.1, "reference_um": 1.0,
+                    "faults": [self.fault] if self.fault else [], "gain": self.cfg["gain"]}
+
+    def request_stop(self, reason: str) -> None:
+        self.stop_reason = reason
+
+    def reload(self, new_cfg: dict) -> None:
+        self.cfg = new_cfg
+
+
+def load_fake_config(path: Path) -> dict:
+    text = Path(path).read_text()
+    if "gain:" not in text:
+        raise ConfigError(f"{path}: key 'gain' is missing")
+    return {"gain": float(text.split("gain:")[1].split()[0])}
+
+
+class NotifyListener:
+    """A fake systemd: a datagram socket collecting notify messages."""
+
+    def __init__(self, abstract: bool, tmp: Path) -> None:
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        if abstract:
+            name = f"gma-ffc-test-{uuid.uuid4().hex}"
+            self.sock.bind("\0" + name)
+            self.env_value = "@" + name
+        else:
+            path = tmp / "notify.sock"
+            self.sock.bind(str(path))
+            self.env_value = str(path)
+        self.sock.settimeout(0.05)
+        self.messages: list[tuple[float, str]] = []
+
+    def drain(self) -> list[str]:
+        while True:
+            try:
+                self.messages.append((time.monotonic(), self.sock.recv(65536).decode()))
+            except (socket.timeout, BlockingIOError):
+                return [m for _, m in self.messages]
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def wait_for(predicate, timeout_s: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.01)
+    return predicate()
+
+
+@pytest.fixture
+def cfg_file(tmp_path: Path) -> Path:
+    path = tmp_path / "cfg.yaml"
+    path.write_text("gain: 1.0\n")
+    return path
+
+
+def make_service(cfg_file: Path, **kw) -> Service:
+    made: list[FakeController] = []
+
+    def factory(cfg: dict) -> FakeController:
+        made.append(FakeController(cfg))
+        return made[-1]
+
+    svc = Service(cfg_file, load_config=load_fake_config, make_controller=factory, **kw)
+    svc.made = made  # type: ignore[attr-defined]
+    return svc
+
+
+def run_in_thread(svc: Service) -> tuple[threading.Thread, dict]:
+    out: dict = {}
+
+    def target() -> None:
+        try:
+            out["code"] = svc.run()
+        except BaseException as exc:  # noqa: BLE001 - the test inspects it
+            out["error"] = exc
+
+    thread = threading.Thread(target=target, daemon=True)
+    thread.start()
+    return thread, out
+
+
+@pytest.mark.parametrize("abstract", [True, False], ids=["abstract", "path"])
+def test_notify_ready_status_watchdog_only_while_progressing_then_stopping(tmp_path, cfg_file, abstract):
+    listener = NotifyListener(abstract, tmp_path)
+    env = {"NOTIFY_SOCKET": listener.env_value, "WATCHDOG_USEC": "40000"}  # ping every 20 ms
+    svc = make_service(cfg_file, notifier=Notifier(env), install_signal_handlers=False)
+    thread, out = run_in_thread(svc)
+    try:
+        assert wait_for(lambda: any("READY=1" in m for m in listener.drain()))
+        assert wait_for(lambda: sum("WATCHDOG=1" in m for m in listener.drain()) >= 3)
+        ready = next(m for m in listener.messages if "READY=1" in m[1])[1]
+        assert f"MAINPID={os.getpid()}" in ready and "STATUS=running" in ready
+        ctrl = svc.made[0]
+        ctrl.stall.set()                                   # the loop stops making progress
+        time.sleep(0.15)                                   # let the supervisor see the stall
+        listener.drain()
+        n_before = len(listener.messages)
+        time.sleep(0.4)                                    # 20 ping periods
+        stalled = [m for _, m in listener.messages[n_before:]] + listener.drain()[n_before:]
+        assert not any("WATCHDOG=1" in m for m in stalled), stalled
+        ctrl.stall.clear()                                 # progress again: pings resume
+        assert wait_for(lambda: any("WATCHDOG=1" in m for m in listener.drain()[n_before:]))
+        n_before = len(listener.messages)
+        ctrl.stress_MPa = -19.1                            # a changed status is reported
+        assert wait_for(lambda: any(m.startswith("STATUS=") and "-19.1 MPa" in m
+                                    for m in listener.drain()[n_before:]), 3.0)
+        svc.request_stop("test")
+        thread.join(10)
+        assert out == {"code": 0}
+        messages = listener.drain()
+        stopping = [m for m in messages if "STOPPING=1" in m]
+        assert stopping and "test" in stopping[0]
+        assert "WATCHDOG=1" not in messages[-1]
+        assert ctrl.safe_on_exit
+    finally:
+        svc.request_stop("teardown")
+        thread.join(10)
+        listener.close()
+
+
+def test_without_notify_socket_notifier_is_silent():
+    notifier = Notifier({})
+    assert not notifier.enabled
+    assert notifier.ready() is False and notifier.watchdog() is False
+    assert Notifier({"NOTIFY_SOCKET": "@x", "WATCHDOG_USEC": "1000000"}).watchdog_interval_s == 0.5
+    assert Notifier({"WATCHDOG_USEC": "1000000", "WATCHDOG_PID": "1"}).watchdog_interval_s is None
+
+
+def test_notifier_gives_up_when_listener_is_gone(tmp_path):
+    listener = NotifyListener(False, tmp_path)
+    notifier = Notifier({"NOTIFY_SOCKET": listener.env_value})
+    assert notifier.status("one")
+    listener.close()
+    os.unlink(listener.env_value)
+    assert notifier.status("two") is False
+    assert not notifier.enabled
+
+
+def test_sighup_reload_good_then_bad_keeps_old(tmp_path, cfg_file):
+    """Signal handlers live in the main thread: the service runs there, the checks in a helper."""
+    runtime = RuntimePaths(tmp_path / "rt")
+    svc = make_service(cfg_file, runtime=runtime)
+    errors: list[BaseException] = []
+
+    def body() -> None:
+        try:
+            assert wait_for(lambda: runtime.socket.exists() and svc.status()["service"]["ready"])
+            cfg_file.write_text("gain: 2.5\n")
+            os.kill(os.getpid(), signal.SIGHUP)
+            assert wait_for(lambda: (svc.status()["service"]["last_reload"] or {}).get("ok") is True)
+            assert svc.status()["gain"] == 2.5
+            cfg_file.write_text("nonsense: true\n")
+            os.kill(os.getpid(), signal.SIGHUP)
+            assert wait_for(lambda: (svc.status()["service"]["last_reload"] or {}).get("ok") is False)
+            status = control_socket.request(runtime.socket, {"cmd": "status"})["status"]
+            assert status["gain"] == 2.5 and status["state"] == "running"
+            assert "refused" in status["service"]["last_reload"]["message"]
+            assert "gain" in status["service"]["last_reload"]["message"]
+            ticks = status["ticks"]
+            assert wait_for(lambda: svc.status()["ticks"] > ticks)   # the old one keeps running
+            reply = control_socket.request(runtime.socket, {"cmd": "reload"})   # socket reload too
+            assert reply["ok"] is False and "gain" in reply["error"]
+            cfg_file.write_text("gain: 3.0\n")
+            assert control_socket.request(runtime.socket, {"cmd": "reload"})["ok"] is True
+            assert svc.status()["gain"] == 3.0
+            os.kill(os.getpid(), signal.SIGTERM)                       # a clean stop on SIGTERM
+            assert wait_for(lambda: svc.status()["service"]["stop_reason"] is not None)
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the main thread
+            errors.append(exc)
+        finally:
+            svc.request_stop("teardown")
+
+    previous = signal.getsignal(signal.SIGTERM)
+    helper = threading.Thread(target=body, daemon=True)
+    helper.start()
+    code = svc.run()
+    helper.join(10)
+    assert signal.getsignal(signal.SIGTERM) is previous            # handlers restored
+    if errors:
+        raise errors[0]
+    assert code == 0
+    assert svc.status()["service"]["stop_reason"] == "SIGTERM"
+    assert svc.made[0].safe_on_exit
+
+
+def test_stop_over_socket_writes_stats_and_cleans_up(tmp_path, cfg_file):
+    runtime = RuntimePaths(tmp_path / "rt")
+    stats = tmp_path / "out" / "stats.json"
+    svc = make_service(cfg_file, runtime=runtime, stats_json=stats, install_signal_handlers=False)
+    thread, out = run_in_thread(svc)
+    try:
+        assert wait_for(lambda: runtime.socket.exists() and svc.status()["service"]["ready"])
+        assert int(runtime.pid_file.read_text()) == os.getpid()
+        reply = control_socket.request(runtime.socket, {"cmd": "bogus"})
+        assert reply["ok"] is False and "unknown command" in reply["error"]
+        assert control_socket.request(runtime.socket, {"cmd": "stop", "reason": "by test"})["ok"]
+        thread.join(10)
+    finally:
+        svc.request_stop("teardown")
+        thread.join(10)
+    assert out == {"code": 0}
+    assert not runtime.socket.exists() and not runtime.pid_file.exists()
+    data = json.loads(stats.read_text())
+    assert data["status"]["service"]["stop_reason"] == "by test"
+    assert data["status"]["ticks"] > 0 and data["summary"]["ticks"] == data["status"]["ticks"]
+
+
+def test_duration_ends_run_and_fault_gives_exit_1(tmp_path, cfg_file):
+    svc = make_service(cfg_file, duration_s=0.1, install_signal_handlers=False)
+    assert svc.run() == 0
+    assert svc.status()["state"] == "stopped"
+
+    svc = make_service(cfg_file, install_signal_handlers=False)
+    thread, out = run_in_thread(svc)
+    assert wait_for(lambda: svc.made and svc.status()["service"]["ready"])
+    svc.made[0].fault = "comms timeout"
+    thread.join(10)
+    assert isinstance(out.get("error"), FaultError)
+    assert "comms timeout" in str(out["error"])
+
+
+def test_second_service_on_same_socket_is_refused(tmp_path, cfg_file):
+    runtime = RuntimePaths(tmp_path / "rt")
+    first = make_service(cfg_file, runtime=runtime, install_signal_handlers=False)
+    thread, out = run_in_thread(first)
+    try:
+        assert wait_for(lambda: runtime.socket.exists() and first.status()["service"]["ready"])
+        second = make_service(cfg_file, runtime=runtime, install_signal_handlers=False)
+        with pytest.raises(FaultError, match="already running"):
+            second.run()
+        assert control_socket.is_answering(runtime.socket)   # the first one is untouched
+    finally:
+        first.request_stop("teardown")
+        thread.join(10)
+
+
+def test_runtime_dir_and_socket_are_owner_only(tmp_path, cfg_file):
+    runtime = RuntimePaths(tmp_path / "rt")
+    runtime.directory.mkdir(mode=0o755)
+    svc = make_service(cfg_file, runtime=runtime, install_signal_handlers=False)
+    thread, out = run_in_thread(svc)
+    try:
+        assert wait_for(lambda: runtime.socket.exists())
+        assert stat.S_IMODE(runtime.directory.stat().st_mode) == 0o700
+        info = runtime.socket.stat()
+        assert stat.S_ISSOCK(info.st_mode) and stat.S_IMODE(info.st_mode) == 0o600
+        assert info.st_uid == os.geteuid()
+    finally:
+        svc.request_stop("teardown")
+        thread.join(10)
+
+
+def test_runtime_dir_of_another_user_is_refused(tmp_path):
+    if os.geteuid() != 0:
+        pytest.skip("needs root to create a directory owned by another uid")
+    other = tmp_path / "other"
+    other.mkdir(mode=0o700)
+    os.chown(other, 65534, 65534)
+    with pytest.raises(ConfigError, match="belongs to uid 65534"):
+        ensure_private_dir(other)
+
+
+def test_peer_credentials_are_checked(tmp_path):
+    a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+    with a, b:
+        pid, uid, gid = control_socket.peer_credentials(a)
+    assert (pid, uid, gid) == (os.getpid(), os.geteuid(), os.getegid())
+    assert control_socket.peer_allowed(uid, uid)
+    assert not control_socket.peer_allowed(uid + 1, uid)
+    assert not control_socket.peer_allowed(0, 1000)          # not even root
+
+
+def test_server_refuses_a_peer_with_another_uid(tmp_path):
+    """A server that believes it belongs to another uid must refuse us, and never call the handler."""
+    calls: list = []
+    path = tmp_path / "s.sock"
+    server = control_socket.ControlServer(path, lambda r: calls.append(r) or {"ok": True},
+                                          owner_uid=os.geteuid() + 12345).start()
+    try:
+        reply = control_socket.request(path, {"cmd": "status"})
+    finally:
+        server.close()
+    assert reply["ok"] is False and "permission denied" in reply["error"]
+    assert calls == []
+    assert not path.exists()
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="needs root to connect as another uid")
+def test_real_other_uid_is_refused(tmp_path):
+    """A process running as 'nobody' cannot use the socket even when the file mode lets it in."""
+    calls: list = []
+    d = Path(tempfile.mkdtemp(prefix="gma-ffc-peer-"))    # under /tmp, which nobody can traverse
+    os.chmod(d, 0o777)
+    path = d / "s.sock"
+    server = control_socket.ControlServer(path, lambda r: calls.append(r) or {"ok": True}).start()
+    os.chmod(path, 0o666)                          # simulate a loosened socket file
+    read_fd, write_fd = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # child: drop to nobody, ask, report the reply through the pipe
+        try:
+            os.close(read_fd)
+            os.setgid(65534)
+            os.setuid(65534)
+            try:
+                reply = control_socket.request(path, {"cmd": "status"}, timeout_s=3.0)
+                text = json.dumps(reply)
+            except Exception as exc:  # noqa: BLE001
+                text = json.dumps({"exception": str(exc)})
+            os.write(write_fd, text.encode())
+        finally:
+            os._exit(0)
+    os.close(write_fd)
+    try:
+        with os.fdopen(read_fd) as fh:
+            reply = json.loads(fh.read() or "{}")
+        os.waitpid(pid, 0)
+    finally:
+        server.close()
+        shutil.rmtree(d, ignore_errors=True)
+    assert reply.get("ok") is False and "permission denied" in reply.get("error", ""), reply
+    assert calls == []
