@@ -50,7 +50,8 @@ def _num(value: Any, fmt: str, unit: str = "") -> str:
 
 
 def faults_of(status: Mapping[str, Any]) -> list[str]:
-    faults = _get(status, "faults", "active_faults")
+    """Active faults, with their messages when the controller gives them."""
+    faults = _get(status, "fault_messages", "faults", "active_faults")
     if not faults:
         return []
     if isinstance(faults, Mapping):
@@ -75,8 +76,11 @@ def fields(status: Mapping[str, Any]) -> list[tuple[str, str]]:
          + _num(jit["p99"], ".1f", " us") + "  max " + _num(jit["max"], ".1f", " us")),
         ("overruns", _num(_get(status, "overruns"), ".0f")),
         ("ticks", str(progress_count(status))),
+        ("exit reason", str(_get(status, "exit_reason") or "-")),
         ("stress", _num(_get(status, "stress_MPa", "last_stress_MPa"), ".2f", " MPa")),
-        ("current", _num(_get(status, "current_A", "current_cmd_A", "last_current_A"), ".4f", " A")),
+        ("current", "command " + _num(_get(status, "current_cmd_A"), ".4f", " A")
+         + ", measured " + _num(_get(status, "current_A"), ".4f", " A")),
+        ("displacement", _num(_get(status, "displacement_um"), ".3f", " um")),
         ("reference", _num(_get(status, "reference_um", "last_reference_um"), ".3f", " um")),
         ("faults", ", ".join(faults_of(status)) or "none"),
     ]
