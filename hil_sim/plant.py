@@ -65,16 +65,16 @@ class MagneticsConfig:
     reversibility: float = 0.2                   # JA 'c'
     interdomain_coupling: float = 0.0            # JA 'alpha'
     saturation_magnetostriction_ppm: float = 1200.0   # 3/2 lambda_s
-    stress_coupling: float = 1.0                 # multiplier on the Sablik-Jiles magnetoelastic field
+    stress_coupling: float = 0.6                 # multiplier on the Sablik-Jiles magnetoelastic field
     stress_dependent_width: bool = False         # option: pinning (loop width) follows stress
-    width_change_per_MPa: float = 0.08           # relative pinning change per MPa of extra compression
+    width_change_per_MPa: float = 0.12           # relative pinning change per MPa of extra compression
     width_reference_MPa: float = -11.3
 
 
 @dataclass
 class EddyConfig:
     enabled: bool = False
-    time_constant_ms: float = 0.3     # lag of the rod field behind the coil field
+    time_constant_ms: float = 0.1     # lag of the rod field behind the coil field
 
 
 @dataclass
