@@ -135,6 +135,14 @@ class SDPIIdentifier:
         max_rows              samples per recording used by the least-squares fits (evenly
                               spaced after burn-in); play outputs are always computed at full rate
         refine                output-error refinement of step 1 (off = the paper's (15) alone)
+        joint_passes          alternations of (play weights on all stresses) and (stress QP) after
+                              step 3; the play weights stay stress-independent, as the SDPI
+                              assumes, but are fitted to every stress rather than the reference
+                              alone (0 = the paper's procedure)
+        threshold_grid        "output": the paper's equal intervals in displacement for the
+                              inverse dead-zones (forward ones follow from (11)-(14));
+                              "intermediate": equal intervals over the range of the play
+                              superposition's output, so no dead-zone piece is left without data
         progress              optional callback(stage: str) for long fits
     Learned:
         model_, report_ (list of RecordingFit), stress_levels_MPa_, notes_ (what was assumed)
@@ -146,6 +154,8 @@ class SDPIIdentifier:
     stress_tolerance_MPa: float = 0.5
     max_rows: int = 6000
     refine: bool = True
+    joint_passes: int = 2
+    threshold_grid: str = "intermediate"
     initial_state: str = "descending"
     progress: Callable[[str], None] | None = None
 
@@ -188,6 +198,8 @@ class SDPIIdentifier:
 
         self._say("step 1: MPI at the reference stress")
         w_h, r_s, slopes, y_c = self._fit_mpi(ref_data)
+        if self.threshold_grid == "intermediate":
+            r_s, slopes, y_c = self._regrid(ref_data, w_h)
         if self.refine:
             self._say("step 1: output-error refinement")
             w_h, slopes, y_c = self._refine_mpi(ref_data, w_h, r_s, slopes, y_c)
@@ -197,6 +209,10 @@ class SDPIIdentifier:
             s_lo = min(float(d.sigma.min()) for d in data)
             s_hi = max(float(d.sigma.max()) for d in data)
             coeffs, out_coeffs = self._fit_stress(data, w_h, r_s, (s_lo, s_hi), len(levels))
+            if self.joint_passes:
+                self._say("joint refinement of play weights over all stresses")
+                w_h, coeffs, out_coeffs = self._refine_joint(data, w_h, r_s, coeffs, out_coeffs,
+                                                             (s_lo, s_hi), len(levels))
             stress_range: tuple[float, float] | None = (s_lo, s_hi)
         else:
             coeffs = np.zeros((3, len(r_s)))
@@ -296,6 +312,24 @@ class SDPIIdentifier:
         r_s, w_s = deadzone_inverse(r_inv, slopes_to_weights(s_inv))
         r_s[c] = 0.0
         return w_h, r_s, weights_to_slopes(w_s), y_c
+
+    def _regrid(self, data: list[_Data], w_h: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """Dead-zone thresholds at equal intervals over the intermediate signal z = P[x] on each
+        side of 0, and the slopes for them by bounded linear least squares."""
+        z = np.concatenate([d.plays[self._rows(d)] @ w_h for d in data])
+        y = np.concatenate([d.y[self._rows(d)] for d in data])
+        l = (self.n_deadzone - 1) // 2
+        z_hi, z_lo = max(float(z.max()), 1e-12), min(float(z.min()), -1e-12)
+        k = np.arange(1, l + 1) / (l + 1)
+        r_s = np.r_[(k * z_lo)[::-1], 0.0, k * z_hi]
+        A = np.hstack([slope_basis(z, r_s), np.ones((len(z), 1))])
+        scale = np.linalg.norm(A, axis=0)
+        scale[scale == 0] = 1.0
+        floor = 1e-3 * np.ptp(y) / max(np.ptp(z), 1e-12)
+        lower = np.r_[np.full(self.n_deadzone, floor), -np.inf] * scale
+        res = optimize.lsq_linear(A / scale, y, bounds=(lower, np.inf), lsmr_tol="auto")
+        theta = res.x / scale
+        return r_s, theta[:-1], float(theta[-1])
 
     def _refine_mpi(self, data: list[_Data], w_h: np.ndarray, r_s: np.ndarray, slopes: np.ndarray,
                     y_c: float) -> tuple[np.ndarray, np.ndarray, float]:
@@ -419,6 +453,46 @@ class SDPIIdentifier:
                 if val < worst_v:
                     worst_u, worst_v = u, val
         return worst_u, float(worst_v)
+
+    def _refine_joint(self, data: list[_Data], w_h: np.ndarray, r_s: np.ndarray, coeffs: np.ndarray,
+                      out_coeffs: np.ndarray, stress_range: tuple[float, float],
+                      n_levels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Alternate: play weights by output error on all recordings (stress terms held), then the
+        stress QP (play weights held). Keeps the best pass; each step cannot break Prop. 3.1."""
+        rows = [self._rows(d) for d in data]
+        H = np.vstack([d.plays[r] for d, r in zip(data, rows)])
+        sig = np.concatenate([d.sigma[r] for d, r in zip(data, rows)])
+        y = np.concatenate([d.y[r] for d, r in zip(data, rows)])
+        n_s = len(r_s)
+        edges = np.r_[-np.inf, r_s[: (n_s - 1) // 2], r_s[(n_s + 1) // 2:], np.inf]
+
+        def predict(wh: np.ndarray, cf: np.ndarray, oc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            slopes = weights_to_slopes(cf[0] + sig[:, None] * (cf[1] + sig[:, None] * cf[2]))
+            z = H @ wh
+            offset = oc[0] + sig * (oc[1] + sig * oc[2])
+            return offset + np.einsum("ij,ij->i", slope_basis(z, r_s), slopes), slopes, z
+
+        best = (rms(predict(w_h, coeffs, out_coeffs)[0] - y), w_h, coeffs, out_coeffs)
+        lower = np.r_[1e-6 * max(w_h[0], 1e-12), np.zeros(len(w_h) - 1)]
+        for _ in range(self.joint_passes):
+            _, slopes, _ = predict(w_h, coeffs, out_coeffs)
+            offset = out_coeffs[0] + sig * (out_coeffs[1] + sig * out_coeffs[2])
+
+            def resid(wh: np.ndarray) -> np.ndarray:
+                return offset + np.einsum("ij,ij->i", slope_basis(H @ wh, r_s), slopes) - y
+
+            def jac(wh: np.ndarray) -> np.ndarray:
+                seg = np.clip(np.searchsorted(edges, H @ wh, side="right") - 1, 0, n_s - 1)
+                return H * slopes[np.arange(len(seg)), seg][:, None]
+
+            res = optimize.least_squares(resid, np.maximum(w_h, lower), jac=jac, bounds=(lower, np.inf),
+                                         method="trf", x_scale="jac", max_nfev=50)
+            w_h = res.x
+            coeffs, out_coeffs = self._fit_stress(data, w_h, r_s, stress_range, n_levels)
+            err = rms(predict(w_h, coeffs, out_coeffs)[0] - y)
+            if err < best[0]:
+                best = (err, w_h, coeffs, out_coeffs)
+        return best[1], best[2], best[3]
 
     # -- scoring -----------------------------------------------------------------------------
     def _score(self, d: _Data) -> RecordingFit:

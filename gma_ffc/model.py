@@ -197,34 +197,49 @@ class SDPIModel:
                 f"{lo:.3g}..{hi:.3g} MPa; identify with recordings covering it")
         return np.ascontiguousarray(np.clip(s, lo, hi))
 
-    def forward_state(self, initial_drive: float) -> np.ndarray:
-        """Play states at the start of a run whose first drive value is `initial_drive`."""
-        v = initial_drive - self.input_offset
+    def forward_state(self, initial_drive: float, play_state: Any = None) -> np.ndarray:
+        """Kernel state at the start of a run.
+
+        `play_state` gives the forward plays' outputs explicitly (e.g. left by an earlier run);
+        otherwise they follow `initial_state` at `initial_drive`. Either way the state is made
+        consistent with the first input by the kernel's first step, as eq. (2) requires.
+        """
         state = np.zeros(ops.state_size(self.n_play, self.n_deadzone))
+        if play_state is not None:
+            ps = np.asarray(play_state, dtype=float)
+            if ps.shape != (self.n_play,) or not np.all(np.isfinite(ps)):
+                raise ModelError(f"initial play state must be {self.n_play} finite values")
+            state[: self.n_play] = ps
+            return state
+        v = initial_drive - self.input_offset
         state[: self.n_play] = v + (self.play_thresholds if self.initial_state == "descending" else 0.0)
         return state
 
-    def inverse_state(self, initial_drive: float) -> np.ndarray:
-        """Inverse-play states (10) consistent with the forward states at `initial_drive`."""
-        state = self.forward_state(initial_drive)
+    def inverse_state(self, initial_drive: float, play_state: Any = None) -> np.ndarray:
+        """Inverse-play states (10) consistent with the forward plays' states."""
+        state = self.forward_state(initial_drive, play_state)
         state[: self.n_play] = play_inverse_initial_state(self.play_weights, state[: self.n_play])
         return state
 
     def simulate(self, time_s: Any, drive: Any, stress_MPa: Any = None,
-                 initial_drive: float | None = None) -> np.ndarray:
+                 initial_drive: float | None = None, initial_play_state: Any = None) -> np.ndarray:
         """Displacement (um) for a drive history; time is unused (rate-independent)."""
         x = np.ascontiguousarray(drive, dtype=float)
         if x.ndim != 1 or x.size == 0 or not np.all(np.isfinite(x)):
             raise ModelError("drive must be a non-empty 1-D array of finite values")
         s = self._stress_array(stress_MPa, x.size)
-        state = self.forward_state(x[0] if initial_drive is None else initial_drive)
+        state = self.forward_state(x[0] if initial_drive is None else initial_drive, initial_play_state)
         out = np.empty_like(x)
         ops.forward_batch(x, s, self._packed, state, out)
         return out
 
     def invert(self, time_s: Any, reference_um: Any, stress_MPa: Any = None,
-               initial_drive: float | None = None) -> np.ndarray:
-        """The drive that makes the model follow `reference_um` (analytic inverse, eq. 17)."""
+               initial_drive: float | None = None, initial_play_state: Any = None) -> np.ndarray:
+        """The drive that makes the model follow `reference_um` (analytic inverse, eq. 17).
+
+        The actuator is taken to rest at `initial_drive` (default: the low end of the identified
+        range), or in the forward play state `initial_play_state`, mapped to the inverse by (10).
+        """
         y = np.ascontiguousarray(reference_um, dtype=float)
         if y.ndim != 1 or y.size == 0 or not np.all(np.isfinite(y)):
             raise ModelError("reference must be a non-empty 1-D array of finite values")
@@ -232,7 +247,7 @@ class SDPIModel:
         x0 = self.drive_range[0] if initial_drive is None else initial_drive
         if not np.isfinite(x0):
             x0 = 0.0
-        state = self.inverse_state(x0)
+        state = self.inverse_state(x0, initial_play_state)
         out = np.empty_like(y)
         ops.inverse_batch(y, s, self._packed, state, out)
         return out

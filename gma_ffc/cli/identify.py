@@ -1,16 +1,70 @@
-"""`gma-ffc identify`: placeholder until its issue lands (it exits 1 and says so)."""
+"""`gma-ffc identify`: fit an SDPI (several stresses) or an MPI (one stress) from recordings."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 
-from ..errors import FaultError
+from ..errors import InputError
+from ..modelio import save_model
+from ..progress import Progress
+from ._common import read_all
+
+HELP = """\
+Fit a stress-dependent Prandtl-Ishlinskii model (SDPI, seed paper section 3.3) from recordings at
+several stresses, or a stress-independent MPI from recordings at one stress or without a
+stress_MPa column. Recordings follow shared/spec/recordings.md (time_s, current_A,
+displacement_um, stress_MPa). Quasi-static drives (a few Hz) sweeping the full current range
+give the best models; the first sweep of each recording is skipped while the model's memory
+settles.
+
+example:
+  gma-ffc identify id_11.3MPa.csv id_15.2MPa.csv id_19.1MPa.csv id_24MPa.csv -o model.yaml --plot loops.png
+"""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("identify", help="(not built yet)")
-    p.set_defaults(func=_run)
+    p = sub.add_parser("identify", help="fit an SDPI/MPI model from recordings", description=HELP,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("recordings", nargs="+", metavar="REC", help="recording files (.csv or .mat)")
+    p.add_argument("-o", "--output", required=True, metavar="MODEL.yaml", help="model file to write")
+    p.add_argument("--plays", type=int, default=10, metavar="N", help="number of play operators (default 10)")
+    p.add_argument("--deadzones", type=int, default=7, metavar="N",
+                   help="number of dead-zone operators, odd (default 7)")
+    p.add_argument("--reference-stress", type=float, metavar="MPA",
+                   help="stress of the paper's step 1 (default: the least compressive in the data)")
+    p.add_argument("--no-refine", action="store_true",
+                   help="skip the output-error refinement (the paper's equation-error fit (15) alone)")
+    p.add_argument("--plot", metavar="PNG", help="also save measured vs modelled loops to this image")
+    p.set_defaults(func=run)
 
 
-def _run(args: argparse.Namespace) -> int:
-    raise FaultError("'identify' is not built yet")
+def run(args: argparse.Namespace) -> int:
+    from ..identify import SDPIIdentifier
+
+    if not args.output.endswith((".yaml", ".yml")):
+        raise InputError(f"model file must end in .yaml, got {args.output}")
+    recs = read_all(args.recordings, require=("time_s", "drive", "displacement_um"))
+    with Progress("identify", total=4) as prog:
+        ident = SDPIIdentifier(n_play=args.plays, n_deadzone=args.deadzones,
+                               reference_stress_MPa=args.reference_stress, refine=not args.no_refine,
+                               progress=lambda stage: prog.advance(note=stage))
+        ident.fit(recs)
+    model = ident.model_
+    if args.plot:
+        from ..plots import plot_loops
+
+        plot_loops(model, recs, args.plot)
+    save_model(model, args.output)
+    for note in ident.notes_:
+        print(f"note: {note}", file=sys.stderr)
+    rng = "" if model.stress_range_MPa is None else \
+        f", stress {model.stress_range_MPa[0]:.4g}..{model.stress_range_MPa[1]:.4g} MPa"
+    print(f"{model.kind.upper()} model, {model.n_play} plays, {model.n_deadzone} dead-zones{rng} -> {args.output}")
+    print(f"{'recording':<32} {'stress MPa':>10} {'RMS um':>9} {'% stroke':>9} {'max um':>9}")
+    for f in ident.report_:
+        stress = "-" if f.stress_MPa is None else f"{f.stress_MPa:.4g}"
+        print(f"{f.name[:32]:<32} {stress:>10} {f.rms_um:>9.4f} {f.rms_pct_stroke:>9.3f} {f.max_abs_um:>9.4f}")
+    if args.plot:
+        print(f"loops plotted to {args.plot}")
+    return 0
