@@ -257,8 +257,11 @@ def _format_meta(meta: Mapping[str, Any]) -> str:
     return "".join(out)
 
 
-def write_recording(path: str | Path, rec: Recording, precision: int = 9) -> None:
-    """Write atomically: the file appears complete or not at all."""
+def write_recording(path: str | Path, rec: Recording, precision: int = 12) -> None:
+    """Write atomically: the file appears complete or not at all.
+
+    12 significant digits: exact for any measured value, and 1e-12 relative for computed ones.
+    """
     p = Path(path)
     names = list(rec.columns)
     data = np.column_stack([rec.columns[n] for n in names]) if names else np.empty((0, 0))

@@ -1,0 +1,107 @@
+"""`gma-ffc identify | simulate | invert` end to end, and the CLI contract for bad input."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gma_ffc.cli import main
+from gma_ffc.model import rms
+from gma_ffc.modelio import load_model
+from gma_ffc.recordings import Recording, read_recording, write_recording
+from preisach import PreisachActuator
+
+STRESSES = (-11.3, -15.2, -19.1, -24.0)
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("cli")
+    rig = PreisachActuator(noise_um=0.02, seed=3)
+    t = np.arange(0, 1.2, 1e-3)
+    x = 1.5 - 1.5 * np.cos(2 * np.pi * 3 * t)
+    for s in STRESSES:
+        write_recording(d / f"id_{-s}.csv", Recording(
+            {"time_s": t, "current_A": x, "stress_MPa": np.full_like(t, s), "displacement_um": rig.run(x, s)},
+            {"source": "preisach test rig", "sample_rate_hz": 1000}))
+    ref = 22.0 + 12.0 * np.sin(2 * np.pi * 3 * t)
+    write_recording(d / "ref.csv", Recording({"time_s": t, "reference_um": ref, "stress_MPa": np.full_like(t, -17.0)}))
+    assert main(["identify", *map(str, sorted(d.glob("id_*.csv"))), "-o", str(d / "model.yaml"),
+                 "--plot", str(d / "loops.png")]) == 0
+    return d
+
+
+def test_identify_writes_a_model_and_a_plot_and_reports_the_fit(workdir: Path, capsys) -> None:
+    model = load_model(workdir / "model.yaml")
+    assert model.kind == "sdpi" and model.stress_range_MPa == (-24.0, -11.3)
+    assert (workdir / "loops.png").read_bytes()[:4] == b"\x89PNG"
+    assert main(["identify", str(workdir / "id_15.2.csv"), "-o", str(workdir / "mpi.yaml"), "--plays", "6"]) == 0
+    out = capsys.readouterr()
+    assert "MPI model, 6 plays" in out.out and "% stroke" in out.out and "one stress" in out.err
+
+
+def test_simulate_output_is_a_recording_that_matches_the_measurement(workdir: Path) -> None:
+    out = workdir / "sim.csv"
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "id_19.1.csv"), "-o", str(out)]) == 0
+    sim, rec = read_recording(out), read_recording(workdir / "id_19.1.csv")
+    np.testing.assert_allclose(sim.time_s, rec.time_s)
+    np.testing.assert_allclose(sim.stress_MPa, rec.stress_MPa)
+    assert rms(sim.displacement_um[200:] - rec.displacement_um[200:]) < 0.01 * np.ptp(rec.displacement_um)
+
+
+def test_invert_then_simulate_follows_the_reference(workdir: Path) -> None:
+    drive = workdir / "drive.csv"
+    assert main(["invert", "--model", str(workdir / "model.yaml"), str(workdir / "ref.csv"), "-o", str(drive),
+                 "--limit", "0", "3"]) == 0
+    d = read_recording(drive, require=("time_s", "drive"))
+    assert d.drive.min() >= 0 and d.drive.max() <= 3
+    model = load_model(workdir / "model.yaml")
+    y = model.simulate(d.time_s, d.drive, -17.0, initial_drive=0.0)
+    assert rms(y - d.columns["reference_um"]) < 1e-6
+    # and on the independent rig (not the model) it tracks within a few percent of the stroke
+    rig_y = PreisachActuator().run(d.drive, -17.0)
+    assert rms(rig_y[200:] - d.columns["reference_um"][200:]) < 0.02 * 24.0
+
+
+def _bad(workdir: Path, name: str, text: str) -> Path:
+    p = workdir / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("argv_tail, message", [
+    (["simulate", "--model", "{d}/model.yaml", "{d}/nocol.csv"], "missing drive column"),
+    (["simulate", "--model", "{d}/model.yaml", "{d}/nan.csv"], "'current_A' is nan"),
+    (["simulate", "--model", "{d}/model.yaml", "{d}/back.csv"], "time does not increase"),
+    (["simulate", "--model", "{d}/garbage.yaml", "{d}/id_15.2.csv"], "damaged model file"),
+    (["simulate", "--model", "{d}/model.yaml", "{d}/id_15.2.csv", "--stress", "-40"], "outside the model's identified range"),
+    (["simulate", "--model", "{d}/model.yaml", "{d}/nostress.csv"], "no stress_MPa column"),
+    (["invert", "--model", "{d}/model.yaml", "{d}/id_15.2.csv"], "missing required column 'reference_um'"),
+    (["identify", "{d}/nocol.csv"], "missing drive column"),
+])
+def test_bad_input_is_one_line_exit_2_and_no_output(workdir: Path, capsys, argv_tail, message) -> None:
+    _bad(workdir, "nocol.csv", "time_s,displacement_um,stress_MPa\n0,0,-15\n1,1,-15\n")
+    _bad(workdir, "nan.csv", "time_s,current_A,stress_MPa\n0,0,-15\n1,nan,-15\n")
+    _bad(workdir, "back.csv", "time_s,current_A,stress_MPa\n0,0,-15\n1,1,-15\n0.5,1,-15\n")
+    _bad(workdir, "nostress.csv", "time_s,current_A\n0,0\n1,1\n")
+    _bad(workdir, "garbage.yaml", "format: [\n")
+    out = workdir / "should_not_exist.csv"
+    out_model = workdir / "should_not_exist.yaml"
+    argv = [a.format(d=workdir) for a in argv_tail] + ["-o", str(out_model if argv_tail[0] == "identify" else out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not out.exists() and not out_model.exists()
+    assert not list(workdir.glob(".*.tmp"))
+
+
+def test_console_script_usage_errors_exit_2_and_help_teaches() -> None:
+    exe = [sys.executable, "-m", "gma_ffc.cli"]
+    bad = subprocess.run(exe + ["identify"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "error:" in bad.stderr and "Traceback" not in bad.stderr
+    helptext = subprocess.run(exe + ["identify", "--help"], capture_output=True, text=True)
+    assert helptext.returncode == 0 and "example:" in helptext.stdout and "--plays" in helptext.stdout

@@ -1,0 +1,79 @@
+"""Model files: versioned YAML with units and provenance; damaged or inconsistent files refused."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from gma_ffc.errors import ModelError
+from gma_ffc.identify import slopes_to_weights
+from gma_ffc.model import SDPIModel
+from gma_ffc.modelio import load_model, save_model
+
+
+@pytest.fixture()
+def model() -> SDPIModel:
+    slopes = np.vstack([[0.8, 1.0, 1.2, 1.1, 0.9], [0.01, 0.0, -0.01, 0.005, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0]])
+    return SDPIModel(np.array([0.0, 0.3, 0.6]), np.array([2.0, 1.0, 0.5]), np.array([-4.0, -2.0, 0.0, 2.0, 4.0]),
+                     slopes_to_weights(slopes), output_coeffs=[10.0, 0.2, 0.0], input_offset=1.5,
+                     stress_range_MPa=(-24.0, -11.3), reference_stress_MPa=-11.3, drive_range=(0.0, 3.0),
+                     provenance={"recordings": ["a.csv"]})
+
+
+def test_save_load_round_trip_is_exact(tmp_path: Path, model: SDPIModel) -> None:
+    path = tmp_path / "m.yaml"
+    save_model(model, path)
+    back = load_model(path)
+    x = 1.5 + 1.4 * np.sin(np.linspace(0, 20, 500))
+    np.testing.assert_array_equal(back.simulate(None, x, -17.0), model.simulate(None, x, -17.0))
+    d = yaml.safe_load(path.read_text())
+    assert d["format"] == "gma-ffc-model" and d["version"] == 1 and d["kind"] == "sdpi"
+    assert d["units"] == {"drive": "A", "displacement": "um", "stress": "MPa"}
+    assert d["stress_range_MPa"] == [-24.0, -11.3] and d["provenance"]["recordings"] == ["a.csv"]
+
+
+def _mutate(tmp_path: Path, model: SDPIModel, change) -> Path:
+    d = model.to_dict()
+    change(d)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(d))
+    return path
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.update(format="something"), "not a gma-ffc model file"),
+    (lambda d: d.update(version=99), "version 99 is not supported"),
+    (lambda d: d.update(kind="fancy"), "unknown model kind 'fancy'"),
+    (lambda d: d.update(kind="mpi"), "kind says 'mpi'"),
+    (lambda d: d["play"].pop("weights"), "missing key 'weights'"),
+    (lambda d: d["play"].update(weights=[1.0, 2.0]), "equally long"),
+    (lambda d: d["play"].update(thresholds=[0.0, 0.6, 0.3]), "strictly increase"),
+    (lambda d: d["deadzone"].update(thresholds=[-4.0, -2.0, 0.5, 2.0, 4.0]), "centre one at 0"),
+    (lambda d: d["deadzone"]["weight_coeffs"].__setitem__(2, [-1.0, 0.0, 0.0]), "Proposition 3.1"),
+    (lambda d: d["play"]["weights"].__setitem__(0, float("nan")), "finite"),
+    (lambda d: d.update(stress_range_MPa=[-10.0, -20.0]), "low < high"),
+])
+def test_inconsistent_files_are_refused_with_the_reason(tmp_path: Path, model: SDPIModel, change, message) -> None:
+    path = _mutate(tmp_path, model, change)
+    with pytest.raises(ModelError, match=message) as err:
+        load_model(path)
+    assert str(path) in str(err.value)
+
+
+def test_damaged_yaml_and_missing_files_are_refused(tmp_path: Path) -> None:
+    bad = tmp_path / "d.yaml"
+    bad.write_text("format: gma-ffc-model\nplay: [1, 2\n")
+    with pytest.raises(ModelError, match="damaged model file"):
+        load_model(bad)
+    with pytest.raises(ModelError, match="no such model file"):
+        load_model(tmp_path / "missing.yaml")
+
+
+def test_stress_outside_the_identified_range_is_refused(model: SDPIModel) -> None:
+    with pytest.raises(ModelError, match="outside the model's identified range"):
+        model.simulate(None, np.ones(10), -30.0)
+    with pytest.raises(ModelError, match="needs a stress"):
+        model.simulate(None, np.ones(10))
