@@ -125,6 +125,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"hil_sim {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # a bug, not bad input: one line, exit 1, traceback on request
+        if os.environ.get("GMA_FFC_DEBUG"):
+            raise
+        print(f"hil_sim {args.command}: internal error: {type(exc).__name__}: {exc} "
+              f"(GMA_FFC_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -196,6 +196,8 @@ def _advance_magnetics(state: np.ndarray, p: np.ndarray, h_new: float) -> None:
     alpha_tot = _alpha_total(p, sigma)
     k = _pinning(p, sigma)
     n = int(math.ceil(abs(dh_total) / p[P_DH_MAX]))
+    if n < 1:             # a subnormal increment divided by the cap underflows to zero
+        n = 1
     dh = dh_total / n
     m = state[S_M]
     for _ in range(n):

@@ -281,6 +281,15 @@ def test_shipped_configs_load_and_bad_configs_name_the_key(tmp_path: Path) -> No
         cfg.with_effects(["magic"])
 
 
+def test_current_decaying_to_subnormal_values_is_handled() -> None:
+    """Regression: the amplifier/eddy lags decay the field into subnormal floats at rest."""
+    cfg = PlantConfig().with_effects(["amplifier", "eddy"])
+    t = np.arange(3000) / 1000.0
+    out = GMAPlant(cfg).run(t, np.where(t < 0.1, 1.0, 0.0))
+    assert np.all(np.isfinite(out["displacement_um"]))
+    assert out["current_A"][-1] == 0.0
+
+
 def test_commands_outside_the_supply_range_are_clamped() -> None:
     plant = GMAPlant(PlantConfig())
     plant.step(float("nan"), 1e-3)
