@@ -358,7 +358,7 @@ class SDPIIdentifier:
         lower = np.r_[1e-6 * max(w_h[0], 1e-12), np.zeros(n_h - 1), np.full(n_s, s_floor), -np.inf]
         theta0 = np.where(np.isfinite(lower), np.maximum(theta0, lower), theta0)
         res = optimize.least_squares(resid, theta0, jac=jac, bounds=(lower, np.inf), method="trf",
-                                     x_scale="jac", max_nfev=200)
+                                     x_scale="jac", max_nfev=200, tr_solver="lsmr")
         if rms(res.fun) < rms(resid(np.r_[w_h, slopes, y_c])):
             return unpack(res.x)
         return w_h, slopes, y_c
@@ -486,7 +486,7 @@ class SDPIIdentifier:
                 return H * slopes[np.arange(len(seg)), seg][:, None]
 
             res = optimize.least_squares(resid, np.maximum(w_h, lower), jac=jac, bounds=(lower, np.inf),
-                                         method="trf", x_scale="jac", max_nfev=50)
+                                         method="trf", x_scale="jac", max_nfev=50, tr_solver="lsmr")
             w_h = res.x
             coeffs, out_coeffs = self._fit_stress(data, w_h, r_s, stress_range, n_levels)
             err = rms(predict(w_h, coeffs, out_coeffs)[0] - y)
