@@ -215,12 +215,16 @@ def _substep(state: np.ndarray, p: np.ndarray, cmd: float, dt: float) -> None:
     # amplifier current loop
     if p[P_ON_AMP] > 0.5:
         state[S_I] += (cmd - state[S_I]) * (1.0 - math.exp(-dt / p[P_TAU_AMP]))
+        if abs(cmd - state[S_I]) < 1e-12:      # settled: stop the decay before subnormal floats
+            state[S_I] = cmd
     else:
         state[S_I] = cmd
     h_coil = p[P_TURNS_PER_M] * state[S_I]
     # eddy currents: the field inside the rod lags the coil field
     if p[P_ON_EDDY] > 0.5:
         h_rod = state[S_H] + (h_coil - state[S_H]) * (1.0 - math.exp(-dt / p[P_TAU_EDDY]))
+        if abs(h_coil - h_rod) < 1e-9:
+            h_rod = h_coil
     else:
         h_rod = h_coil
     _advance_magnetics(state, p, h_rod)
