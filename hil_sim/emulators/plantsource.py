@@ -55,5 +55,6 @@ def make_plant(config_path: str | PathLike | None = None, seed: int = 0, *, allo
         return StandInPlant()
     cfg = plant_module.PlantConfig.from_yaml(config_path) if config_path else plant_module.PlantConfig()
     plant = plant_module.GMAPlant(cfg, seed=seed)
+    plant.step(0.0, 1e-3)  # JIT-compile (or load the cache) now, not inside the first request
     plant.reset()
     return plant

@@ -140,15 +140,16 @@ class EmulatedRig:
             self.steps += n
 
     def true_value(self, channel: str) -> float:
-        """The plant's measured value, without device faults."""
+        """The plant's measured value now, without device faults (what a healthy sensor would say)."""
         if channel not in SENSOR_CHANNELS:
             raise InputError(f"unknown sensor channel '{channel}' (use one of {', '.join(SENSOR_CHANNELS)})")
-        return float(getattr(self.plant, channel))
+        with self._lock:
+            self.advance()
+            return float(getattr(self.plant, channel))
 
     def read(self, channel: str) -> float:
         """What the device reports for a sensor now: plant advanced to now, faults applied."""
         with self._lock:
-            self.advance()
             value = self.true_value(channel)
             if self.faults.get("nan", channel):
                 return math.nan
@@ -168,7 +169,6 @@ class EmulatedRig:
             return
         with self._lock:
             if active:
-                self.advance()
                 self._stuck[fault.channel] = self.true_value(fault.channel)
             else:
                 self._stuck.pop(fault.channel, None)

@@ -5,6 +5,7 @@ Commands (newline-terminated, case-insensitive, SCPI short or long keywords, `SO
     *IDN?                 identity
     *RST                  output off, setpoint 0 A, error queue cleared
     *CLS                  clear the error queue
+    *OPC?                 1 once every earlier command is done (to synchronise after settings)
     OUTPut ON|OFF|1|0     enable / disable the output (disabled = 0 A)
     OUTPut?               1 or 0
     CURRent <A>           current setpoint, refused beyond the rating (-222 Data out of range)
@@ -97,6 +98,8 @@ class ScpiAmplifier:
         if len(nodes) == 1 and upper[0].startswith("*"):
             if upper[0] == "*IDN" and query:
                 return self.rig.identity
+            if upper[0] == "*OPC" and query:  # everything before it is done: lets clients synchronise
+                return "1"
             if upper[0] == "*RST" and not query:
                 self.rig.set_output(False)
                 self.rig.set_current(0.0)
@@ -157,6 +160,7 @@ class SerialAmplifierEmulator:
         self._stop = threading.Event()
         self._ready = threading.Event()
         self.path: str | None = None
+        self.lines_seen = 0  # every line read, answered or not (faults included)
 
     @property
     def address(self) -> str | None:
@@ -218,6 +222,7 @@ class SerialAmplifierEmulator:
                 self.protocol.push_error(-102)
 
     def _answer(self, port: PtyPort, raw: bytes) -> None:
+        self.lines_seen += 1
         faults = self.rig.faults
         if faults.has("silent") or faults.has("drop"):
             return
