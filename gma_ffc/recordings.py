@@ -247,10 +247,25 @@ def read_recording(path: str | Path, require: Sequence[str] = (TIME, "drive", DI
     return read_csv(p, require)
 
 
+def plain(value: Any) -> Any:
+    """Numpy scalars/arrays and other objects -> what YAML can write (metadata never blocks a write)."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Mapping):
+        return {str(k): plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain(v) for v in value]
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    return str(value)
+
+
 def _format_meta(meta: Mapping[str, Any]) -> str:
     out = []
     for key, value in meta.items():
-        dumped = yaml.safe_dump({key: value}, default_flow_style=True, width=10_000).strip()
+        dumped = yaml.safe_dump({str(key): plain(value)}, default_flow_style=True, width=10_000).strip()
         if dumped.startswith("{") and dumped.endswith("}"):
             dumped = dumped[1:-1]
         out.append(f"# {dumped}\n")

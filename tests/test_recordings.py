@@ -81,6 +81,7 @@ def test_write_then_read_round_trips(tmp_path: Path, suffix: str) -> None:
 
 def test_written_metadata_is_yaml_readable(tmp_path: Path) -> None:
     rec = Recording({"time_s": [0.0, 1.0], "current_A": [0.0, 1.0], "displacement_um": [0.0, 1.0]},
-                    {"note": "contains: a colon", "start_unix_s": 1.7e9})
+                    {"note": "contains: a colon", "start_unix_s": 1.7e9, "mass_kg": np.float64(12.5)})
     write_recording(tmp_path / "m.csv", rec)
-    assert read_recording(tmp_path / "m.csv").metadata == rec.metadata
+    assert read_recording(tmp_path / "m.csv").metadata == {"note": "contains: a colon", "start_unix_s": 1.7e9,
+                                                           "mass_kg": 12.5}
