@@ -36,8 +36,11 @@ def write_model(path: Path, gain: float) -> None:
 
 
 def write_config(path: Path, model: str) -> None:
+    # watchdog_s: the first tick pays for loading (or, after a source change, compiling) numba's steppers
+    # (0.5 s to several s on a busy machine), which trips the default 0.5 s loop watchdog.
     path.write_text(f"""\
 rate_hz: {RATE_HZ}
+watchdog_s: 20.0
 model: {model}
 driver: {{kind: sim, load_mass_kg: 20}}
 reference: {{kind: sine, frequency_hz: 3, amplitude_um: 5, offset_um: 6}}
