@@ -18,7 +18,7 @@ def _figure(nrows: int, ncols: int, size: tuple[float, float]) -> Any:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    return plt.subplots(nrows, ncols, figsize=size, squeeze=False)
+    return plt.subplots(nrows, ncols, figsize=size, squeeze=False, constrained_layout=True)
 
 
 def save_figure(fig: Any, path: str | Path) -> None:
