@@ -24,6 +24,7 @@ from hil_sim.emulators import (
 )
 from hil_sim.emulators.control import execute
 from hil_sim.emulators.faults import FaultSpecError
+from hil_sim.emulators.modbus import encode_sensor
 
 INT_MAP = DEVICE_CONFIGS / "amplifier_int16.yaml"
 MIXED_MAP = DEVICE_CONFIGS / "multi_unit_mixed.yaml"
@@ -316,7 +317,8 @@ def test_modbus_sensor_faults_stuck_nan_out_of_range(rig, map_path):
             rig.faults.set("out_of_range:displacement_um=5000")
             reported = read_channel(client, m, "displacement_um")
             lo, hi = m["displacement_um"].physical_range
-            assert reported == pytest.approx(min(5000.0, hi), abs=0.01)  # saturated if the type cannot hold it
+            # saturated if the type cannot hold it, one step short of the invalid marker (which means NaN)
+            assert reported == pytest.approx(min(5000.0, hi - abs(m["displacement_um"].scale)), abs=1e-6)
             assert reported > 500
         finally:
             client.close()
@@ -507,6 +509,21 @@ def test_rig_steps_wall_clock_time_in_dt_chunks_with_bounded_catch_up():
     assert rig.last_setpoint_A == 1.0
 
 
+def test_encode_sensor_nan_and_saturation_on_integer_registers():
+    m = RegisterMap.from_dict({"channels": {
+        "a": {"function": "input", "address": 0, "type": "int16", "scale": 0.1},
+        "b": {"function": "input", "address": 1, "type": "uint16"},
+        "c": {"function": "input", "address": 2, "type": "float32"},
+    }})
+    assert encode_sensor(m["a"], math.nan) == [0x8000]
+    assert encode_sensor(m["b"], math.nan) == [0xFFFF]
+    assert math.isnan(m["c"].decode(encode_sensor(m["c"], math.nan)))
+    assert encode_sensor(m["a"], 1e9) == [0x7FFF] and encode_sensor(m["a"], -1e9) == [0x8001]
+    assert encode_sensor(m["b"], 1e9) == [0xFFFE] and encode_sensor(m["b"], -5) == [0]
+    assert m["c"].decode(encode_sensor(m["c"], 1e50)) == pytest.approx(3.4028234663852886e38)
+    assert m["a"].decode(encode_sensor(m["a"], 12.3)) == pytest.approx(12.3)
+
+
 def test_fault_specs():
     assert str(parse_fault("delay:0.25")) == "delay:0.25"
     assert parse_fault("out-of-range:force_N=-7").value == -7.0
@@ -525,6 +542,10 @@ def test_control_socket_sets_and_clears_faults(rig):
         assert status["faults"] == ["nan:force_N"] and status["output_enabled"] is False
         assert send_control(control.path, "clear")["cleared"] == ["nan:force_N"]
         assert math.isfinite(rig.read("force_N"))
+        before = rig.true_value("force_N")
+        assert send_control(control.path, "load 50")["ok"]
+        assert wait_for(lambda: rig.true_value("force_N") > before + 400)  # 50 kg * g on the load cell
+        assert send_control(control.path, "status")["stress_MPa"] < -20  # about -24 MPa on the 7 mm rod
         reply = send_control(control.path, "fault nonsense")
         assert reply["ok"] is False and "unknown kind" in reply["error"]
     assert execute(rig, "reboot")["ok"] is False

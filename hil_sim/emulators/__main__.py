@@ -51,6 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--seed", type=int, default=0, help="plant noise and garbage seed (default 0)")
         p.add_argument("--fault", action="append", default=[], metavar="KIND[:ARG]",
                        help="start with this fault active (repeatable; see the fault list below)")
+        p.add_argument("--load-mass", type=float, metavar="KG", help="load mass on the rod at start (default: the plant config's)")
         p.add_argument("--max-current", type=float, default=2.0, metavar="A",
                        help="amplifier rating; larger setpoints are refused (default 2 A)")
         p.add_argument("--dt", type=float, default=1e-3, metavar="S", help="plant step (default 1 ms)")
@@ -77,9 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     common(ser)
     ctl = sub.add_parser("control", help="talk to a running emulator",
-                         description="Commands: fault KIND[:ARG] | clear [KIND[:CHANNEL]] | status")
+                         description="Commands: fault KIND[:ARG] | clear [KIND[:CHANNEL]] | load KG | status")
     ctl.add_argument("socket", help="the control socket path the emulator printed")
-    ctl.add_argument("command", nargs="+", help="fault SPEC | clear [SPEC] | status")
+    ctl.add_argument("command", nargs="+", help="fault SPEC | clear [SPEC] | load KG | status")
     return parser
 
 
@@ -91,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
     faults = [parse_fault(spec) for spec in args.fault]  # bad specs fail before anything starts
     register_map = load_register_map(args.map) if args.kind != "serial" else None
     rig = EmulatedRig(make_plant(args.plant_config, seed=args.seed), dt_s=args.dt, max_current_A=args.max_current)
+    if args.load_mass is not None:
+        rig.set_load_mass(args.load_mass)
     for fault in faults:
         rig.faults.set(fault)
     if args.kind == "serial":

@@ -3,6 +3,7 @@ command line per connection and answering one JSON line.
 
     fault KIND[:ARG]     activate a fault (see hil_sim.emulators.faults)
     clear [KIND[:CH]]    clear every fault, or some
+    load KG              put KG of load mass on the rod (the stress follows)
     status               setpoint, output, faults, plant values, recent command history
 """
 
@@ -32,9 +33,16 @@ def execute(rig: EmulatedRig, line: str) -> dict[str, Any]:
             return {"ok": True, "set": str(fault)}
         if verb == "clear":
             return {"ok": True, "cleared": [str(f) for f in rig.faults.clear(arg or None)]}
+        if verb == "load" and arg:
+            try:
+                kg = float(arg)
+            except ValueError:
+                raise InputError(f"control: 'load {arg}': give the mass in kg, e.g. load 20") from None
+            rig.set_load_mass(kg)
+            return {"ok": True, "load_mass_kg": kg}
         if verb == "status":
             return {"ok": True, **rig.snapshot()}
-        raise InputError(f"control: unknown command '{line.strip()}' (use: fault SPEC | clear [SPEC] | status)")
+        raise InputError(f"control: unknown command '{line.strip()}' (use: fault SPEC | clear [SPEC] | load KG | status)")
     except InputError as exc:
         return {"ok": False, "error": str(exc)}
 

@@ -39,20 +39,26 @@ DEVICE_VALUES = set(SENSOR_CHANNELS) | {CURRENT_SETPOINT, OUTPUT_ENABLE, STATUS,
 
 
 def encode_sensor(channel: Channel, value: float) -> list[int]:
-    """Encode what a sensor reports, even when absurd: integer registers cannot hold NaN, so a
-    NaN becomes the type's invalid marker (most negative raw value; all ones if unsigned), and
-    values beyond the type saturate at its limits, as real devices do."""
+    """Encode what a sensor reports, even when absurd. Integer registers cannot hold NaN, so a NaN
+    becomes the type's invalid marker (most negative raw value; all ones if unsigned, the common
+    device convention, which the modbus driver decodes as NaN); values beyond the type saturate
+    at its limits, one step short of the marker, as real transmitters do."""
     if channel.is_bit:
         return [1 if value else 0]
-    if math.isnan(value) and channel.type != "float32":
-        _, _, lo, hi = TYPES[channel.type]
-        marker = hi if lo == 0 else lo
-        return dataclasses.replace(channel, scale=1.0, offset=0.0).encode(marker)
     try:
         return channel.encode(value)
     except ConfigError:
-        lo, hi = channel.physical_range
-        return channel.encode(min(max(value, lo), hi))
+        pass
+    _, _, lo, hi = TYPES[channel.type]
+    raw_channel = dataclasses.replace(channel, scale=1.0, offset=0.0)
+    if channel.type == "float32":
+        return raw_channel.encode(min(max((value - channel.offset) / channel.scale, lo), hi))
+    marker = hi if lo == 0 else lo
+    if math.isnan(value):
+        return raw_channel.encode(marker)
+    lo, hi = (lo, hi - 1) if lo == 0 else (lo + 1, hi)
+    raw = (value - channel.offset) / channel.scale
+    return raw_channel.encode(min(max(round(raw) if math.isfinite(raw) else raw, lo), hi))
 
 
 class RigContext(ModbusServerContext):

@@ -99,6 +99,15 @@ class EmulatedRig:
             self._enabled = bool(enabled)
             self._history.append(Command(self._clock() - self._t0, "output_enable", float(self._enabled)))
 
+    def set_load_mass(self, kg: float) -> None:
+        """Change the load on the rod (the stress follows), as when a mass is put on the rig."""
+        setter = getattr(self.plant, "set_load_mass", None)
+        if setter is None:
+            raise InputError("this plant has no load mass to change")
+        with self._lock:
+            self.advance()
+            setter(float(kg))
+
     @property
     def setpoint_A(self) -> float:
         return self._setpoint
@@ -182,6 +191,7 @@ class EmulatedRig:
                 "last_setpoint_A": self.last_setpoint_A,
                 "faults": [str(f) for f in self.faults.active()],
                 "plant": {ch: self.true_value(ch) for ch in SENSOR_CHANNELS},
+                "stress_MPa": float(getattr(self.plant, "stress_MPa", math.nan)),
                 "history": [[c.time_s, c.kind, c.value] for c in self._history[-50:]],
                 "commands_received": len(self._history),
                 "requests": self.requests,
