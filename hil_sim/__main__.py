@@ -26,7 +26,7 @@ kinds (one CSV per experiment in DIR, plus DIR/manifest.yaml):
   steps           current steps 0.5 1.5 2.5 1.0 2.0 0 A held 12 s each, 1 kHz
   stress_change   3 Hz sine while the load goes 0 -> 15.3 -> 30.6 -> 49.8 -> 0 kg, 2 kHz
 
-effects (all off unless --effects or the config switch them on; 'none' = all off):
+effects (off unless --effects or the config switch them on; 'none' = all off, 'all' = all on):
   eddy       eddy currents: the rod field lags the coil (loop widens with frequency)
   dynamics   rod stiffness and load mass: resonance sqrt(k/m)/2pi, moves with the load
   thermal    Joule heating, thermal time constant ~60 s, slow displacement drift
