@@ -11,7 +11,7 @@ import pytest
 
 from gma_ffc.control.config import validate_config
 from gma_ffc.control.controller import Controller
-from gma_ffc.control.sil import fit_sdpi_and_mpi, identification_recordings, tracking_rms_um
+from gma_ffc.control.sil import cached_sdpi_and_mpi, tracking_rms_um
 from gma_ffc.recordings import read_recording
 from hil_sim.plant import PlantConfig
 
@@ -19,8 +19,8 @@ PLANT = PlantConfig()
 
 
 @pytest.fixture(scope="module")
-def models():
-    return fit_sdpi_and_mpi(identification_recordings())
+def models(request):
+    return cached_sdpi_and_mpi(request.config.cache.mkdir("gma_ffc_sil_models"))
 
 
 def sim_cfg(tmp_path, name, **driver):

@@ -61,6 +61,8 @@ COMMS = {
     "backoff_initial_s": Field("float", 0.1, min=0.0, min_exclusive=True),
     "backoff_max_s": Field("float", 2.0, min=0.0, min_exclusive=True),
     "max_attempts": Field("int", 5, min=0, help="0 retries forever"),
+    "safe_retry_s": Field("float", 1.0, min=0.0, max=30.0,
+                          help="how long to keep retrying the safe-current write on a failing link"),
 }
 
 TELEMETRY = {

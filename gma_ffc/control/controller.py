@@ -71,6 +71,7 @@ class Controller:
         self.monitor = self._make_monitor(cfg)
         self.stepper = model.inverse_stepper(self.period_s, initial_drive=self.safe_A)
         self._set_stress_range(model)
+        _warm_up(model, self.period_s, self.stress_lo, self.stress_hi)
         self.stats = TickStats(self.period_s, cfg.scheduler["stats_window_s"])
         self.inputs = Inputs()
         self.telemetry: Telemetry | None = None
@@ -91,6 +92,7 @@ class Controller:
         self.last_displacement_um = math.nan
         self._heartbeat = math.nan
         self._watchdog_tripped = False
+        self._at_safe = False
 
     # ---- construction helpers ------------------------------------------------------------
     @staticmethod
@@ -125,6 +127,8 @@ class Controller:
 
             model = load_model(new_cfg.model)
         reference = build_reference(new_cfg.reference)
+        rng = getattr(model, "stress_range_MPa", None)
+        _warm_up(model, self.period_s, *(rng if rng is not None else (-11.3, -11.3)))
         last = self.limiter.last
         stepper = model.inverse_stepper(self.period_s, initial_drive=last)
         monitor = self._make_monitor(new_cfg)
@@ -163,12 +167,28 @@ class Controller:
             self.active_faults.pop(name, None)
 
     def _write_safe(self) -> None:
-        """The safe current, at once, outside the limiter; a failure is recorded, never raised."""
-        try:
-            self.driver.safe(self.safe_A)
-            self.last_cmd_A = self.safe_A
-        except Exception as exc:  # the device may be gone; nothing more can be done from here
-            self._raise_fault("safe_write_failed", f"could not write the safe current: {type(exc).__name__}: {exc}")
+        """The safe current, at once, outside the limiter. On a failing link keep retrying (with
+        a reconnect between tries) for `comms.safe_retry_s` of real time; a final failure is
+        recorded as the fault `safe_write_failed`, never raised."""
+        retry_s = 0.0 if self.clock.simulated else self.cfg.comms["safe_retry_s"]
+        give_up = time.monotonic() + retry_s
+        while True:
+            try:
+                self.driver.safe(self.safe_A)
+                self.last_cmd_A = self.safe_A
+                self._at_safe = True
+                self._clear_fault("safe_write_failed")
+                break
+            except Exception as exc:  # the device may be gone; keep trying for a while
+                if time.monotonic() >= give_up:
+                    self._raise_fault("safe_write_failed",
+                                      f"could not write the safe current: {type(exc).__name__}: {exc}")
+                    break
+            time.sleep(0.05)
+            try:
+                self.driver.reconnect()
+            except Exception:
+                pass
         self.limiter.force(self.safe_A)
 
     # ---- the loop ----------------------------------------------------------------------------
@@ -231,6 +251,7 @@ class Controller:
         """Blocking fixed-rate loop; the safe current is written on every way out."""
         stop_event = stop_event or threading.Event()
         self.state = "starting"
+        self._at_safe = False
         self.exit_reason = ""
         self.started_unix_s = time.time()
         watchdog: threading.Thread | None = None
@@ -248,7 +269,8 @@ class Controller:
                 {"source": "gma-ffc controller", "start_unix_s": self.started_unix_s,
                  "sample_rate_hz": self.cfg.rate_hz, "driver": self.cfg.driver["kind"],
                  "model_kind": getattr(self.model, "kind", "?"), "config": self.cfg.source,
-                 "current_A_is": "measured" if CURRENT in self.driver.channels else "commanded"},
+                 "current_A_is": "measured (commanded where a reading is missing)"
+                 if CURRENT in self.driver.channels else "commanded"},
                 capacity=int(tcfg["buffer_s"] * self.cfg.rate_hz), flush_interval_s=tcfg["flush_interval_s"],
                 block_when_full=self.clock.simulated)
             self.telemetry.start()
@@ -271,7 +293,7 @@ class Controller:
     def _finish(self, opened: bool, watchdog: threading.Thread | None, wd_stop: threading.Event) -> dict[str, Any]:
         """Safe current first, then stop the watchdog, flush telemetry, close the driver."""
         wd_stop.set()
-        if opened:
+        if opened and not self._at_safe:
             self._write_safe()
         if watchdog is not None:
             watchdog.join(timeout=2.0)
@@ -312,6 +334,7 @@ class Controller:
         end_t = math.inf if duration_s is None else duration_s
         watchdog_s = self.cfg.watchdog_s
         self.state = "running"
+        read_ok = False
         while True:
             deadline = sched.wait()
             t_start = clock.now()
@@ -327,8 +350,10 @@ class Controller:
             try:
                 if self._watchdog_tripped:
                     raise _TickFault(safety.WATCHDOG, self.active_faults.get(safety.WATCHDOG, "watchdog"))
+                read_ok = False
                 inputs.clear()
                 driver.read(inputs)
+                read_ok = True
                 bad = self.monitor.update(inputs.force_N, inputs.stress_MPa)
                 if bad:
                     raise _TickFault(bad, self._sensor_message(bad, inputs))
@@ -351,18 +376,21 @@ class Controller:
                 else:
                     u = self.safe_A      # stopping, or no good stress yet: head for the safe current
                 cmd = self.limiter.apply(u)
+                self._at_safe = False
                 driver.write(cmd)
             except _TickFault as fault:
-                self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
-                                 disp_col, force_col, tel, safe=True)
+                if read_ok:   # a tick whose read failed has no data to log
+                    self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
+                                     disp_col, force_col, tel, safe=True)
                 self._raise_fault(fault.name, str(fault))
                 self._write_safe()
                 self.exit_reason = str(fault)
                 return
             except DriverError as exc:
                 name = safety.COMMS_TIMEOUT if exc.reason == "timeout" else safety.COMMS_ERROR
-                self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
-                                 disp_col, force_col, tel, safe=True)
+                if read_ok:   # a tick whose read failed has no data to log
+                    self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
+                                     disp_col, force_col, tel, safe=True)
                 self._raise_fault(name, str(exc))
                 self._write_safe()
                 if mode == RUNNING and self.cfg.comms["on_fault"] == "reconnect" and self._reconnect(stop_event):
@@ -375,8 +403,9 @@ class Controller:
                 self.exit_reason = str(exc)
                 return
             except Exception as exc:
-                self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
-                                 disp_col, force_col, tel, safe=True)
+                if read_ok:   # a tick whose read failed has no data to log
+                    self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
+                                     disp_col, force_col, tel, safe=True)
                 self._raise_fault(safety.EXCEPTION, f"{type(exc).__name__}: {exc}")
                 self._write_safe()
                 self.exit_reason = f"exception in the tick: {type(exc).__name__}: {exc}"
@@ -406,7 +435,7 @@ class Controller:
         row[1] = ref
         row[2] = cmd
         meas = inputs.current_A
-        row[3] = meas if has_current else cmd
+        row[3] = meas if has_current and meas == meas else cmd   # commanded where unmeasured
         row[4] = self.monitor.stress
         if disp_col >= 0:
             row[disp_col] = inputs.displacement_um
@@ -465,6 +494,12 @@ class Controller:
         snap = self.status()
         snap["ok"] = snap["state"] != "fault"
         return snap
+
+
+def _warm_up(model: Any, dt: float, lo: float, hi: float) -> None:
+    """Call a throwaway stepper once so JIT compilation / cache loading happens before tick 1."""
+    mid = 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else -11.3
+    model.inverse_stepper(dt, initial_drive=0.0).step(0.0, mid)
 
 
 def ref_or_nan(ctrl: Controller) -> float:

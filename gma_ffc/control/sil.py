@@ -6,6 +6,8 @@ describes: identify at 3 Hz (SDPI from several stresses, MPI from -11.3 MPa only
 
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -52,3 +54,29 @@ def tracking_rms_um(rec: Recording, skip_s: float = 0.0) -> float:
     keep = t >= t[0] + skip_s
     err = rec.columns["reference_um"][keep] - rec.columns["displacement_um"][keep]
     return float(np.sqrt(np.mean(err * err)))
+
+
+def cached_sdpi_and_mpi(cache_dir: str | Path) -> tuple[Any, Any]:
+    """`fit_sdpi_and_mpi(identification_recordings())`, saved as model files in `cache_dir`, keyed
+    by the source of the plant and the identifier, so parallel test workers fit only once."""
+    from .. import identify, model as model_mod, operators
+    from ..errors import ModelError
+    from ..modelio import load_model, save_model
+    import hil_sim.kernels
+    import hil_sim.plant
+
+    digest = hashlib.sha256()
+    for mod in (identify, model_mod, operators, hil_sim.kernels, hil_sim.plant):
+        digest.update(Path(mod.__file__).read_bytes())
+    key = digest.hexdigest()[:16]
+    folder = Path(cache_dir)
+    paths = folder / f"sdpi_{key}.yaml", folder / f"mpi_{key}.yaml"
+    try:
+        return load_model(paths[0]), load_model(paths[1])
+    except (ModelError, OSError):
+        pass
+    sdpi, mpi = fit_sdpi_and_mpi(identification_recordings())
+    folder.mkdir(parents=True, exist_ok=True)
+    save_model(sdpi, paths[0])
+    save_model(mpi, paths[1])
+    return sdpi, mpi

@@ -1,0 +1,198 @@
+"""The whole stack through the Modbus TCP and RTU emulators (real protocol, real time, short runs):
+SIL tracking, and every emulator fault mode ending at the safe current with the fault named and
+no telemetry lost."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from gma_ffc.control.config import validate_config
+from gma_ffc.control.controller import Controller
+from gma_ffc.control.sil import cached_sdpi_and_mpi, tracking_rms_um
+from gma_ffc.errors import ConfigError
+from gma_ffc.recordings import read_recording
+from gma_ffc.registers import load_register_map
+from hil_sim.emulators.modbus import ModbusEmulator
+from hil_sim.emulators.rig import EmulatedRig
+from hil_sim.plant import GMAPlant, PlantConfig
+
+MAPS = "hil_sim/configs/devices/"
+
+
+@pytest.fixture(scope="module")
+def models(request):
+    return cached_sdpi_and_mpi(request.config.cache.mkdir("gma_ffc_sil_models"))
+
+
+def make_rig(stress=-15.2, noise=False):
+    pc = PlantConfig()
+    pc.noise.enabled = noise
+    plant = GMAPlant(pc, seed=0)
+    plant.reset(pc.mass_for_stress(stress))
+    return EmulatedRig(plant, dt_s=1e-3, max_current_A=3.5)
+
+
+class Bench:
+    """An emulator on a free port / pty and a matching controller config; always stopped."""
+
+    def __init__(self, transport, map_file, stress=-15.2, noise=False):
+        self.rmap = load_register_map(MAPS + map_file)
+        self.rig = make_rig(stress, noise)
+        self.emu = ModbusEmulator(self.rig, self.rmap, transport=transport, port=0)
+        self.addr = self.emu.start()
+        self.transport = transport
+
+    def cfg(self, tmp_path, name, rate_hz, **extra):
+        dev = {"transport": self.transport, "timeout_s": 0.05, "register_map": self.rmap.to_dict()}
+        if self.transport == "tcp":
+            dev.update(host=self.addr[0], port=self.addr[1])
+        else:
+            dev.update(port=self.addr)
+        # lead_s: the measured displacement answers the previous tick's command, and the command
+        # reaches the device after the reads: about 1.5 periods of known output latency.
+        data = {"rate_hz": rate_hz, "model": "unused.yaml",
+                "driver": {"kind": "modbus", "devices": {"amp": dev}},
+                "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0,
+                              "lead_s": 1.5 / rate_hz},
+                "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
+                "telemetry": {"path": str(tmp_path / f"{name}.csv"), "flush_interval_s": 0.2}}
+        data.update(extra)
+        return validate_config(data)
+
+
+@pytest.fixture
+def bench_factory():
+    benches = []
+
+    def make(*args, **kwargs):
+        b = Bench(*args, **kwargs)
+        benches.append(b)
+        return b
+
+    yield make
+    for b in benches:
+        b.emu.stop()
+
+
+@pytest.mark.parametrize("transport,rate,map_file", [("tcp", 250, "amplifier_int16.yaml"),
+                                                     ("rtu", 100, "multi_unit_mixed.yaml")])
+@pytest.mark.parametrize("stress", [-15.2, -19.1])
+def test_sil_sdpi_beats_mpi_through_modbus(models, bench_factory, tmp_path, transport, rate, map_file, stress):
+    sdpi, mpi = models
+    rms = {}
+    for name, model in (("sdpi", sdpi), ("mpi", mpi)):
+        bench = bench_factory(transport, map_file, stress)
+        cfg = bench.cfg(tmp_path, name, rate)
+        ctrl = Controller(cfg, model=model)
+        summary = ctrl.run(duration_s=1.5)
+        assert summary["ok"], summary["fault_messages"]
+        rec = read_recording(cfg.telemetry["path"])
+        rms[name] = tracking_rms_um(rec, skip_s=0.5)
+        # The run ended with the safe current and the output off, as the device saw it.
+        assert bench.rig.last_setpoint_A == 0.0 and not bench.rig.output_enabled
+        bench.emu.stop()
+    assert rms["sdpi"] <= 0.5 * rms["mpi"], rms
+
+
+LINK = {"comms_timeout", "comms_error"}
+FAULTS = [
+    ("silent", LINK), ("delay:0.2", {"comms_timeout"}), ("garbage", LINK), ("exception", {"comms_error"}),
+    ("drop", LINK), ("stuck:force_N", {"sensor_stale"}), ("nan:force_N", {"sensor_nan"}),
+    ("out_of_range:force_N", {"sensor_absurd"}),
+]
+
+
+def run_with_fault(bench, cfg, model, spec, *, clear_after_fault=True, at_s=0.4):
+    """Run, inject `spec` at `at_s`, clear it once the controller reports a fault (so the safe
+    write can reach the device, as it would once a cable is back); returns the controller."""
+    ctrl = Controller(cfg, model=model)
+    result = {}
+    th = threading.Thread(target=lambda: result.setdefault("s", ctrl.run(duration_s=4.0)))
+    th.start()
+    try:
+        time.sleep(at_s)
+        t_fault = time.monotonic()
+        bench.rig.faults.set(spec)
+        while th.is_alive() and not ctrl.active_faults and time.monotonic() - t_fault < 3.0:
+            time.sleep(0.005)
+        if clear_after_fault:
+            bench.rig.faults.clear()
+    finally:
+        th.join(timeout=10.0)
+    assert not th.is_alive()
+    return ctrl, result["s"]
+
+
+@pytest.mark.parametrize("spec,expected", FAULTS)
+def test_tcp_fault_modes_end_at_safe_current(models, bench_factory, tmp_path, spec, expected):
+    bench = bench_factory("tcp", "amplifier_int16.yaml", noise=True)
+    cfg = bench.cfg(tmp_path, "fault", 200, comms={"on_fault": "stop"},
+                    sensor={"bad_ticks": 3, "stale_ticks": 40})
+    ctrl, summary = run_with_fault(bench, cfg, models[0], spec)
+    assert summary["state"] == "fault"
+    assert expected & set(summary["faults"]), summary["fault_messages"]
+    assert "safe_write_failed" not in summary["faults"]
+    setpoints = bench.rig.history("setpoint")
+    assert len(setpoints) > 20                     # it was really driving before the fault
+    assert setpoints[-1].value == 0.0               # the last command the device received is safe
+    assert not bench.rig.output_enabled
+    rec = read_recording(cfg.telemetry["path"], require=("time_s", "current_A"))
+    tel = ctrl.telemetry
+    assert tel.dropped == 0 and len(rec) == tel.head >= summary["ticks"]
+    assert rec.time_s[-1] >= 0.35                   # rows right up to the fault
+    if spec.split(":")[0] in ("stuck", "nan", "out_of_range"):
+        assert rec.columns["current_cmd_A"][-1] == 0.0  # the fault tick is logged with the safe command
+
+
+def test_rtu_timeout_reconnects_and_resumes_without_a_jump(models, bench_factory, tmp_path):
+    bench = bench_factory("rtu", "multi_unit_mixed.yaml")
+    cfg = bench.cfg(tmp_path, "reconnect", 100, comms={"on_fault": "reconnect", "backoff_initial_s": 0.1,
+                                                        "max_attempts": 20},
+                    limits={"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 20.0})
+    ctrl = Controller(cfg, model=models[0])
+    result = {}
+    th = threading.Thread(target=lambda: result.setdefault("s", ctrl.run(duration_s=2.5)))
+    th.start()
+    try:
+        time.sleep(0.8)
+        bench.rig.faults.set("silent")
+        time.sleep(0.4)
+        bench.rig.faults.clear()
+    finally:
+        th.join(timeout=10.0)
+    s = result["s"]
+    assert s["state"] == "stopped" and s["reconnects"] >= 1
+    assert any(h["fault"] in LINK for h in s["fault_history"])
+    rec = read_recording(cfg.telemetry["path"])
+    cmd = rec.columns["current_cmd_A"]
+    # after the gap the command restarts from the safe current and climbs within the slew limit
+    late = np.flatnonzero(rec.time_s > 0.6)[0]
+    gap = late + int(np.argmax(np.diff(rec.time_s[late:]) > 0.1))   # last row before the link went silent
+    assert gap > 0 and cmd[gap] > 0.5                   # it was driving when the link went silent
+    step = 20.0 / 100
+    assert 0.0 < cmd[gap + 1] <= step + 1e-6            # resumes from the safe current ...
+    steps = np.abs(np.diff(cmd[gap + 1:]))
+    assert steps.max() <= step + 1e-6          # ... within the slew limit (file has 9 digits)
+    assert bench.rig.last_setpoint_A == 0.0
+
+
+def test_config_errors_name_the_key(tmp_path):
+    base = {"rate_hz": 100, "model": "m.yaml", "reference": {"kind": "sine", "frequency_hz": 3, "amplitude_um": 1},
+            "limits": {"current_min_A": 0, "current_max_A": 1, "slew_A_per_s": 10}}
+    amp = {"transport": "tcp", "port": 502, "register_map": load_register_map(MAPS + "amplifier_int16.yaml").to_dict()}
+    with pytest.raises(ConfigError, match=r"driver\.devices\.amp\.port"):
+        validate_config({**base, "driver": {"kind": "modbus", "devices": {"amp": {**amp, "port": 70000}}}})
+    with pytest.raises(ConfigError, match=r"did you mean 'driver\.devices\.amp\.timeout_s'"):
+        validate_config({**base, "driver": {"kind": "modbus", "devices": {"amp": {**amp, "timeout": 1}}}})
+    no_sp = {"channels": {"force_N": {"function": "input", "address": 1, "type": "int16"}}}
+    with pytest.raises(ConfigError, match="current_setpoint_A"):
+        validate_config({**base, "driver": {"kind": "modbus", "devices": {"amp": {**amp, "register_map": no_sp}}}})
+    with pytest.raises(ConfigError, match="also on device"):
+        validate_config({**base, "driver": {"kind": "modbus", "devices": {"a": amp, "b": amp}}})
+    with pytest.raises(ConfigError, match=r"register_map.*no such|register_map.*cannot read"):
+        validate_config({**base, "driver": {"kind": "modbus",
+                                            "devices": {"amp": {**amp, "register_map": "missing.yaml"}}}})
