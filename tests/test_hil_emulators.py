@@ -259,10 +259,15 @@ def test_modbus_tcp_drop_fault_closes_connection_until_cleared(rig):
         client = tcp_client(emu, timeout=0.5)
         try:
             assert math.isfinite(read_channel(client, m, "current_A"))
+            assert emu.connections == 1
             rig.faults.set("drop")
+            assert wait_for(lambda: emu.connections == 0)  # cut at once, not at the next request
             with pytest.raises(ModbusException):
                 read_channel(client, m, "current_A")
-            assert not client.connected
+            assert client.connect()  # the server still accepts, then drops on the first request
+            with pytest.raises(ModbusException):
+                read_channel(client, m, "current_A")
+            assert rig.history() == []
             rig.faults.clear("drop")
             assert client.connect()
             assert math.isfinite(read_channel(client, m, "current_A"))

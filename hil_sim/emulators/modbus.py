@@ -228,7 +228,28 @@ class ModbusEmulator:
         self._server_pty: PtyPort | None = None
         self._client_pty: PtyPort | None = None
         self._relay: PtyRelay | None = None
+        self._server = None
         self.address: tuple[str, int] | str | None = None
+        rig.faults.add_listener(self._on_fault)
+
+    def _on_fault(self, fault, active: bool) -> None:
+        """A drop cuts open TCP connections at once, not only at their next request."""
+        loop = self._loop
+        if fault.kind == "drop" and active and self.transport == "tcp" and loop is not None and not loop.is_closed():
+            try:
+                loop.call_soon_threadsafe(self._close_connections)
+            except RuntimeError:  # loop shutting down
+                pass
+
+    def _close_connections(self) -> None:
+        if self._server is not None:
+            for connection in list(self._server.active_connections.values()):
+                connection.close()
+
+    @property
+    def connections(self) -> int:
+        """Open client connections (TCP)."""
+        return len(self._server.active_connections) if self._server is not None else 0
 
     def garbage(self) -> bytes:
         """Bytes that are not a valid reply (seeded, so runs repeat)."""
@@ -270,6 +291,7 @@ class ModbusEmulator:
             server = _RtuServer(self.context, port=self._server_pty.slave_name, baudrate=self.baudrate,
                                 ignore_missing_devices=True, reconnect_delay=0.5)
         server.emulator = self
+        self._server = server
         await server.serve_forever(background=True)
         if self.transport == "tcp":
             self.address = server.transport.sockets[0].getsockname()[:2]
