@@ -105,7 +105,7 @@ S_HEAD = 24      # ring-buffer head index
 S_COUNT = 25     # ring-buffer fill
 N_STATE = 26
 
-DELAY_BUFFER = 8192   # samples of history kept for the transport delay
+DELAY_BUFFER = 32768  # sub-steps of history kept for the transport delay (0.8 s at 25 us)
 
 
 @njit(cache=True)
@@ -266,19 +266,23 @@ def _substep(state: np.ndarray, p: np.ndarray, cmd: float, dt: float) -> None:
 
 
 @njit(cache=True)
-def _delayed_output(state: np.ndarray, p: np.ndarray, hist: np.ndarray) -> float:
-    """Record the true position and return the one `delay` seconds ago (zero-order hold)."""
-    head = int(state[S_HEAD])
-    head = (head + 1) % DELAY_BUFFER
+def _record_history(state: np.ndarray, hist: np.ndarray) -> None:
+    """Remember (time, position) after every sub-step, for the transport delay."""
+    head = (int(state[S_HEAD]) + 1) % DELAY_BUFFER
     hist[0, head] = state[S_T]
     hist[1, head] = state[S_X]
     state[S_HEAD] = head
-    count = int(state[S_COUNT])
-    if count < DELAY_BUFFER:
-        count += 1
-        state[S_COUNT] = count
+    if state[S_COUNT] < DELAY_BUFFER:
+        state[S_COUNT] += 1.0
+
+
+@njit(cache=True)
+def _delayed_output(state: np.ndarray, p: np.ndarray, hist: np.ndarray) -> float:
+    """The position `delay` seconds ago (zero-order hold on the sub-step history)."""
     if p[P_ON_DELAY] < 0.5:
         return state[S_X]
+    head = int(state[S_HEAD])
+    count = int(state[S_COUNT])
     target = state[S_T] - p[P_DELAY_S] + 1e-12
     idx = head
     for _ in range(count):
@@ -318,8 +322,11 @@ def step_kernel(state: np.ndarray, p: np.ndarray, rng: np.ndarray, hist: np.ndar
             if n < 1:
                 n = 1
         h = dt / n
+        delayed = p[P_ON_DELAY] > 0.5
         for _ in range(n):
             _substep(state, p, cmd, h)
+            if delayed:
+                _record_history(state, hist)
     state[S_XOUT] = _delayed_output(state, p, hist)
     _measure_all(state, p, rng)
 

@@ -373,6 +373,7 @@ class GMAPlant:
         s[K.S_MASS] = self._load_mass
         s[K.S_T] = 0.0
         self._hist[:] = 0.0
+        s[K.S_COUNT] = 1.0      # the delay history starts with the rest position at t = 0
         self._rng[0] = np.uint64(self.seed & 0xFFFFFFFFFFFFFFFF) * np.uint64(0x9E3779B1) + np.uint64(12345)
         self._settle()
 

@@ -200,6 +200,20 @@ def test_delay_shifts_the_displacement_by_exactly_its_length(delay_ms: float, sh
     assert not np.array_equal(delayed, plain)
 
 
+def test_a_delay_between_samples_is_resolved_on_the_sub_step_grid() -> None:
+    """1.2 ms at 2 kHz: with sub-steps (amplifier on) the output is the position exactly 1.2 ms ago."""
+    cfg = PlantConfig().with_effects(["amplifier", "delay"])
+    cfg.delay.delay_ms = 1.2
+    sub = round(0.5e-3 / (cfg.numerics.max_substep_us * 1e-6))          # 20 sub-steps per sample
+    t, i = sine_drive(3.0, 1, 2000.0)
+    delayed = GMAPlant(cfg).run(t, i)["displacement_um"]
+    fine_t = np.arange(t.size * sub) * (0.5e-3 / sub)
+    fine = GMAPlant(PlantConfig().with_effects(["amplifier"])).run(fine_t, np.repeat(i, sub))["displacement_um"]
+    lag = round(1.2e-3 / (0.5e-3 / sub))                                # 48 sub-steps
+    k = np.arange(3, t.size)
+    assert np.allclose(delayed[k], fine[sub * k + sub - 1 - lag], rtol=0, atol=1e-9)
+
+
 def test_amplifier_is_a_first_order_current_loop() -> None:
     cfg = PlantConfig().with_effects(["amplifier"])
     fs = 200000.0
