@@ -54,6 +54,8 @@ SCHEMA = {
     "write": Field("str", "CURR {current_A:.4f}", check=_template),
     "enable": Field("str", "OUTP ON", nullable=True),
     "disable": Field("str", "OUTP OFF", nullable=True),
+    "verify_safe": Field("str", "CURR?", nullable=True,
+                         help="query that reads the setpoint back, so safe() knows it arrived; null = trust"),
     "queries": Field("map", help="channel -> query, e.g. force_N: 'MEAS:FORC?'"),
 }
 
@@ -141,18 +143,23 @@ class SerialDriver(Driver):
             raise self._fail(f"port failed ({exc})", "comms") from None
         self._send(self._query_bytes)
         for name, query in self.queries:
-            try:
-                line = ser.readline()
-            except (serial.SerialException, OSError) as exc:
-                raise self._fail(f"read failed ({exc})", "comms") from None
-            if not line.endswith(self.eol[-1:]):
-                raise self._fail(f"no reply to {query!r} within {self.cfg['timeout_s']:g} s", "timeout")
-            text = line.strip()
-            try:
-                value = float(text)
-            except ValueError:
-                raise self._fail(f"reply to {query!r} is not a number: {text[:40]!r}", "comms") from None
-            setattr(inputs, name, value)
+            setattr(inputs, name, self._reply(query))
+
+    def _reply(self, query: str) -> float:
+        """One numeric reply line ('nan' reads as NaN)."""
+        import serial
+
+        try:
+            line = self.ser.readline()
+        except (serial.SerialException, OSError) as exc:
+            raise self._fail(f"read failed ({exc})", "comms") from None
+        if not line.endswith(self.eol[-1:]):
+            raise self._fail(f"no reply to {query!r} within {self.cfg['timeout_s']:g} s", "timeout")
+        text = line.strip()
+        try:
+            return float(text)
+        except ValueError:
+            raise self._fail(f"reply to {query!r} is not a number: {text[:40]!r}", "comms") from None
 
     def write(self, current_A: float) -> None:
         if not math.isfinite(current_A):
@@ -176,11 +183,24 @@ class SerialDriver(Driver):
             self._safe_once(current_A)
 
     def _safe_once(self, current_A: float) -> None:
+        """Write, switch off, and read the setpoint back: a serial write has no acknowledgement,
+        so only the read-back proves the amplifier took the safe current."""
         self._send(self.cfg["write"].format(current_A=current_A).encode() + self.eol)
         self.last_written_A = current_A
         if self.cfg["disable"]:
             self._send(self.cfg["disable"].encode() + self.eol)
         self.enabled = False
+        query = self.cfg["verify_safe"]
+        if query:
+            try:
+                self.ser.reset_input_buffer()
+            except Exception as exc:
+                raise self._fail(f"port failed ({exc})", "comms") from None
+            self._send(query.encode() + self.eol)
+            value = self._reply(query)
+            if not abs(value - current_A) <= 1e-3 + 1e-3 * abs(current_A):
+                raise self._fail(f"safe current not confirmed: {query!r} answered {value!r}, "
+                                 f"expected {current_A!r}", "comms")
 
     def health(self) -> dict[str, Any]:
         h = super().health()
