@@ -1,0 +1,166 @@
+"""The catalog of physical extensions: what each one is, when it can be tested, how it is searched.
+
+Every entry is a small physical model added to the SDPI core (see `extended`), with the
+nonlinear parameters searched here and its gains solved by least squares in `fitting`. Grids
+are set by the data (sample period, duration, drive range), never by a particular simulator.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from .fitting import Fitter, Spec, geom_refine
+
+
+@dataclass(frozen=True)
+class Effect:
+    name: str
+    physics: str
+    n_params: int                      # parameters the block adds (nonlinear + gains)
+    testable: Callable[[Fitter], tuple[bool, str]]
+    grid: Callable[[Fitter], Sequence[Any]]
+    make: Callable[[Spec, Any], Spec]
+    refine: Callable[[Fitter, Any], Sequence[Any]] | None
+    present: Callable[[Spec], bool]
+
+
+def _always(_: Fitter) -> tuple[bool, str]:
+    return True, ""
+
+
+def _exceedance(f: Fitter) -> tuple[float, float]:
+    """Fractions of samples whose drive lies beyond the identified range by more than 2 % of it."""
+    margin = 0.02 * f.drive_span
+    n = sum(d.u.size for d in f.data)
+    above = sum(int(np.sum(d.u > f.drive_hi + margin)) for d in f.data) / n
+    below = sum(int(np.sum(d.u < f.drive_lo - margin)) for d in f.data) / n
+    return below, above
+
+
+def _saturation_testable(f: Fitter) -> tuple[bool, str]:
+    below, above = _exceedance(f)
+    if below + above < 0.005:
+        return False, ("the drive stays inside the range the model was identified on "
+                       f"({f.drive_lo:.3g}..{f.drive_hi:.3g}), so saturation beyond it cannot be tested; "
+                       "record with a drive beyond that range to test it")
+    return True, ""
+
+
+def _saturation_grid(f: Fitter) -> list[tuple[float, float]]:
+    below, above = _exceedance(f)
+    out = []
+    for w in np.geomspace(0.02, 3.0, 12) * f.drive_span:
+        out.append((float(w) if below > 0.001 else 0.0, float(w) if above > 0.001 else 0.0))
+    return out
+
+
+def _saturation_refine(_: Fitter, p: tuple[float, float]) -> list[tuple[float, float]]:
+    r = (3.0 / 0.02) ** (1 / 11)
+    return [(p[0] * k, p[1] * k) for k in (r ** -0.5, r ** 0.5)]
+
+
+def _stress_testable(f: Fitter) -> tuple[bool, str]:
+    if f.model.stress_range_MPa is None:
+        return False, ("the model is stress-independent (MPI), so a stress dependence of the play weights "
+                       "cannot be tested; identify an SDPI from recordings at several loads")
+    if not f.stress_varies:
+        return False, ("all recordings are at (nearly) one stress, so play weights that change with stress "
+                       "cannot be told from ordinary hysteresis error; record loops at three or more loads "
+                       "spanning the model's stress range")
+    return True, ""
+
+
+def _delay_grid(f: Fitter) -> np.ndarray:
+    return np.geomspace(0.25 * f.dt_min, min(0.2, max(f.duration_max / 10, 2 * f.dt_min)), 16)
+
+
+def _eddy_grid(f: Fitter) -> np.ndarray:
+    return np.geomspace(0.25 * f.dt_min, min(0.5, max(f.duration_max / 10, 2 * f.dt_min)), 16)
+
+
+def _creep_grid(f: Fitter) -> np.ndarray:
+    lo = max(20 * f.dt_min, 0.03)
+    hi = max(f.duration_max / 2, 2 * lo)
+    return np.geomspace(lo, hi, 12)
+
+
+def _thermal_grid(f: Fitter) -> np.ndarray:
+    lo = max(50 * f.dt_min, 0.5)
+    hi = max(5 * f.duration_max, 2 * lo)
+    return np.geomspace(lo, hi, 12)
+
+
+def _dynamics_grid(f: Fitter) -> list[tuple[float, float, float]]:
+    """Resonance frequency x damping, load-independent; the load dependence is refined afterwards."""
+    nyq = 0.5 / f.dt_min
+    f_lo = max(2.0, 20.0 / max(f.duration_max, 1e-9))
+    freqs = np.geomspace(f_lo, 0.8 * nyq, 18) if 0.8 * nyq > f_lo else np.array([0.8 * nyq])
+    zetas = (0.03, 0.08, 0.2, 0.45, 0.8)
+    return [(float(fr), z, 0.0) for fr in freqs for z in zetas]
+
+
+def _dynamics_refine(f: Fitter, p: tuple[float, float, float]) -> list[tuple[float, float, float]]:
+    fr, z, b = p
+    out = [(fr * kf, z, b) for kf in (0.85, 0.93, 1.07, 1.17)]
+    out += [(fr, min(z * kz, 0.95), b) for kz in (0.6, 0.8, 1.25, 1.6)]
+    if f.stress_varies:
+        span = max(f.stress_top - min(float(d.s.min()) for d in f.data), 1e-9)
+        for rel in (0.25, 0.6, 1.2, 2.5):
+            # raise f_ref with the load dependence so the mean frequency stays near the grid's best
+            out.append((fr * math.sqrt(1 + 0.5 * rel), z, rel / span))
+    return out
+
+
+def _ratio(grid_lo: float, grid_hi: float, n: int) -> float:
+    return (grid_hi / grid_lo) ** (1.0 / (n - 1))
+
+
+CATALOG: dict[str, Effect] = {
+    "rate_dependence": Effect(
+        "rate_dependence",
+        "eddy currents / magnetic diffusion: the field in the rod lags the coil current by a time constant "
+        "(first-order lag), so loops widen and tilt as the drive gets faster",
+        1, _always, _eddy_grid, lambda s, p: s.with_(eddy_tau=float(p)),
+        lambda _f, p: geom_refine(p, _ratio(1, 8000, 16)), lambda s: s.eddy_tau is not None),
+    "mechanical_dynamics": Effect(
+        "mechanical_dynamics",
+        "rod and load mass on the rod's stiffness with damping: a second-order resonance whose frequency "
+        "falls as the load mass (and so the compressive stress) grows",
+        3, _always, _dynamics_grid, lambda s, p: s.with_(dynamics=tuple(float(v) for v in p)),
+        _dynamics_refine, lambda s: s.dynamics is not None),
+    "thermal_drift": Effect(
+        "thermal_drift",
+        "Joule heating of the coil and rod: an offset that follows the drive squared through a thermal "
+        "time constant and cools back at zero current",
+        2, _always, _thermal_grid, lambda s, p: s.with_(thermal_tau=float(p)),
+        lambda _f, p: geom_refine(p, _ratio(1, 10, 12)), lambda s: s.thermal_tau is not None),
+    "creep": Effect(
+        "creep",
+        "slow relaxation of the displacement after the drive changes, in the direction of the last change",
+        2, _always, _creep_grid, lambda s, p: s.with_(creep_tau=float(p)),
+        lambda _f, p: geom_refine(p, _ratio(1, 30, 12)), lambda s: s.creep_tau is not None),
+    "time_delay": Effect(
+        "time_delay",
+        "a transport delay in the amplifier, sensor or acquisition: the whole response shifts in time, "
+        "so its phase lag grows in proportion to frequency",
+        1, _always, _delay_grid, lambda s, p: s.with_(delay_s=float(p)),
+        lambda _f, p: geom_refine(p, _ratio(1, 3000, 16)), lambda s: s.delay_s is not None),
+    "stress_dependent_play": Effect(
+        "stress_dependent_play",
+        "the play-operator weights (loop width, the 'coercive current') change with stress, which the "
+        "SDPI assumes they do not",
+        3, _stress_testable, lambda f: [True], lambda s, p: s.with_(stress_play=bool(p)), None,
+        lambda s: s.stress_play),
+    "saturation": Effect(
+        "saturation",
+        "the drive goes beyond the range the model was identified on and the material saturates there, "
+        "where the model extrapolates straight on",
+        1, _saturation_testable, _saturation_grid, lambda s, p: s.with_(saturation=tuple(p)),
+        _saturation_refine, lambda s: s.saturation is not None),
+}
+
+ORDER = tuple(CATALOG)

@@ -1,0 +1,103 @@
+"""Recordings prepared for the diagnosis: arrays, time steps, stress, the held-out split.
+
+The split is by contiguous time blocks inside every recording (alternate blocks form the two
+folds). Models are always *simulated* over the whole recording from its inputs (drive, stress)
+only, so no measured output of a held-out block ever enters a fit; only the loss is masked.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..recordings import Recording
+
+N_BLOCKS = 6          # blocks per recording; even-numbered ones form fold A, odd ones fold B
+MAX_FIT_ROWS = 20000  # rows used by the least squares (evenly strided); filters always run at full rate
+
+
+@dataclass
+class RecData:
+    name: str
+    t: np.ndarray
+    dt: np.ndarray            # dt[k] = t[k] - t[k-1]; dt[0] = median step
+    dt_med: float
+    u: np.ndarray             # drive as recorded
+    y: np.ndarray             # measured displacement
+    s: np.ndarray             # stress clamped to the model's range (zeros if none)
+    s_raw: np.ndarray | None  # stress as recorded
+    fold: np.ndarray          # 0 (fold A) or 1 (fold B) per sample
+    rows: np.ndarray          # sample indices used by the least squares
+    clamped_fraction: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0])
+
+
+def prepare(recordings: Sequence[Recording], model: Any) -> list[RecData]:
+    """Arrays per recording; stresses outside the model's range are clamped (and counted)."""
+    total = sum(len(r) for r in recordings)
+    stride = max(1, int(np.ceil(total / MAX_FIT_ROWS)))
+    out: list[RecData] = []
+    srange = model.stress_range_MPa
+    for rec in recordings:
+        if rec.displacement_um is None:
+            raise InputError(f"{rec.source}: no displacement_um column; diagnose compares the model with measured displacement")
+        t = np.ascontiguousarray(rec.time_s, dtype=float)
+        n = t.size
+        d = np.diff(t)
+        dt_med = float(np.median(d)) if n > 1 else 1.0
+        dt = np.concatenate(([dt_med], d))
+        s_raw = None if rec.stress_MPa is None else np.ascontiguousarray(rec.stress_MPa, dtype=float)
+        if srange is None:
+            s = np.zeros(n)
+            clamped = 0.0
+        else:
+            if s_raw is None:
+                raise InputError(
+                    f"{rec.source}: the model is stress-dependent ({model.kind}) but the recording has no "
+                    "stress_MPa column; add it (load cell force / rod area, compression negative)")
+            s = np.clip(s_raw, srange[0], srange[1])
+            clamped = float(np.mean(np.abs(s - s_raw) > 1e-6 * max(1.0, abs(srange[0]))))
+        block = np.minimum((np.arange(n) * N_BLOCKS) // max(n, 1), N_BLOCKS - 1)
+        out.append(RecData(
+            name=rec.name, t=t, dt=dt, dt_med=dt_med,
+            u=np.ascontiguousarray(rec.drive, dtype=float),
+            y=np.ascontiguousarray(rec.displacement_um, dtype=float),
+            s=np.ascontiguousarray(s), s_raw=s_raw, fold=(block % 2).astype(np.int8),
+            rows=np.arange(0, n, stride), clamped_fraction=clamped,
+            extra={"temperature_C": rec.columns.get("temperature_C")}))
+    return out
+
+
+def stress_span(data: Sequence[RecData]) -> float:
+    """Spread of (clamped) stress over all recordings, MPa."""
+    lo = min(float(np.percentile(d.s, 2)) for d in data)
+    hi = max(float(np.percentile(d.s, 98)) for d in data)
+    return hi - lo
+
+
+def mean_stress(data: Sequence[RecData]) -> float:
+    n = sum(d.s.size for d in data)
+    return float(sum(float(d.s.sum()) for d in data) / max(n, 1))
+
+
+def noise_floor(y: np.ndarray) -> float:
+    """Measurement noise std from the data: robust spread of the second difference (white noise: var 6 sigma^2).
+
+    Slow signal content hardly contributes to a second difference at kHz rates; the median
+    absolute deviation ignores the few samples where the signal itself turns fast.
+    """
+    if y.size < 5:
+        return float("nan")
+    d2 = np.diff(y, 2)
+    mad = float(np.median(np.abs(d2 - np.median(d2))))
+    sigma = 1.4826 * mad / np.sqrt(6.0)
+    if sigma == 0.0:  # quantised, nearly constant signal: fall back on the plain spread
+        sigma = float(np.std(d2)) / np.sqrt(6.0)
+    return sigma

@@ -1,0 +1,451 @@
+"""The diagnosis: locate the mismatch, select the missing physics, build the extended model.
+
+Selection is greedy and forward: each round fits every untried effect of the catalog on top of
+what is already accepted and scores it on held-out time blocks. The best is accepted only if it
+(1) lowers the held-out mean-square error by a clear margin, (2) wins a penalised held-out
+likelihood test with the residual's effective sample count, and (3) the residual it removes
+is above the noise floor measured from the data. The null model every effect must beat is the
+base model with a static recalibration (gain, offset, curvature, stress gain): ordinary model
+error of that kind is never called an effect.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..recordings import Recording
+from .catalog import CATALOG, ORDER
+from .data import RecData, noise_floor, prepare
+from .extended import ExtendedModel
+from .fitting import Fitter, SearchResult, Spec, search
+from .locate import Located, locate
+
+MIN_MSE_RATIO = 0.80       # accepted effects cut the held-out MSE by at least 20 % (RMS by ~11 %)
+MIN_LOGLIK_GAIN = 10.0     # penalised held-out log-likelihood gain (nats) an effect must win by
+NOISE_FACTOR = 1.5         # a residual within 1.5x the noise floor is "within noise"
+AMBIGUOUS_NATS = 3.0       # runner-up this close to the winner: look-alikes not told apart
+MIN_SAMPLES = 400
+MIN_REVERSALS = 6          # drive turning points in all (three cycles): fewer cannot separate hysteresis from dynamics
+
+
+@dataclass
+class Candidate:
+    effect: str
+    testable: bool
+    reason: str = ""
+    cv_mse: float = math.nan
+    loglik_gain: float = math.nan
+    evidence: float = 0.0
+    params: dict[str, float] = field(default_factory=dict)
+    round: int = 0
+    accepted: bool = False
+    result: SearchResult | None = None
+
+    def to_json(self) -> dict:
+        d: dict[str, Any] = {"effect": self.effect, "evidence": round(float(self.evidence), 4),
+                             "params": {k: _round(v) for k, v in self.params.items()}}
+        d["validation_rms_um"] = None if not math.isfinite(self.cv_mse) else _round(math.sqrt(self.cv_mse))
+        d["heldout_loglik_gain"] = None if not math.isfinite(self.loglik_gain) else round(self.loglik_gain, 2)
+        d["accepted"] = self.accepted
+        d["testable"] = self.testable
+        if self.reason:
+            d["note"] = self.reason
+        d["round"] = self.round
+        return d
+
+
+@dataclass
+class Diagnosis:
+    verdict: list[str]
+    explanation: str
+    located: list[Located]
+    candidates: list[Candidate]
+    rms_before_um: float
+    rms_recalibrated_um: float
+    rms_after_um: float
+    noise_um: float
+    validation: str
+    conclusive: bool
+    cannot_conclude: list[str]
+    extended: ExtendedModel
+    data: list[RecData]
+    base_predictions: list[np.ndarray]
+    null_predictions: list[np.ndarray]
+    final_predictions: list[np.ndarray]
+    rounds: list[dict]
+    n_eff: float
+
+    def to_json(self, model_file: str = "extended_model.yaml") -> dict:
+        return {
+            "verdict": list(self.verdict),
+            "explanation": self.explanation,
+            "located": [loc.to_json() for loc in self.located],
+            "candidates": [c.to_json() for c in self.candidates],
+            "rms_before_um": _round(self.rms_before_um),
+            "rms_after_um": _round(self.rms_after_um),
+            "rms_recalibrated_um": _round(self.rms_recalibrated_um),
+            "noise_floor_um": _round(self.noise_um),
+            "validation": self.validation,
+            "conclusive": self.conclusive,
+            "cannot_conclude": list(self.cannot_conclude),
+            "extended_model": model_file,
+        }
+
+
+def _round(v: float) -> float | None:
+    if v is None or not math.isfinite(v):
+        return None
+    return float(f"{v:.6g}")
+
+
+# --------------------------------------------------------------------------------- helpers
+
+def _reversals(u: np.ndarray) -> int:
+    span = float(np.ptp(u))
+    if span <= 0:
+        return 0
+    # hysteresis-style counting: a reversal is a turn by more than 10 % of the span
+    thr = 0.1 * span
+    count, direction, extreme = 0, 0, u[0]
+    for v in u[:: max(1, u.size // 20000)]:
+        if direction >= 0:
+            if v > extreme:
+                extreme = v
+            elif extreme - v > thr:
+                count += direction != 0
+                direction, extreme = -1, v
+        if direction <= 0:
+            if v < extreme:
+                extreme = v
+            elif v - extreme > thr:
+                count += direction != 0
+                direction, extreme = 1, v
+    return count
+
+
+def effective_samples(resid: np.ndarray, lengths: Sequence[int]) -> float:
+    """Independent samples in a residual (per recording: length / integrated correlation time)."""
+    total = 0.0
+    start = 0
+    for n in lengths:
+        r = resid[start:start + n]
+        start += n
+        if r.size < 8:
+            total += r.size
+            continue
+        r = r - r.mean()
+        var = float(r @ r) / r.size
+        if var <= 0:
+            total += r.size
+            continue
+        tau = 1.0
+        for lag in range(1, min(r.size // 4, 2000)):
+            rho = float(r[:-lag] @ r[lag:]) / (r.size * var)
+            if rho < 0.05:
+                break
+            tau += 2 * rho
+        total += r.size / tau
+    return max(total, 1.0)
+
+
+def _params_of(effect: str, spec: Spec, coef: np.ndarray, names: list[str], fitter: Fitter) -> dict[str, float]:
+    c = dict(zip(names, coef))
+    if effect == "rate_dependence":
+        return {"tau_s": spec.eddy_tau}
+    if effect == "time_delay":
+        return {"delay_s": spec.delay_s}
+    if effect == "thermal_drift":
+        return {"tau_s": spec.thermal_tau, "gain_um_per_A2": c.get("thermal_gain", math.nan)}
+    if effect == "creep":
+        return {"tau_s": spec.creep_tau, "gain": c.get("creep_gain", math.nan)}
+    if effect == "mechanical_dynamics":
+        f, z, b = spec.dynamics
+        out = {"f_ref_hz": f, "zeta": z, "beta_per_MPa": b, "stress_ref_MPa": fitter.stress_top}
+        if b > 0:
+            s_lo = min(float(d.s.min()) for d in fitter.data)
+            out["f_at_most_compressive_hz"] = f / math.sqrt(1 + b * (fitter.stress_top - s_lo))
+        return out
+    if effect == "stress_dependent_play":
+        return {f"coef_{j}_per_MPa": c.get(f"stress_play_{j}", math.nan) for j in range(fitter.play_thresholds.size)}
+    if effect == "saturation":
+        return {"width_lo": spec.saturation[0], "width_hi": spec.saturation[1],
+                "drive_lo": fitter.drive_lo, "drive_hi": fitter.drive_hi}
+    return {}
+
+
+def build_extended(model: Any, fitter: Fitter, spec: Spec, coef: np.ndarray, names: list[str],
+                   effects: list[str]) -> ExtendedModel:
+    """The extended model file's content for a spec and its all-data coefficients."""
+    c = dict(zip(names, (float(v) for v in coef)))
+    blocks: dict[str, Any] = {
+        "static": {"offset_um": c["offset"], "gain": c["gain"],
+                   "stress_gain_per_MPa": c.get("stress_gain", 0.0),
+                   "quadratic_per_um": c["quadratic"], "center_um": fitter.yc_center,
+                   "stress_ref_MPa": fitter.stress_ref}}
+    if spec.saturation is not None:
+        blocks["saturation"] = {"lo": fitter.drive_lo, "hi": fitter.drive_hi,
+                                "width_lo": spec.saturation[0], "width_hi": spec.saturation[1]}
+    if spec.eddy_tau:
+        blocks["eddy_lag"] = {"tau_s": spec.eddy_tau}
+    if spec.delay_s:
+        blocks["delay"] = {"delay_s": spec.delay_s}
+    if spec.stress_play:
+        blocks["stress_play"] = {"thresholds": [float(v) for v in fitter.play_thresholds],
+                                 "coefficients_per_MPa": [c[f"stress_play_{j}"] for j in range(fitter.play_thresholds.size)]}
+    if spec.creep_tau:
+        blocks["creep"] = {"gain": c["creep_gain"], "tau_s": spec.creep_tau}
+    if spec.dynamics is not None:
+        f, z, b = spec.dynamics
+        blocks["dynamics"] = {"f_ref_hz": f, "zeta": z, "beta_per_MPa": b, "stress_ref_MPa": fitter.stress_top}
+    if spec.thermal_tau:
+        blocks["thermal"] = {"gain_um_per_A2": c["thermal_gain"], "tau_s": spec.thermal_tau}
+    return ExtendedModel(model, blocks, effects)
+
+
+# --------------------------------------------------------------------------------- checks
+
+def _check_overlap(model: Any, recordings: Sequence[Recording]) -> None:
+    lo, hi = model.drive_range
+    srange = model.stress_range_MPa
+    drive_overlap = []
+    stress_overlap = []
+    for rec in recordings:
+        u = rec.drive
+        inside = (u >= lo - 0.02 * (hi - lo)) & (u <= hi + 0.02 * (hi - lo)) if math.isfinite(hi - lo) else np.ones(u.size, bool)
+        drive_overlap.append(float(np.mean(inside)))
+        if srange is not None and rec.stress_MPa is not None:
+            s = rec.stress_MPa
+            tol = 0.02 * max(srange[1] - srange[0], 1.0)
+            stress_overlap.append(float(np.mean((s >= srange[0] - tol) & (s <= srange[1] + tol))))
+    if max(drive_overlap) < 0.05:
+        raise InputError(
+            f"cannot conclude anything: the recordings' drive never enters the range the model was identified on "
+            f"({lo:.3g}..{hi:.3g}); record inside that range, or identify a model from recordings covering these drives")
+    if stress_overlap and max(stress_overlap) < 0.05:
+        raise InputError(
+            f"cannot conclude anything: every recording's stress lies outside the model's range "
+            f"({srange[0]:.3g}..{srange[1]:.3g} MPa); record at loads inside that range, or identify an SDPI that covers these stresses")
+
+
+# --------------------------------------------------------------------------------- main
+
+def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
+             progress: Callable[[str], None] | None = None) -> Diagnosis:
+    """Run the whole diagnosis (no I/O); see the module docstring for the selection rule."""
+    say = progress or (lambda _msg: None)
+    if not recordings:
+        raise InputError("give at least one recording to compare with the model")
+    _check_overlap(model, recordings)
+    data = prepare(recordings, model)
+    fitter = Fitter(model, data)
+    cannot: list[str] = []
+
+    n_samples = sum(d.t.size for d in data)
+    reversals = sum(_reversals(d.u) for d in data)
+    too_little = n_samples < MIN_SAMPLES or reversals < MIN_REVERSALS
+    if too_little:
+        cannot.append(
+            f"too little data to tell effects apart ({n_samples} samples, {reversals} drive reversals in all): "
+            "any effect would be fitted to the same few loops it is judged on; record at least a few cycles "
+            f"(>= {MIN_REVERSALS // 2} full loops, >= {MIN_SAMPLES} samples) at two or more drive frequencies")
+    clamped = [d for d in data if d.clamped_fraction > 0.01]
+    for d in clamped:
+        cannot.append(f"{d.name}: {d.clamped_fraction:.0%} of the samples are at stresses outside the model's range; "
+                      "they were compared at the nearest stress of the range")
+    noise = float(np.median([noise_floor(d.y) for d in data]))
+
+    say("simulating the base model")
+    base_core = fitter.core(Spec())
+    base_pred = [yc for _, yc in base_core]
+    rms_before = float(np.sqrt(sum(float(np.sum((d.y - yc) ** 2)) for d, yc in zip(data, base_pred)) / n_samples))
+
+    null_specs = (Spec(), Spec(), Spec())
+    null = fitter.score(null_specs, want_coef=True)
+    null_cv = (null.sse_test[0] + null.sse_test[1]) / max(null.n_test[0] + null.n_test[1], 1)
+    null_pred = fitter.predict_full(Spec(), null.coef_all)
+    located = [locate(d, d.y - yb, d.y - yn) for d, yb, yn in zip(data, base_pred, null_pred)]
+    lengths = fitter.segment_lengths
+
+    candidates = {name: Candidate(name, *CATALOG[name].testable(fitter)) for name in ORDER}
+    if too_little:
+        for c in candidates.values():
+            c.testable, c.reason = False, c.reason or "too little data"
+    short = fitter.duration_max < 20.0
+    for name in ("thermal_drift", "creep"):
+        if short and candidates[name].testable:
+            candidates[name].reason = (f"the longest recording lasts {fitter.duration_max:.3g} s: slow effects "
+                                       "(heating, creep) with time constants beyond it are hard to separate; "
+                                       "a run of several minutes with current on/off phases would decide")
+    for c in candidates.values():
+        if not c.testable and c.reason and c.reason not in cannot and not too_little:
+            cannot.append(f"{c.effect}: {c.reason}")
+
+    current = null_specs
+    cur_cv = null_cv
+    accepted: list[str] = []
+    rounds: list[dict] = []
+    final = SearchResult(null_specs, null_cv, null.all_mse, null.n_test[0] + null.n_test[1], null.coef_all,
+                         null.names, 1)
+    within_noise = math.sqrt(null_cv) <= NOISE_FACTOR * noise
+    runner_note = ""
+    ambiguous_pairs: list[tuple[str, str]] = []
+    for rnd in range(1, max_effects + 1):
+        if math.sqrt(cur_cv) <= NOISE_FACTOR * noise:
+            break
+        tried: list[Candidate] = []
+        todo = [c for c in candidates.values() if c.testable and not c.accepted]
+        for c in todo:
+            say(f"round {rnd}: fitting {c.effect}")
+            eff = CATALOG[c.effect]
+            res = search(fitter, current, eff.make, eff.grid(fitter), eff.refine)
+            c.result = res
+            c.cv_mse = res.cv_mse
+            c.params = _params_of(c.effect, res.specs[2], res.coef_all, res.names, fitter)
+            c.round = rnd
+            tried.append(c)
+        if not tried:
+            break
+        # effective sample count of the noise, from the best candidate's held-out residual
+        leader = min(tried, key=lambda c: c.cv_mse)
+        n_eff = effective_samples(fitter.test_residuals(leader.result.specs), lengths)
+        for c in tried:
+            c.loglik_gain = 0.5 * n_eff * math.log(cur_cv / max(c.cv_mse, 1e-300)) - CATALOG[c.effect].n_params
+        gains = np.array([c.loglik_gain for c in tried])
+        top = max(0.0, float(gains.max()))
+        weights = np.exp(np.clip(gains - top, -700, 0))
+        norm = math.exp(-top) + float(weights.sum())
+        for c, w in zip(tried, weights):
+            c.evidence = float(w / norm)
+        tried.sort(key=lambda c: c.cv_mse)
+        best = tried[0]
+        ok = (best.cv_mse < MIN_MSE_RATIO * cur_cv and best.loglik_gain > MIN_LOGLIK_GAIN
+              and math.sqrt(cur_cv) - math.sqrt(best.cv_mse) > 0.5 * noise)
+        rounds.append({"round": rnd, "n_eff": n_eff, "current_rms_um": math.sqrt(cur_cv),
+                       "table": [(c.effect, math.sqrt(c.cv_mse), c.loglik_gain) for c in tried],
+                       "accepted": best.effect if ok else None})
+        if not ok:
+            break
+        if len(tried) > 1 and tried[1].loglik_gain > MIN_LOGLIK_GAIN and \
+                best.loglik_gain - tried[1].loglik_gain < AMBIGUOUS_NATS:
+            ambiguous_pairs.append((best.effect, tried[1].effect))
+        if rnd == 1 and len(tried) > 1:
+            runner_note = _runner_up_note(best, tried[1])
+        best.accepted = True
+        accepted.append(best.effect)
+        current = best.result.specs
+        cur_cv = best.cv_mse
+        final = best.result
+
+    # the extended model: accepted blocks (or the static recalibration alone) on the all-data fit
+    ext = build_extended(model, fitter, final.specs[2], final.coef_all, final.names, list(accepted))
+    final_pred = fitter.predict_full(final.specs[2], final.coef_all)
+    for a, b in ambiguous_pairs:
+        cannot.append(f"{a} and {b} explain the held-out data almost equally well; " + _decider(a, b))
+
+    verdict = [] if too_little else list(accepted)
+    conclusive = not too_little and not ambiguous_pairs
+    explanation = _explain(verdict, candidates, located, rms_before, math.sqrt(null_cv), math.sqrt(cur_cv),
+                           noise, within_noise, too_little, runner_note, fitter)
+    validation = (
+        f"each recording was cut into {6} contiguous time blocks; every model was fitted on the even blocks "
+        "and scored on the odd ones, and the other way round (2-fold blocked cross-validation). Models are "
+        "simulated over the whole recording from its drive and stress only, so no held-out displacement "
+        "enters a fit. Nonlinear parameters (time constants, delay, resonance) are chosen per fold from that "
+        "fold's training blocks. rms_before is the base model as given; rms_after is the held-out RMS of the "
+        "selected model; the null every effect had to beat is the base with a static recalibration "
+        f"(gain, offset, curvature{', stress gain' if fitter.stress_varies else ''}), held-out RMS "
+        f"{math.sqrt(null_cv):.4g} um. An effect is accepted if it cuts the held-out MSE by >= "
+        f"{1 - MIN_MSE_RATIO:.0%}, gains >= {MIN_LOGLIK_GAIN:g} nats of penalised held-out likelihood "
+        "(effective sample count from the residual's correlation time, one nat per parameter) and removes "
+        "more than half the noise floor.")
+    ordered = sorted(candidates.values(), key=lambda c: (not c.accepted, not c.testable,
+                                                        c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
+    return Diagnosis(verdict, explanation, located, ordered, rms_before, math.sqrt(null_cv),
+                     math.sqrt(cur_cv), noise, validation, conclusive, cannot, ext, data, base_pred, null_pred,
+                     final_pred, rounds, rounds[0]["n_eff"] if rounds else float("nan"))
+
+
+_DECIDERS = {
+    frozenset({"time_delay", "rate_dependence"}):
+        "a delay's phase lag grows in proportion to frequency while an eddy-current lag's saturates at 90 "
+        "degrees: record sine sweeps at several frequencies spanning 1/(2 pi tau) to decide",
+    frozenset({"mechanical_dynamics", "rate_dependence"}):
+        "a resonance peaks and moves with load mass, a lag does not: drive near the fitted resonance at two loads",
+    frozenset({"mechanical_dynamics", "time_delay"}):
+        "a resonance peaks and moves with load mass, a delay does not: drive near the fitted resonance at two loads",
+    frozenset({"thermal_drift", "creep"}):
+        "heating follows the integral of I^2 and recovers at zero current, creep follows the direction of the "
+        "last step: record steps up and down with long holds and a zero-current pause",
+}
+
+
+def _decider(a: str, b: str) -> str:
+    return _DECIDERS.get(frozenset({a, b}), "an experiment that changes one of them and not the other would decide")
+
+
+def _runner_up_note(best: Candidate, runner: Candidate) -> str:
+    return (f"The runner-up, {runner.effect}, lost: held-out RMS {math.sqrt(runner.cv_mse):.4g} um against "
+            f"{math.sqrt(best.cv_mse):.4g} um for {best.effect}"
+            + (f" ({best.loglik_gain - runner.loglik_gain:.0f} nats less penalised held-out likelihood)"
+               if math.isfinite(runner.loglik_gain) else "") + ".")
+
+
+def _describe(c: Candidate) -> str:
+    p = c.params
+    if c.effect == "rate_dependence":
+        return f"an eddy-current lag of tau = {p['tau_s'] * 1e3:.3g} ms"
+    if c.effect == "time_delay":
+        return f"a transport delay of {p['delay_s'] * 1e3:.3g} ms"
+    if c.effect == "thermal_drift":
+        return f"heating with a thermal time constant of {p['tau_s']:.3g} s ({p['gain_um_per_A2']:+.3g} um per A^2 at equilibrium)"
+    if c.effect == "creep":
+        return f"creep of {p['gain'] * 100:+.3g} % of each step relaxing with tau = {p['tau_s']:.3g} s"
+    if c.effect == "mechanical_dynamics":
+        txt = f"a resonance at {p['f_ref_hz']:.4g} Hz (damping ratio {p['zeta']:.2g})"
+        if "f_at_most_compressive_hz" in p:
+            txt += f" that moves down to {p['f_at_most_compressive_hz']:.4g} Hz at the most compressive load"
+        return txt
+    if c.effect == "stress_dependent_play":
+        return "play weights (loop width) that change with stress"
+    if c.effect == "saturation":
+        return f"saturation beyond the identified drive range {p['drive_lo']:.3g}..{p['drive_hi']:.3g}"
+    return c.effect
+
+
+def _explain(verdict: list[str], candidates: dict[str, Candidate], located: list[Located], rms_before: float,
+             rms_null: float, rms_after: float, noise: float, within_noise: bool, too_little: bool,
+             runner_note: str, fitter: Fitter) -> str:
+    worst = max(located, key=lambda loc: loc.residual_rms_recalibrated_um)
+    parts = [f"The base model misses the recordings by {rms_before:.4g} um RMS; a static recalibration "
+             f"(gain/offset/curvature) leaves {rms_null:.4g} um on held-out data, against a noise floor of "
+             f"{noise:.3g} um estimated from the data. The largest residual is in {worst.recording}: {worst.where}."]
+    if too_little:
+        parts.append("There is too little data to tell the effects apart, so no effect is named; see "
+                     "cannot_conclude for the experiment that would decide.")
+        return " ".join(parts)
+    if not verdict:
+        if within_noise:
+            parts.append("That is within the noise: the model explains the recordings, no effect is named.")
+        else:
+            tried = [c for c in candidates.values() if c.testable and math.isfinite(c.cv_mse)]
+            tried.sort(key=lambda c: c.cv_mse)
+            if tried:
+                b = tried[0]
+                parts.append(f"No effect in the catalog explains the rest convincingly: the best, {b.effect}, "
+                             f"reaches {math.sqrt(b.cv_mse):.4g} um held-out, short of the margin required, "
+                             "so the remainder is ordinary model error (re-identify the core on data like these).")
+        return " ".join(parts)
+    named = [candidates[v] for v in verdict]
+    parts.append("The recordings show " + "; then ".join(f"{_describe(c)} ({c.effect})" for c in named) + ".")
+    parts.append(f"With {'it' if len(named) == 1 else 'them'} the held-out RMS falls to {rms_after:.4g} um "
+                 f"({rms_after / max(rms_before, 1e-12):.0%} of before).")
+    for c in named:
+        parts.append(f"{c.effect}: {CATALOG[c.effect].physics}.")
+    if runner_note:
+        parts.append(runner_note)
+    return " ".join(parts)

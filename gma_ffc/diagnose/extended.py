@@ -1,0 +1,465 @@
+"""The extended model: physical blocks the diagnosis found, wrapped around an SDPI/MPI core.
+
+Signal path (every block optional)::
+
+    drive -> saturation (soft limit beyond the identified range)
+          -> eddy_lag (first-order lag of the effective field: eddy currents / magnetic diffusion)
+          -> delay (transport delay)
+          -> core SDPI/MPI (rate-independent hysteresis)           = y_c
+          -> static map: offset + (gain + stress_gain (s - s_ref)) y_c + quadratic (y_c - center)^2
+             + stress_play: sum_i c_i (s - s_ref) (H_ri[u] - u)     (play weights that vary with stress)
+          -> creep: + g (lag(y_c, tau) - y_c)                        (slow relaxation after steps)
+          -> dynamics: mass-spring-damper, resonance moving with the load mass the stress implies
+          -> thermal: + k lag(drive^2, tau)                          (Joule heating, cools at zero current)
+
+Inverse (``invert`` and ``inverse_stepper``), block by block: thermal offset from the commanded
+drive, dynamics by its exact FIR inverse, static map + creep in closed form (quadratic root),
+core by its own inverse, eddy lag by its exact inverse filter, saturation by atanh. A delay
+cannot be undone causally: batch ``invert`` previews the known reference by ``preview_s``;
+the inverse stepper expects the caller to feed ``reference(t + preview_s)``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..errors import ModelError
+from . import kernels as K
+
+KIND = "extended"
+
+INVERTED = {
+    "saturation": "exact (atanh) inside the asymptote, clamped beyond it",
+    "eddy_lag": "exact inverse filter",
+    "delay": "by preview of the known reference (batch invert); inverse_stepper expects reference(t + preview_s)",
+    "static": "closed form (quadratic root)",
+    "stress_play": "using the play states of the previous sample",
+    "creep": "exact (closed form with the static map)",
+    "dynamics": "exact inverse filter (3-tap FIR on the reference)",
+    "thermal": "offset model driven by the commanded drive of the previous sample",
+}
+
+
+def _stress_array(stress: Any, n: int) -> np.ndarray:
+    if stress is None:
+        return np.zeros(n)
+    s = np.asarray(stress, dtype=float)
+    if s.ndim == 0:
+        return np.full(n, float(s))
+    if s.shape != (n,):
+        raise ModelError(f"stress_MPa has {s.size} values but the drive has {n}")
+    return s
+
+
+def _time_steps(time_s: np.ndarray) -> tuple[np.ndarray, float]:
+    t = np.asarray(time_s, dtype=float)
+    if t.size < 2:
+        return np.ones(t.size), 1.0
+    d = np.diff(t)
+    med = float(np.median(d))
+    return np.concatenate(([med], d)), med
+
+
+class ExtendedModel:
+    """An SDPI/MPI core with physical input- and output-side blocks (see module docstring)."""
+
+    kind = KIND
+
+    def __init__(self, base: Any, blocks: Mapping[str, Any] | None = None,
+                 effects: list[str] | None = None) -> None:
+        self.base = base
+        b = {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in (blocks or {}).items()}
+        self.saturation: dict | None = b.get("saturation")
+        self.eddy_lag: dict | None = b.get("eddy_lag")
+        self.delay: dict | None = b.get("delay")
+        self.static: dict = {"offset_um": 0.0, "gain": 1.0, "stress_gain_per_MPa": 0.0,
+                             "quadratic_per_um": 0.0, "center_um": 0.0, "stress_ref_MPa": 0.0}
+        self.static.update(b.get("static") or {})
+        self.stress_play: dict | None = b.get("stress_play")
+        self.creep: dict | None = b.get("creep")
+        self.dynamics: dict | None = b.get("dynamics")
+        self.thermal: dict | None = b.get("thermal")
+        self.effects = list(effects or [])
+        self._check()
+
+    # ----------------------------------------------------------------- contract properties
+    @property
+    def stress_range_MPa(self):
+        return self.base.stress_range_MPa
+
+    @property
+    def drive_range(self):
+        return self.base.drive_range
+
+    @property
+    def preview_s(self) -> float:
+        """How far ahead the inverse stepper's reference must be (the transport delay)."""
+        return float(self.delay["delay_s"]) if self.delay else 0.0
+
+    def blocks(self) -> dict[str, Any]:
+        return {"saturation": self.saturation, "eddy_lag": self.eddy_lag, "delay": self.delay,
+                "static": self.static, "stress_play": self.stress_play, "creep": self.creep,
+                "dynamics": self.dynamics, "thermal": self.thermal}
+
+    def _check(self) -> None:
+        def positive(block: dict | None, key: str, name: str) -> None:
+            if block is None:
+                return
+            v = block.get(key)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise ModelError(f"extended model: {name}.{key} must be a positive number, got {v!r}")
+
+        positive(self.eddy_lag, "tau_s", "eddy_lag")
+        positive(self.creep, "tau_s", "creep")
+        positive(self.thermal, "tau_s", "thermal")
+        positive(self.dynamics, "f_ref_hz", "dynamics")
+        positive(self.dynamics, "zeta", "dynamics")
+        if self.delay is not None:
+            d = self.delay.get("delay_s")
+            if not isinstance(d, (int, float)) or not math.isfinite(d) or d < 0:
+                raise ModelError(f"extended model: delay.delay_s must be >= 0, got {d!r}")
+        for key, v in self.static.items():
+            if not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ModelError(f"extended model: static.{key} must be a finite number, got {v!r}")
+        if abs(self.static["gain"]) < 1e-9:
+            raise ModelError("extended model: static.gain must not be zero")
+        if self.stress_play is not None:
+            th = np.asarray(self.stress_play.get("thresholds", []), dtype=float)
+            co = np.asarray(self.stress_play.get("coefficients_per_MPa", []), dtype=float)
+            if th.shape != co.shape or th.ndim != 1 or not np.all(np.isfinite(th)) or not np.all(np.isfinite(co)):
+                raise ModelError("extended model: stress_play needs equal-length finite thresholds and coefficients_per_MPa")
+        if self.saturation is not None:
+            for key in ("lo", "hi", "width_lo", "width_hi"):
+                v = self.saturation.get(key)
+                if not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise ModelError(f"extended model: saturation.{key} must be a finite number, got {v!r}")
+
+    # ----------------------------------------------------------------- batch forward
+    def core_input(self, time_s: np.ndarray, drive: np.ndarray) -> np.ndarray:
+        """The drive as the core sees it after the input-side blocks."""
+        u = np.asarray(drive, dtype=float)
+        dt, dt_med = _time_steps(time_s)
+        if self.saturation:
+            s = self.saturation
+            u = K.soft_limit(u, s["lo"], s["hi"], s["width_lo"], s["width_hi"])
+        if self.eddy_lag:
+            u = K.lag_filter(u, dt, float(self.eddy_lag["tau_s"]), float(u[0]))
+        if self.delay and self.delay["delay_s"] > 0:
+            u = K.delay_filter(u, float(self.delay["delay_s"]) / dt_med, float(u[0]))
+        return np.ascontiguousarray(u)
+
+    def simulate(self, time_s, drive, stress_MPa=None) -> np.ndarray:
+        t = np.asarray(time_s, dtype=float)
+        u = np.asarray(drive, dtype=float)
+        if t.shape != u.shape or t.ndim != 1:
+            raise ModelError(f"time_s and drive must be 1-D of equal length ({t.shape} vs {u.shape})")
+        u3 = self.core_input(t, u)
+        yc = np.asarray(self.base.simulate(t, u3, stress_MPa), dtype=float)
+        return self.output_from_core(t, u, u3, yc, stress_MPa)
+
+    def output_from_core(self, t: np.ndarray, drive: np.ndarray, u3: np.ndarray, yc: np.ndarray,
+                         stress_MPa: Any) -> np.ndarray:
+        """Apply the output-side blocks to the core's displacement."""
+        n = t.size
+        dt, _ = _time_steps(t)
+        s = _stress_array(stress_MPa, n)
+        st = self.static
+        ds = s - st["stress_ref_MPa"]
+        y = (st["offset_um"] + (st["gain"] + st["stress_gain_per_MPa"] * ds) * yc
+             + st["quadratic_per_um"] * (yc - st["center_um"]) ** 2)
+        if self.stress_play:
+            th = np.asarray(self.stress_play["thresholds"], dtype=float)
+            co = np.asarray(self.stress_play["coefficients_per_MPa"], dtype=float)
+            plays = K.play_bank(u3, th, float(u3[0]))
+            y = y + ds * ((plays - u3[:, None]) @ co)
+        if self.creep:
+            z = K.lag_filter(yc, dt, float(self.creep["tau_s"]), float(yc[0]))
+            y = y + self.creep["gain"] * (z - yc)
+        if self.dynamics:
+            d = self.dynamics
+            y = K.msd_filter(np.ascontiguousarray(y), dt, s, 2 * math.pi * d["f_ref_hz"], d["zeta"],
+                             d.get("beta_per_MPa", 0.0), d.get("stress_ref_MPa", 0.0), float(y[0]))
+        if self.thermal:
+            theta = K.lag_filter(np.asarray(drive, dtype=float) ** 2, dt, float(self.thermal["tau_s"]), 0.0)
+            y = y + self.thermal["gain_um_per_A2"] * theta
+        return np.asarray(y)
+
+    # ----------------------------------------------------------------- batch inverse
+    def invert(self, time_s, reference_um, stress_MPa=None) -> np.ndarray:
+        """Open-loop drive; runs the inverse stepper over the reference previewed by the delay."""
+        t = np.asarray(time_s, dtype=float)
+        r = np.asarray(reference_um, dtype=float)
+        if t.shape != r.shape or t.ndim != 1 or t.size < 2:
+            raise ModelError("time_s and reference_um must be 1-D of equal length (at least 2 samples)")
+        lo, hi = self.stress_range_MPa or (-math.inf, math.inf)
+        s = _stress_array(stress_MPa, t.size) if stress_MPa is not None else None
+        if s is not None and (s.min() < lo - 1e-9 or s.max() > hi + 1e-9):
+            raise ModelError(f"stress {s.min():.3g}..{s.max():.3g} MPa is outside the model's range {lo:.3g}..{hi:.3g} MPa")
+        if self.preview_s > 0:
+            r = np.interp(t + self.preview_s, t, r)
+        dt = float(np.median(np.diff(t)))
+        inv = self.inverse_stepper(dt, initial_drive=0.0)
+        # start relaxed at the drive the core's inverse gives for the first reference sample
+        out = np.empty_like(r)
+        for k in range(t.size):
+            out[k] = inv.step(float(r[k]), None if s is None else float(s[k]))
+        return out
+
+    # ----------------------------------------------------------------- steppers
+    def forward_stepper(self, dt_s: float, initial_drive: float = 0.0) -> "ForwardStepper":
+        return ForwardStepper(self, dt_s, initial_drive)
+
+    def inverse_stepper(self, dt_s: float, initial_drive: float = 0.0) -> "InverseStepper":
+        return InverseStepper(self, dt_s, initial_drive)
+
+    # ----------------------------------------------------------------- files
+    def to_dict(self) -> dict[str, Any]:
+        def clean(v: Any) -> Any:
+            if isinstance(v, dict):
+                return {k: clean(x) for k, x in v.items()}
+            if isinstance(v, (list, tuple, np.ndarray)):
+                return [clean(x) for x in v]
+            if isinstance(v, (np.floating, np.integer)):
+                return v.item()
+            return v
+
+        blocks = {k: clean(v) for k, v in self.blocks().items() if v is not None}
+        return {"kind": KIND, "format_version": 1, "effects": list(self.effects),
+                "inverted": {k: INVERTED[k] for k in blocks},
+                "blocks": blocks, "base": self.base.to_dict()}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "ExtendedModel":
+        if not isinstance(d, Mapping) or d.get("kind") != KIND:
+            raise ModelError("extended model: 'kind' must be 'extended'")
+        base_d = d.get("base")
+        if not isinstance(base_d, Mapping):
+            raise ModelError("extended model: missing 'base' (the SDPI/MPI core it extends)")
+        if base_d.get("kind") == KIND:
+            raise ModelError("extended model: 'base' must be an sdpi or mpi model, not another extended model")
+        from ..modelio import model_from_dict
+
+        base = model_from_dict(dict(base_d))
+        blocks = d.get("blocks") or {}
+        if not isinstance(blocks, Mapping):
+            raise ModelError("extended model: 'blocks' must be a mapping")
+        unknown = set(blocks) - set(INVERTED)
+        if unknown:
+            raise ModelError(f"extended model: unknown block(s) {sorted(unknown)}; known: {sorted(INVERTED)}")
+        return cls(base, blocks, list(d.get("effects") or []))
+
+
+class ForwardStepper:
+    """Sample-by-sample forward model; equals `ExtendedModel.simulate` for uniform sampling."""
+
+    def __init__(self, model: ExtendedModel, dt_s: float, initial_drive: float = 0.0) -> None:
+        if not (dt_s > 0 and math.isfinite(dt_s)):
+            raise ModelError(f"dt_s must be a positive number, got {dt_s!r}")
+        self.m = model
+        self.dt = float(dt_s)
+        self._a_eddy = K.lag_coeff(self.dt, model.eddy_lag["tau_s"]) if model.eddy_lag else 0.0
+        self._a_creep = K.lag_coeff(self.dt, model.creep["tau_s"]) if model.creep else 0.0
+        self._a_heat = K.lag_coeff(self.dt, model.thermal["tau_s"]) if model.thermal else 0.0
+        dsamp = model.preview_s / self.dt
+        self._whole = int(math.floor(dsamp))
+        self._frac = dsamp - self._whole
+        self._buf = np.zeros(self._whole + 2)
+        if model.stress_play:
+            self._th = np.asarray(model.stress_play["thresholds"], dtype=float)
+            self._co = np.asarray(model.stress_play["coefficients_per_MPa"], dtype=float)
+        else:
+            self._th = np.zeros(0)
+            self._co = np.zeros(0)
+        self._plays = np.zeros(self._th.size)
+        self._core = None
+        self.reset(initial_drive)
+
+    def _sat(self, u: float) -> float:
+        s = self.m.saturation
+        return K.soft_limit_scalar(u, s["lo"], s["hi"], s["width_lo"], s["width_hi"]) if s else u
+
+    def reset(self, initial_drive: float = 0.0) -> None:
+        u1 = self._sat(float(initial_drive))
+        self._eddy = u1
+        self._buf[:] = u1
+        self._head = 0
+        self._plays[:] = u1
+        self._first = True
+        self._theta = 0.0
+        self._y1 = self._y2 = 0.0
+        self._z = 0.0
+        if self._core is None:
+            self._core = self.m.base.forward_stepper(self.dt, initial_drive=u1)
+        else:
+            self._core.reset(u1)
+
+    def _delay(self, u2: float) -> float:
+        n = self._buf.size
+        self._head = (self._head + 1) % n
+        self._buf[self._head] = u2
+        v0 = self._buf[(self._head - self._whole) % n]
+        v1 = self._buf[(self._head - self._whole - 1) % n]
+        return (1.0 - self._frac) * v0 + self._frac * v1
+
+    def step(self, drive: float, stress_MPa: float | None = None) -> float:
+        m = self.m
+        u1 = self._sat(float(drive))
+        if m.eddy_lag:
+            self._eddy = self._a_eddy * self._eddy + (1.0 - self._a_eddy) * u1
+            u2 = self._eddy
+        else:
+            u2 = u1
+        u3 = self._delay(u2) if self._whole or self._frac else u2
+        yc = float(self._core.step(u3, stress_MPa))
+        s = 0.0 if stress_MPa is None else self._clamp_stress(float(stress_MPa))
+        st = m.static
+        ds = s - st["stress_ref_MPa"]
+        y = (st["offset_um"] + (st["gain"] + st["stress_gain_per_MPa"] * ds) * yc
+             + st["quadratic_per_um"] * (yc - st["center_um"]) ** 2)
+        if self._th.size:
+            acc = 0.0
+            for j in range(self._th.size):
+                p = min(max(self._plays[j], u3 - self._th[j]), u3 + self._th[j])
+                self._plays[j] = p
+                acc += self._co[j] * (p - u3)
+            y += ds * acc
+        if self._first:
+            self._z = yc
+        if m.creep:
+            self._z = self._a_creep * self._z + (1.0 - self._a_creep) * yc
+            y += m.creep["gain"] * (self._z - yc)
+        if m.dynamics:
+            if self._first:
+                self._y1 = self._y2 = y
+            d = m.dynamics
+            w = K.msd_omega(2 * math.pi * d["f_ref_hz"], d.get("beta_per_MPa", 0.0), s, d.get("stress_ref_MPa", 0.0))
+            a1, a2, kk = K.msd_coeffs(self.dt, w, d["zeta"])
+            y = kk * y - a1 * self._y1 - a2 * self._y2
+            self._y2 = self._y1
+            self._y1 = y
+        if m.thermal:
+            self._theta = self._a_heat * self._theta + (1.0 - self._a_heat) * float(drive) ** 2
+            y += m.thermal["gain_um_per_A2"] * self._theta
+        self._first = False
+        return y
+
+    def _clamp_stress(self, s: float) -> float:
+        rng = self.m.stress_range_MPa
+        if rng is None:
+            return s
+        return min(max(s, rng[0]), rng[1])
+
+
+class InverseStepper:
+    """Sample-by-sample inverse (reference -> drive); see the module docstring for each block."""
+
+    def __init__(self, model: ExtendedModel, dt_s: float, initial_drive: float = 0.0) -> None:
+        if not (dt_s > 0 and math.isfinite(dt_s)):
+            raise ModelError(f"dt_s must be a positive number, got {dt_s!r}")
+        self.m = model
+        self.dt = float(dt_s)
+        self.preview_s = model.preview_s
+        self._a_eddy = K.lag_coeff(self.dt, model.eddy_lag["tau_s"]) if model.eddy_lag else 0.0
+        self._a_creep = K.lag_coeff(self.dt, model.creep["tau_s"]) if model.creep else 0.0
+        self._a_heat = K.lag_coeff(self.dt, model.thermal["tau_s"]) if model.thermal else 0.0
+        if model.stress_play:
+            self._th = np.asarray(model.stress_play["thresholds"], dtype=float)
+            self._co = np.asarray(model.stress_play["coefficients_per_MPa"], dtype=float)
+        else:
+            self._th = np.zeros(0)
+            self._co = np.zeros(0)
+        self._plays = np.zeros(self._th.size)
+        self._core = None
+        self.reset(initial_drive)
+
+    def reset(self, initial_drive: float = 0.0) -> None:
+        s = self.m.saturation
+        u1 = K.soft_limit_scalar(float(initial_drive), s["lo"], s["hi"], s["width_lo"], s["width_hi"]) if s else float(initial_drive)
+        self._u3_prev = u1
+        self._plays[:] = u1
+        self._drive_prev = float(initial_drive)
+        self._theta = 0.0
+        self._first = True
+        self._r1 = self._r2 = 0.0
+        self._z = 0.0
+        if self._core is None:
+            self._core = self.m.base.inverse_stepper(self.dt, initial_drive=u1)
+        else:
+            self._core.reset(u1)
+
+    def step(self, reference_um: float, stress_MPa: float | None = None) -> float:
+        m = self.m
+        s = 0.0 if stress_MPa is None else self._clamp_stress(float(stress_MPa))
+        target = float(reference_um)
+        if m.thermal:
+            # heating follows the drive already commanded (one sample behind: tau_s >> dt)
+            self._theta = self._a_heat * self._theta + (1.0 - self._a_heat) * self._drive_prev ** 2
+            target -= m.thermal["gain_um_per_A2"] * self._theta
+        if m.dynamics:
+            if self._first:
+                self._r1 = self._r2 = target
+            d = m.dynamics
+            w = K.msd_omega(2 * math.pi * d["f_ref_hz"], d.get("beta_per_MPa", 0.0), s, d.get("stress_ref_MPa", 0.0))
+            a1, a2, kk = K.msd_coeffs(self.dt, w, d["zeta"])
+            y_cr = (target + a1 * self._r1 + a2 * self._r2) / kk
+            self._r2 = self._r1
+            self._r1 = target
+        else:
+            y_cr = target
+        st = m.static
+        ds = s - st["stress_ref_MPa"]
+        sp = 0.0
+        if self._th.size:
+            u = self._u3_prev
+            for j in range(self._th.size):
+                sp += self._co[j] * (min(max(self._plays[j], u - self._th[j]), u + self._th[j]) - u)
+            sp *= ds
+        q = st["quadratic_per_um"]
+        c0 = st["center_um"]
+        ga = 0.0
+        zc = 0.0
+        if m.creep and not self._first:
+            ga = m.creep["gain"] * self._a_creep
+            zc = ga * self._z
+        lin = st["gain"] + st["stress_gain_per_MPa"] * ds - 2.0 * q * c0 - ga
+        const = q * c0 * c0 + st["offset_um"] + sp + zc - y_cr
+        yc = _quadratic_root(q, lin, const)
+        if m.creep:
+            self._z = yc if self._first else self._a_creep * self._z + (1.0 - self._a_creep) * yc
+        u3 = float(self._core.step(yc, stress_MPa))
+        if self._th.size:
+            for j in range(self._th.size):
+                self._plays[j] = min(max(self._plays[j], u3 - self._th[j]), u3 + self._th[j])
+        if m.eddy_lag:
+            u2 = (u3 - self._a_eddy * self._u3_prev) / (1.0 - self._a_eddy)
+        else:
+            u2 = u3
+        self._u3_prev = u3
+        sat = m.saturation
+        u = K.soft_limit_inverse_scalar(u2, sat["lo"], sat["hi"], sat["width_lo"], sat["width_hi"]) if sat else u2
+        self._drive_prev = u
+        self._first = False
+        return u
+
+    def _clamp_stress(self, s: float) -> float:
+        rng = self.m.stress_range_MPa
+        if rng is None:
+            return s
+        return min(max(s, rng[0]), rng[1])
+
+
+def _quadratic_root(q: float, b: float, c: float) -> float:
+    """Root of q x^2 + b x + c = 0 continuous with the linear solution -c/b as q -> 0."""
+    if abs(q) < 1e-15:
+        return -c / b
+    disc = b * b - 4.0 * q * c
+    if disc < 0.0:
+        disc = 0.0
+    root = math.sqrt(disc)
+    den = b + root if b >= 0 else b - root
+    if den == 0.0:
+        return -b / (2.0 * q)
+    return -2.0 * c / den

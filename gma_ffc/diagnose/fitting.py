@@ -1,0 +1,280 @@
+"""Fit extension blocks around a fixed core and score them on held-out blocks.
+
+A model under test is a `Spec`: the nonlinear parameters of its blocks (time constants, delay,
+resonance). Given a spec, every linear parameter (static gain/offset/curvature, stress gain,
+creep and heating gains, stress-play weights) follows by least squares, because each block is
+linear in them once the nonlinear parameters are fixed (the resonance filter is linear, so it can
+be applied to each regressor). Nonlinear parameters are searched on a grid refined locally,
+separately for each fold using only that fold's training samples.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from . import kernels as K
+from .data import RecData, mean_stress, stress_span
+
+
+@dataclass(frozen=True)
+class Spec:
+    """Nonlinear parameters of the blocks in a model under test (None: block absent)."""
+
+    saturation: tuple[float, float] | None = None   # (width_lo, width_hi) in drive units, 0 = side off
+    eddy_tau: float | None = None                   # s
+    delay_s: float | None = None                    # s
+    stress_play: bool = False
+    creep_tau: float | None = None                  # s
+    dynamics: tuple[float, float, float] | None = None  # (f_ref_hz, zeta, beta_per_MPa)
+    thermal_tau: float | None = None                # s
+
+    def with_(self, **kw: Any) -> "Spec":
+        return dataclasses.replace(self, **kw)
+
+    def input_key(self) -> tuple:
+        return (self.saturation, self.eddy_tau, self.delay_s)
+
+
+@dataclass
+class Score:
+    """Least-squares results of one spec: per-fold train/test SSE and the all-data fit."""
+
+    sse_train: tuple[float, float]
+    sse_test: tuple[float, float]
+    n_train: tuple[int, int]
+    n_test: tuple[int, int]
+    sse_all: float
+    n_all: int
+    coef_all: np.ndarray | None
+    names: list[str]
+
+    def train_mse(self, fold: int) -> float:
+        return self.sse_train[fold] / max(self.n_train[fold], 1)
+
+    @property
+    def all_mse(self) -> float:
+        return self.sse_all / max(self.n_all, 1)
+
+
+class Fitter:
+    """Builds regressors for specs over the prepared recordings (with caches) and solves them."""
+
+    def __init__(self, model: Any, data: Sequence[RecData]) -> None:
+        self.model = model
+        self.data = list(data)
+        lo, hi = model.drive_range
+        u_all = np.concatenate([d.u for d in self.data])
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            lo, hi = float(u_all.min()), float(u_all.max())
+        self.drive_lo, self.drive_hi = float(lo), float(hi)
+        self.drive_span = max(self.drive_hi - self.drive_lo, 1e-12)
+        self.stress_ref = mean_stress(self.data)
+        self.stress_top = max(float(d.s.max()) for d in self.data)
+        self.stress_varies = model.stress_range_MPa is not None and stress_span(self.data) >= 1.0
+        self.play_thresholds = np.array([0.1, 0.25, 0.45]) * self.drive_span
+        self._core_cache: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
+        self._yc0: float | None = None
+        self.dt_min = min(d.dt_med for d in self.data)
+        self.duration_max = max(d.duration_s for d in self.data)
+        self.duration_total = sum(d.duration_s for d in self.data)
+        # least-squares rows, fold A's (of every recording) first, then fold B's: folds are slices
+        self._rows_ab = [(d.rows[d.fold[d.rows] == 0], d.rows[d.fold[d.rows] == 1]) for d in self.data]
+        ya = [d.y[ra] for d, (ra, _) in zip(self.data, self._rows_ab)]
+        yb = [d.y[rb] for d, (_, rb) in zip(self.data, self._rows_ab)]
+        self.n_a = int(sum(a.size for a in ya))
+        self.y_rows = np.concatenate(ya + yb)
+        self.segment_lengths = [a.size for a in ya] + [b.size for b in yb]
+        self.evaluations = 0
+
+    # ------------------------------------------------------------------ the core
+    def core(self, spec: Spec) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(core input u3, core output y_c) per recording for the spec's input-side blocks."""
+        key = spec.input_key()
+        hit = self._core_cache.get(key)
+        if hit is not None:
+            return hit
+        out = []
+        for d in self.data:
+            u3 = self.core_input(d, spec)
+            s = d.s if self.model.stress_range_MPa is not None else None
+            yc = np.asarray(self.model.simulate(d.t, u3, s), dtype=float)
+            out.append((u3, yc))
+        if len(self._core_cache) > 64:
+            self._core_cache.clear()
+        self._core_cache[key] = out
+        return out
+
+    def core_input(self, d: RecData, spec: Spec) -> np.ndarray:
+        u = d.u
+        if spec.saturation is not None:
+            u = K.soft_limit(u, self.drive_lo, self.drive_hi, spec.saturation[0], spec.saturation[1])
+        if spec.eddy_tau:
+            u = K.lag_filter(u, d.dt, spec.eddy_tau, float(u[0]))
+        if spec.delay_s:
+            u = K.delay_filter(u, spec.delay_s / d.dt_med, float(u[0]))
+        return np.ascontiguousarray(u)
+
+    @property
+    def yc_center(self) -> float:
+        if self._yc0 is None:
+            base = self.core(Spec())
+            self._yc0 = float(np.mean(np.concatenate([yc for _, yc in base])))
+        return self._yc0
+
+    # ------------------------------------------------------------------ regressors
+    def columns(self, d: RecData, u3: np.ndarray, yc: np.ndarray, spec: Spec) -> tuple[list[np.ndarray], list[str]]:
+        """Full-length regressors of one recording (before row selection)."""
+        ds = d.s - self.stress_ref
+        cols = [yc, (yc - self.yc_center) ** 2, np.ones_like(yc)]
+        names = ["gain", "quadratic", "offset"]
+        if self.stress_varies:
+            cols.append(ds * yc)
+            names.append("stress_gain")
+        if spec.stress_play:
+            plays = K.play_bank(u3, self.play_thresholds, float(u3[0]))
+            for j in range(self.play_thresholds.size):
+                cols.append(ds * (plays[:, j] - u3))
+                names.append(f"stress_play_{j}")
+        if spec.creep_tau:
+            cols.append(K.lag_filter(yc, d.dt, spec.creep_tau, float(yc[0])) - yc)
+            names.append("creep_gain")
+        if spec.dynamics is not None:
+            f, zeta, beta = spec.dynamics
+            idx = [j for j, name in enumerate(names) if name != "offset"]
+            filt = K.msd_filter_columns(np.column_stack([cols[j] for j in idx]), d.dt, d.s, 2 * math.pi * f,
+                                        zeta, beta, self.stress_top)
+            for k, j in enumerate(idx):
+                cols[j] = filt[:, k]
+        if spec.thermal_tau:
+            cols.append(K.lag_filter(d.u * d.u, d.dt, spec.thermal_tau, 0.0))
+            names.append("thermal_gain")
+        return cols, names
+
+    def design(self, spec: Spec) -> tuple[np.ndarray, list[str]]:
+        """Regressors at the least-squares rows: fold A rows of every recording, then fold B rows."""
+        part_a, part_b = [], []
+        names: list[str] = []
+        for d, (u3, yc), (ra, rb) in zip(self.data, self.core(spec), self._rows_ab):
+            cols, names = self.columns(d, u3, yc, spec)
+            part_a.append(np.column_stack([c[ra] for c in cols]))
+            part_b.append(np.column_stack([c[rb] for c in cols]))
+        return np.vstack(part_a + part_b), names
+
+    def predict_full(self, spec: Spec, coef: np.ndarray) -> list[np.ndarray]:
+        """Full-rate prediction per recording for a spec and its linear coefficients."""
+        out = []
+        for d, (u3, yc) in zip(self.data, self.core(spec)):
+            cols, _ = self.columns(d, u3, yc, spec)
+            out.append(np.column_stack(cols) @ coef)
+        return out
+
+    # ------------------------------------------------------------------ solving
+    @staticmethod
+    def _solve(X: np.ndarray, y: np.ndarray) -> np.ndarray:
+        scale = np.sqrt(np.mean(X * X, axis=0))
+        scale[scale == 0] = 1.0
+        Xs = X / scale
+        G = Xs.T @ Xs
+        G[np.diag_indices_from(G)] += 1e-10 * max(float(np.trace(G)), 1.0) / G.shape[0]
+        try:
+            c = np.linalg.solve(G, Xs.T @ y)
+        except np.linalg.LinAlgError:
+            c = np.linalg.lstsq(Xs, y, rcond=None)[0]
+        return c / scale
+
+    def score(self, specs: tuple[Spec, Spec, Spec], want_coef: bool = False) -> Score:
+        """Fit fold A's spec on A, fold B's on B (each tested on the other), and the all-data spec."""
+        self.evaluations += 1
+        y = self.y_rows
+        designs: dict[Spec, np.ndarray] = {}
+        names: list[str] = []
+
+        def X_for(spec: Spec) -> np.ndarray:
+            nonlocal names
+            if spec not in designs:
+                designs[spec], names = self.design(spec)
+            return designs[spec]
+
+        sse_train, sse_test, n_train, n_test = [], [], [], []
+        na = self.n_a
+        for f in (0, 1):
+            X = X_for(specs[f])
+            tr = slice(0, na) if f == 0 else slice(na, None)
+            te = slice(na, None) if f == 0 else slice(0, na)
+            c = self._solve(X[tr], y[tr])
+            r_tr = y[tr] - X[tr] @ c
+            r_te = y[te] - X[te] @ c
+            sse_train.append(float(r_tr @ r_tr))
+            sse_test.append(float(r_te @ r_te))
+            n_train.append(int(r_tr.size))
+            n_test.append(int(r_te.size))
+        X = X_for(specs[2])
+        c_all = self._solve(X, y)
+        r = y - X @ c_all
+        return Score(tuple(sse_train), tuple(sse_test), tuple(n_train), tuple(n_test),  # type: ignore[arg-type]
+                     float(r @ r), int(y.size), c_all if want_coef else None, names)
+
+    def test_residuals(self, specs: tuple[Spec, Spec, Spec]) -> np.ndarray:
+        """Held-out residuals at the least-squares rows (each fold predicted by the other fold's fit)."""
+        y = self.y_rows
+        na = self.n_a
+        out = np.empty_like(y)
+        for f in (0, 1):
+            X, _ = self.design(specs[f])
+            tr = slice(0, na) if f == 0 else slice(na, None)
+            te = slice(na, None) if f == 0 else slice(0, na)
+            c = self._solve(X[tr], y[tr])
+            out[te] = y[te] - X[te] @ c
+        return out
+
+
+# ---------------------------------------------------------------------- searching one block
+
+@dataclass
+class SearchResult:
+    specs: tuple[Spec, Spec, Spec]      # fold A, fold B, all data (each with the block's best parameters)
+    cv_mse: float
+    all_mse: float
+    n_test: int
+    coef_all: np.ndarray
+    names: list[str]
+    evaluated: int
+
+
+def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, Any], Spec],
+           grid: Sequence[Any], refine: Callable[[Fitter, Any], Sequence[Any]] | None = None) -> SearchResult:
+    """Grid (plus local refinement) over one block's parameters; per-fold choice by training error."""
+    results: dict[Any, Score] = {}
+
+    def run(points: Sequence[Any]) -> None:
+        for p in points:
+            if p in results:
+                continue
+            results[p] = fitter.score((make(base[0], p), make(base[1], p), make(base[2], p)))
+
+    run(grid)
+    if refine is not None:
+        best_points = {min(results, key=lambda p: results[p].train_mse(0)),
+                       min(results, key=lambda p: results[p].train_mse(1)),
+                       min(results, key=lambda p: results[p].all_mse)}
+        for bp in best_points:
+            run(refine(fitter, bp))
+    pa = min(results, key=lambda p: results[p].train_mse(0))
+    pb = min(results, key=lambda p: results[p].train_mse(1))
+    pall = min(results, key=lambda p: results[p].all_mse)
+    ra, rb = results[pa], results[pb]
+    n_test = ra.n_test[0] + rb.n_test[1]
+    cv = (ra.sse_test[0] + rb.sse_test[1]) / max(n_test, 1)
+    specs = (make(base[0], pa), make(base[1], pb), make(base[2], pall))
+    final = fitter.score(specs, want_coef=True)
+    return SearchResult(specs, cv, final.all_mse, n_test, final.coef_all, final.names, len(results))
+
+
+def geom_refine(p: float, ratio: float) -> list[float]:
+    """Points around p on a log scale, for refining a grid of spacing `ratio`."""
+    return [p * ratio ** e for e in (-0.66, -0.33, 0.33, 0.66)]

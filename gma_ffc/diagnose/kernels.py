@@ -1,0 +1,214 @@
+"""Numba kernels of the extension blocks (pure maths, no I/O).
+
+Each forward block has an exact discrete inverse, so the extended model can be inverted sample by
+sample: the first-order lag (eddy currents, heating, creep) uses the ZOH form
+``z_k = a z_{k-1} + (1-a) x_k`` and the mass-spring-damper uses matched poles with a unity-DC
+numerator ``y_k = K x_k - a1 y_{k-1} - a2 y_{k-2}`` whose inverse is a 3-tap FIR (always stable).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def lag_coeff(dt: float, tau: float) -> float:
+    """Pole of the ZOH-discretised first-order lag (0 when tau is 0: no lag)."""
+    if tau <= 0.0:
+        return 0.0
+    return math.exp(-dt / tau)
+
+
+@njit(cache=True)
+def lag_filter(x: np.ndarray, dt: np.ndarray, tau: float, z0: float) -> np.ndarray:
+    """First-order lag of x with time constant tau, relaxed at z0; dt[k] is the step into sample k."""
+    n = x.shape[0]
+    out = np.empty(n)
+    z = z0
+    for k in range(n):
+        a = lag_coeff(dt[k], tau)
+        z = a * z + (1.0 - a) * x[k]
+        out[k] = z
+    return out
+
+
+@njit(cache=True)
+def lag_inverse(z: np.ndarray, dt: np.ndarray, tau: float, z0: float) -> np.ndarray:
+    """Exact inverse of `lag_filter`: the input that makes the lag output equal z."""
+    n = z.shape[0]
+    out = np.empty(n)
+    prev = z0
+    for k in range(n):
+        a = lag_coeff(dt[k], tau)
+        out[k] = (z[k] - a * prev) / (1.0 - a)
+        prev = z[k]
+    return out
+
+
+@njit(cache=True)
+def delay_filter(x: np.ndarray, delay_samples: float, x0: float) -> np.ndarray:
+    """Fractional delay by linear interpolation; samples before the start hold x0."""
+    n = x.shape[0]
+    out = np.empty(n)
+    whole = int(math.floor(delay_samples))
+    frac = delay_samples - whole
+    for k in range(n):
+        i0 = k - whole
+        i1 = i0 - 1
+        v0 = x[i0] if i0 >= 0 else x0
+        v1 = x[i1] if i1 >= 0 else x0
+        out[k] = (1.0 - frac) * v0 + frac * v1
+    return out
+
+
+@njit(cache=True)
+def msd_coeffs(dt: float, omega: float, zeta: float) -> tuple:
+    """(a1, a2, K) of the matched-pole second-order low-pass (poles exp(s dt), DC gain 1)."""
+    if zeta < 1.0:
+        wd = omega * math.sqrt(1.0 - zeta * zeta)
+        e = math.exp(-zeta * omega * dt)
+        a1 = -2.0 * e * math.cos(wd * dt)
+        a2 = e * e
+    else:
+        r = math.sqrt(zeta * zeta - 1.0)
+        p1 = math.exp((-zeta + r) * omega * dt)
+        p2 = math.exp((-zeta - r) * omega * dt)
+        a1 = -(p1 + p2)
+        a2 = p1 * p2
+    return a1, a2, 1.0 + a1 + a2
+
+
+@njit(cache=True)
+def msd_omega(omega_ref: float, beta: float, stress: float, stress_ref: float) -> float:
+    """Natural frequency with the load mass that the stress implies (more compression, more mass)."""
+    m = 1.0 + beta * (stress_ref - stress)
+    if m < 0.05:
+        m = 0.05
+    return omega_ref / math.sqrt(m)
+
+
+@njit(cache=True)
+def msd_filter(x: np.ndarray, dt: np.ndarray, stress: np.ndarray, omega_ref: float, zeta: float,
+               beta: float, stress_ref: float, y0: float) -> np.ndarray:
+    """Mass-spring-damper response to the quasi-static displacement x, relaxed at y0."""
+    n = x.shape[0]
+    out = np.empty(n)
+    y1 = y0
+    y2 = y0
+    for k in range(n):
+        w = msd_omega(omega_ref, beta, stress[k], stress_ref)
+        a1, a2, kk = msd_coeffs(dt[k], w, zeta)
+        y = kk * x[k] - a1 * y1 - a2 * y2
+        out[k] = y
+        y2 = y1
+        y1 = y
+    return out
+
+
+@njit(cache=True)
+def msd_filter_columns(X: np.ndarray, dt: np.ndarray, stress: np.ndarray, omega_ref: float, zeta: float,
+                       beta: float, stress_ref: float) -> np.ndarray:
+    """`msd_filter` applied to every column of X (each relaxed at its first value), one pass."""
+    n, m = X.shape
+    out = np.empty((n, m))
+    y1 = np.empty(m)
+    y2 = np.empty(m)
+    for j in range(m):
+        y1[j] = X[0, j]
+        y2[j] = X[0, j]
+    last_dt = -1.0
+    last_s = np.nan
+    a1 = 0.0
+    a2 = 0.0
+    kk = 1.0
+    for k in range(n):
+        if dt[k] != last_dt or (beta != 0.0 and stress[k] != last_s):
+            w = msd_omega(omega_ref, beta, stress[k], stress_ref)
+            a1, a2, kk = msd_coeffs(dt[k], w, zeta)
+            last_dt = dt[k]
+            last_s = stress[k]
+        for j in range(m):
+            y = kk * X[k, j] - a1 * y1[j] - a2 * y2[j]
+            out[k, j] = y
+            y2[j] = y1[j]
+            y1[j] = y
+    return out
+
+
+@njit(cache=True)
+def msd_inverse(y: np.ndarray, dt: np.ndarray, stress: np.ndarray, omega_ref: float, zeta: float,
+                beta: float, stress_ref: float, y0: float) -> np.ndarray:
+    """Exact inverse of `msd_filter` (3-tap FIR)."""
+    n = y.shape[0]
+    out = np.empty(n)
+    y1 = y0
+    y2 = y0
+    for k in range(n):
+        w = msd_omega(omega_ref, beta, stress[k], stress_ref)
+        a1, a2, kk = msd_coeffs(dt[k], w, zeta)
+        out[k] = (y[k] + a1 * y1 + a2 * y2) / kk
+        y2 = y1
+        y1 = y[k]
+    return out
+
+
+@njit(cache=True)
+def play_bank(x: np.ndarray, thresholds: np.ndarray, x0: float) -> np.ndarray:
+    """Outputs of play operators H_r[x] (one column per threshold), relaxed at x0."""
+    n = x.shape[0]
+    m = thresholds.shape[0]
+    out = np.empty((n, m))
+    state = np.empty(m)
+    for j in range(m):
+        state[j] = x0
+    for k in range(n):
+        for j in range(m):
+            r = thresholds[j]
+            s = state[j]
+            lo = x[k] - r
+            hi = x[k] + r
+            if s < lo:
+                s = lo
+            elif s > hi:
+                s = hi
+            state[j] = s
+            out[k, j] = s
+    return out
+
+
+@njit(cache=True)
+def soft_limit(x: np.ndarray, lo: float, hi: float, width_lo: float, width_hi: float) -> np.ndarray:
+    """Identity inside [lo, hi]; beyond, a tanh that saturates width further out."""
+    n = x.shape[0]
+    out = np.empty(n)
+    for k in range(n):
+        out[k] = soft_limit_scalar(x[k], lo, hi, width_lo, width_hi)
+    return out
+
+
+@njit(cache=True)
+def soft_limit_scalar(v: float, lo: float, hi: float, width_lo: float, width_hi: float) -> float:
+    if v > hi and width_hi > 0.0:
+        return hi + width_hi * math.tanh((v - hi) / width_hi)
+    if v < lo and width_lo > 0.0:
+        return lo - width_lo * math.tanh((lo - v) / width_lo)
+    return v
+
+
+@njit(cache=True)
+def soft_limit_inverse_scalar(v: float, lo: float, hi: float, width_lo: float, width_hi: float) -> float:
+    """Inverse of the soft limit; demands beyond its asymptote are clamped just inside it."""
+    if v > hi and width_hi > 0.0:
+        q = (v - hi) / width_hi
+        if q > 0.995:
+            q = 0.995
+        return hi + width_hi * math.atanh(q)
+    if v < lo and width_lo > 0.0:
+        q = (lo - v) / width_lo
+        if q > 0.995:
+            q = 0.995
+        return lo - width_lo * math.atanh(q)
+    return v

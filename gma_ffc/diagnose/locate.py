@@ -1,0 +1,110 @@
+"""Where and under which conditions the residual appears (pure maths on arrays).
+
+For one recording and its residual: the time windows where it is largest, the frequency band
+holding most of its power, and how strongly its size follows the drive rate, the drive
+amplitude, the stress, the time since a step and the cumulative heating (drive squared
+integrated through a long time constant).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import kernels as K
+from .data import RecData
+
+BANDS_HZ = (0.0, 0.5, 5.0, 50.0, 500.0, np.inf)
+
+
+@dataclass
+class Located:
+    recording: str
+    where: str
+    residual_rms_um: float
+    residual_rms_recalibrated_um: float
+    window_s: tuple[float, float]
+    band_hz: tuple[float, float]
+    band_share: float
+    conditions: dict[str, float] = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {"recording": self.recording, "where": self.where,
+                "residual_rms_um": round(self.residual_rms_um, 6),
+                "residual_rms_recalibrated_um": round(self.residual_rms_recalibrated_um, 6),
+                "window_s": [round(v, 6) for v in self.window_s],
+                "band_hz": [self.band_hz[0], None if not np.isfinite(self.band_hz[1]) else self.band_hz[1]],
+                "band_share": round(self.band_share, 4),
+                "conditions": {k: round(v, 4) for k, v in self.conditions.items()}}
+
+
+def _corr(a: np.ndarray, b: np.ndarray) -> float:
+    a = a - a.mean()
+    b = b - b.mean()
+    den = float(np.sqrt((a @ a) * (b @ b)))
+    return float(a @ b / den) if den > 0 else 0.0
+
+
+def band_powers(r: np.ndarray, dt: float) -> np.ndarray:
+    """Share of the residual's (mean-removed) power in each of BANDS_HZ."""
+    x = r - r.mean()
+    spec = np.abs(np.fft.rfft(x)) ** 2
+    freqs = np.fft.rfftfreq(x.size, dt)
+    total = float(spec[1:].sum()) or 1.0
+    shares = []
+    for lo, hi in zip(BANDS_HZ[:-1], BANDS_HZ[1:]):
+        sel = (freqs >= lo) & (freqs < hi)
+        sel[0] = False
+        shares.append(float(spec[sel].sum()) / total)
+    return np.array(shares)
+
+
+def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows: int = 10) -> Located:
+    """Locate the residual (after static recalibration) of one recording."""
+    n = residual.size
+    t = d.t
+    bounds = np.linspace(0, n, n_windows + 1).astype(int)
+    rms_w = np.array([np.sqrt(np.mean(residual[a:b] ** 2)) if b > a else 0.0
+                      for a, b in zip(bounds[:-1], bounds[1:])])
+    k = int(np.argmax(rms_w))
+    win = (float(t[bounds[k]]), float(t[max(bounds[k + 1] - 1, bounds[k])]))
+    ratio = float(rms_w[k] / max(np.median(rms_w), 1e-12))
+    shares = band_powers(residual, d.dt_med)
+    b = int(np.argmax(shares))
+    band = (BANDS_HZ[b], BANDS_HZ[b + 1])
+
+    # conditions, on a smoothed residual size (window ~ 1 % of the record, at least 5 samples)
+    width = max(5, n // 100)
+    kern = np.ones(width) / width
+    size = np.sqrt(np.convolve(residual ** 2, kern, mode="same"))
+    du = np.abs(np.gradient(d.u, t))
+    span = max(float(np.ptp(d.u)), 1e-12)
+    steps = np.flatnonzero(np.abs(np.diff(d.u)) > 0.1 * span) + 1
+    since = np.full(n, np.inf)
+    if steps.size:
+        last = np.maximum.accumulate(np.where(np.isin(np.arange(n), steps), np.arange(n), -1))
+        ok = last >= 0
+        since[ok] = t[ok] - t[last[ok]]
+    heat = K.lag_filter(d.u * d.u, d.dt, max(d.duration_s / 4, 1e-6), 0.0)
+    cond = {
+        "drive_rate": _corr(size, np.convolve(du, kern, mode="same")),
+        "drive_amplitude": _corr(size, np.abs(d.u - np.median(d.u))),
+        "cumulative_heating": _corr(np.convolve(residual, kern, mode="same"), heat),
+    }
+    if float(np.ptp(d.s)) > 0.5:
+        cond["stress"] = _corr(size, d.s)
+    if steps.size:
+        fin = np.isfinite(since)
+        if fin.sum() > 10:
+            cond["after_steps"] = _corr(size[fin], -np.log(since[fin] + d.dt_med))
+    words = {"drive_rate": "grows with the drive rate", "drive_amplitude": "grows with the drive amplitude",
+             "cumulative_heating": "follows the integral of I^2 (cumulative heating)",
+             "stress": "changes with stress", "after_steps": "is largest just after steps"}
+    strong = sorted(((abs(v), key) for key, v in cond.items() if abs(v) >= 0.3), reverse=True)
+    band_txt = (f"{band[0]:g}-{band[1]:g} Hz" if np.isfinite(band[1]) else f"above {band[0]:g} Hz")
+    where = f"t = {win[0]:.4g}-{win[1]:.4g} s ({ratio:.1f}x the median window); {shares[b]:.0%} of its power at {band_txt}"
+    if strong:
+        where += "; residual " + ", ".join(words[key] + f" (r = {cond[key]:+.2f})" for _, key in strong[:2])
+    return Located(d.name, where, float(np.sqrt(np.mean(raw_residual ** 2))),
+                   float(np.sqrt(np.mean(residual ** 2))), win, band, float(shares[b]), cond)
