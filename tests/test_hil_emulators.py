@@ -185,6 +185,46 @@ def test_half_of_a_32bit_register_is_refused(rig):
 
 # ---- Modbus faults ---------------------------------------------------------------------------------
 
+def test_status_word_reports_output_and_device_failure(rig):
+    m = load_register_map(INT_MAP)
+    with ModbusEmulator(rig, m) as emu:
+        client = tcp_client(emu)
+        try:
+            assert read_channel(client, m, "status") == 0
+            write_channel(client, m, "output_enable", 1)
+            rig.faults.set("stuck:force_N")  # the device cannot know its sensor is stuck
+            assert read_channel(client, m, "status") == 1
+        finally:
+            client.close()
+    assert rig.status_word() == 1
+    rig.faults.set("exception")
+    assert rig.status_word() == 3
+
+
+@pytest.mark.parametrize("fault", ["exception:4", "garbage"])
+def test_modbus_rtu_exception_and_garbage_faults(rig, fault):
+    m = load_register_map(INT_MAP)
+    with ModbusEmulator(rig, m, transport="rtu") as emu:
+        client = rtu_client(emu, timeout=0.3)
+        try:
+            rig.faults.set(fault)
+            with pytest.raises((ModbusException, ModbusFailure)) as failed:
+                read_channel(client, m, "force_N")
+            if fault.startswith("exception"):
+                assert failed.value.code == 4
+            rig.faults.clear()
+            assert wait_for(lambda: _reads_ok(client, m))
+        finally:
+            client.close()
+
+
+def _reads_ok(client, m) -> bool:
+    try:
+        return math.isfinite(read_channel(client, m, "force_N"))
+    except (ModbusException, ModbusFailure):
+        return False
+
+
 def test_modbus_exception_fault_and_clear(rig):
     m = load_register_map(INT_MAP)
     rig.faults.set("exception:6")
@@ -594,6 +634,24 @@ def test_cli_modbus_tcp_with_start_fault_and_control_channel():
         proc.send_signal(signal.SIGTERM)
         out, _ = proc.communicate(timeout=10)
         assert proc.returncode == 0 and "stopped" in out
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+
+
+def test_cli_serial_amplifier_prints_its_port_and_stops_on_sigint():
+    proc, info = _start_cli("serial", "--fault", "nan:force_N", "--load-mass", "20", "--duration", "60")
+    try:
+        assert "connect" in info and "control" in info, proc.stderr.read() if proc.poll() is not None else info
+        with serial.Serial(info["connect"], 115200, timeout=2.0) as port:
+            assert ask(port, "MEAS:FORC?") == "nan"
+            assert send_control(info["control"], "clear")["cleared"] == ["nan:force_N"]
+            assert float(ask(port, "MEAS:FORC?")) > 500  # preload plus 20 kg on the load cell
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10)
+        assert proc.returncode == 0 and "stopped" in out and "Traceback" not in err
+        assert not os.path.exists(info["connect"]) and not os.path.exists(info["control"])
     finally:
         if proc.poll() is None:
             proc.kill()

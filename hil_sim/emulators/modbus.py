@@ -14,6 +14,7 @@ import asyncio
 import dataclasses
 import math
 import random
+import socket
 import threading
 from typing import Sequence
 
@@ -201,6 +202,17 @@ class _RtuServer(ModbusSerialServer):
         return FaultyRequestHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
 
 
+def _check_bindable(host: str, port: int) -> None:
+    """FaultError naming the reason (address in use, no such interface...) before pymodbus tries."""
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+        with socket.socket(infos[0][0], socket.SOCK_STREAM) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            probe.bind(infos[0][4])
+    except OSError as exc:
+        raise FaultError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
+
+
 class ModbusEmulator:
     """A Modbus device in a background thread: `with ModbusEmulator(rig, map) as emu: emu.address`.
 
@@ -272,6 +284,8 @@ class ModbusEmulator:
         self._thread.start()
         if not self._ready.wait(timeout_s) or self._error is not None:
             self.stop()
+            if isinstance(self._error, FaultError):
+                raise self._error
             raise FaultError(f"modbus {self.transport} emulator failed to start: {self._error or 'timeout'}")
         return self.address
 
@@ -286,6 +300,7 @@ class ModbusEmulator:
         self._loop = asyncio.get_running_loop()
         self._stop_event = asyncio.Event()
         if self.transport == "tcp":
+            _check_bindable(self.host, self.port)  # pymodbus only logs why it could not listen
             server = _TcpServer(self.context, address=(self.host, self.port))
         else:
             server = _RtuServer(self.context, port=self._server_pty.slave_name, baudrate=self.baudrate,

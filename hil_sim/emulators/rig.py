@@ -170,8 +170,9 @@ class EmulatedRig:
             return value
 
     def status_word(self) -> int:
-        """bit 0 output enabled, bit 1 any fault active."""
-        return (1 if self._enabled else 0) | (2 if self.faults.active() else 0)
+        """bit 0 output enabled, bit 1 device failure (the exception fault). Sensor and link faults
+        are not flagged: a real device does not know its sensor is stuck."""
+        return (1 if self._enabled else 0) | (2 if self.faults.has("exception") else 0)
 
     def _on_fault(self, fault, active: bool) -> None:
         if fault.kind != "stuck":
