@@ -36,8 +36,8 @@ def write_model(path: Path, gain: float) -> None:
 
 
 def write_config(path: Path, model: str) -> None:
-    # watchdog_s: the first tick pays for loading (or, after a source change, compiling) numba's steppers
-    # (0.5 s to several s on a busy machine), which trips the default 0.5 s loop watchdog.
+    # watchdog_s: after a source change numba recompiles (the controller warms up before tick 1, but
+    # a loaded 2-core machine can still stretch early ticks past the default 0.5 s watchdog).
     path.write_text(f"""\
 rate_hz: {RATE_HZ}
 watchdog_s: 20.0

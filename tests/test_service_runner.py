@@ -188,6 +188,41 @@ def test_notify_ready_status_watchdog_only_while_progressing_then_stopping(tmp_p
         listener.close()
 
 
+def test_watchdog_fed_while_reconnecting_only_within_grace(tmp_path, cfg_file, monkeypatch):
+    """A reconnect (no ticks, amplifier safe) is not a hang, but one that lasts too long is."""
+    from gma_ffc.service import runner
+
+    listener = NotifyListener(True, tmp_path)
+    env = {"NOTIFY_SOCKET": listener.env_value, "WATCHDOG_USEC": "40000"}
+    svc = make_service(cfg_file, notifier=Notifier(env), install_signal_handlers=False)
+    monkeypatch.setattr(runner, "RECONNECT_GRACE_S", 0.5)
+    thread, out = run_in_thread(svc)
+    try:
+        assert wait_for(lambda: any("READY=1" in m for m in listener.drain()))
+        ctrl = svc.made[0]
+        ctrl.stall.set()
+        ctrl.state = "reconnecting"
+        time.sleep(0.1)
+        n0 = len(listener.drain())
+        time.sleep(0.25)                                   # inside the grace: still fed
+        assert any("WATCHDOG=1" in m for m in listener.drain()[n0:])
+        time.sleep(0.5)                                    # grace over
+        n1 = len(listener.drain())
+        time.sleep(0.3)
+        assert not any("WATCHDOG=1" in m for m in listener.drain()[n1:])
+    finally:
+        svc.request_stop("teardown")
+        thread.join(10)
+        listener.close()
+    assert out == {"code": 0}
+
+
+def test_socket_path_too_long_is_a_clear_config_error(tmp_path):
+    deep = tmp_path / ("d" * 120)
+    with pytest.raises(ConfigError, match="shorter --runtime-dir"):
+        control_socket.request(deep / "control.sock", {"cmd": "status"})
+
+
 def test_without_notify_socket_notifier_is_silent():
     notifier = Notifier({})
     assert not notifier.enabled

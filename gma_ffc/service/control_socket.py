@@ -21,7 +21,7 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
-from ..errors import FaultError
+from ..errors import ConfigError, FaultError
 
 log = logging.getLogger(__name__)
 
@@ -29,6 +29,17 @@ MAX_MESSAGE = 1 << 20
 _UCRED = struct.Struct("3i")  # struct ucred {pid_t pid; uid_t uid; gid_t gid;}
 
 Handler = Callable[[dict[str, Any]], dict[str, Any]]
+
+
+MAX_SOCKET_PATH = 107   # sun_path is 108 bytes with the terminating NUL
+
+
+def check_socket_path(path: Path) -> None:
+    """Unix socket paths are short; say so plainly instead of failing deep in bind/connect."""
+    length = len(os.fsencode(str(path)))
+    if length > MAX_SOCKET_PATH:
+        raise ConfigError(f"socket path {path} is {length} bytes, over the {MAX_SOCKET_PATH}-byte "
+                          "limit of Unix sockets; choose a shorter --runtime-dir")
 
 
 def peer_credentials(conn: socket.socket) -> tuple[int, int, int]:
@@ -57,6 +68,7 @@ class ControlServer:
     @staticmethod
     def _bind(path: Path) -> socket.socket:
         """Bind with a 0177 umask so the socket is never, even briefly, reachable by others."""
+        check_socket_path(path)
         with contextlib.suppress(FileNotFoundError):
             if stat.S_ISSOCK(path.lstat().st_mode):
                 path.unlink()  # stale: the caller has made sure nobody answers on it
@@ -162,6 +174,7 @@ def request(path: Path, message: dict[str, Any], timeout_s: float = 5.0) -> dict
     Raises FaultError with one sentence when nobody answers there.
     """
     path = Path(path)
+    check_socket_path(path)
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
     sock.settimeout(timeout_s)
     try:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import ConfigError, FaultError, GmaError, InputError
-from .control_socket import is_answering, request
+from .control_socket import check_socket_path, is_answering, request
 from .paths import RuntimePaths, ensure_private_dir
 
 POLL_S = 0.05
@@ -66,6 +66,7 @@ def start(config: Path, runtime: RuntimePaths, *, duration_s: float | None = Non
         raise FaultError(f"a controller is already running (pid {read_pid(runtime.pid_file) or '?'}, "
                          f"socket {runtime.socket}); stop it first with 'gma-ffc stop'")
     notify_path = runtime.directory / f"start-{os.getpid()}.notify"
+    check_socket_path(notify_path)
     with contextlib.suppress(FileNotFoundError):
         notify_path.unlink()
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)

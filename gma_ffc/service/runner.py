@@ -35,6 +35,9 @@ ControllerFactory = Callable[[Any], Any]
 SUPERVISE_PERIOD_S = 0.05
 STATUS_PERIOD_S = 1.0
 JOIN_TIMEOUT_S = 10.0
+# While the controller reconnects (its own bounded backoff, amplifier at the safe current) no
+# ticks advance; the watchdog is still fed for this long, then stops so systemd restarts us.
+RECONNECT_GRACE_S = 60.0
 
 
 def _default_loader(path: Path) -> Any:
@@ -201,6 +204,7 @@ class Service:
         """Notify READY once ticks advance, ping the watchdog only while they keep advancing."""
         last_count = -1
         last_ping = 0.0
+        reconnecting_since: float | None = None
         last_status_t = 0.0
         last_status_text = ""
         interval = self.notifier.watchdog_interval_s
@@ -212,13 +216,19 @@ class Service:
             count = progress_count(snap)
             now = time.monotonic()
             progressed = count > last_count and last_count >= 0
+            if snap.get("state") == "reconnecting":
+                reconnecting_since = reconnecting_since if reconnecting_since is not None else now
+                alive = progressed or now - reconnecting_since < RECONNECT_GRACE_S
+            else:
+                reconnecting_since = None
+                alive = progressed
             if not self._ready and count > 0:
                 self._ready = True
                 text = status_line(snap)
                 log.info("ready: %s", text)
                 self.notifier.ready(status=text)
                 last_status_t, last_status_text = now, text
-            if self._ready and progressed and interval is not None and now - last_ping >= interval:
+            if self._ready and alive and interval is not None and now - last_ping >= interval:
                 self.notifier.watchdog()
                 last_ping = now
             if self._ready and now - last_status_t >= STATUS_PERIOD_S:
