@@ -1,0 +1,115 @@
+"""Config validation: every error names the key and what is wrong; examples in config/ load;
+drivers are found through the entry-point group."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from gma_ffc.control.config import load_config, validate_config
+from gma_ffc.drivers import available_drivers, driver_class
+from gma_ffc.drivers.modbus import ModbusDriver
+from gma_ffc.drivers.serial import SerialDriver
+from gma_ffc.drivers.sim import SimDriver
+from gma_ffc.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+BASE = {"rate_hz": 500, "model": "m.yaml", "driver": {"kind": "sim"},
+        "reference": {"kind": "sine", "frequency_hz": 3, "amplitude_um": 10},
+        "limits": {"current_min_A": 0, "current_max_A": 2, "slew_A_per_s": 100}}
+
+
+def with_(path: str, value):
+    data = yaml.safe_load(yaml.safe_dump(BASE))
+    node = data
+    keys = path.split(".")
+    for k in keys[:-1]:
+        node = node.setdefault(k, {})
+    node[keys[-1]] = value
+    return data
+
+
+@pytest.mark.parametrize("name", ["sim", "modbus_tcp", "modbus_rtu", "serial"])
+def test_example_configs_load(name):
+    cfg = load_config(ROOT / "config" / f"{name}.yaml")
+    assert cfg.rate_hz > 0 and cfg.driver["kind"] in ("sim", "modbus", "serial")
+    assert Path(cfg.model).is_absolute() and cfg.model.endswith("model.yaml")
+
+
+@pytest.mark.parametrize("path,value,message", [
+    ("rate_hz", 0, r"'rate_hz' must be > 0"),
+    ("rate_hz", "fast", r"'rate_hz' must be a number"),
+    ("clock", "wall", r"'clock' must be one of real, simulated"),
+    ("limits.current_max_A", -1, r"'limits.current_min_A' must be below 'limits.current_max_A'"),
+    ("limits.safe_current_A", 5, r"'limits.safe_current_A' \(5.0\) must lie within"),
+    ("limits.slew_A_per_s", 0, r"'limits.slew_A_per_s' must be > 0"),
+    ("reference.kind", "square", r"'reference.kind' must be one of sine"),
+    ("reference.frequency_hz", None, r"'reference.frequency_hz' must have a value"),
+    ("stress.valid_range_MPa", [5, -5], r"'stress.valid_range_MPa' must have low < high"),
+    ("stress.out_of_range", "ignore", r"'stress.out_of_range' must be one of clamp, fault"),
+    ("sensor.bad_ticks", 0, r"'sensor.bad_ticks' must be >= 1"),
+    ("telemetry.flush_interval_s", 5, r"'telemetry.flush_interval_s' must be <= 1"),
+    ("driver.kind", "simm", r"no driver named 'simm'.*did you mean 'sim'"),
+    ("driver.load_mass_kg", -3, r"'driver.load_mass_kg' must be >= 0"),
+    ("driver.load_schedule", [[1, 5], [0.5, 2]], r"'driver.load_schedule' times must increase"),
+])
+def test_bad_values_name_the_key(path, value, message):
+    with pytest.raises(ConfigError, match=message):
+        validate_config(with_(path, value))
+
+
+@pytest.mark.parametrize("path,suggestion", [
+    ("rate_hzz", "rate_hz"), ("limits.slew_A_per_sec", "limits.slew_A_per_s"),
+    ("telemetry.pth", "telemetry.path"), ("reference.amplitude", "reference.amplitude_um"),
+])
+def test_unknown_keys_are_refused_with_a_did_you_mean(path, suggestion):
+    with pytest.raises(ConfigError, match=rf"'{path}' is unknown \(did you mean '{suggestion}'\?\)"):
+        validate_config(with_(path, 1))
+
+
+def test_missing_required_key():
+    data = with_("limits", {"current_min_A": 0, "current_max_A": 1})
+    with pytest.raises(ConfigError, match=r"'limits.slew_A_per_s' is required"):
+        validate_config(data)
+
+
+def test_file_errors_name_the_file_and_line(tmp_path):
+    bad = tmp_path / "c.yaml"
+    bad.write_text("rate_hz: 100\nlimits: [unclosed\n")
+    with pytest.raises(ConfigError, match=r"c.yaml, line \d+: not valid YAML"):
+        load_config(bad)
+    with pytest.raises(ConfigError, match="no such config file"):
+        load_config(tmp_path / "none.yaml")
+    bad.write_text(yaml.safe_dump(with_("rate_hz", -5)))
+    with pytest.raises(ConfigError, match=r"c.yaml: config key 'rate_hz'"):
+        load_config(bad)
+
+
+def test_relative_paths_resolve_against_the_config_folder(tmp_path):
+    f = tmp_path / "sub" / "c.yaml"
+    f.parent.mkdir()
+    f.write_text(yaml.safe_dump(with_("telemetry.path", "out/t.csv")))
+    cfg = load_config(f)
+    assert cfg.model == str(f.parent / "m.yaml") and cfg.telemetry["path"] == str(f.parent / "out/t.csv")
+
+
+def test_playback_reference_file_is_checked(tmp_path):
+    from gma_ffc.control.reference import build_reference
+
+    cfg = validate_config(with_("reference", {"kind": "playback", "file": str(tmp_path / "nope.csv")}))
+    with pytest.raises(ConfigError, match="reference.file"):
+        build_reference(cfg.reference)
+    (tmp_path / "ref.csv").write_text("time_s,reference_um\n0,0\n0.5,5\n1.0,0\n")
+    ref = build_reference(validate_config(with_("reference", {"kind": "playback", "file": str(tmp_path / "ref.csv"),
+                                                              "loop": True})).reference)
+    assert ref.value(0.25) == pytest.approx(2.5) and ref.value(1.25) == pytest.approx(2.5)
+
+
+def test_drivers_come_from_the_entry_point_group():
+    eps = available_drivers()
+    assert {"sim", "modbus", "serial"} <= set(eps)
+    assert driver_class("sim") is SimDriver
+    assert driver_class("modbus") is ModbusDriver
+    assert driver_class("serial") is SerialDriver

@@ -1,0 +1,236 @@
+"""In-process fault handling with the sim driver: injected exceptions, bad sensor values, model
+range, stop requests and the watchdog. For each: the last command is the safe current, the status
+names the fault, and telemetry has every tick up to it."""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+import pytest
+
+from gma_ffc.control.config import validate_config
+from gma_ffc.control.controller import Controller
+from gma_ffc.control.sil import cached_sdpi_and_mpi
+from gma_ffc.drivers import DriverError
+from gma_ffc.drivers.sim import SimDriver
+from gma_ffc.recordings import read_recording
+
+SLEW = 200.0
+RATE = 1000.0
+
+
+@pytest.fixture(scope="module")
+def models(request):
+    return cached_sdpi_and_mpi(request.config.cache.mkdir("gma_ffc_sil_models"))
+
+
+class LoggingSim(SimDriver):
+    """The sim driver, remembering every command and how it was sent; faults injected per tick."""
+
+    def __init__(self, cfg, period_s, inject=None):
+        super().__init__(cfg, period_s)
+        self.log: list[tuple[str, float]] = []
+        self.inject = inject or (lambda tick, inputs: None)
+        self.tick = 0
+
+    def read(self, inputs):
+        super().read(inputs)
+        self.tick += 1
+        self.inject(self.tick, inputs)
+
+    def write(self, current_A):
+        self.log.append(("write", current_A))
+        super().write(current_A)
+
+    def safe(self, current_A):
+        self.log.append(("safe", current_A))
+        SimDriver.write(self, current_A)
+
+
+def make(tmp_path, models, inject=None, clock="simulated", **over):
+    data = {"rate_hz": RATE, "clock": clock, "model": "unused.yaml",
+            "driver": {"kind": "sim", "load_mass_kg": 15.0},
+            "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0},
+            "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": SLEW},
+            "telemetry": {"path": str(tmp_path / "run.csv")}}
+    data.update(over)
+    cfg = validate_config(data)
+    driver = LoggingSim(cfg.driver, cfg.period_s, inject)
+    return Controller(cfg, model=models[0], driver=driver), driver, cfg
+
+
+def check_common(ctrl, driver, cfg, summary, fault):
+    assert summary["state"] == "fault" and fault in summary["faults"], summary["fault_messages"]
+    assert fault in summary["fault_messages"] and summary["fault_messages"][fault]
+    assert driver.log[-1] == ("safe", 0.0)
+    assert any(cmd > 0.5 for kind, cmd in driver.log if kind == "write")   # it was driving
+    rec = read_recording(cfg.telemetry["path"])
+    assert len(rec) == ctrl.telemetry.head and ctrl.telemetry.dropped == 0
+    return rec
+
+
+def test_exception_in_read_goes_to_safe_current_at_once(models, tmp_path):
+    def inject(tick, inputs):
+        if tick == 400:
+            raise RuntimeError("DAQ driver bug")
+
+    ctrl, driver, cfg = make(tmp_path, models, inject)
+    s = ctrl.run(duration_s=2.0)
+    rec = check_common(ctrl, driver, cfg, s, "exception")
+    assert "RuntimeError: DAQ driver bug" in s["fault_messages"]["exception"]
+    assert len(rec) == 399 == s["ticks"]      # every complete tick before the fault
+
+
+def test_exception_in_model_step_is_caught(models, tmp_path):
+    ctrl, driver, cfg = make(tmp_path, models)
+
+    class Boom:
+        def __init__(self, inner):
+            self.inner, self.n = inner, 0
+
+        def step(self, r, s):
+            self.n += 1
+            if self.n == 300:
+                raise FloatingPointError("overflow in the inverse")
+            return self.inner.step(r, s)
+
+        def reset(self, u):
+            self.inner.reset(u)
+
+    ctrl.stepper = Boom(ctrl.stepper)
+    s = ctrl.run(duration_s=1.0)
+    rec = check_common(ctrl, driver, cfg, s, "exception")
+    assert rec.columns["current_cmd_A"][-1] == 0.0     # the fault tick is logged with the safe command
+
+
+@pytest.mark.parametrize("value,fault", [(math.nan, "sensor_nan"), (1e7, "sensor_absurd"),
+                                         (-20000.0, "sensor_absurd")])
+def test_bad_load_cell_for_n_ticks_faults(models, tmp_path, value, fault):
+    def inject(tick, inputs):
+        if tick >= 500:
+            inputs.force_N = value
+
+    ctrl, driver, cfg = make(tmp_path, models, inject, sensor={"bad_ticks": 5})
+    s = ctrl.run(duration_s=2.0)
+    rec = check_common(ctrl, driver, cfg, s, fault)
+    # four bad readings are ridden out on the last good stress; the fifth faults
+    assert s["ticks"] == 499 + 4
+    assert np.all(np.isfinite(rec.stress_MPa)) and rec.stress_MPa[-1] == rec.stress_MPa[-6]
+
+
+def test_a_single_glitch_is_ridden_out(models, tmp_path):
+    def inject(tick, inputs):
+        if tick in (300, 301):
+            inputs.force_N = math.nan
+
+    ctrl, driver, cfg = make(tmp_path, models, inject, sensor={"bad_ticks": 3})
+    s = ctrl.run(duration_s=0.6)
+    assert s["state"] == "stopped" and s["faults"] == []
+
+
+def test_stuck_load_cell_faults(models, tmp_path):
+    def inject(tick, inputs):
+        inputs.force_N = 600.0 + 0.1 * (tick % 7) if tick < 300 else 600.0
+
+    ctrl, driver, cfg = make(tmp_path, models, inject, sensor={"stale_ticks": 50})
+    s = ctrl.run(duration_s=2.0)
+    check_common(ctrl, driver, cfg, s, "sensor_stale")
+    assert 300 + 45 <= s["ticks"] <= 300 + 50
+
+
+def test_stress_outside_model_range_is_clamped_and_reported(models, tmp_path):
+    ctrl, driver, cfg = make(tmp_path, models, driver={"kind": "sim", "load_mass_kg": 80.0})
+    s = ctrl.run(duration_s=0.5)
+    assert s["state"] == "stopped" and s["stress_clamped_ticks"] > 400
+    assert "stress_out_of_model_range" in s["faults"]
+    assert "clamped" in s["fault_messages"]["stress_out_of_model_range"]
+
+
+def test_stress_outside_model_range_can_fault_with_a_ramp(models, tmp_path):
+    def inject(tick, inputs):
+        if tick >= 400:
+            inputs.force_N = 1500.0      # -39 MPa, beyond the identified -24 MPa
+
+    ctrl, driver, cfg = make(tmp_path, models, inject, stress={"out_of_range": "fault"})
+    s = ctrl.run(duration_s=2.0)
+    assert s["state"] == "fault" and "stress_out_of_model_range" in s["faults"]
+    writes = np.array([c for k, c in driver.log if k == "write"])
+    assert writes[-1] == 0.0 and np.abs(np.diff(writes)).max() <= SLEW / RATE + 1e-12   # ramped, no jump
+
+
+def test_stop_request_ramps_to_safe_within_the_slew_limit(models, tmp_path):
+    ctrl, driver, cfg = make(tmp_path, models)
+
+    def inject(tick, inputs):
+        if tick == 700:
+            ctrl.request_stop("SIGTERM")
+
+    driver.inject = inject
+    s = ctrl.run(duration_s=5.0)
+    assert s["state"] == "stopped" and s["exit_reason"] == "SIGTERM" and s["faults"] == []
+    writes = np.array([c for k, c in driver.log if k == "write"])
+    assert writes[-1] == 0.0 and writes[698] > 0.5
+    assert np.abs(np.diff(writes)).max() <= SLEW / RATE + 1e-12
+    assert driver.log[-1] == ("safe", 0.0)
+    assert s["ticks"] < 700 + 3.0 / (SLEW / RATE)
+
+
+def test_stop_event_stops_the_loop(models, tmp_path):
+    ev = threading.Event()
+    ctrl, driver, cfg = make(tmp_path, models, lambda tick, inputs: ev.set() if tick == 100 else None)
+    s = ctrl.run(ev)
+    assert s["state"] == "stopped" and s["exit_reason"] == "stop requested" and driver.log[-1] == ("safe", 0.0)
+
+
+def test_comms_error_reconnects_and_resumes_from_safe(models, tmp_path):
+    def inject(tick, inputs):
+        if tick == 500:
+            raise DriverError("link down", "timeout")
+
+    ctrl, driver, cfg = make(tmp_path, models, inject)
+    s = ctrl.run(duration_s=1.0)
+    assert s["state"] == "stopped" and s["reconnects"] == 1 and s["faults"] == []
+    assert [h["fault"] for h in s["fault_history"]] == ["comms_timeout"]
+    i = driver.log.index(("safe", 0.0))
+    assert driver.log[i - 1][1] > 0.5                      # it was driving: the safe write jumped
+    after = [c for k, c in driver.log[i + 1:] if k == "write"]
+    assert 0.0 < after[0] <= SLEW / RATE + 1e-12           # resumes from the safe current
+    assert np.abs(np.diff(after)).max() <= SLEW / RATE + 1e-12
+
+
+def test_comms_error_with_stop_policy_stops(models, tmp_path):
+    def inject(tick, inputs):
+        if tick == 200:
+            raise DriverError("link down", "comms")
+
+    ctrl, driver, cfg = make(tmp_path, models, inject, comms={"on_fault": "stop"})
+    s = ctrl.run(duration_s=1.0)
+    check_common(ctrl, driver, cfg, s, "comms_error")
+
+
+def test_watchdog_trips_on_a_stalled_tick(models, tmp_path):
+    import time
+
+    def inject(tick, inputs):
+        if tick == 30:
+            time.sleep(0.3)
+
+    ctrl, driver, cfg = make(tmp_path, models, inject, clock="real", rate_hz=200.0, watchdog_s=0.1)
+    s = ctrl.run(duration_s=2.0)
+    assert s["state"] == "fault" and "watchdog" in s["faults"]
+    assert driver.log[-1] == ("safe", 0.0)
+    assert s["ticks"] <= 31
+
+
+def test_driver_that_cannot_open_faults_without_output(models, tmp_path):
+    ctrl, driver, cfg = make(tmp_path, models, comms={"on_fault": "stop"})
+
+    def fail():
+        raise DriverError("no such device", "comms")
+
+    driver.open = fail
+    s = ctrl.run(duration_s=1.0)
+    assert s["state"] == "fault" and "comms_error" in s["faults"] and driver.log == []
+    assert not (tmp_path / "run.csv").exists()
