@@ -363,6 +363,11 @@ def _channel(name: str, spec: Any, defaults: Mapping[str, Any]) -> Channel:
     numbers = {}
     for key, default in (("scale", 1.0), ("offset", 0.0)):
         value = merged.get(key, default)
+        if isinstance(value, str):  # YAML 1.1 reads 1e-6 (no dot) as a string: accept what float() reads
+            try:
+                value = float(value)
+            except ValueError:
+                pass
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise fail(key, f"{value!r} is not a finite number")
         numbers[key] = float(value)

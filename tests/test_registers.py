@@ -209,6 +209,8 @@ def test_yaml_loading(tmp_path):
     path = tmp_path / "map.yaml"
     path.write_text("channels:\n  force_N: {function: input, address: 2, type: float32, word_order: little}\n")
     assert load_register_map(path)["force_N"].word_order == "little"
+    path.write_text("channels:\n  current_A: {function: input, address: 0, type: int32, scale: 1e-6}\n")
+    assert load_register_map(path)["current_A"].scale == 1e-6  # YAML 1.1 reads 1e-6 as a string
     path.write_text("channels: [unclosed\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_register_map(path)

@@ -8,7 +8,7 @@ import signal
 import sys
 import threading
 
-from gma_ffc.errors import GmaError
+from gma_ffc.errors import GmaError, InputError
 from gma_ffc.registers import load_register_map
 
 from . import DEFAULT_MAP, DEVICE_CONFIGS
@@ -89,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
         reply = send_control(args.socket, " ".join(args.command))
         print(json.dumps(reply, indent=2))
         return 0 if reply.get("ok") else 2
+    if args.duration is not None and not args.duration > 0:
+        raise InputError(f"--duration {args.duration}: give a positive number of seconds (or leave it out)")
     faults = [parse_fault(spec) for spec in args.fault]  # bad specs fail before anything starts
     register_map = load_register_map(args.map) if args.kind != "serial" else None
     rig = EmulatedRig(make_plant(args.plant_config, seed=args.seed), dt_s=args.dt, max_current_A=args.max_current)

@@ -14,6 +14,7 @@ import json
 import os
 import shutil
 import socket
+import stat
 import tempfile
 import threading
 from typing import Any
@@ -59,11 +60,17 @@ class ControlServer:
         self._thread: threading.Thread | None = None
 
     def start(self) -> str:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(self.path)
+        if os.path.lexists(self.path):
+            if not stat.S_ISSOCK(os.lstat(self.path).st_mode):
+                raise InputError(f"--control {self.path}: exists and is not a socket; choose another path")
+            os.unlink(self.path)  # a stale socket from an emulator that was killed
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        sock.bind(self.path)
-        sock.listen(4)
+        try:
+            sock.bind(self.path)
+            sock.listen(4)
+        except OSError as exc:
+            sock.close()
+            raise InputError(f"--control {self.path}: cannot listen there ({exc.strerror or exc})") from None
         sock.settimeout(0.1)
         self._sock = sock
         self._thread = threading.Thread(target=self._run, name="emulator-control", daemon=True)

@@ -74,6 +74,8 @@ class RigContext(ModbusServerContext):
         self._heartbeat = 0
         self._tables: dict[tuple[int, str], dict[int, Channel]] = {}
         register_map.require(CURRENT_SETPOINT, writable=[CURRENT_SETPOINT])
+        if OUTPUT_ENABLE in register_map:
+            register_map.require(writable=[OUTPUT_ENABLE])
         for ch in register_map:
             if ch.function in ("input", "discrete") and ch.name not in DEVICE_VALUES:
                 raise ConfigError(
@@ -276,8 +278,12 @@ class ModbusEmulator:
         if self._thread is not None:
             return self.address
         if self.transport == "rtu":
-            self._server_pty = PtyPort("ttyGMA-rtu-server")
-            self._client_pty = PtyPort("ttyGMA-rtu", link_dir=self._server_pty.link_dir)
+            try:
+                self._server_pty = PtyPort("ttyGMA-rtu-server")
+                self._client_pty = PtyPort("ttyGMA-rtu", link_dir=self._server_pty.link_dir)
+            except OSError as exc:
+                self.stop()
+                raise FaultError(f"modbus rtu emulator: cannot create a pseudo-terminal: {exc.strerror or exc}") from None
             self._relay = PtyRelay(self._server_pty, self._client_pty, lambda: self.rig.faults.has("drop"))
             self._relay.start()
         self._thread = threading.Thread(target=self._thread_main, name=f"modbus-{self.transport}", daemon=True)

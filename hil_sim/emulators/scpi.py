@@ -170,7 +170,10 @@ class SerialAmplifierEmulator:
         """Start answering; returns the path to open with pyserial."""
         if self._thread is not None:
             return self.path
-        self._port = PtyPort("ttyGMA-amp")
+        try:
+            self._port = PtyPort("ttyGMA-amp")
+        except OSError as exc:
+            raise FaultError(f"serial amplifier emulator: cannot create a pseudo-terminal: {exc.strerror or exc}") from None
         self.path = self._port.path
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="scpi-amplifier", daemon=True)
@@ -216,7 +219,10 @@ class SerialAmplifierEmulator:
             buffer += port.read()
             while b"\n" in buffer:
                 raw, buffer = buffer.split(b"\n", 1)
-                self._answer(port, raw)
+                try:
+                    self._answer(port, raw)
+                except Exception:  # the device must keep running; the client sees a queued error
+                    self.protocol.push_error(-300)
             if len(buffer) > MAX_LINE:  # a line that never ends is noise, not a command
                 buffer = b""
                 self.protocol.push_error(-102)
