@@ -201,44 +201,50 @@ class Service:
             log.error("control loop crashed: %s", exc)
 
     def _supervise(self, thread: threading.Thread) -> None:
-        """Notify READY once ticks advance, ping the watchdog only while they keep advancing."""
+        """Notify READY once ticks advance, ping the watchdog only while they keep advancing.
+
+        `status()` computes percentiles over the controller's stats window (milliseconds of CPU
+        at 1 kHz), so it is polled fast only until READY, then at the watchdog interval or once
+        a second, whichever is shorter; reloads and the loop's end are still seen within 50 ms.
+        """
+        interval = self.notifier.watchdog_interval_s
+        poll_s = min(STATUS_PERIOD_S, interval) if interval else STATUS_PERIOD_S
         last_count = -1
-        last_ping = 0.0
+        next_poll = 0.0
         reconnecting_since: float | None = None
         last_status_t = 0.0
         last_status_text = ""
-        interval = self.notifier.watchdog_interval_s
         while thread.is_alive():
             if self._reload_flag.is_set():
                 self._reload_flag.clear()
                 self.reload()
-            snap = self.controller.status()
-            count = progress_count(snap)
             now = time.monotonic()
-            progressed = count > last_count and last_count >= 0
-            if snap.get("state") == "reconnecting":
-                reconnecting_since = reconnecting_since if reconnecting_since is not None else now
-                alive = progressed or now - reconnecting_since < RECONNECT_GRACE_S
-            else:
-                reconnecting_since = None
-                alive = progressed
-            if not self._ready and count > 0:
-                self._ready = True
-                text = status_line(snap)
-                log.info("ready: %s", text)
-                self.notifier.ready(status=text)
-                last_status_t, last_status_text = now, text
-            if self._ready and alive and interval is not None and now - last_ping >= interval:
-                self.notifier.watchdog()
-                last_ping = now
-            if self._ready and now - last_status_t >= STATUS_PERIOD_S:
-                text = status_line(snap)
-                if text != last_status_text:
-                    self.notifier.status(text)
-                    last_status_text = text
-                last_status_t = now
-            if progressed or last_count < 0:
+            if now >= next_poll:
+                snap = self.controller.status()
+                count = progress_count(snap)
+                progressed = last_count >= 0 and count > last_count
                 last_count = count
+                if snap.get("state") == "reconnecting":
+                    reconnecting_since = now if reconnecting_since is None else reconnecting_since
+                    alive = progressed or now - reconnecting_since < RECONNECT_GRACE_S
+                else:
+                    reconnecting_since = None
+                    alive = progressed
+                if not self._ready and count > 0:
+                    self._ready = True
+                    text = status_line(snap)
+                    log.info("ready: %s", text)
+                    self.notifier.ready(status=text)
+                    last_status_t, last_status_text = now, text
+                elif self._ready and alive and interval is not None:
+                    self.notifier.watchdog()
+                if self._ready and now - last_status_t >= STATUS_PERIOD_S:
+                    text = status_line(snap)
+                    if text != last_status_text:
+                        self.notifier.status(text)
+                        last_status_text = text
+                    last_status_t = now
+                next_poll = now + (poll_s if self._ready else SUPERVISE_PERIOD_S)
             thread.join(timeout=SUPERVISE_PERIOD_S)
         if self._stop_reason is None:
             self._stop_reason = "control loop ended"
