@@ -424,3 +424,47 @@ def test_real_other_uid_is_refused(tmp_path):
         shutil.rmtree(d, ignore_errors=True)
     assert reply.get("ok") is False and "permission denied" in reply.get("error", ""), reply
     assert calls == []
+
+
+STUBBORN = r"""
+import os, signal, sys, time, threading
+from pathlib import Path
+from gma_ffc.service.control_socket import ControlServer
+rt = Path(sys.argv[1]); answer = sys.argv[2] == "answer"
+got_term = threading.Event()
+signal.signal(signal.SIGTERM, lambda *a: got_term.set())
+server = ControlServer(rt / "control.sock", lambda r: {"ok": True, "pid": os.getpid(), "status": {}}).start() \
+    if answer else None
+(rt / "gma-ffc.pid").write_text(f"{os.getpid()}\n")
+print("up", flush=True)
+deadline = time.monotonic() + 30
+while not got_term.is_set() and time.monotonic() < deadline:   # ignores 'stop' requests
+    time.sleep(0.02)
+if server:
+    server.close()
+"""
+
+
+@pytest.mark.parametrize("answer", ["answer", "silent"])
+def test_stop_escalates_to_sigterm(tmp_path, answer):
+    """A controller that ignores the stop request (or whose socket is dead) gets SIGTERM."""
+    import subprocess
+    import sys
+
+    from gma_ffc.service.daemon import process_alive, stop
+
+    runtime = RuntimePaths(tmp_path / "rt")
+    ensure_private_dir(runtime.directory)
+    proc = subprocess.Popen([sys.executable, "-c", STUBBORN, str(runtime.directory), answer],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "up"
+        result = stop(runtime, timeout_s=0.3, term_timeout_s=10.0)
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert result.pid == proc.pid and not process_alive(proc.pid)
+    expected = "after it ignored the request" if answer == "answer" else "its socket did not answer"
+    assert result.how.startswith("stopped with SIGTERM") and expected in result.how
