@@ -79,6 +79,12 @@ unit="$rendered/gma-ffc.service"
 sed -e "s#^ExecStart=/usr/local/bin/gma-ffc run --config /etc/gma-ffc/config.yaml#ExecStart=$exe run --config $config#" \
     -e "s#^User=gma-ffc#User=$user#" -e "s#^Group=gma-ffc#Group=$user#" "$template" > "$unit"
 grep -q "^ExecStart=$exe run --config $config\$" "$unit" || die "could not fill in ExecStart (template changed?)" 1
+# ProtectHome=yes would hide a gma-ffc (or config) installed under a home directory.
+case "$prefix:$config" in
+    /home/*|/root/*|*:/home/*|*:/root/*)
+        sed -i 's#^ProtectHome=yes#ProtectHome=read-only#' "$unit"
+        echo "note: $prefix or $config is under a home directory: using ProtectHome=read-only" >&2 ;;
+esac
 
 if command -v systemd-analyze >/dev/null 2>&1 && [ -x "$exe" ]; then
     # verify exits 0 even on unknown keys; any output at all is a problem with the unit.
