@@ -658,6 +658,13 @@ def test_cli_serial_amplifier_prints_its_port_and_stops_on_sigint():
             proc.wait(5)
 
 
+def test_cli_help_teaches_faults_and_commands():
+    for kind, expected in (("modbus-tcp", "stuck:CHANNEL"), ("serial", "MEASure:FORCe?")):
+        result = subprocess.run([sys.executable, "-m", "hil_sim.emulators", kind, "--help"], capture_output=True,
+                                text=True, timeout=30)
+        assert result.returncode == 0 and expected in result.stdout and "--fault" in result.stdout
+
+
 @pytest.mark.parametrize("args, message", [
     (["serial", "--fault", "melt"], "unknown kind 'melt'"),
     (["modbus-tcp", "--port", "0", "--map", "/nonexistent/map.yaml"], "cannot read"),
