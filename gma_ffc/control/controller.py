@@ -13,10 +13,14 @@ through the driver BEFORE the driver and the telemetry file are closed.
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import math
+import os
+import sys
 import threading
 import time
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -30,6 +34,7 @@ from .scheduler import MonotonicClock, Scheduler, SimulatedClock, TickStats
 from .telemetry import Telemetry
 
 RUNNING, STOPPING = 0, 1
+_WARNINGS = ("realtime_priority_refused",)
 _RESTART_KEYS = ("rate_hz", "clock", "driver", "telemetry", "scheduler")
 
 
@@ -273,12 +278,15 @@ class Controller:
                  if CURRENT in self.driver.channels else "commanded"},
                 capacity=int(tcfg["buffer_s"] * self.cfg.rate_hz), flush_interval_s=tcfg["flush_interval_s"],
                 block_when_full=self.clock.simulated)
+            if not self.clock.simulated and self.cfg.scheduler["realtime_priority"] > 1:
+                self.telemetry.realtime_priority = self.cfg.scheduler["realtime_priority"] - 1
             self.telemetry.start()
             if not self.clock.simulated:
                 watchdog = threading.Thread(target=self._watchdog, args=(wd_stop,), name="gma-ffc-watchdog",
                                             daemon=True)
                 watchdog.start()
-            self._loop(stop_event, duration_s)
+            with _realtime(self):
+                self._loop(stop_event, duration_s)
         except GmaError as exc:
             self._raise_fault(safety.EXCEPTION if not isinstance(exc, DriverError) else safety.COMMS_ERROR, str(exc))
             self.exit_reason = str(exc)
@@ -305,7 +313,8 @@ class Controller:
             self.driver.close()
         except Exception as exc:
             self._raise_fault("close_failed", f"{type(exc).__name__}: {exc}")
-        hard = [f for f in self.active_faults if f != safety.STRESS_RANGE or self.stress_policy_fault]
+        hard = [f for f in self.active_faults if f not in _WARNINGS and (f != safety.STRESS_RANGE
+                                                                           or self.stress_policy_fault)]
         self.state = "fault" if hard else "stopped"
         return self._summary()
 
@@ -494,6 +503,39 @@ class Controller:
         snap = self.status()
         snap["ok"] = snap["state"] != "fault"
         return snap
+
+
+@contextlib.contextmanager
+def _realtime(ctrl: Controller) -> Iterator[None]:
+    """Real clock only: a short GIL switch interval (the loop gets the GIL back quickly from the
+    telemetry and service threads), garbage collector frozen (no long collections of start-up
+    objects), and SCHED_FIFO for the loop thread when configured. All restored afterwards."""
+    if ctrl.clock.simulated:
+        yield
+        return
+    sched = ctrl.cfg.scheduler
+    old_interval = sys.getswitchinterval()
+    sys.setswitchinterval(min(old_interval, sched["gil_switch_interval_us"] * 1e-6))
+    gc.collect()
+    gc.freeze()
+    prio = sched["realtime_priority"]
+    old_policy = None
+    if prio > 0:
+        try:
+            old_policy = (os.sched_getscheduler(0), os.sched_getparam(0))
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
+        except (OSError, AttributeError) as exc:
+            old_policy = None
+            ctrl._raise_fault("realtime_priority_refused", f"SCHED_FIFO {prio} not permitted ({exc}); running "
+                                                          f"with normal scheduling")
+    try:
+        yield
+    finally:
+        if old_policy is not None:
+            with contextlib.suppress(OSError):
+                os.sched_setscheduler(0, old_policy[0], old_policy[1])
+        gc.unfreeze()
+        sys.setswitchinterval(old_interval)
 
 
 def _warm_up(model: Any, dt: float, lo: float, hi: float) -> None:

@@ -37,6 +37,7 @@ class Telemetry:
         self.buf = np.zeros((self.capacity, self.ncols))
         self.flush_interval_s = flush_interval_s
         self.block_when_full = block_when_full
+        self.realtime_priority = 0
         self.head = 0          # rows pushed (written by the hot path only)
         self.tail = 0          # rows written to disk (written by the writer only)
         self.dropped = 0
@@ -81,6 +82,12 @@ class Telemetry:
             self._wake.set()
 
     def _run(self) -> None:
+        if self.realtime_priority > 0:
+            # Just below the loop: a writer preempted while holding the GIL would stall the loop.
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.realtime_priority))
+            except (OSError, AttributeError):
+                pass
         while not self._stop.is_set():
             self._wake.wait(self.flush_interval_s)
             self._wake.clear()
@@ -95,7 +102,10 @@ class Telemetry:
         block = self.buf[idx]
         self.tail = head
         out = io.StringIO()
-        np.savetxt(out, block, delimiter=",", fmt="%.9g")
+        fmt = ",".join(["%.9g"] * self.ncols) + "\n"
+        write = out.write
+        for values in block.tolist():      # short steps: the loop can take the GIL between rows
+            write(fmt % tuple(values))
         try:
             self._fh.write(out.getvalue())
             self._fh.flush()

@@ -71,6 +71,8 @@ class SimDriver(Driver):
             path = self.cfg.get("plant_config")
             pcfg = PlantConfig.from_yaml(path) if path else PlantConfig()
             self.plant = GMAPlant(pcfg, seed=self.cfg.get("seed", 0))
+            # First step loads the JIT-compiled kernel: do it on a throwaway plant, not in tick 1.
+            GMAPlant(pcfg, seed=0).step(0.0, self.period_s)
         self.plant.reset()
         self.plant.set_load_mass(self.cfg.get("load_mass_kg", 0.0))
         self.t = 0.0
