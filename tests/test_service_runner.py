@@ -468,3 +468,46 @@ def test_stop_escalates_to_sigterm(tmp_path, answer):
     assert result.pid == proc.pid and not process_alive(proc.pid)
     expected = "after it ignored the request" if answer == "answer" else "its socket did not answer"
     assert result.how.startswith("stopped with SIGTERM") and expected in result.how
+
+
+def test_stop_refused_by_another_owner_never_signals(tmp_path):
+    """Not the owner: stop reports the refusal and sends no signal to the pid in the pid file."""
+    import subprocess
+    import sys
+
+    from gma_ffc.service.daemon import process_alive, stop
+
+    runtime = RuntimePaths(tmp_path / "rt")
+    ensure_private_dir(runtime.directory)
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)  # gma_ffc"])
+    runtime.pid_file.write_text(f"{sleeper.pid}\n")
+    server = control_socket.ControlServer(runtime.socket, lambda r: {"ok": True},
+                                          owner_uid=os.geteuid() + 4242).start()
+    try:
+        with pytest.raises(FaultError, match="permission denied"):
+            stop(runtime, timeout_s=0.2, term_timeout_s=0.2)
+        assert process_alive(sleeper.pid)
+        assert control_socket.is_answering(runtime.socket)     # a refusal is still a live controller
+    finally:
+        server.close()
+        sleeper.kill()
+        sleeper.wait()
+
+
+def test_stale_pid_file_of_an_unrelated_process_is_not_signalled(tmp_path):
+    import subprocess
+    import sys
+
+    from gma_ffc.service.daemon import process_alive, stop
+
+    runtime = RuntimePaths(tmp_path / "rt")
+    ensure_private_dir(runtime.directory)
+    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    runtime.pid_file.write_text(f"{other.pid}\n")                # as if the pid had been reused
+    try:
+        with pytest.raises(FaultError, match="no controller running"):
+            stop(runtime, timeout_s=0.2, term_timeout_s=0.2)
+        assert process_alive(other.pid)
+    finally:
+        other.kill()
+        other.wait()

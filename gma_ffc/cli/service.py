@@ -66,16 +66,12 @@ def _stop(args: argparse.Namespace) -> int:
 
 
 def _status(args: argparse.Namespace) -> int:
-    from ..errors import FaultError
-    from ..service.control_socket import _jsonable, request
+    from ..service.control_socket import _jsonable, ask
     from ..service.paths import runtime_paths
     from ..service.status import format_table
 
     runtime = runtime_paths(args.runtime_dir)
-    reply = request(runtime.socket, {"cmd": "status"})
-    if not reply.get("ok"):
-        raise FaultError(str(reply.get("error", "the controller refused the request")))
-    status = reply["status"]
+    status = ask(runtime.socket, {"cmd": "status"})["status"]
     if args.json:
         json.dump(status, sys.stdout, indent=2, default=_jsonable)
         sys.stdout.write("\n")

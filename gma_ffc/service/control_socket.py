@@ -14,6 +14,7 @@ import contextlib
 import json
 import logging
 import os
+import pwd
 import socket
 import stat
 import struct
@@ -111,8 +112,11 @@ class ControlServer:
         _pid, uid, _gid = peer_credentials(conn)
         if not peer_allowed(uid, self.owner_uid):
             log.warning("control socket: refused uid %d (owner is uid %d)", uid, self.owner_uid)
-            _send(conn, {"ok": False, "error": f"permission denied: uid {uid} is not the "
-                                               f"controller's owner (uid {self.owner_uid})"})
+            owner = _user_name(self.owner_uid)
+            _send(conn, {"ok": False, "denied": True,
+                         "error": f"permission denied: uid {uid} is not the controller's owner "
+                                  f"(uid {self.owner_uid}); run as that user, e.g. "
+                                  f"'sudo -u {owner} gma-ffc ...'"})
             return
         try:
             request = _receive(conn)
@@ -137,6 +141,13 @@ class ControlServer:
         self._sock.close()
         with contextlib.suppress(FileNotFoundError):
             self.path.unlink()
+
+
+def _user_name(uid: int) -> str:
+    try:
+        return pwd.getpwuid(uid).pw_name
+    except KeyError:
+        return f"#{uid}"
 
 
 def _send(conn: socket.socket, message: dict[str, Any]) -> None:
@@ -205,9 +216,18 @@ def request(path: Path, message: dict[str, Any], timeout_s: float = 5.0) -> dict
     return reply
 
 
+def ask(path: Path, message: dict[str, Any], timeout_s: float = 5.0) -> dict[str, Any]:
+    """`request`, but a refusal (not the owner, unknown command, ...) is a FaultError too."""
+    reply = request(path, message, timeout_s)
+    if not reply.get("ok"):
+        raise FaultError(str(reply.get("error") or f"the controller refused {message.get('cmd')!r}"))
+    return reply
+
+
 def is_answering(path: Path, timeout_s: float = 1.0) -> bool:
     """True if a controller answers a ping on `path` (used to tell live sockets from stale ones)."""
     try:
-        return bool(request(path, {"cmd": "ping"}, timeout_s).get("ok"))
+        request(path, {"cmd": "ping"}, timeout_s)
     except FaultError:
         return False
+    return True   # even a refusal means a live controller is there: never take its socket

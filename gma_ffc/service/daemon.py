@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import ConfigError, FaultError, GmaError, InputError
-from .control_socket import check_socket_path, is_answering, request
+from .control_socket import ask, check_socket_path, is_answering, request
 from .paths import RuntimePaths, ensure_private_dir
 
 POLL_S = 0.05
@@ -45,6 +45,15 @@ def process_alive(pid: int) -> bool:
     except OSError:
         return True
     return stat.rsplit(")", 1)[-1].split()[0] != "Z"
+
+
+def looks_like_gma_ffc(pid: int) -> bool:
+    """A pid from a stale pid file may have been reused: only signal a gma-ffc process."""
+    try:
+        cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")
+    except OSError:
+        return False
+    return b"gma_ffc" in cmdline or b"gma-ffc" in cmdline
 
 
 def read_pid(path: Path) -> int | None:
@@ -147,14 +156,18 @@ def stop(runtime: RuntimePaths, *, timeout_s: float = 10.0, term_timeout_s: floa
     pid = read_pid(runtime.pid_file)
     final: dict | None = None
     try:
-        final = request(runtime.socket, {"cmd": "status"}, timeout_s=2.0).get("status")
-        reply = request(runtime.socket, {"cmd": "stop", "reason": "gma-ffc stop"}, timeout_s=2.0)
+        reply = request(runtime.socket, {"cmd": "status"}, timeout_s=2.0)
+    except FaultError:
+        if pid is None or not process_alive(pid) or not looks_like_gma_ffc(pid):
+            raise FaultError(f"no controller running (socket {runtime.socket})") from None
+        asked = False     # a live controller behind a dead socket: straight to SIGTERM
+    else:
+        if not reply.get("ok"):   # e.g. not the owner: never signal someone else's controller
+            raise FaultError(str(reply.get("error", "the controller refused the request")))
+        final = reply.get("status")
+        reply = ask(runtime.socket, {"cmd": "stop", "reason": "gma-ffc stop"}, timeout_s=2.0)
         pid = int(reply.get("pid") or pid or 0) or None
         asked = True
-    except FaultError:
-        if pid is None or not process_alive(pid):
-            raise FaultError(f"no controller running (socket {runtime.socket})") from None
-        asked = False
     if pid is None:  # it answered but we cannot watch the process: wait for the socket to go
         if _wait(lambda: not runtime.socket.exists(), timeout_s):
             return Stopped(None, "stopped on request", final)
