@@ -24,8 +24,12 @@ class Effect:
     testable: Callable[[Fitter], tuple[bool, str]]
     grid: Callable[[Fitter], Sequence[Any]]
     make: Callable[[Spec, Any], Spec]
-    refine: Callable[[Fitter, Any], Sequence[Any]] | None
+    refine: Callable[[Fitter, Any, int], Sequence[Any]] | None   # (fitter, point, zoom level 1..)
     present: Callable[[Spec], bool]
+
+    def remove(self, spec: Spec) -> Spec:
+        """The spec without this effect's block."""
+        return spec.with_(**{FIELDS[self.name]: (False if self.name == "stress_dependent_play" else None)})
 
 
 def _always(_: Fitter) -> tuple[bool, str]:
@@ -58,9 +62,8 @@ def _saturation_grid(f: Fitter) -> list[tuple[float, float]]:
     return out
 
 
-def _saturation_refine(_: Fitter, p: tuple[float, float]) -> list[tuple[float, float]]:
-    r = (3.0 / 0.02) ** (1 / 11)
-    return [(p[0] * k, p[1] * k) for k in (r ** -0.5, r ** 0.5)]
+def _saturation_refine(_: Fitter, p: tuple[float, float], level: int) -> list[tuple[float, float]]:
+    return [(p[0] * k, p[1] * k) for k in geom_refine(1.0, _ratio(0.02, 3.0, 12), level)]
 
 
 def _stress_testable(f: Fitter) -> tuple[bool, str]:
@@ -103,15 +106,27 @@ def _dynamics_grid(f: Fitter) -> list[tuple[float, float, float]]:
     return [(float(fr), z, 0.0) for fr in freqs for z in zetas]
 
 
-def _dynamics_refine(f: Fitter, p: tuple[float, float, float]) -> list[tuple[float, float, float]]:
+def _stress_extent(f: Fitter) -> float:
+    return max(f.stress_top - min(float(d.s.min()) for d in f.data), 1e-9)
+
+
+def _dynamics_refine(f: Fitter, p: tuple[float, float, float], level: int) -> list[tuple[float, float, float]]:
+    """Zoom on (resonance at the lightest load, damping, frequency ratio heaviest/lightest load)."""
     fr, z, b = p
-    out = [(fr * kf, z, b) for kf in (0.85, 0.93, 1.07, 1.17)]
-    out += [(fr, min(z * kz, 0.95), b) for kz in (0.6, 0.8, 1.25, 1.6)]
+    span = _stress_extent(f)
+    ratio = 1.0 / math.sqrt(1.0 + b * span)          # f(most compressive) / f(least compressive)
+
+    def point(f_top: float, zeta: float, rat: float) -> tuple[float, float, float]:
+        rat = min(max(rat, 0.15), 1.0)
+        return (float(f_top), float(min(zeta, 0.95)), float((rat ** -2 - 1.0) / span) if f.stress_varies else 0.0)
+
+    out = [point(fr * k, z, ratio) for k in geom_refine(1.0, 1.4, level)]
+    out += [point(fr, z * k, ratio) for k in geom_refine(1.0, 2.4, level)]
     if f.stress_varies:
-        span = max(f.stress_top - min(float(d.s.min()) for d in f.data), 1e-9)
-        for rel in (0.25, 0.6, 1.2, 2.5):
-            # raise f_ref with the load dependence so the mean frequency stays near the grid's best
-            out.append((fr * math.sqrt(1 + 0.5 * rel), z, rel / span))
+        out += [point(fr * math.sqrt(ratio / min(ratio * k, 1.0)), z, ratio * k) for k in geom_refine(1.0, 1.5, level)]
+        if level == 1 and b == 0.0:
+            # load-dependent resonance: keep the geometric-mean frequency, spread the ends apart
+            out += [point(fr / math.sqrt(r), z, r) for r in (0.8, 0.63, 0.5, 0.4, 0.3)]
     return out
 
 
@@ -125,7 +140,7 @@ CATALOG: dict[str, Effect] = {
         "eddy currents / magnetic diffusion: the field in the rod lags the coil current by a time constant "
         "(first-order lag), so loops widen and tilt as the drive gets faster",
         1, _always, _eddy_grid, lambda s, p: s.with_(eddy_tau=float(p)),
-        lambda _f, p: geom_refine(p, _ratio(1, 8000, 16)), lambda s: s.eddy_tau is not None),
+        lambda _f, p, lv: geom_refine(p, _ratio(1, 8000, 16), lv), lambda s: s.eddy_tau is not None),
     "mechanical_dynamics": Effect(
         "mechanical_dynamics",
         "rod and load mass on the rod's stiffness with damping: a second-order resonance whose frequency "
@@ -137,18 +152,18 @@ CATALOG: dict[str, Effect] = {
         "Joule heating of the coil and rod: an offset that follows the drive squared through a thermal "
         "time constant and cools back at zero current",
         2, _always, _thermal_grid, lambda s, p: s.with_(thermal_tau=float(p)),
-        lambda _f, p: geom_refine(p, _ratio(1, 10, 12)), lambda s: s.thermal_tau is not None),
+        lambda _f, p, lv: geom_refine(p, _ratio(1, 10, 12), lv), lambda s: s.thermal_tau is not None),
     "creep": Effect(
         "creep",
         "slow relaxation of the displacement after the drive changes, in the direction of the last change",
         2, _always, _creep_grid, lambda s, p: s.with_(creep_tau=float(p)),
-        lambda _f, p: geom_refine(p, _ratio(1, 30, 12)), lambda s: s.creep_tau is not None),
+        lambda _f, p, lv: geom_refine(p, _ratio(1, 30, 12), lv), lambda s: s.creep_tau is not None),
     "time_delay": Effect(
         "time_delay",
         "a transport delay in the amplifier, sensor or acquisition: the whole response shifts in time, "
         "so its phase lag grows in proportion to frequency",
         1, _always, _delay_grid, lambda s, p: s.with_(delay_s=float(p)),
-        lambda _f, p: geom_refine(p, _ratio(1, 3000, 16)), lambda s: s.delay_s is not None),
+        lambda _f, p, lv: geom_refine(p, _ratio(1, 3000, 16), lv), lambda s: s.delay_s is not None),
     "stress_dependent_play": Effect(
         "stress_dependent_play",
         "the play-operator weights (loop width, the 'coercive current') change with stress, which the "
@@ -164,3 +179,6 @@ CATALOG: dict[str, Effect] = {
 }
 
 ORDER = tuple(CATALOG)
+FIELDS = {"rate_dependence": "eddy_tau", "mechanical_dynamics": "dynamics", "thermal_drift": "thermal_tau",
+          "creep": "creep_tau", "time_delay": "delay_s", "stress_dependent_play": "stress_play",
+          "saturation": "saturation"}

@@ -7,6 +7,7 @@ Signal path (every block optional)::
           -> delay (transport delay)
           -> core SDPI/MPI (rate-independent hysteresis)           = y_c
           -> static map: offset + (gain + stress_gain (s - s_ref)) y_c + quadratic (y_c - center)^2
+             + play_correction: sum_i a_i (H_ri[u] - u)             (loop-width recalibration)
              + stress_play: sum_i c_i (s - s_ref) (H_ri[u] - u)     (play weights that vary with stress)
           -> creep: + g (lag(y_c, tau) - y_c)                        (slow relaxation after steps)
           -> dynamics: mass-spring-damper, resonance moving with the load mass the stress implies
@@ -36,6 +37,7 @@ INVERTED = {
     "eddy_lag": "exact inverse filter",
     "delay": "by preview of the known reference (batch invert); inverse_stepper expects reference(t + preview_s)",
     "static": "closed form (quadratic root)",
+    "play_correction": "using the play states of the previous sample",
     "stress_play": "using the play states of the previous sample",
     "creep": "exact (closed form with the static map)",
     "dynamics": "exact inverse filter (3-tap FIR on the reference)",
@@ -79,6 +81,7 @@ class ExtendedModel:
                              "quadratic_per_um": 0.0, "center_um": 0.0, "stress_ref_MPa": 0.0}
         self.static.update(b.get("static") or {})
         self.stress_play: dict | None = b.get("stress_play")
+        self.play_correction: dict | None = b.get("play_correction")
         self.creep: dict | None = b.get("creep")
         self.dynamics: dict | None = b.get("dynamics")
         self.thermal: dict | None = b.get("thermal")
@@ -95,13 +98,17 @@ class ExtendedModel:
         return self.base.drive_range
 
     @property
+    def drive_name(self) -> str:
+        return getattr(self.base, "drive_name", "current_A")
+
+    @property
     def preview_s(self) -> float:
         """How far ahead the inverse stepper's reference must be (the transport delay)."""
         return float(self.delay["delay_s"]) if self.delay else 0.0
 
     def blocks(self) -> dict[str, Any]:
         return {"saturation": self.saturation, "eddy_lag": self.eddy_lag, "delay": self.delay,
-                "static": self.static, "stress_play": self.stress_play, "creep": self.creep,
+                "static": self.static, "play_correction": self.play_correction, "stress_play": self.stress_play, "creep": self.creep,
                 "dynamics": self.dynamics, "thermal": self.thermal}
 
     def _check(self) -> None:
@@ -126,11 +133,26 @@ class ExtendedModel:
                 raise ModelError(f"extended model: static.{key} must be a finite number, got {v!r}")
         if abs(self.static["gain"]) < 1e-9:
             raise ModelError("extended model: static.gain must not be zero")
-        if self.stress_play is not None:
-            th = np.asarray(self.stress_play.get("thresholds", []), dtype=float)
-            co = np.asarray(self.stress_play.get("coefficients_per_MPa", []), dtype=float)
-            if th.shape != co.shape or th.ndim != 1 or not np.all(np.isfinite(th)) or not np.all(np.isfinite(co)):
-                raise ModelError("extended model: stress_play needs equal-length finite thresholds and coefficients_per_MPa")
+        th_all, c0_all, c1_all = [], [], []
+        for name, key in (("play_correction", "coefficients"), ("stress_play", "coefficients_per_MPa")):
+            block = getattr(self, name)
+            if block is None:
+                continue
+            try:
+                th = np.asarray(block.get("thresholds", []), dtype=float)
+                co = np.asarray(block.get(key, []), dtype=float)
+            except (TypeError, ValueError):
+                raise ModelError(f"extended model: {name} thresholds and {key} must be numbers") from None
+            if th.shape != co.shape or th.ndim != 1 or not np.all(np.isfinite(th)) or not np.all(np.isfinite(co)) \
+                    or np.any(th < 0):
+                raise ModelError(f"extended model: {name} needs equal-length finite thresholds (>= 0) and {key}")
+            th_all.append(th)
+            c0_all.append(co if name == "play_correction" else np.zeros_like(co))
+            c1_all.append(co if name == "stress_play" else np.zeros_like(co))
+        # one play bank for both terms: weight_j = c0_j + c1_j (s - s_ref)
+        self.play_thresholds = np.concatenate(th_all) if th_all else np.zeros(0)
+        self.play_c0 = np.concatenate(c0_all) if c0_all else np.zeros(0)
+        self.play_c1 = np.concatenate(c1_all) if c1_all else np.zeros(0)
         if self.saturation is not None:
             for key in ("lo", "hi", "width_lo", "width_hi"):
                 v = self.saturation.get(key)
@@ -170,11 +192,9 @@ class ExtendedModel:
         ds = s - st["stress_ref_MPa"]
         y = (st["offset_um"] + (st["gain"] + st["stress_gain_per_MPa"] * ds) * yc
              + st["quadratic_per_um"] * (yc - st["center_um"]) ** 2)
-        if self.stress_play:
-            th = np.asarray(self.stress_play["thresholds"], dtype=float)
-            co = np.asarray(self.stress_play["coefficients_per_MPa"], dtype=float)
-            plays = K.play_bank(u3, th, float(u3[0]))
-            y = y + ds * ((plays - u3[:, None]) @ co)
+        if self.play_thresholds.size:
+            plays = K.play_bank(u3, self.play_thresholds, float(u3[0])) - u3[:, None]
+            y = y + plays @ self.play_c0 + ds * (plays @ self.play_c1)
         if self.creep:
             z = K.lag_filter(yc, dt, float(self.creep["tau_s"]), float(yc[0]))
             y = y + self.creep["gain"] * (z - yc)
@@ -227,7 +247,7 @@ class ExtendedModel:
             return v
 
         blocks = {k: clean(v) for k, v in self.blocks().items() if v is not None}
-        return {"kind": KIND, "format_version": 1, "effects": list(self.effects),
+        return {"format": "gma-ffc-model", "version": 1, "kind": KIND, "effects": list(self.effects),
                 "inverted": {k: INVERTED[k] for k in blocks},
                 "blocks": blocks, "base": self.base.to_dict()}
 
@@ -267,12 +287,9 @@ class ForwardStepper:
         self._whole = int(math.floor(dsamp))
         self._frac = dsamp - self._whole
         self._buf = np.zeros(self._whole + 2)
-        if model.stress_play:
-            self._th = np.asarray(model.stress_play["thresholds"], dtype=float)
-            self._co = np.asarray(model.stress_play["coefficients_per_MPa"], dtype=float)
-        else:
-            self._th = np.zeros(0)
-            self._co = np.zeros(0)
+        self._th = model.play_thresholds
+        self._c0 = model.play_c0
+        self._c1 = model.play_c1
         self._plays = np.zeros(self._th.size)
         self._core = None
         self.reset(initial_drive)
@@ -324,8 +341,8 @@ class ForwardStepper:
             for j in range(self._th.size):
                 p = min(max(self._plays[j], u3 - self._th[j]), u3 + self._th[j])
                 self._plays[j] = p
-                acc += self._co[j] * (p - u3)
-            y += ds * acc
+                acc += (self._c0[j] + self._c1[j] * ds) * (p - u3)
+            y += acc
         if self._first:
             self._z = yc
         if m.creep:
@@ -365,12 +382,9 @@ class InverseStepper:
         self._a_eddy = K.lag_coeff(self.dt, model.eddy_lag["tau_s"]) if model.eddy_lag else 0.0
         self._a_creep = K.lag_coeff(self.dt, model.creep["tau_s"]) if model.creep else 0.0
         self._a_heat = K.lag_coeff(self.dt, model.thermal["tau_s"]) if model.thermal else 0.0
-        if model.stress_play:
-            self._th = np.asarray(model.stress_play["thresholds"], dtype=float)
-            self._co = np.asarray(model.stress_play["coefficients_per_MPa"], dtype=float)
-        else:
-            self._th = np.zeros(0)
-            self._co = np.zeros(0)
+        self._th = model.play_thresholds
+        self._c0 = model.play_c0
+        self._c1 = model.play_c1
         self._plays = np.zeros(self._th.size)
         self._core = None
         self.reset(initial_drive)
@@ -415,8 +429,7 @@ class InverseStepper:
         if self._th.size:
             u = self._u3_prev
             for j in range(self._th.size):
-                sp += self._co[j] * (min(max(self._plays[j], u - self._th[j]), u + self._th[j]) - u)
-            sp *= ds
+                sp += (self._c0[j] + self._c1[j] * ds) * (min(max(self._plays[j], u - self._th[j]), u + self._th[j]) - u)
         q = st["quadratic_per_um"]
         c0 = st["center_um"]
         ga = 0.0

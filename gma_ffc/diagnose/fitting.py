@@ -135,8 +135,11 @@ class Fitter:
         if self.stress_varies:
             cols.append(ds * yc)
             names.append("stress_gain")
+        plays = K.play_bank(u3, self.play_thresholds, float(u3[0]))
+        for j in range(self.play_thresholds.size):
+            cols.append(plays[:, j] - u3)
+            names.append(f"play_{j}")
         if spec.stress_play:
-            plays = K.play_bank(u3, self.play_thresholds, float(u3[0]))
             for j in range(self.play_thresholds.size):
                 cols.append(ds * (plays[:, j] - u3))
                 names.append(f"stress_play_{j}")
@@ -235,6 +238,9 @@ class Fitter:
 
 # ---------------------------------------------------------------------- searching one block
 
+ZOOM_LEVELS = 3
+
+
 @dataclass
 class SearchResult:
     specs: tuple[Spec, Spec, Spec]      # fold A, fold B, all data (each with the block's best parameters)
@@ -259,11 +265,12 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
 
     run(grid)
     if refine is not None:
-        best_points = {min(results, key=lambda p: results[p].train_mse(0)),
-                       min(results, key=lambda p: results[p].train_mse(1)),
-                       min(results, key=lambda p: results[p].all_mse)}
-        for bp in best_points:
-            run(refine(fitter, bp))
+        for level in range(1, ZOOM_LEVELS + 1):
+            best_points = {min(results, key=lambda p: results[p].train_mse(0)),
+                           min(results, key=lambda p: results[p].train_mse(1)),
+                           min(results, key=lambda p: results[p].all_mse)}
+            for bp in best_points:
+                run(refine(fitter, bp, level))
     pa = min(results, key=lambda p: results[p].train_mse(0))
     pb = min(results, key=lambda p: results[p].train_mse(1))
     pall = min(results, key=lambda p: results[p].all_mse)
@@ -275,6 +282,7 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
     return SearchResult(specs, cv, final.all_mse, n_test, final.coef_all, final.names, len(results))
 
 
-def geom_refine(p: float, ratio: float) -> list[float]:
-    """Points around p on a log scale, for refining a grid of spacing `ratio`."""
-    return [p * ratio ** e for e in (-0.66, -0.33, 0.33, 0.66)]
+def geom_refine(p: float, ratio: float, level: int = 1) -> list[float]:
+    """Points around p on a log scale for zoom level 1, 2, ... of a grid of spacing `ratio`."""
+    step = 3.0 ** -level
+    return [p * ratio ** (e * step) for e in (-2.0, -1.0, 1.0, 2.0)]

@@ -1,0 +1,192 @@
+"""Show the diagnosis: diagnosis.json, report.html (plots first, numbers behind), extended_model.yaml.
+
+Everything is rendered in memory first and then written file by file with `atomic_write`, so a
+failure while plotting never leaves a half-written output directory behind.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from ..atomic import atomic_write
+from .engine import Diagnosis
+
+MODEL_FILE = "extended_model.yaml"
+
+
+def _plt() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _png(fig: Any) -> str:
+    plt = _plt()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _thin(n: int, target: int = 6000) -> slice:
+    return slice(None, None, max(1, n // target))
+
+
+def plot_residuals(dg: Diagnosis) -> str:
+    plt = _plt()
+    n = len(dg.data)
+    fig, axes = plt.subplots(n, 1, figsize=(10, 2.4 * n), squeeze=False)
+    for ax, d, loc, yb, yn, yf in zip(axes[:, 0], dg.data, dg.located, dg.base_predictions,
+                                     dg.null_predictions, dg.final_predictions):
+        sl = _thin(d.t.size)
+        ax.plot(d.t[sl], (d.y - yb)[sl], lw=0.6, color="0.6", label="base model")
+        ax.plot(d.t[sl], (d.y - yn)[sl], lw=0.7, color="tab:orange", label="recalibrated")
+        ax.plot(d.t[sl], (d.y - yf)[sl], lw=0.7, color="tab:blue", label="extended")
+        ax.axvspan(*loc.window_s, color="tab:red", alpha=0.12, label="largest residual")
+        ax.set_title(d.name, fontsize=9)
+        ax.set_ylabel("residual (um)")
+        ax.legend(fontsize=7, loc="upper right", ncol=4)
+    axes[-1, 0].set_xlabel("time (s)")
+    return _png(fig)
+
+
+def plot_overlays(dg: Diagnosis) -> str:
+    plt = _plt()
+    n = len(dg.data)
+    fig, axes = plt.subplots(n, 1, figsize=(10, 2.4 * n), squeeze=False)
+    for ax, d, loc, yb, yf in zip(axes[:, 0], dg.data, dg.located, dg.base_predictions, dg.final_predictions):
+        a = int(np.searchsorted(d.t, loc.window_s[0]))
+        b = int(np.searchsorted(d.t, loc.window_s[1]))
+        b = max(b, a + 2)
+        # at most ~4000 samples of the located window, so cycles stay readable
+        b = min(b, a + 4000)
+        ax.plot(d.t[a:b], d.y[a:b], lw=1.2, color="k", label="measured")
+        ax.plot(d.t[a:b], yb[a:b], lw=0.9, color="0.55", ls="--", label="base model")
+        ax.plot(d.t[a:b], yf[a:b], lw=0.9, color="tab:blue", label="extended model")
+        ax.set_title(f"{d.name}: where the residual is largest", fontsize=9)
+        ax.set_ylabel("displacement (um)")
+        ax.legend(fontsize=7, loc="upper right", ncol=3)
+    axes[-1, 0].set_xlabel("time (s)")
+    return _png(fig)
+
+
+def plot_loops(dg: Diagnosis) -> str:
+    plt = _plt()
+    n = len(dg.data)
+    cols = min(n, 3)
+    rows = (n + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3.3 * rows), squeeze=False)
+    for ax, d, yb, yf in zip(axes.flat, dg.data, dg.base_predictions, dg.final_predictions):
+        sl = _thin(d.t.size, 5000)
+        ax.plot(d.u[sl], d.y[sl], ".", ms=1, color="k", label="measured")
+        ax.plot(d.u[sl], yb[sl], ".", ms=1, color="0.6", label="base")
+        ax.plot(d.u[sl], yf[sl], ".", ms=1, color="tab:blue", label="extended")
+        ax.set_title(d.name, fontsize=9)
+        ax.set_xlabel("drive")
+        ax.set_ylabel("displacement (um)")
+        ax.legend(fontsize=7, markerscale=6)
+    for ax in list(axes.flat)[n:]:
+        ax.axis("off")
+    return _png(fig)
+
+
+def plot_candidates(dg: Diagnosis) -> str:
+    plt = _plt()
+    cands = [c for c in dg.candidates if math.isfinite(c.cv_mse)]
+    fig, ax = plt.subplots(figsize=(8, 0.45 * max(len(cands), 1) + 1.2))
+    names = [c.effect for c in cands]
+    vals = [math.sqrt(c.cv_mse) for c in cands]
+    colors = ["tab:blue" if c.accepted else "0.6" for c in cands]
+    ax.barh(names, vals, color=colors)
+    ax.axvline(dg.rms_recalibrated_um, color="tab:orange", ls="--", label="recalibrated base (null)")
+    ax.axvline(dg.noise_um, color="tab:green", ls=":", label="noise floor")
+    ax.set_xlabel("held-out RMS (um), last round each effect was tried")
+    ax.invert_yaxis()
+    ax.legend(fontsize=7)
+    return _png(fig)
+
+
+def render_html(dg: Diagnosis, doc: dict) -> str:
+    imgs = [("Residual over time, where it was found", plot_residuals(dg)),
+            ("Before and after: measured, base and extended model", plot_overlays(dg)),
+            ("Loops: displacement against drive", plot_loops(dg)),
+            ("Candidates: held-out RMS", plot_candidates(dg))]
+    e = html.escape
+    verdict = ", ".join(dg.verdict) if dg.verdict else "no missing physics named"
+    parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'><title>gma-ffc diagnosis</title>",
+             "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}"
+             "table{border-collapse:collapse}td,th{border:1px solid #bbb;padding:3px 6px;font-size:13px}"
+             "img{max-width:100%}</style></head><body>",
+             f"<h1>Diagnosis: {e(verdict)}</h1>",
+             f"<p><b>Held-out RMS</b>: {dg.rms_before_um:.4g} um before, {dg.rms_after_um:.4g} um after "
+             f"(noise floor {dg.noise_um:.3g} um).</p>"]
+    for title, data in imgs:
+        parts.append(f"<h2>{e(title)}</h2><img alt='{e(title)}' src='data:image/png;base64,{data}'>")
+    parts.append(f"<h2>Explanation</h2><p>{e(dg.explanation)}</p>")
+    if dg.cannot_conclude:
+        parts.append("<h2>What cannot be concluded</h2><ul>" +
+                     "".join(f"<li>{e(x)}</li>" for x in dg.cannot_conclude) + "</ul>")
+    parts.append("<h2>Candidates</h2><table><tr><th>effect</th><th>accepted</th><th>held-out RMS (um)</th>"
+                 "<th>held-out log-lik gain</th><th>evidence</th><th>parameters</th><th>note</th></tr>")
+    for c in doc["candidates"]:
+        params = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in c["params"].items())
+        rms = "" if c["validation_rms_um"] is None else f"{c['validation_rms_um']:.4g}"
+        ll = "" if c["heldout_loglik_gain"] is None else f"{c['heldout_loglik_gain']:.1f}"
+        parts.append(f"<tr><td>{e(c['effect'])}</td><td>{'yes' if c['accepted'] else ''}</td><td>{rms}</td>"
+                     f"<td>{ll}</td><td>{c['evidence']:.3f}</td><td>{e(params)}</td><td>{e(c.get('note', ''))}</td></tr>")
+    parts.append("</table><h2>Where the residual is</h2><table><tr><th>recording</th><th>where</th>"
+                 "<th>RMS base (um)</th><th>RMS recalibrated (um)</th></tr>")
+    for loc in doc["located"]:
+        parts.append(f"<tr><td>{e(loc['recording'])}</td><td>{e(loc['where'])}</td>"
+                     f"<td>{loc['residual_rms_um']:.4g}</td><td>{loc['residual_rms_recalibrated_um']:.4g}</td></tr>")
+    parts.append("</table>")
+    if dg.rounds:
+        parts.append("<h2>Selection rounds</h2><table><tr><th>round</th><th>RMS at start (um)</th>"
+                     "<th>n_eff</th><th>tried: held-out RMS / gain (nats)</th><th>accepted</th></tr>")
+        for r in dg.rounds:
+            tried = "; ".join(f"{n}: {v:.4g} / {g:.1f}" for n, v, g in r["table"])
+            parts.append(f"<tr><td>{r['round']}</td><td>{r['current_rms_um']:.4g}</td><td>{r['n_eff']:.0f}</td>"
+                         f"<td>{e(tried)}</td><td>{e(str(r['accepted'] or '-'))}</td></tr>")
+        parts.append("</table>")
+    parts.append(f"<h2>Validation</h2><p>{e(dg.validation)}</p>")
+    parts.append(f"<h2>Extended model</h2><p><a href='{MODEL_FILE}'>{MODEL_FILE}</a>: blocks "
+                 f"{e(', '.join(k for k, v in dg.extended.blocks().items() if v))}; "
+                 f"invert and the controller compensate them as listed under 'inverted' in the file.</p>")
+    parts.append("<h2>diagnosis.json</h2><pre>" + e(json.dumps(doc, indent=1)) + "</pre></body></html>")
+    return "".join(parts)
+
+
+def model_yaml(dg: Diagnosis) -> str:
+    d = dg.extended.to_dict()
+    header = ("# gma-ffc model (extended), written by gma-ffc diagnose. Units: drive in A (or V), displacement\n"
+              "# in um, stress in MPa (compression negative), time in s. Validated on load.\n")
+    return header + yaml.safe_dump(d, sort_keys=False, default_flow_style=None, width=100)
+
+
+def write_outputs(dg: Diagnosis, out_dir: str | Path) -> dict:
+    """Render everything, then write the three files atomically; returns the JSON document."""
+    out = Path(out_dir)
+    doc = dg.to_json(MODEL_FILE)
+    js = json.dumps(doc, indent=2, allow_nan=False)
+    page = render_html(dg, doc)
+    ym = model_yaml(dg)
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_write(out / MODEL_FILE, "w", encoding="utf-8") as fh:
+        fh.write(ym)
+    with atomic_write(out / "report.html", "w", encoding="utf-8") as fh:
+        fh.write(page)
+    with atomic_write(out / "diagnosis.json", "w", encoding="utf-8") as fh:
+        fh.write(js)
+    return doc
