@@ -84,7 +84,9 @@ def test_serial_fault_modes_end_at_safe_current(models, amplifier, tmp_path, spe
     th = threading.Thread(target=lambda: out.setdefault("s", ctrl.run(duration_s=4.0)))
     th.start()
     try:
-        time.sleep(0.4)
+        end = time.monotonic() + 10.0
+        while ctrl.stats.count < 80 and th.is_alive() and time.monotonic() < end:   # 0.4 s of ticks
+            time.sleep(0.005)
         rig.faults.set(spec)
         t_fault = time.monotonic()
         while th.is_alive() and not ctrl.active_faults and time.monotonic() - t_fault < 3.0:
