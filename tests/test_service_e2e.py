@@ -274,3 +274,23 @@ def test_unit_file_verifies_and_install_script_renders_it(tmp_path):
     unit.write_text(unit_text.replace("WatchdogSec=", "WatchdogSecs="))
     res = subprocess.run(["systemd-analyze", "verify", str(unit)], capture_output=True, text=True)
     assert "WatchdogSecs" in res.stdout + res.stderr
+
+
+def test_start_reports_a_fault_before_ready_in_one_line_exit_1(rig):
+    """A Modbus device nobody answers for: start fails with the controller's own reason."""
+    import yaml
+
+    tmp, runtime = rig
+    probe = socket.socket()
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()                                   # a free port with nobody listening
+    cfg = yaml.safe_load((ROOT / "config" / "modbus_tcp.yaml").read_text())
+    cfg["driver"]["devices"]["amp"]["port"] = port
+    cfg.update(model=str(tmp / "model.yaml"), telemetry={"path": str(tmp / "mb.csv")},
+               comms={"on_fault": "reconnect", "backoff_initial_s": 0.05, "backoff_max_s": 0.1,
+                      "max_attempts": 2})
+    (tmp / "mb.yaml").write_text(yaml.safe_dump(cfg))
+    line = one_line_error(cli("start", "--config", str(tmp / "mb.yaml"), "--runtime-dir", str(runtime)), 1)
+    assert "did not start" in line and f"127.0.0.1:{port}" in line and "gave up" in line
+    assert not (runtime / "control.sock").exists() and not (runtime / "gma-ffc.pid").exists()

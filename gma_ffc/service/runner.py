@@ -25,7 +25,7 @@ from ..errors import FaultError, GmaError
 from .control_socket import ControlServer, _jsonable, is_answering
 from .notify import Notifier
 from .paths import RuntimePaths, ensure_private_dir
-from .status import progress_count, status_line
+from .status import faults_of, progress_count, status_line
 
 log = logging.getLogger("gma_ffc.service")
 
@@ -289,10 +289,10 @@ class Service:
 
 
 def _fault_from(status: dict[str, Any]) -> str | None:
-    """The reason the loop stopped on its own, if it was a fault."""
+    """The reason the loop stopped on its own, if it was a fault (with the controller's words)."""
     if str(status.get("state", "")).lower() in ("fault", "faulted", "failed", "error"):
-        faults = status.get("faults") or status.get("active_faults") or []
-        return ", ".join(map(str, faults)) if faults else str(status.get("state"))
+        faults = faults_of(status)
+        return "; ".join(faults) if faults else str(status.get("exit_reason") or status.get("state"))
     return None
 
 
