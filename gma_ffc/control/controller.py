@@ -13,6 +13,7 @@ through the driver BEFORE the driver and the telemetry file are closed.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import gc
 import math
@@ -34,6 +35,7 @@ from .scheduler import MonotonicClock, Scheduler, SimulatedClock, TickStats
 from .telemetry import Telemetry
 
 RUNNING, STOPPING = 0, 1
+FAULT_HISTORY = 200     # most recent faults kept for the status (bounded for long service lives)
 _WARNINGS = ("realtime_priority_refused",)
 _RESTART_KEYS = ("rate_hz", "clock", "driver", "telemetry", "scheduler")
 
@@ -85,7 +87,7 @@ class Controller:
         self._stop_reason: str | None = None
         self.state = "idle"
         self.active_faults: dict[str, str] = {}
-        self.fault_history: list[dict[str, Any]] = []
+        self.fault_history: collections.deque[dict[str, Any]] = collections.deque(maxlen=FAULT_HISTORY)
         self.stress_clamped_ticks = 0
         self.reconnects = 0
         self.exit_reason = ""

@@ -73,8 +73,7 @@ class SimDriver(Driver):
             self.plant = GMAPlant(pcfg, seed=self.cfg.get("seed", 0))
             # First step loads the JIT-compiled kernel: do it on a throwaway plant, not in tick 1.
             GMAPlant(pcfg, seed=0).step(0.0, self.period_s)
-        self.plant.reset()
-        self.plant.set_load_mass(self.cfg.get("load_mass_kg", 0.0))
+        self.plant.reset(self.cfg.get("load_mass_kg", 0.0))   # settles the stress for this load
         self.t = 0.0
         self._next = 0
         self._apply_schedule()

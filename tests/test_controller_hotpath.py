@@ -1,0 +1,64 @@
+"""The hot path allocates nothing that grows with the run, and the references are what they say."""
+
+from __future__ import annotations
+
+import math
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from gma_ffc.control.config import validate_config
+from gma_ffc.control.controller import Controller
+from gma_ffc.control.reference import MultiSine, Sine, Triangle
+from gma_ffc.control.sil import cached_sdpi_and_mpi
+
+
+@pytest.fixture(scope="module")
+def model(request):
+    return cached_sdpi_and_mpi(request.config.cache.mkdir("gma_ffc_sil_models"))[0]
+
+
+def test_memory_does_not_grow_with_the_number_of_ticks(model):
+    """Ten times the ticks retain no more memory: nothing per tick is kept (stats, telemetry and
+    faults live in buffers sized at start)."""
+    cfg = validate_config({"rate_hz": 1000, "clock": "simulated", "model": "unused.yaml",
+                           "driver": {"kind": "sim", "load_mass_kg": 10.0},
+                           "reference": {"kind": "multisine", "offset_um": 15.0,
+                                         "components": [{"frequency_hz": 3, "amplitude_um": 8},
+                                                        {"frequency_hz": 7, "amplitude_um": 2}]},
+                           "limits": {"current_min_A": 0, "current_max_A": 3, "slew_A_per_s": 500},
+                           "telemetry": {"path": None}})
+    ctrl = Controller(cfg, model=model)
+    ctrl.run(duration_s=0.05)                 # first run: anything lazily created
+    tracemalloc.start()
+    try:
+        ctrl.run(duration_s=0.5)
+        short = tracemalloc.get_traced_memory()[0]
+        ctrl.run(duration_s=5.0)
+        long = tracemalloc.get_traced_memory()[0]
+    finally:
+        tracemalloc.stop()
+    assert ctrl.stats.count > 5000
+    assert long - short < 8 * 1024, (short, long)
+
+
+def test_sine_leads_by_the_configured_latency():
+    plain, led = Sine(3.0, 10.0, 5.0), Sine(3.0, 10.0, 5.0, lead_s=0.01)
+    for t in np.linspace(0, 1, 17):
+        assert led.value(t) == pytest.approx(plain.value(t + 0.01))
+    assert plain.value(0.0) == pytest.approx(-5.0)       # default phase starts at the minimum
+
+
+def test_triangle_shape():
+    tri = Triangle(2.0, 4.0, 1.0)
+    assert tri.value(0.0) == pytest.approx(-3.0) and tri.value(0.25) == pytest.approx(5.0)
+    assert tri.value(0.125) == pytest.approx(1.0) and tri.value(0.5) == pytest.approx(-3.0)
+
+
+def test_multisine_is_the_sum_of_its_components():
+    ms = MultiSine([{"frequency_hz": 1.0, "amplitude_um": 2.0, "phase_deg": 0.0},
+                    {"frequency_hz": 5.0, "amplitude_um": 1.0, "phase_deg": 90.0}], offset_um=3.0)
+    t = 0.13
+    expect = 3.0 + 2.0 * math.sin(2 * math.pi * t) + math.sin(2 * math.pi * 5 * t + math.pi / 2)
+    assert ms.value(t) == pytest.approx(expect)
