@@ -155,6 +155,7 @@ class Service:
         """Blocking; returns the exit code (0 stopped as asked, 1 the loop ended on a fault)."""
         cfg = self._load_config(self.config_path)
         self.controller = self._make_controller(cfg)
+        join_timeout_s = JOIN_TIMEOUT_S + _stop_ramp_s(cfg)
         previous_handlers: dict[int, Any] = {}
         try:
             if self.runtime is not None:
@@ -169,7 +170,7 @@ class Service:
             self.notifier.stopping(status=f"stopping: {self._stop_reason}")
             thread_alive = False
             with contextlib.suppress(NameError):
-                thread.join(timeout=JOIN_TIMEOUT_S)
+                thread.join(timeout=join_timeout_s)
                 thread_alive = thread.is_alive()
             for signum, handler in previous_handlers.items():
                 signal.signal(signum, handler)
@@ -179,7 +180,8 @@ class Service:
                 self._write_stats(final)
             self.notifier.close()
         if thread_alive:
-            raise FaultError(f"the control loop did not stop within {JOIN_TIMEOUT_S:g} s")
+            raise FaultError(f"the control loop did not stop within {join_timeout_s:g} s "
+                             "(a driver call hung?); check the amplifier")
         if self._error is not None:
             if isinstance(self._error, GmaError):
                 raise self._error
@@ -286,6 +288,14 @@ class Service:
         with atomic_write(self.stats_json) as fh:
             json.dump(payload, fh, indent=2, default=_jsonable)
             fh.write("\n")
+
+
+def _stop_ramp_s(cfg: Any) -> float:
+    """The configured ramp to the safe current: the loop is given that long on top to finish."""
+    try:
+        return max(0.0, float(cfg.limits.get("stop_ramp_max_s", 0.0)))
+    except (AttributeError, TypeError, ValueError):
+        return 0.0
 
 
 def _fault_from(status: dict[str, Any]) -> str | None:
