@@ -202,3 +202,37 @@ def test_config_errors_name_the_key(tmp_path):
     with pytest.raises(ConfigError, match=r"register_map.*no such|register_map.*cannot read"):
         validate_config({**base, "driver": {"kind": "modbus",
                                             "devices": {"amp": {**amp, "register_map": "missing.yaml"}}}})
+
+
+def test_channels_on_two_devices(models, tmp_path):
+    """Amplifier on one TCP device, load cell on another (its own connection, unit id 7)."""
+    full = load_register_map(MAPS + "amplifier_int16.yaml").to_dict()["channels"]
+    amp_map = {"channels": {k: v for k, v in full.items() if k != "force_N"}}
+    cell_map = {"channels": {"force_N": {**full["force_N"], "unit_id": 7}}}
+    from gma_ffc.registers import RegisterMap
+
+    rig_amp, rig_cell = make_rig(-11.3), make_rig(-19.1)
+    # the emulator always serves a setpoint; the driver's map for the cell simply leaves it out
+    cell_served = {"channels": {**cell_map["channels"],
+                                "current_setpoint_A": {**full["current_setpoint_A"], "unit_id": 7}}}
+    emus = [ModbusEmulator(rig_amp, RegisterMap.from_dict(amp_map), transport="tcp", port=0),
+            ModbusEmulator(rig_cell, RegisterMap.from_dict(cell_served), transport="tcp", port=0)]
+    try:
+        (h1, p1), (h2, p2) = (e.start() for e in emus)
+        cfg = validate_config({
+            "rate_hz": 100, "model": "unused.yaml",
+            "driver": {"kind": "modbus", "devices": {
+                "amp": {"transport": "tcp", "host": h1, "port": p1, "register_map": amp_map},
+                "cell": {"transport": "tcp", "host": h2, "port": p2, "register_map": cell_map}}},
+            "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 5.0, "offset_um": 8.0},
+            "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 100.0},
+            "telemetry": {"path": str(tmp_path / "two.csv")}})
+        summary = Controller(cfg, model=models[0]).run(duration_s=0.5)
+    finally:
+        for e in emus:
+            e.stop()
+    assert summary["ok"], summary["fault_messages"]
+    rec = read_recording(cfg.telemetry["path"])
+    assert np.median(rec.stress_MPa) == pytest.approx(-19.1, abs=0.3)   # from the second device
+    assert len(rig_amp.history("setpoint")) >= 40 and rig_amp.last_setpoint_A == 0.0
+    assert rig_cell.history("setpoint") == []
