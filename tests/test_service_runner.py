@@ -511,3 +511,42 @@ def test_stale_pid_file_of_an_unrelated_process_is_not_signalled(tmp_path):
     finally:
         other.kill()
         other.wait()
+
+
+def test_default_runtime_dir_order(tmp_path, monkeypatch):
+    from gma_ffc.service import paths
+
+    monkeypatch.setattr(paths, "SYSTEM_RUNTIME_DIR", str(tmp_path / "absent"))
+    assert paths.default_runtime_dir({"GMA_FFC_RUNTIME_DIR": "/a", "RUNTIME_DIRECTORY": "/b"}) == Path("/a")
+    assert paths.default_runtime_dir({"RUNTIME_DIRECTORY": "/b:/c", "XDG_RUNTIME_DIR": "/x"}) == Path("/b")
+    assert paths.default_runtime_dir({"XDG_RUNTIME_DIR": "/x"}) == Path("/x/gma-ffc")
+    system = tmp_path / "system"                          # the systemd service's, and ours
+    system.mkdir()
+    monkeypatch.setattr(paths, "SYSTEM_RUNTIME_DIR", str(system))
+    assert paths.default_runtime_dir({"XDG_RUNTIME_DIR": "/x"}) == system
+    if os.geteuid() == 0:                                 # someone else's: not chosen
+        os.chown(system, 65534, 65534)
+        assert paths.default_runtime_dir({"XDG_RUNTIME_DIR": "/x"}) == Path("/x/gma-ffc")
+
+
+def test_status_table_and_line_show_faults_and_reload():
+    from gma_ffc.service.status import format_table, status_line
+
+    snap = {"state": "fault", "ticks": 1234, "target_rate_hz": 1000.0, "achieved_rate_hz": 998.7,
+            "jitter_p50_us": 2.5, "jitter_p99_us": 41.0, "jitter_max_us": 120.0, "overruns": 3,
+            "stress_MPa": -19.1, "current_cmd_A": 0.0, "current_A": 0.01, "reference_um": 12.5,
+            "faults": ["comms_timeout"], "fault_messages": {"comms_timeout": "no answer in 20 ms"},
+            "service": {"pid": 42, "last_reload": {"ok": False, "message": "reload refused: bad",
+                                                   "at_unix": 0.0}}}
+    table = format_table(snap)
+    rows = {line.split("  ")[0].strip(): line for line in table.splitlines()}
+    assert "998.7 Hz (target 1000 Hz)" in rows["rate"]
+    assert "p50 2.5 us" in rows["period jitter"] and "p99 41.0 us" in rows["period jitter"]
+    assert "max 120.0 us" in rows["period jitter"] and rows["overruns"].endswith("3")
+    assert "-19.10 MPa" in rows["stress"] and "12.500 um" in rows["reference"]
+    assert "comms_timeout: no answer in 20 ms" in rows["faults"]
+    assert "REFUSED" in rows["last reload"] and rows["pid"].endswith("42")
+    line = status_line(snap)
+    assert line.startswith("fault:") and "comms_timeout" in line and "\n" not in line
+    empty = format_table({"state": "starting"})             # nothing measured yet: dashes
+    assert "rate           -" in empty and "faults         none" in empty

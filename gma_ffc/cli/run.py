@@ -25,8 +25,9 @@ def positive_seconds(text: str) -> float:
 def add_runtime_dir(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runtime-dir", metavar="DIR",
                    help="private directory for the control socket, pid file and log (default: "
-                        "$GMA_FFC_RUNTIME_DIR, $RUNTIME_DIRECTORY, $XDG_RUNTIME_DIR/gma-ffc, "
-                        "/run/gma-ffc for root, else /tmp/gma-ffc-UID)")
+                        "$GMA_FFC_RUNTIME_DIR, $RUNTIME_DIRECTORY, /run/gma-ffc if it is yours "
+                        "(the systemd service's), $XDG_RUNTIME_DIR/gma-ffc, /run/gma-ffc for root, "
+                        "else /tmp/gma-ffc-UID)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -3,7 +3,8 @@
 The directory is 0700 and owned by us, the socket inside it 0600, so only the owner can reach
 the controller (the socket additionally checks the peer's uid, see `control_socket`). The
 location is, in order: --runtime-dir, $GMA_FFC_RUNTIME_DIR, $RUNTIME_DIRECTORY (set by systemd's
-RuntimeDirectory=), $XDG_RUNTIME_DIR/gma-ffc, /run/gma-ffc for root, /tmp/gma-ffc-<uid> otherwise.
+RuntimeDirectory=), /run/gma-ffc when it exists and is ours (the system service's, so its user
+finds it without options), $XDG_RUNTIME_DIR/gma-ffc, /run/gma-ffc for root, /tmp/gma-ffc-<uid>.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from ..errors import ConfigError
 SOCKET_NAME = "control.sock"
 PID_NAME = "gma-ffc.pid"
 LOG_NAME = "gma-ffc.log"
+SYSTEM_RUNTIME_DIR = "/run/gma-ffc"   # RuntimeDirectory= of config/systemd/gma-ffc.service
 
 
 @dataclass(frozen=True)
@@ -46,10 +48,16 @@ def default_runtime_dir(environ: dict[str, str] | None = None) -> Path:
         if env.get(key):
             # systemd may pass several directories separated by ':'; the first is ours.
             return Path(env[key].split(":")[0])
+    system = Path(SYSTEM_RUNTIME_DIR)
+    try:
+        if system.stat().st_uid == os.geteuid():
+            return system
+    except OSError:
+        pass
     if env.get("XDG_RUNTIME_DIR"):
         return Path(env["XDG_RUNTIME_DIR"]) / "gma-ffc"
     uid = os.geteuid()
-    return Path("/run/gma-ffc") if uid == 0 else Path(f"/tmp/gma-ffc-{uid}")
+    return system if uid == 0 else Path(f"/tmp/gma-ffc-{uid}")
 
 
 def runtime_paths(directory: str | os.PathLike | None = None) -> RuntimePaths:
