@@ -29,7 +29,7 @@ class Effect:
 
     def remove(self, spec: Spec) -> Spec:
         """The spec without this effect's block."""
-        return spec.with_(**{FIELDS[self.name]: (False if self.name == "stress_dependent_play" else None)})
+        return spec.with_(**{FIELDS[self.name]: (False if self.name in ("stress_dependent_play", "saturation") else None)})
 
 
 def _always(_: Fitter) -> tuple[bool, str]:
@@ -52,18 +52,6 @@ def _saturation_testable(f: Fitter) -> tuple[bool, str]:
                        f"({f.drive_lo:.3g}..{f.drive_hi:.3g}), so saturation beyond it cannot be tested; "
                        "record with a drive beyond that range to test it")
     return True, ""
-
-
-def _saturation_grid(f: Fitter) -> list[tuple[float, float]]:
-    below, above = _exceedance(f)
-    out = []
-    for w in np.geomspace(0.02, 3.0, 12) * f.drive_span:
-        out.append((float(w) if below > 0.001 else 0.0, float(w) if above > 0.001 else 0.0))
-    return out
-
-
-def _saturation_refine(_: Fitter, p: tuple[float, float], level: int) -> list[tuple[float, float]]:
-    return [(p[0] * k, p[1] * k) for k in geom_refine(1.0, _ratio(0.02, 3.0, 12), level)]
 
 
 def _stress_testable(f: Fitter) -> tuple[bool, str]:
@@ -92,7 +80,8 @@ def _creep_grid(f: Fitter) -> np.ndarray:
 
 
 def _thermal_grid(f: Fitter) -> np.ndarray:
-    lo = max(50 * f.dt_min, 0.5)
+    # a coil and rod heat up over tens of seconds at least (thermal mass); faster "heating" is creep-like
+    lo = max(50 * f.dt_min, 5.0)
     hi = max(5 * f.duration_max, 2 * lo)
     return np.geomspace(lo, hi, 12)
 
@@ -172,10 +161,10 @@ CATALOG: dict[str, Effect] = {
         lambda s: s.stress_play),
     "saturation": Effect(
         "saturation",
-        "the drive goes beyond the range the model was identified on and the material saturates there, "
-        "where the model extrapolates straight on",
-        1, _saturation_testable, _saturation_grid, lambda s, p: s.with_(saturation=tuple(p)),
-        _saturation_refine, lambda s: s.saturation is not None),
+        "the drive goes beyond the range the model was identified on, where the material's curve bends "
+        "(towards saturation, or steeper first) while the model extrapolates straight on",
+        2, _saturation_testable, lambda f: [True], lambda s, p: s.with_(saturation=bool(p)), None,
+        lambda s: s.saturation),
 }
 
 ORDER = tuple(CATALOG)

@@ -15,7 +15,7 @@ import numpy as np
 from ..errors import InputError
 from ..recordings import Recording
 
-N_BLOCKS = 6          # blocks per recording; even-numbered ones form fold A, odd ones fold B
+N_BLOCKS = 16         # blocks per recording; even-numbered ones form fold A, odd ones fold B
 MAX_FIT_ROWS = 20000  # rows used by the least squares (evenly strided); filters always run at full rate
 
 

@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import InputError
 from ..recordings import Recording
 from .catalog import CATALOG, ORDER
-from .data import RecData, noise_floor, prepare
+from .data import N_BLOCKS, RecData, noise_floor, prepare
 from .extended import ExtendedModel
 from .fitting import Fitter, SearchResult, Spec, search
 from .locate import Located, locate
@@ -39,6 +39,7 @@ class Candidate:
     testable: bool
     reason: str = ""
     cv_mse: float = math.nan
+    cv_loss: float = math.nan
     loglik_gain: float = math.nan
     evidence: float = 0.0
     params: dict[str, float] = field(default_factory=dict)
@@ -173,8 +174,9 @@ def _params_of(effect: str, spec: Spec, coef: np.ndarray, names: list[str], fitt
     if effect == "stress_dependent_play":
         return {f"coef_{j}_per_MPa": c.get(f"stress_play_{j}", math.nan) for j in range(fitter.play_thresholds.size)}
     if effect == "saturation":
-        return {"width_lo": spec.saturation[0], "width_hi": spec.saturation[1],
-                "drive_lo": fitter.drive_lo, "drive_hi": fitter.drive_hi}
+        out = {"drive_lo": fitter.drive_lo, "drive_hi": fitter.drive_hi}
+        out.update({k: v for k, v in c.items() if k.startswith("sat_")})
+        return out
     return {}
 
 
@@ -187,9 +189,10 @@ def build_extended(model: Any, fitter: Fitter, spec: Spec, coef: np.ndarray, nam
                    "stress_gain_per_MPa": c.get("stress_gain", 0.0),
                    "quadratic_per_um": c["quadratic"], "center_um": fitter.yc_center,
                    "stress_ref_MPa": fitter.stress_ref}}
-    if spec.saturation is not None:
+    if spec.saturation:
         blocks["saturation"] = {"lo": fitter.drive_lo, "hi": fitter.drive_hi,
-                                "width_lo": spec.saturation[0], "width_hi": spec.saturation[1]}
+                                "lin_lo": c.get("sat_lin_lo", 0.0), "quad_lo": c.get("sat_quad_lo", 0.0),
+                                "lin_hi": c.get("sat_lin_hi", 0.0), "quad_hi": c.get("sat_quad_hi", 0.0)}
     if spec.eddy_tau:
         blocks["eddy_lag"] = {"tau_s": spec.eddy_tau}
     if spec.delay_s:
@@ -267,8 +270,15 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
     rms_before = float(np.sqrt(sum(float(np.sum((d.y - yc) ** 2)) for d, yc in zip(data, base_pred)) / n_samples))
 
     null_specs = (Spec(), Spec(), Spec())
+    # Huber scale from the recalibrated base's held-out residual: bursts the core cannot follow at all
+    # (e.g. a load change) then weigh in linearly, not quadratically, in fits and in the selection
+    r0 = fitter.test_residuals(null_specs)
+    robust_sigma = 1.4826 * float(np.median(np.abs(r0 - np.median(r0))))
+    fitter.delta = max(3.0 * robust_sigma, 2.0 * noise, 1e-12)
     null = fitter.score(null_specs, want_coef=True)
-    null_cv = (null.sse_test[0] + null.sse_test[1]) / max(null.n_test[0] + null.n_test[1], 1)
+    n_null = max(null.n_test[0] + null.n_test[1], 1)
+    null_loss = (null.sse_test[0] + null.sse_test[1]) / n_null
+    null_cv = (null.sq_test[0] + null.sq_test[1]) / n_null
     null_pred = fitter.predict_full(Spec(), null.coef_all)
     located = [locate(d, d.y - yb, d.y - yn) for d, yb, yn in zip(data, base_pred, null_pred)]
     lengths = fitter.segment_lengths
@@ -289,9 +299,10 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
 
     current = null_specs
     cur_cv = null_cv
+    cur_loss = null_loss
     accepted: list[str] = []
     rounds: list[dict] = []
-    final = SearchResult(null_specs, null_cv, null.all_mse, null.n_test[0] + null.n_test[1], null.coef_all,
+    final = SearchResult(null_specs, null_loss, null_cv, null.all_mse, null.n_test[0] + null.n_test[1], null.coef_all,
                          null.names, 1)
     within_noise = math.sqrt(null_cv) <= NOISE_FACTOR * noise
     runner_note = ""
@@ -308,26 +319,27 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
             res = search(fitter, current, eff.make, eff.grid(fitter), eff.refine)
             c.result = res
             c.cv_mse = res.cv_mse
+            c.cv_loss = res.cv_loss
             c.params = _params_of(c.effect, res.specs[2], res.coef_all, res.names, fitter)
             c.round = rnd
             tried.append(c)
         if not tried:
             break
         # effective sample count of the noise, from the best candidate's held-out residual
-        leader = min(tried, key=lambda c: c.cv_mse)
+        leader = min(tried, key=lambda c: c.cv_loss)
         n_eff = effective_samples(fitter.test_residuals(leader.result.specs), lengths)
         for c in tried:
-            c.loglik_gain = 0.5 * n_eff * math.log(cur_cv / max(c.cv_mse, 1e-300)) - CATALOG[c.effect].n_params
+            c.loglik_gain = 0.5 * n_eff * math.log(cur_loss / max(c.cv_loss, 1e-300)) - CATALOG[c.effect].n_params
         gains = np.array([c.loglik_gain for c in tried])
         top = max(0.0, float(gains.max()))
         weights = np.exp(np.clip(gains - top, -700, 0))
         norm = math.exp(-top) + float(weights.sum())
         for c, w in zip(tried, weights):
             c.evidence = float(w / norm)
-        tried.sort(key=lambda c: c.cv_mse)
+        tried.sort(key=lambda c: c.cv_loss)
         best = tried[0]
-        ok = (best.cv_mse < MIN_MSE_RATIO * cur_cv and best.loglik_gain > MIN_LOGLIK_GAIN
-              and math.sqrt(cur_cv) - math.sqrt(best.cv_mse) > 0.5 * noise)
+        ok = (best.cv_loss < MIN_MSE_RATIO * cur_loss and best.loglik_gain > MIN_LOGLIK_GAIN
+              and math.sqrt(cur_loss) - math.sqrt(best.cv_loss) > 0.5 * noise)
         rounds.append({"round": rnd, "n_eff": n_eff, "current_rms_um": math.sqrt(cur_cv),
                        "table": [(c.effect, math.sqrt(c.cv_mse), c.loglik_gain) for c in tried],
                        "accepted": best.effect if ok else None})
@@ -342,6 +354,7 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
         accepted.append(best.effect)
         current = best.result.specs
         cur_cv = best.cv_mse
+        cur_loss = best.cv_loss
         final = best.result
 
     # swap pass: with the other accepted effects in place, is each one still the best choice for its slot?
@@ -355,7 +368,7 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
                 continue
             others = tuple(CATALOG[name].remove(s) for s in current)
             o = fitter.score(others)
-            o_cv = (o.sse_test[0] + o.sse_test[1]) / max(o.n_test[0] + o.n_test[1], 1)
+            o_cv = (o.sse_test[0] + o.sse_test[1]) / max(o.n_test[0] + o.n_test[1], 1)   # loss
             best_name, best_res = name, None
             slot: list[tuple[float, str]] = []
             for cand in candidates.values():
@@ -364,26 +377,27 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
                 say(f"checking {name} against {cand.effect} with the other effects in place")
                 eff = CATALOG[cand.effect]
                 res = search(fitter, others, eff.make, eff.grid(fitter), eff.refine)
-                slot.append((res.cv_mse, cand.effect))
-                if best_res is None or res.cv_mse < best_res.cv_mse:
+                slot.append((res.cv_loss, cand.effect))
+                if best_res is None or res.cv_loss < best_res.cv_loss:
                     best_name, best_res = cand.effect, res
             if best_res is None:
                 continue
             slot.sort()
             if len(slot) > 1 and 0.5 * n_eff_last * math.log(slot[1][0] / max(slot[0][0], 1e-300)) < AMBIGUOUS_NATS:
                 ambiguous_pairs.append((slot[0][1], slot[1][1]))
-            if best_name != name and best_res.cv_mse < cur_cv:
+            if best_name != name and best_res.cv_loss < cur_loss:
                 swap = candidates[best_name]
                 candidates[name].accepted = False
                 swap.accepted = True
                 swap.result = best_res
                 swap.cv_mse = best_res.cv_mse
+                swap.cv_loss = best_res.cv_loss
                 swap.params = _params_of(best_name, best_res.specs[2], best_res.coef_all, best_res.names, fitter)
                 swapped.append((name, best_name, math.sqrt(candidates[name].cv_mse), math.sqrt(best_res.cv_mse)))
                 accepted[accepted.index(name)] = best_name
-                current, cur_cv, final = best_res.specs, best_res.cv_mse, best_res
+                current, cur_cv, cur_loss, final = best_res.specs, best_res.cv_mse, best_res.cv_loss, best_res
                 name = best_name
-            importance[name] = o_cv - cur_cv
+            importance[name] = o_cv - cur_loss
         accepted.sort(key=lambda n: -importance.get(n, 0.0))
 
     ext = build_extended(model, fitter, final.specs[2], final.coef_all, final.names, list(accepted))
@@ -400,14 +414,16 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
     explanation = _explain(verdict, candidates, located, rms_before, math.sqrt(null_cv), math.sqrt(cur_cv),
                            noise, within_noise, too_little, runner_note.strip(), fitter)
     validation = (
-        f"each recording was cut into {6} contiguous time blocks; every model was fitted on the even blocks "
+        f"each recording was cut into {N_BLOCKS} contiguous time blocks; every model was fitted on the even blocks "
         "and scored on the odd ones, and the other way round (2-fold blocked cross-validation). Models are "
         "simulated over the whole recording from its drive and stress only, so no held-out displacement "
         "enters a fit. Nonlinear parameters (time constants, delay, resonance) are chosen per fold from that "
         "fold's training blocks. rms_before is the base model as given; rms_after is the held-out RMS of the "
         "selected model; the null every effect had to beat is the base with a static recalibration "
         f"(gain, offset, curvature, loop width{', stress gain' if fitter.stress_varies else ''}), held-out RMS "
-        f"{math.sqrt(null_cv):.4g} um. An effect is accepted if it cuts the held-out MSE by >= "
+        f"{math.sqrt(null_cv):.4g} um. Fits and the selection use a Huber loss (squared error up to "
+        f"{fitter.delta:.3g} um, linear beyond) so that a few bursts no model in the catalog can follow do not "
+        "decide it. An effect is accepted if it cuts the held-out loss by >= "
         f"{1 - MIN_MSE_RATIO:.0%}, gains >= {MIN_LOGLIK_GAIN:g} nats of penalised held-out likelihood "
         "(effective sample count from the residual's correlation time, one nat per parameter) and removes "
         "more than half the noise floor.")
@@ -452,7 +468,8 @@ def _describe(c: Candidate) -> str:
     if c.effect == "thermal_drift":
         return f"heating with a thermal time constant of {p['tau_s']:.3g} s ({p['gain_um_per_A2']:+.3g} um per A^2 at equilibrium)"
     if c.effect == "creep":
-        return f"creep of {p['gain'] * 100:+.3g} % of each step relaxing with tau = {p['tau_s']:.3g} s"
+        return (f"creep of {p['gain'] * 100:+.3g} % of each step relaxing over time constants around "
+                f"{p['tau_s']:.3g} s (0.1x to 10x)")
     if c.effect == "mechanical_dynamics":
         txt = f"a resonance at {p['f_ref_hz']:.4g} Hz (damping ratio {p['zeta']:.2g})"
         if "f_at_most_compressive_hz" in p:
@@ -461,7 +478,8 @@ def _describe(c: Candidate) -> str:
     if c.effect == "stress_dependent_play":
         return "play weights (loop width) that change with stress"
     if c.effect == "saturation":
-        return f"saturation beyond the identified drive range {p['drive_lo']:.3g}..{p['drive_hi']:.3g}"
+        return (f"a bend of the material's curve beyond the identified drive range "
+                f"{p['drive_lo']:.3g}..{p['drive_hi']:.3g} that the model extrapolates straight through")
     return c.effect
 
 

@@ -2,20 +2,21 @@
 
 Signal path (every block optional)::
 
-    drive -> saturation (soft limit beyond the identified range)
-          -> eddy_lag (first-order lag of the effective field: eddy currents / magnetic diffusion)
+    drive -> eddy_lag (first-order lag of the effective field: eddy currents / magnetic diffusion)
           -> delay (transport delay)
           -> core SDPI/MPI (rate-independent hysteresis)           = y_c
           -> static map: offset + (gain + stress_gain (s - s_ref)) y_c + quadratic (y_c - center)^2
              + play_correction: sum_i a_i (H_ri[u] - u)             (loop-width recalibration)
              + stress_play: sum_i c_i (s - s_ref) (H_ri[u] - u)     (play weights that vary with stress)
-          -> creep: + g (lag(y_c, tau) - y_c)                        (slow relaxation after steps)
+             + saturation: a (u - hi)+ + b (u - hi)+^2 (+ the same below lo)  (beyond the identified range)
+          -> creep: + g mean_k (lag(y_c, tau s_k) - y_c), s_k = 0.1, 1, 10 (distributed relaxation)
           -> dynamics: mass-spring-damper, resonance moving with the load mass the stress implies
           -> thermal: + k lag(drive^2, tau)                          (Joule heating, cools at zero current)
 
 Inverse (``invert`` and ``inverse_stepper``), block by block: thermal offset from the commanded
 drive, dynamics by its exact FIR inverse, static map + creep in closed form (quadratic root),
-core by its own inverse, eddy lag by its exact inverse filter, saturation by atanh. A delay
+core by its own inverse, eddy lag by its exact inverse filter; the saturation term from the
+drive of the previous sample. A delay
 cannot be undone causally: batch ``invert`` previews the known reference by ``preview_s``;
 the inverse stepper expects the caller to feed ``reference(t + preview_s)``.
 """
@@ -33,7 +34,7 @@ from . import kernels as K
 KIND = "extended"
 
 INVERTED = {
-    "saturation": "exact (atanh) inside the asymptote, clamped beyond it",
+    "saturation": "correction from the drive of the previous sample",
     "eddy_lag": "exact inverse filter",
     "delay": "by preview of the known reference (batch invert); inverse_stepper expects reference(t + preview_s)",
     "static": "closed form (quadratic root)",
@@ -43,6 +44,16 @@ INVERTED = {
     "dynamics": "exact inverse filter (3-tap FIR on the reference)",
     "thermal": "offset model driven by the commanded drive of the previous sample",
 }
+
+
+CREEP_SPREAD = (0.1, 1.0, 10.0)   # creep time constants relative to tau_s: a distributed (log-like) relaxation
+
+
+def saturation_term(u: Any, sat: Mapping[str, float]) -> Any:
+    """Hinge correction beyond the identified drive range (scalar or array)."""
+    hi = np.maximum(np.asarray(u, dtype=float) - sat["hi"], 0.0)
+    lo = np.maximum(sat["lo"] - np.asarray(u, dtype=float), 0.0)
+    return sat["lin_hi"] * hi + sat["quad_hi"] * hi * hi + sat["lin_lo"] * lo + sat["quad_lo"] * lo * lo
 
 
 def _stress_array(stress: Any, n: int) -> np.ndarray:
@@ -154,36 +165,40 @@ class ExtendedModel:
         self.play_c0 = np.concatenate(c0_all) if c0_all else np.zeros(0)
         self.play_c1 = np.concatenate(c1_all) if c1_all else np.zeros(0)
         if self.saturation is not None:
-            for key in ("lo", "hi", "width_lo", "width_hi"):
+            for key in ("lo", "hi", "lin_lo", "quad_lo", "lin_hi", "quad_hi"):
                 v = self.saturation.get(key)
                 if not isinstance(v, (int, float)) or not math.isfinite(v):
                     raise ModelError(f"extended model: saturation.{key} must be a finite number, got {v!r}")
 
     # ----------------------------------------------------------------- batch forward
-    def core_input(self, time_s: np.ndarray, drive: np.ndarray) -> np.ndarray:
-        """The drive as the core sees it after the input-side blocks."""
+    def core_input(self, time_s: np.ndarray, drive: np.ndarray, initial_drive: float | None = None) -> np.ndarray:
+        """The drive as the core sees it after the input-side blocks (at rest at initial_drive before)."""
         u = np.asarray(drive, dtype=float)
+        u0 = float(u[0]) if initial_drive is None else float(initial_drive)
         dt, dt_med = _time_steps(time_s)
-        if self.saturation:
-            s = self.saturation
-            u = K.soft_limit(u, s["lo"], s["hi"], s["width_lo"], s["width_hi"])
         if self.eddy_lag:
-            u = K.lag_filter(u, dt, float(self.eddy_lag["tau_s"]), float(u[0]))
+            u = K.lag_filter(u, dt, float(self.eddy_lag["tau_s"]), u0)
         if self.delay and self.delay["delay_s"] > 0:
-            u = K.delay_filter(u, float(self.delay["delay_s"]) / dt_med, float(u[0]))
+            u = K.delay_filter(u, float(self.delay["delay_s"]) / dt_med, u0)
         return np.ascontiguousarray(u)
 
-    def simulate(self, time_s, drive, stress_MPa=None) -> np.ndarray:
+    def simulate(self, time_s, drive, stress_MPa=None, initial_drive: float | None = None) -> np.ndarray:
+        """Displacement for a drive history, at rest at `initial_drive` (default: the first drive)."""
         t = np.asarray(time_s, dtype=float)
         u = np.asarray(drive, dtype=float)
-        if t.shape != u.shape or t.ndim != 1:
-            raise ModelError(f"time_s and drive must be 1-D of equal length ({t.shape} vs {u.shape})")
-        u3 = self.core_input(t, u)
-        yc = np.asarray(self.base.simulate(t, u3, stress_MPa), dtype=float)
-        return self.output_from_core(t, u, u3, yc, stress_MPa)
+        if t.shape != u.shape or t.ndim != 1 or t.size == 0:
+            raise ModelError(f"time_s and drive must be 1-D of equal, non-zero length ({t.shape} vs {u.shape})")
+        if not np.all(np.isfinite(u)):
+            raise ModelError("drive contains NaN or infinite values")
+        u3 = self.core_input(t, u, initial_drive)
+        if initial_drive is None:
+            yc = np.asarray(self.base.simulate(t, u3, stress_MPa), dtype=float)
+        else:
+            yc = np.asarray(self.base.simulate(t, u3, stress_MPa, initial_drive=float(initial_drive)), dtype=float)
+        return self.output_from_core(t, u, u3, yc, stress_MPa, initial_drive)
 
     def output_from_core(self, t: np.ndarray, drive: np.ndarray, u3: np.ndarray, yc: np.ndarray,
-                         stress_MPa: Any) -> np.ndarray:
+                         stress_MPa: Any, initial_drive: float | None = None) -> np.ndarray:
         """Apply the output-side blocks to the core's displacement."""
         n = t.size
         dt, _ = _time_steps(t)
@@ -193,11 +208,16 @@ class ExtendedModel:
         y = (st["offset_um"] + (st["gain"] + st["stress_gain_per_MPa"] * ds) * yc
              + st["quadratic_per_um"] * (yc - st["center_um"]) ** 2)
         if self.play_thresholds.size:
-            plays = K.play_bank(u3, self.play_thresholds, float(u3[0])) - u3[:, None]
+            p0 = float(u3[0]) if initial_drive is None else float(initial_drive)
+            plays = K.play_bank(u3, self.play_thresholds, p0) - u3[:, None]
             y = y + plays @ self.play_c0 + ds * (plays @ self.play_c1)
+        if self.saturation:
+            y = y + saturation_term(np.asarray(drive, dtype=float), self.saturation)
         if self.creep:
-            z = K.lag_filter(yc, dt, float(self.creep["tau_s"]), float(yc[0]))
-            y = y + self.creep["gain"] * (z - yc)
+            acc = np.zeros_like(yc)
+            for k in CREEP_SPREAD:
+                acc += K.lag_filter(yc, dt, float(self.creep["tau_s"]) * k, float(yc[0])) - yc
+            y = y + self.creep["gain"] * acc / len(CREEP_SPREAD)
         if self.dynamics:
             d = self.dynamics
             y = K.msd_filter(np.ascontiguousarray(y), dt, s, 2 * math.pi * d["f_ref_hz"], d["zeta"],
@@ -221,8 +241,9 @@ class ExtendedModel:
         if self.preview_s > 0:
             r = np.interp(t + self.preview_s, t, r)
         dt = float(np.median(np.diff(t)))
-        inv = self.inverse_stepper(dt, initial_drive=0.0)
-        # start relaxed at the drive the core's inverse gives for the first reference sample
+        # the actuator rests at the low end of the identified range, as the core's own inverse assumes
+        x0 = self.drive_range[0] if math.isfinite(self.drive_range[0]) else 0.0
+        inv = self.inverse_stepper(dt, initial_drive=x0)
         out = np.empty_like(r)
         for k in range(t.size):
             out[k] = inv.step(float(r[k]), None if s is None else float(s[k]))
@@ -281,7 +302,9 @@ class ForwardStepper:
         self.m = model
         self.dt = float(dt_s)
         self._a_eddy = K.lag_coeff(self.dt, model.eddy_lag["tau_s"]) if model.eddy_lag else 0.0
-        self._a_creep = K.lag_coeff(self.dt, model.creep["tau_s"]) if model.creep else 0.0
+        self._a_creep = np.array([K.lag_coeff(self.dt, model.creep["tau_s"] * k) for k in CREEP_SPREAD]) \
+            if model.creep else np.zeros(0)
+        self._z = np.zeros(self._a_creep.size)
         self._a_heat = K.lag_coeff(self.dt, model.thermal["tau_s"]) if model.thermal else 0.0
         dsamp = model.preview_s / self.dt
         self._whole = int(math.floor(dsamp))
@@ -294,12 +317,8 @@ class ForwardStepper:
         self._core = None
         self.reset(initial_drive)
 
-    def _sat(self, u: float) -> float:
-        s = self.m.saturation
-        return K.soft_limit_scalar(u, s["lo"], s["hi"], s["width_lo"], s["width_hi"]) if s else u
-
     def reset(self, initial_drive: float = 0.0) -> None:
-        u1 = self._sat(float(initial_drive))
+        u1 = float(initial_drive)
         self._eddy = u1
         self._buf[:] = u1
         self._head = 0
@@ -307,7 +326,7 @@ class ForwardStepper:
         self._first = True
         self._theta = 0.0
         self._y1 = self._y2 = 0.0
-        self._z = 0.0
+        self._z[:] = 0.0
         if self._core is None:
             self._core = self.m.base.forward_stepper(self.dt, initial_drive=u1)
         else:
@@ -323,15 +342,15 @@ class ForwardStepper:
 
     def step(self, drive: float, stress_MPa: float | None = None) -> float:
         m = self.m
-        u1 = self._sat(float(drive))
+        u1 = float(drive)
         if m.eddy_lag:
             self._eddy = self._a_eddy * self._eddy + (1.0 - self._a_eddy) * u1
             u2 = self._eddy
         else:
             u2 = u1
         u3 = self._delay(u2) if self._whole or self._frac else u2
-        yc = float(self._core.step(u3, stress_MPa))
-        s = 0.0 if stress_MPa is None else self._clamp_stress(float(stress_MPa))
+        s = 0.0 if stress_MPa is None else _clamp(float(stress_MPa), m.stress_range_MPa)
+        yc = float(self._core.step(u3, s))
         st = m.static
         ds = s - st["stress_ref_MPa"]
         y = (st["offset_um"] + (st["gain"] + st["stress_gain_per_MPa"] * ds) * yc
@@ -343,11 +362,15 @@ class ForwardStepper:
                 self._plays[j] = p
                 acc += (self._c0[j] + self._c1[j] * ds) * (p - u3)
             y += acc
-        if self._first:
-            self._z = yc
+        if m.saturation:
+            y += saturation_term(u1, m.saturation)
         if m.creep:
-            self._z = self._a_creep * self._z + (1.0 - self._a_creep) * yc
-            y += m.creep["gain"] * (self._z - yc)
+            acc = 0.0
+            for k in range(self._z.size):
+                z = yc if self._first else self._a_creep[k] * self._z[k] + (1.0 - self._a_creep[k]) * yc
+                self._z[k] = z
+                acc += z - yc
+            y += m.creep["gain"] * acc / self._z.size
         if m.dynamics:
             if self._first:
                 self._y1 = self._y2 = y
@@ -358,20 +381,17 @@ class ForwardStepper:
             self._y2 = self._y1
             self._y1 = y
         if m.thermal:
-            self._theta = self._a_heat * self._theta + (1.0 - self._a_heat) * float(drive) ** 2
+            self._theta = self._a_heat * self._theta + (1.0 - self._a_heat) * u1 * u1
             y += m.thermal["gain_um_per_A2"] * self._theta
         self._first = False
-        return y
-
-    def _clamp_stress(self, s: float) -> float:
-        rng = self.m.stress_range_MPa
-        if rng is None:
-            return s
-        return min(max(s, rng[0]), rng[1])
+        return float(y)
 
 
 class InverseStepper:
-    """Sample-by-sample inverse (reference -> drive); see the module docstring for each block."""
+    """Sample-by-sample inverse (reference -> drive); see the module docstring for each block.
+
+    With a delay in the model, feed ``reference(t + preview_s)``: a delay cannot be undone causally.
+    """
 
     def __init__(self, model: ExtendedModel, dt_s: float, initial_drive: float = 0.0) -> None:
         if not (dt_s > 0 and math.isfinite(dt_s)):
@@ -380,7 +400,9 @@ class InverseStepper:
         self.dt = float(dt_s)
         self.preview_s = model.preview_s
         self._a_eddy = K.lag_coeff(self.dt, model.eddy_lag["tau_s"]) if model.eddy_lag else 0.0
-        self._a_creep = K.lag_coeff(self.dt, model.creep["tau_s"]) if model.creep else 0.0
+        self._a_creep = np.array([K.lag_coeff(self.dt, model.creep["tau_s"] * k) for k in CREEP_SPREAD]) \
+            if model.creep else np.zeros(0)
+        self._z = np.zeros(self._a_creep.size)
         self._a_heat = K.lag_coeff(self.dt, model.thermal["tau_s"]) if model.thermal else 0.0
         self._th = model.play_thresholds
         self._c0 = model.play_c0
@@ -390,15 +412,14 @@ class InverseStepper:
         self.reset(initial_drive)
 
     def reset(self, initial_drive: float = 0.0) -> None:
-        s = self.m.saturation
-        u1 = K.soft_limit_scalar(float(initial_drive), s["lo"], s["hi"], s["width_lo"], s["width_hi"]) if s else float(initial_drive)
+        u1 = float(initial_drive)
         self._u3_prev = u1
         self._plays[:] = u1
-        self._drive_prev = float(initial_drive)
+        self._drive_prev = u1
         self._theta = 0.0
         self._first = True
         self._r1 = self._r2 = 0.0
-        self._z = 0.0
+        self._z[:] = 0.0
         if self._core is None:
             self._core = self.m.base.inverse_stepper(self.dt, initial_drive=u1)
         else:
@@ -406,7 +427,7 @@ class InverseStepper:
 
     def step(self, reference_um: float, stress_MPa: float | None = None) -> float:
         m = self.m
-        s = 0.0 if stress_MPa is None else self._clamp_stress(float(stress_MPa))
+        s = 0.0 if stress_MPa is None else _clamp(float(stress_MPa), m.stress_range_MPa)
         target = float(reference_um)
         if m.thermal:
             # heating follows the drive already commanded (one sample behind: tau_s >> dt)
@@ -425,43 +446,45 @@ class InverseStepper:
             y_cr = target
         st = m.static
         ds = s - st["stress_ref_MPa"]
-        sp = 0.0
+        extra = 0.0
         if self._th.size:
             u = self._u3_prev
             for j in range(self._th.size):
-                sp += (self._c0[j] + self._c1[j] * ds) * (min(max(self._plays[j], u - self._th[j]), u + self._th[j]) - u)
-        q = st["quadratic_per_um"]
-        c0 = st["center_um"]
+                extra += (self._c0[j] + self._c1[j] * ds) * (min(max(self._plays[j], u - self._th[j]), u + self._th[j]) - u)
+        if m.saturation:
+            extra += saturation_term(self._drive_prev, m.saturation)
+        # creep: y = static(yc) + g mean_k a_k (z_k - yc), z_k the lags' previous states
         ga = 0.0
         zc = 0.0
         if m.creep and not self._first:
-            ga = m.creep["gain"] * self._a_creep
-            zc = ga * self._z
+            n = self._z.size
+            for k in range(n):
+                ga += m.creep["gain"] * self._a_creep[k] / n
+                zc += m.creep["gain"] * self._a_creep[k] * self._z[k] / n
+        q = st["quadratic_per_um"]
+        c0 = st["center_um"]
         lin = st["gain"] + st["stress_gain_per_MPa"] * ds - 2.0 * q * c0 - ga
-        const = q * c0 * c0 + st["offset_um"] + sp + zc - y_cr
+        const = q * c0 * c0 + st["offset_um"] + extra + zc - y_cr
         yc = _quadratic_root(q, lin, const)
-        if m.creep:
-            self._z = yc if self._first else self._a_creep * self._z + (1.0 - self._a_creep) * yc
-        u3 = float(self._core.step(yc, stress_MPa))
-        if self._th.size:
-            for j in range(self._th.size):
-                self._plays[j] = min(max(self._plays[j], u3 - self._th[j]), u3 + self._th[j])
+        for k in range(self._z.size):
+            self._z[k] = yc if self._first else self._a_creep[k] * self._z[k] + (1.0 - self._a_creep[k]) * yc
+        u3 = float(self._core.step(yc, s))
+        for j in range(self._th.size):
+            self._plays[j] = min(max(self._plays[j], u3 - self._th[j]), u3 + self._th[j])
         if m.eddy_lag:
-            u2 = (u3 - self._a_eddy * self._u3_prev) / (1.0 - self._a_eddy)
+            u = (u3 - self._a_eddy * self._u3_prev) / (1.0 - self._a_eddy)
         else:
-            u2 = u3
+            u = u3
         self._u3_prev = u3
-        sat = m.saturation
-        u = K.soft_limit_inverse_scalar(u2, sat["lo"], sat["hi"], sat["width_lo"], sat["width_hi"]) if sat else u2
         self._drive_prev = u
         self._first = False
-        return u
+        return float(u)
 
-    def _clamp_stress(self, s: float) -> float:
-        rng = self.m.stress_range_MPa
-        if rng is None:
-            return s
-        return min(max(s, rng[0]), rng[1])
+
+def _clamp(s: float, rng: tuple[float, float] | None) -> float:
+    if rng is None:
+        return s
+    return min(max(s, rng[0]), rng[1])
 
 
 def _quadratic_root(q: float, b: float, c: float) -> float:

@@ -19,13 +19,14 @@ import numpy as np
 
 from . import kernels as K
 from .data import RecData, mean_stress, stress_span
+from .extended import CREEP_SPREAD
 
 
 @dataclass(frozen=True)
 class Spec:
     """Nonlinear parameters of the blocks in a model under test (None: block absent)."""
 
-    saturation: tuple[float, float] | None = None   # (width_lo, width_hi) in drive units, 0 = side off
+    saturation: bool = False                        # hinge correction beyond the identified drive range
     eddy_tau: float | None = None                   # s
     delay_s: float | None = None                    # s
     stress_play: bool = False
@@ -37,12 +38,13 @@ class Spec:
         return dataclasses.replace(self, **kw)
 
     def input_key(self) -> tuple:
-        return (self.saturation, self.eddy_tau, self.delay_s)
+        return (self.eddy_tau, self.delay_s)
 
 
 @dataclass
 class Score:
-    """Least-squares results of one spec: per-fold train/test SSE and the all-data fit."""
+    """Results of one spec: per-fold train/test loss (Huber when set, else squared error), the
+    test folds' plain squared error, and the all-data fit."""
 
     sse_train: tuple[float, float]
     sse_test: tuple[float, float]
@@ -52,6 +54,7 @@ class Score:
     n_all: int
     coef_all: np.ndarray | None
     names: list[str]
+    sq_test: tuple[float, float] = (math.nan, math.nan)   # plain squared error on the test folds
 
     def train_mse(self, fold: int) -> float:
         return self.sse_train[fold] / max(self.n_train[fold], 1)
@@ -90,6 +93,7 @@ class Fitter:
         self.y_rows = np.concatenate(ya + yb)
         self.segment_lengths = [a.size for a in ya] + [b.size for b in yb]
         self.evaluations = 0
+        self.delta: float | None = None   # Huber scale of the loss (None: plain least squares)
 
     # ------------------------------------------------------------------ the core
     def core(self, spec: Spec) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -111,8 +115,6 @@ class Fitter:
 
     def core_input(self, d: RecData, spec: Spec) -> np.ndarray:
         u = d.u
-        if spec.saturation is not None:
-            u = K.soft_limit(u, self.drive_lo, self.drive_hi, spec.saturation[0], spec.saturation[1])
         if spec.eddy_tau:
             u = K.lag_filter(u, d.dt, spec.eddy_tau, float(u[0]))
         if spec.delay_s:
@@ -143,8 +145,18 @@ class Fitter:
             for j in range(self.play_thresholds.size):
                 cols.append(ds * (plays[:, j] - u3))
                 names.append(f"stress_play_{j}")
+        if spec.saturation:
+            above = np.maximum(d.u - self.drive_hi, 0.0)
+            below = np.maximum(self.drive_lo - d.u, 0.0)
+            for side, h in (("hi", above), ("lo", below)):
+                if np.any(h > 0.02 * self.drive_span):
+                    cols += [h, h * h]
+                    names += [f"sat_lin_{side}", f"sat_quad_{side}"]
         if spec.creep_tau:
-            cols.append(K.lag_filter(yc, d.dt, spec.creep_tau, float(yc[0])) - yc)
+            acc = np.zeros_like(yc)
+            for k in CREEP_SPREAD:
+                acc += K.lag_filter(yc, d.dt, spec.creep_tau * k, float(yc[0])) - yc
+            cols.append(acc / len(CREEP_SPREAD))
             names.append("creep_gain")
         if spec.dynamics is not None:
             f, zeta, beta = spec.dynamics
@@ -177,17 +189,33 @@ class Fitter:
         return out
 
     # ------------------------------------------------------------------ solving
-    @staticmethod
-    def _solve(X: np.ndarray, y: np.ndarray) -> np.ndarray:
+    def loss(self, r: np.ndarray) -> float:
+        """Sum of 2 x Huber loss (equal to the squared error for residuals within delta)."""
+        if self.delta is None:
+            return float(r @ r)
+        a = np.abs(r)
+        d = self.delta
+        return float(np.sum(np.where(a <= d, a * a, 2 * d * a - d * d)))
+
+    def _solve(self, X: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Least squares; with a Huber scale, two reweighting passes so a few bursts (a load change
+        the core cannot follow) do not steer the fit."""
         scale = np.sqrt(np.mean(X * X, axis=0))
         scale[scale == 0] = 1.0
         Xs = X / scale
-        G = Xs.T @ Xs
-        G[np.diag_indices_from(G)] += 1e-10 * max(float(np.trace(G)), 1.0) / G.shape[0]
-        try:
-            c = np.linalg.solve(G, Xs.T @ y)
-        except np.linalg.LinAlgError:
-            c = np.linalg.lstsq(Xs, y, rcond=None)[0]
+        w = None
+        c = np.zeros(X.shape[1])
+        for _ in range(1 if self.delta is None else 3):
+            Xw = Xs if w is None else Xs * w[:, None]
+            G = Xw.T @ Xs
+            G[np.diag_indices_from(G)] += 1e-10 * max(float(np.trace(G)), 1.0) / G.shape[0]
+            try:
+                c = np.linalg.solve(G, Xw.T @ y)
+            except np.linalg.LinAlgError:
+                c = np.linalg.lstsq(Xs, y, rcond=None)[0]
+            if self.delta is not None:
+                a = np.abs(y - Xs @ c)
+                w = np.where(a <= self.delta, 1.0, self.delta / np.maximum(a, 1e-300))
         return c / scale
 
     def score(self, specs: tuple[Spec, Spec, Spec], want_coef: bool = False) -> Score:
@@ -203,7 +231,7 @@ class Fitter:
                 designs[spec], names = self.design(spec)
             return designs[spec]
 
-        sse_train, sse_test, n_train, n_test = [], [], [], []
+        sse_train, sse_test, n_train, n_test, sq_test = [], [], [], [], []
         na = self.n_a
         for f in (0, 1):
             X = X_for(specs[f])
@@ -212,15 +240,16 @@ class Fitter:
             c = self._solve(X[tr], y[tr])
             r_tr = y[tr] - X[tr] @ c
             r_te = y[te] - X[te] @ c
-            sse_train.append(float(r_tr @ r_tr))
-            sse_test.append(float(r_te @ r_te))
+            sse_train.append(self.loss(r_tr))
+            sse_test.append(self.loss(r_te))
+            sq_test.append(float(r_te @ r_te))
             n_train.append(int(r_tr.size))
             n_test.append(int(r_te.size))
         X = X_for(specs[2])
         c_all = self._solve(X, y)
         r = y - X @ c_all
         return Score(tuple(sse_train), tuple(sse_test), tuple(n_train), tuple(n_test),  # type: ignore[arg-type]
-                     float(r @ r), int(y.size), c_all if want_coef else None, names)
+                     self.loss(r), int(y.size), c_all if want_coef else None, names, tuple(sq_test))  # type: ignore[arg-type]
 
     def test_residuals(self, specs: tuple[Spec, Spec, Spec]) -> np.ndarray:
         """Held-out residuals at the least-squares rows (each fold predicted by the other fold's fit)."""
@@ -244,7 +273,8 @@ ZOOM_LEVELS = 3
 @dataclass
 class SearchResult:
     specs: tuple[Spec, Spec, Spec]      # fold A, fold B, all data (each with the block's best parameters)
-    cv_mse: float
+    cv_loss: float                      # held-out loss per sample (selection)
+    cv_mse: float                       # held-out mean squared error (reported)
     all_mse: float
     n_test: int
     coef_all: np.ndarray
@@ -277,9 +307,10 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
     ra, rb = results[pa], results[pb]
     n_test = ra.n_test[0] + rb.n_test[1]
     cv = (ra.sse_test[0] + rb.sse_test[1]) / max(n_test, 1)
+    mse = (ra.sq_test[0] + rb.sq_test[1]) / max(n_test, 1)
     specs = (make(base[0], pa), make(base[1], pb), make(base[2], pall))
     final = fitter.score(specs, want_coef=True)
-    return SearchResult(specs, cv, final.all_mse, n_test, final.coef_all, final.names, len(results))
+    return SearchResult(specs, cv, mse, final.all_mse, n_test, final.coef_all, final.names, len(results))
 
 
 def geom_refine(p: float, ratio: float, level: int = 1) -> list[float]:

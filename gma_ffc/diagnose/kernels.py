@@ -177,38 +177,3 @@ def play_bank(x: np.ndarray, thresholds: np.ndarray, x0: float) -> np.ndarray:
             state[j] = s
             out[k, j] = s
     return out
-
-
-@njit(cache=True)
-def soft_limit(x: np.ndarray, lo: float, hi: float, width_lo: float, width_hi: float) -> np.ndarray:
-    """Identity inside [lo, hi]; beyond, a tanh that saturates width further out."""
-    n = x.shape[0]
-    out = np.empty(n)
-    for k in range(n):
-        out[k] = soft_limit_scalar(x[k], lo, hi, width_lo, width_hi)
-    return out
-
-
-@njit(cache=True)
-def soft_limit_scalar(v: float, lo: float, hi: float, width_lo: float, width_hi: float) -> float:
-    if v > hi and width_hi > 0.0:
-        return hi + width_hi * math.tanh((v - hi) / width_hi)
-    if v < lo and width_lo > 0.0:
-        return lo - width_lo * math.tanh((lo - v) / width_lo)
-    return v
-
-
-@njit(cache=True)
-def soft_limit_inverse_scalar(v: float, lo: float, hi: float, width_lo: float, width_hi: float) -> float:
-    """Inverse of the soft limit; demands beyond its asymptote are clamped just inside it."""
-    if v > hi and width_hi > 0.0:
-        q = (v - hi) / width_hi
-        if q > 0.995:
-            q = 0.995
-        return hi + width_hi * math.atanh(q)
-    if v < lo and width_lo > 0.0:
-        q = (lo - v) / width_lo
-        if q > 0.995:
-            q = 0.995
-        return lo - width_lo * math.atanh(q)
-    return v
