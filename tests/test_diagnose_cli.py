@@ -1,0 +1,136 @@
+"""`gma-ffc diagnose` end to end: the spec's outputs, the extended model in `simulate`, bad input."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gma_ffc.cli import main
+from gma_ffc.modelio import load_model, save_model
+from gma_ffc.recordings import Recording, read_recording, write_recording
+
+_spec = importlib.util.spec_from_file_location(
+    "bench_diagnose", Path(__file__).resolve().parents[1] / "scripts" / "bench_diagnose.py")
+bench = importlib.util.module_from_spec(_spec)
+sys.modules.setdefault("bench_diagnose", bench)
+_spec.loader.exec_module(bench)  # type: ignore[union-attr]
+
+
+@pytest.fixture(scope="module")
+def case_files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("diag")
+    case = {c.name: c for c in bench.cases()}["thermal_drift#3"]
+    model, rec = bench.make_case(case, scale=0.4)
+    save_model(model, d / "model.yaml")
+    write_recording(d / "long_run.csv", rec)
+    return d
+
+
+def _run(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_outputs_follow_the_spec(case_files, capsys, tmp_path):
+    out_dir = tmp_path / "diagnosis"
+    code, out, err = _run(capsys, "diagnose", "--model", str(case_files / "model.yaml"),
+                          str(case_files / "long_run.csv"), "--out", str(out_dir))
+    assert code == 0, err
+    assert "verdict: thermal_drift" in out
+    doc = json.loads((out_dir / "diagnosis.json").read_text())
+    for key, kind in (("verdict", list), ("explanation", str), ("located", list), ("candidates", list),
+                      ("rms_before_um", float), ("rms_after_um", float), ("validation", str),
+                      ("extended_model", str)):
+        assert isinstance(doc[key], kind), key
+    assert doc["verdict"] == ["thermal_drift"]
+    assert doc["extended_model"] == "extended_model.yaml"
+    assert doc["rms_after_um"] < 0.5 * doc["rms_before_um"]
+    loc = doc["located"][0]
+    assert loc["recording"] == "long_run.csv" and "t = " in loc["where"] and loc["residual_rms_um"] > 0
+    names = [c["effect"] for c in doc["candidates"]]
+    assert names[0] == "thermal_drift" and len(set(names)) == 7
+    top = doc["candidates"][0]
+    assert top["evidence"] > 0.9 and top["params"]["tau_s"] > 0 and top["validation_rms_um"] > 0
+    assert "held" in doc["validation"] and "thermal_drift" in doc["explanation"]
+    page = (out_dir / "report.html").read_text()
+    assert page.count("data:image/png;base64,") >= 4
+    assert page.index("<img") < page.index("Explanation")          # plots before prose
+    # the extended model is a model like any other: simulate accepts it and it beats the base
+    ext = load_model(out_dir / "extended_model.yaml")
+    assert ext.kind == "extended" and ext.effects == ["thermal_drift"]
+    for model_file, target in ((out_dir / "extended_model.yaml", "ext.csv"), (case_files / "model.yaml", "base.csv")):
+        code, out, err = _run(capsys, "simulate", "--model", str(model_file), str(case_files / "long_run.csv"),
+                              "-o", str(tmp_path / target))
+        assert code == 0, err
+    measured = read_recording(case_files / "long_run.csv").displacement_um
+    rms = {n: float(np.sqrt(np.mean((read_recording(tmp_path / n).displacement_um - measured) ** 2)))
+           for n in ("ext.csv", "base.csv")}
+    assert rms["ext.csv"] < 0.5 * rms["base.csv"]
+    # and invert accepts it too
+    t = np.arange(2000) / 1000.0
+    ref = Recording({"time_s": t, "reference_um": 10 + 5 * np.sin(2 * np.pi * t), "stress_MPa": np.full(t.size, -15.0)},
+                    {}, "ref.csv")
+    write_recording(tmp_path / "ref.csv", ref)
+    code, out, err = _run(capsys, "invert", "--model", str(out_dir / "extended_model.yaml"), str(tmp_path / "ref.csv"),
+                          "-o", str(tmp_path / "drive.csv"))
+    assert code == 0, err
+
+
+def _short(tmp_path: Path, name: str, drive_scale: float = 1.0, n: int = 3000, cols: tuple = ()) -> Path:
+    t = np.arange(n) / 1000.0
+    u = drive_scale * (1 - np.cos(2 * np.pi * 2 * t))
+    data = {"time_s": t, "current_A": u, "stress_MPa": np.full(n, -15.0), "displacement_um": 10 * u}
+    for c in cols:
+        data.pop(c)
+    write_recording(tmp_path / name, Recording(data, {}, name))
+    return tmp_path / name
+
+
+@pytest.mark.parametrize("setup, words", [
+    (lambda d, tmp: (str(d / "model.yaml"), str(tmp / "absent.csv")), "no such file"),
+    (lambda d, tmp: (str(tmp / "absent.yaml"), str(d / "long_run.csv")), "no such model file"),
+    (lambda d, tmp: (str(d / "model.yaml"), str(_short(tmp, "nodisp.csv", cols=("displacement_um",)))),
+     "displacement_um"),
+    (lambda d, tmp: (str(d / "model.yaml"), str(_short(tmp, "far.csv", drive_scale=10.0) )), "cannot conclude"),
+])
+def test_bad_input_is_one_line_and_exit_2(case_files, capsys, tmp_path, setup, words):
+    model, rec = setup(case_files, tmp_path)
+    if "far.csv" in rec:   # drive 10..20 A, far beyond the identified range
+        r = read_recording(rec)
+        r.columns["current_A"] = r.columns["current_A"] + 10.0
+        write_recording(rec, r)
+    out_dir = tmp_path / "out"
+    code, out, err = _run(capsys, "diagnose", "--model", model, rec, "--out", str(out_dir))
+    assert code == 2
+    assert words in err and "Traceback" not in err and err.count("\n") == 1
+    assert not out_dir.exists()                 # nothing half-written
+
+
+def test_single_short_recording_says_what_cannot_be_concluded(case_files, capsys, tmp_path):
+    rec = _short(tmp_path, "short.csv", n=600)    # 0.6 s: about one loop
+    code, out, err = _run(capsys, "diagnose", "--model", str(case_files / "model.yaml"), str(rec),
+                          "--out", str(tmp_path / "o"))
+    assert code == 0, err
+    doc = json.loads((tmp_path / "o" / "diagnosis.json").read_text())
+    assert doc["verdict"] == [] and doc["conclusive"] is False
+    assert any("too little data" in s and "record" in s for s in doc["cannot_conclude"])
+    assert (tmp_path / "o" / "extended_model.yaml").exists()
+
+
+def test_one_stress_cannot_test_stress_effects(case_files, capsys, tmp_path):
+    rec = read_recording(case_files / "long_run.csv")
+    rec.columns["stress_MPa"] = np.full(len(rec), -15.0)
+    write_recording(tmp_path / "one_stress.csv", rec)
+    code, out, err = _run(capsys, "diagnose", "--model", str(case_files / "model.yaml"),
+                          str(tmp_path / "one_stress.csv"), "--out", str(tmp_path / "o"))
+    assert code == 0, err
+    doc = json.loads((tmp_path / "o" / "diagnosis.json").read_text())
+    play = next(c for c in doc["candidates"] if c["effect"] == "stress_dependent_play")
+    assert play["testable"] is False and "stress" in play["note"]
+    assert any(s.startswith("stress_dependent_play") for s in doc["cannot_conclude"])
