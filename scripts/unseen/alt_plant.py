@@ -12,7 +12,8 @@ effect laws with hil_sim, and it is not a Prandtl-Ishlinskii model:
 * rate_dependence: magnetic diffusion into a conducting rod (radial finite volumes, implicit),
   one relay population per radial shell - a distributed lag, not a first-order one;
 * mechanical_dynamics: rod + load as an exactly discretised 2nd-order system; the resonance
-  moves with the load mass and the load cell sees the inertial force;
+  moves with the load mass and the load cell sees the inertial force (the magnetics see the
+  static stress only: the Delta-E coupling of dynamic stress into strain is left out);
 * thermal_drift: two thermal nodes (coil and rod), so the drift has two time constants;
   rod expansion, coil-former expansion and a stroke temperature coefficient;
 * creep: a logarithmic creep law (a Prony series of relaxations with log-spaced time
@@ -145,8 +146,8 @@ class AltPlantConfig:
 EFFECT_SETTINGS: dict[str, dict[str, dict[str, Any]]] = {
     "rate_dependence": {"clear": {"diffusion_time_ms": 12.0}, "subtle": {"diffusion_time_ms": 4.0}},
     "mechanical_dynamics": {
-        "clear": {"dynamics": True, "damping_ratio": 0.05},
-        "subtle": {"dynamics": True, "damping_ratio": 0.2, "rod_stiffness_N_per_um": 60.0}},
+        "clear": {"dynamics": True, "damping_ratio": 0.12},
+        "subtle": {"dynamics": True, "damping_ratio": 0.25, "rod_stiffness_N_per_um": 60.0}},
     "thermal_drift": {
         "clear": {"rod_expansion_um_per_K": 1.5, "coil_expansion_um_per_K": -0.3, "stroke_tempco_per_K": 0.006},
         "subtle": {"rod_expansion_um_per_K": 0.45, "coil_expansion_um_per_K": -0.08, "stroke_tempco_per_K": 0.002}},
@@ -232,7 +233,8 @@ def _diffuse(h: np.ndarray, surface: float, dt: float, tau: float, area: np.ndar
 def _simulate(p: np.ndarray, centres: np.ndarray, widths: np.ndarray, weights: np.ndarray,
               shell_w: np.ndarray, creep_tau: np.ndarray, ambient: float,
               drive: np.ndarray, dt_arr: np.ndarray, load: np.ndarray,
-              x_out: np.ndarray, stress_out: np.ndarray, tcoil_out: np.ndarray, free_out: np.ndarray) -> None:
+              x_out: np.ndarray, stress_out: np.ndarray, tcoil_out: np.ndarray, trod_out: np.ndarray,
+              free_out: np.ndarray) -> None:
     """Integrate the rig sample by sample: sample k holds drive[k] for dt_arr[k] (zero-order hold)."""
     preload, g_load, k_spring, area = p[0], p[1], p[2], p[3]
     stroke0, stroke_loss, expo0, expo_per = p[4], p[5], p[6], p[7]
@@ -255,9 +257,9 @@ def _simulate(p: np.ndarray, centres: np.ndarray, widths: np.ndarray, weights: n
         i_now = drive[k]
         dt = dt_arr[k]
         m_load = load[k]
-        force = preload + m_load * g_load + k_spring * x * 1e-6 + (m_load * acc * 1e-6 if dyn > 0.0 else 0.0)
-        sigma = -force / area * 1e-6
-        comp = -sigma - preload / area * 1e-6     # MPa of compression beyond the preload (>= 0 mostly)
+        static = preload + m_load * g_load + k_spring * x * 1e-6
+        sigma = -(static + (m_load * acc * 1e-6 if dyn > 0.0 else 0.0)) / area * 1e-6   # what the load cell sees
+        comp = (static - preload) / area * 1e-6   # MPa of static compression beyond the preload
         # field in the rod
         if tau_diff > 0.0:
             n_sub = int(math.ceil(dt / (tau_diff / 60.0)))
@@ -324,6 +326,7 @@ def _simulate(p: np.ndarray, centres: np.ndarray, widths: np.ndarray, weights: n
         free_out[k] = x_free
         stress_out[k] = sigma
         tcoil_out[k] = ambient + t_coil
+        trod_out[k] = ambient + t_rod
 
 
 class AltGMAPlant:
@@ -344,8 +347,9 @@ class AltGMAPlant:
         """Simulate from rest (demagnetised, ambient temperature, relaxed) and measure.
 
         Returns measured columns (`time_s`, `current_A`, `stress_MPa`, `displacement_um`,
-        `temperature_C`) and, for tests only, the noise-free `true_displacement_um` (after the
-        delay) and `free_strain_um` (before the rod dynamics and the delay).
+        `temperature_C`: the coil's) and, for tests only, noise-free `true_*` values
+        (`true_displacement_um` is after the delay) and `free_strain_um` (before the rod dynamics
+        and the delay).
         """
         t = np.ascontiguousarray(time_s, dtype=float)
         i_cmd = np.ascontiguousarray(current_A, dtype=float)
@@ -356,12 +360,12 @@ class AltGMAPlant:
         load = np.broadcast_to(np.asarray(load_mass_kg, dtype=float), t.shape).copy()
         dt = np.concatenate(([t[1] - t[0]], np.diff(t)))
         n = t.size
-        x, stress, tcoil, free = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+        x, stress, tcoil, trod, free = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
         _simulate(self._p, self._centres, self._widths, self._weights, self._shell_w, self._creep_tau,
-                  self.cfg.ambient_C, i_cmd, dt, load, x, stress, tcoil, free)
+                  self.cfg.ambient_C, i_cmd, dt, load, x, stress, tcoil, trod, free)
         x_true = delay_signal(t, x, self.cfg.delay_ms * 1e-3)
         out = {"time_s": t.copy(), "true_displacement_um": x_true, "free_strain_um": free,
-               "true_stress_MPa": stress}
+               "true_stress_MPa": stress, "true_coil_temperature_C": tcoil, "true_rod_temperature_C": trod}
         if self.cfg.noise:
             rng = np.random.default_rng(self.seed)
             c = self.cfg
@@ -371,7 +375,7 @@ class AltGMAPlant:
             out["temperature_C"] = _quantise(tcoil + rng.normal(0.0, c.temperature_noise_C, n), c.temperature_lsb_C)
         else:
             out.update(displacement_um=x_true.copy(), current_A=i_cmd.copy(), stress_MPa=stress.copy(),
-                       temperature_C=tcoil)
+                       temperature_C=tcoil.copy())
         return out
 
 

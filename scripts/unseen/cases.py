@@ -94,11 +94,11 @@ def _effect_tests(effect: str) -> list[TestRun]:
                 _tr("random", 5000, 6.0, 40.0, f_hi_hz=120.0),
                 _tr("triangle", 1000, 5.0, 25.0, [(2.4, 50.0)], freq_hz=2.0)]
     if effect == "mechanical_dynamics":
-        return [_tr("chirp", 5000, 8.0, 60.0, f0_hz=2.0, f1_hz=260.0, lo=0.3, hi=1.6),
-                _tr("random", 5000, 6.0, 22.0, f_hi_hz=220.0, lo=0.2, hi=1.7),
+        return [_tr("chirp", 5000, 8.0, 60.0, f0_hz=2.0, f1_hz=260.0, lo=0.6, hi=1.3),
+                _tr("random", 5000, 6.0, 22.0, f_hi_hz=220.0, lo=0.6, hi=1.3),
                 _tr("triangle", 1000, 4.0, 5.0, freq_hz=3.5)]
     if effect == "thermal_drift":
-        return [_tr("heat_then_cool", 1000, 120.0, 0.0, [(47.0, 35.0)], freq_hz=2.5, split_s=75.0,
+        return [_tr("heat_then_cool", 1000, 120.0, 0.0, [(47.0, 35.0)], freq_hz=2.5, split_s=75.2,
                     cool_freq_hz=2.0, cool_swing_A=0.6, lo=0.05, hi=1.95),
                 _tr("steps", 1000, 50.0, 20.0, hold_s=(2.0, 6.0), dither_A=0.25, dither_hz=4.0, lo=0.3, hi=1.9)]
     if effect == "creep":
@@ -127,7 +127,7 @@ def _null_tests(variant: int) -> list[TestRun]:
                 _tr("random", 5000, 6.0, 40.0, f_hi_hz=150.0),
                 _tr("triangle", 1000, 4.0, 25.0, [(2.1, 50.0)], freq_hz=3.0)]
     if variant == 1:   # coil heats (temperature logged) while the load changes: compensated rig, no drift
-        return [_tr("heat_then_cool", 1000, 120.0, 0.0, [(47.0, 35.0)], freq_hz=2.5, split_s=75.0,
+        return [_tr("heat_then_cool", 1000, 120.0, 0.0, [(47.0, 35.0)], freq_hz=2.5, split_s=75.2,
                     cool_freq_hz=2.0, cool_swing_A=0.6, lo=0.05, hi=1.95),
                 _tr("steps", 1000, 40.0, 20.0, hold_s=(2.0, 6.0), dither_A=0.25, dither_hz=4.0, lo=0.3, hi=1.9)]
     if variant == 2:   # steps and load staircase on a rig without creep or stress-dependent play
