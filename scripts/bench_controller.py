@@ -125,6 +125,11 @@ def _modbus_driver(host: str, port: int) -> dict[str, Any]:
                                                   "register_map": load_register_map(MAP).to_dict()}}}
 
 
+def _sustained(s: dict[str, Any]) -> bool:
+    """The issue's criterion: under 0.5 % overruns (comms faults are shown in their own column)."""
+    return s["overruns"] / max(1, s["ticks"]) < 0.005
+
+
 def _row(name: str, s: dict[str, Any], baseline_us: float | None) -> str:
     ticks = max(1, s["ticks"])
     ratio = f"{s['compute_p50_us'] / baseline_us:6.1f}x" if baseline_us else "   -   "
@@ -179,28 +184,37 @@ def main(argv: list[str] | None = None) -> int:
                 if not parent.poll(30):
                     raise SystemExit("the Modbus emulator did not start")
                 host, port = parent.recv()
-                best = None
+                passed: list[float] = []
                 for rate in (float(r) for r in args.modbus_rates.split(",")):
                     s = _run(_cfg(rate, _modbus_driver(host, port), tel), model, args.probe)
-                    ok = s["overruns"] / max(1, s["ticks"]) < 0.005
+                    ok = _sustained(s)
                     print(_row(f"modbus probe{'' if ok else ' (x)'}", s, base_us))
                     if not ok:
                         break
-                    best = rate
-                if best is not None:
-                    s = _run(_cfg(best, _modbus_driver(host, port), tel), model, args.duration)
-                    results[f"modbus_tcp_{best:.0f}Hz"] = s
-                    print(_row(f"modbus tcp {best:g} Hz", s, base_us))
-                    print(f"\nModbus TCP: highest probed rate with < 0.5 % overruns: {best:g} Hz")
+                    passed.append(rate)
+                # The full-length run confirms; if it fails, step down to the next rate that probed well.
+                sustained = None
+                for rate in reversed(passed):
+                    s = _run(_cfg(rate, _modbus_driver(host, port), tel), model, args.duration)
+                    results[f"modbus_tcp_{rate:.0f}Hz"] = s
+                    ok = _sustained(s)
+                    print(_row(f"modbus tcp {rate:g} Hz{'' if ok else ' (x)'}", s, base_us))
+                    if ok:
+                        sustained = rate
+                        break
+                if sustained is not None:
+                    print(f"\nModbus TCP: highest rate sustained for {args.duration:g} s with < 0.5 % overruns: "
+                          f"{sustained:g} Hz")
                 else:
-                    print("\nModbus TCP: no probed rate stayed under 0.5 % overruns")
+                    print("\nModbus TCP: no rate stayed under 0.5 % overruns for the full duration")
             finally:
                 parent.send("stop")
                 proc.join(10)
                 if proc.is_alive():
                     proc.terminate()
     print("\njitter = |tick start interval - period|; compute = read + model + limits + write + telemetry push;"
-          "\n'vs base' = compute p50 over the null-driver loop's in this same process.")
+          "\n'vs base' = compute p50 over the null-driver loop's in this same process; (x) = over 0.5 % overruns;"
+          "\nfaults = comms faults during the run (each followed by a reconnect).")
     if args.json:
         args.json.write_text(json.dumps(results, indent=2, default=str))
     return 0

@@ -52,6 +52,8 @@ def test_example_configs_load(name):
     ("sensor.bad_ticks", 0, r"'sensor.bad_ticks' must be >= 1"),
     ("telemetry.flush_interval_s", 5, r"'telemetry.flush_interval_s' must be <= 1"),
     ("driver.kind", "simm", r"no driver named 'simm'.*did you mean 'sim'"),
+    ("driver", {"kind": "serial", "port": "/dev/ttyS0", "queries": {"force_N": "F?"}, "x": 1},
+     r"'driver.x' is unknown"),
     ("driver.load_mass_kg", -3, r"'driver.load_mass_kg' must be >= 0"),
     ("driver.load_schedule", [[1, 5], [0.5, 2]], r"'driver.load_schedule' times must increase"),
 ])
@@ -67,6 +69,13 @@ def test_bad_values_name_the_key(path, value, message):
 def test_unknown_keys_are_refused_with_a_did_you_mean(path, suggestion):
     with pytest.raises(ConfigError, match=rf"'{path}' is unknown \(did you mean '{suggestion}'\?\)"):
         validate_config(with_(path, 1))
+
+
+def test_simulated_clock_is_refused_for_real_devices():
+    data = with_("driver", {"kind": "serial", "port": "/dev/ttyS0", "queries": {"force_N": "MEAS:FORC?"}})
+    data["clock"] = "simulated"
+    with pytest.raises(ConfigError, match=r"'clock': 'simulated' .* use clock: real"):
+        validate_config(data)
 
 
 def test_missing_required_key():

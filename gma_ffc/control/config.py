@@ -192,6 +192,9 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
     if "kind" not in drv_raw:
         raise ConfigError("config key 'driver.kind' is required (sim, modbus, serial or a plugin's name)")
     cls = driver_class(drv_raw["kind"], key="driver.kind")
+    if top["clock"] == "simulated" and not getattr(cls, "simulated_clock_ok", False):
+        raise ConfigError(f"config key 'clock': 'simulated' never sleeps, which only suits a simulated rig; "
+                          f"driver '{drv_raw['kind']}' talks to real devices: use clock: real")
     driver = cls.validate_config(drv_raw, "driver", base)
 
     comms = validate_section(top["comms"], COMMS, "comms")

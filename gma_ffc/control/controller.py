@@ -323,6 +323,11 @@ class Controller:
     def _watchdog(self, stop: threading.Event) -> None:
         """Trip when the loop makes no progress for watchdog_s (a hung driver call, a stall)."""
         limit = self.cfg.watchdog_s
+        prio = self.cfg.scheduler["realtime_priority"]
+        if prio > 1:
+            # A normal-priority thread preempted while it holds the GIL would stall an RT loop.
+            with contextlib.suppress(OSError, AttributeError):
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio - 1))
         while not stop.wait(limit / 4.0):
             hb = self._heartbeat
             if hb == hb and self.clock.now() - hb > limit and not self._watchdog_tripped:

@@ -59,6 +59,7 @@ class Driver(ABC):
     """
 
     kind: str = "abstract"
+    simulated_clock_ok: bool = False     # True only for drivers whose device is simulated in-process
 
     def __init__(self, cfg: dict[str, Any], period_s: float) -> None:
         self.cfg = cfg

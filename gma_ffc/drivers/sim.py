@@ -41,6 +41,7 @@ class SimDriver(Driver):
     """The simulated GMA rig (hil_sim.plant.GMAPlant) behind the driver interface."""
 
     kind = "sim"
+    simulated_clock_ok = True
 
     def __init__(self, cfg: dict[str, Any], period_s: float, plant: Any = None) -> None:
         super().__init__(cfg, period_s)
