@@ -110,7 +110,7 @@ def _effect_tests(effect: str) -> list[TestRun]:
                 _tr("chirp", 2000, 8.0, 35.0, f0_hz=1.0, f1_hz=120.0),
                 _tr("triangle", 1000, 4.0, 0.0, freq_hz=3.0)]
     if effect == "stress_dependent_play":
-        return [_tr("triangle", 2000, 16.0, 0.0, [(4.0, 25.0), (8.0, 50.0), (12.0, 66.0)], freq_hz=4.0),
+        return [_tr("triangle", 2000, 16.0, 0.0, [(4.0, 25.0), (8.0, 50.0), (12.0, 64.0)], freq_hz=4.0),
                 _tr("random", 1000, 10.0, 60.0, f_hi_hz=10.0),
                 _tr("minor", 1000, 6.0, 8.0, freq_hz=2.0, final_fraction=0.3)]
     if effect == "saturation":
@@ -132,7 +132,7 @@ def _null_tests(variant: int) -> list[TestRun]:
                 _tr("steps", 1000, 40.0, 20.0, hold_s=(2.0, 6.0), dither_A=0.25, dither_hz=4.0, lo=0.3, hi=1.9)]
     if variant == 2:   # steps and load staircase on a rig without creep or stress-dependent play
         return [_tr("steps", 1000, 60.0, 15.0, hold_s=(4.0, 12.0)),
-                _tr("triangle", 2000, 16.0, 0.0, [(4.0, 25.0), (8.0, 50.0), (12.0, 66.0)], freq_hz=4.0)]
+                _tr("triangle", 2000, 16.0, 0.0, [(4.0, 25.0), (8.0, 50.0), (12.0, 64.0)], freq_hz=4.0)]
     if variant == 3:   # slow random and minor loops within the identified range
         return [_tr("random", 1000, 10.0, 60.0, f_hi_hz=10.0),
                 _tr("minor", 1000, 6.0, 8.0, freq_hz=2.0, final_fraction=0.3),
