@@ -50,6 +50,7 @@ class Outcome:
     rms_before: float = math.nan
     rms_after: float = math.nan
     explanation: str = ""
+    conclusive: bool | None = None          # the json's optional 'conclusive' flag
     identify_s: float = 0.0
     diagnose_s: float = 0.0
 
@@ -133,6 +134,8 @@ def run_case(cli: list[str], case_dir: Path, timeout_s: float) -> Outcome:
     out.rms_before = _num(d.get("rms_before_um"))
     out.rms_after = _num(d.get("rms_after_um"))
     out.explanation = str(d.get("explanation", ""))
+    if isinstance(d.get("conclusive"), bool):
+        out.conclusive = d["conclusive"]
     return out
 
 
@@ -176,6 +179,8 @@ def report(outcomes: list[Outcome], total_s: float) -> None:
     for o in sorted(outcomes, key=lambda o: o.key):
         truth = "+".join(f"{e}:{o.levels.get(e, '')}" for e in o.truth) or "(none)"
         verdict = "FAILED" if o.failed else ("[]" if not o.verdict else ",".join(o.verdict))
+        if o.conclusive is False:
+            verdict += " (inconclusive)"
         ok = "yes" if o.exact else ("(+)" if o.detected and o.truth else "no")
         ratio = o.rms_after / o.rms_before if o.rms_before > 0 else math.nan
         print(f"{o.case_id:10s} {truth:40.40s} {verdict:34.34s} {ok:3s} {_fmt(o.rms_before):>6s} {_fmt(o.rms_after):>6s} "
@@ -217,6 +222,10 @@ def report(outcomes: list[Outcome], total_s: float) -> None:
     if null_ran:
         fa = sum(bool(o.verdict) for o in null_ran)
         print(f"  false-alarm rate on null cases: {fa}/{len(null_ran)} = {100 * fa / len(null_ran):.0f} %   (target 0 %)")
+    inconclusive = [o for o in ran if o.conclusive is False]
+    if inconclusive:
+        print(f"  cases the tool called inconclusive (too little data etc.): {len(inconclusive)} "
+              f"({sum(not o.truth for o in inconclusive)} of them null cases, so their [] is not a confident 'no effect')")
     if ran:
         dts = [o.identify_s + o.diagnose_s for o in ran]
         print(f"  time per case (identify + diagnose): mean {sum(dts) / len(dts):.1f} s, max {max(dts):.1f} s; "
@@ -282,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
         results = [{"id": o.case_id, "key": o.key, "truth": o.truth, "levels": o.levels, "verdict": o.verdict,
                     "error": o.error, "rms_before_um": o.rms_before, "rms_after_um": o.rms_after,
                     "identify_s": round(o.identify_s, 2), "diagnose_s": round(o.diagnose_s, 2),
-                    "explanation": o.explanation} for o in outcomes]
+                    "conclusive": o.conclusive, "explanation": o.explanation} for o in outcomes]
         (root / "results.json").write_text(json.dumps(results, indent=1, default=str))
         if a.keep:
             print(f"\nkept: {root} (cases, manifest.yaml with the truth, results.json)")
