@@ -74,7 +74,8 @@ def _eddy_grid(f: Fitter) -> np.ndarray:
 
 
 def _creep_grid(f: Fitter) -> np.ndarray:
-    lo = max(20 * f.dt_min, 0.03)
+    # creep is slow: its fastest component (tau / 10) is no quicker than 0.1 s, else it is a lag look-alike
+    lo = max(20 * f.dt_min, 1.0)
     hi = max(f.duration_max / 2, 2 * lo)
     return np.geomspace(lo, hi, 12)
 
@@ -91,8 +92,11 @@ def _dynamics_grid(f: Fitter) -> list[tuple[float, float, float]]:
     nyq = 0.5 / f.dt_min
     f_lo = max(2.0, 20.0 / max(f.duration_max, 1e-9))
     freqs = np.geomspace(f_lo, 0.8 * nyq, 18) if 0.8 * nyq > f_lo else np.array([0.8 * nyq])
-    zetas = (0.03, 0.08, 0.2, 0.45, 0.8)
+    zetas = (0.02, 0.05, 0.12, 0.25, 0.45)
     return [(float(fr), z, 0.0) for fr in freqs for z in zetas]
+
+
+MAX_ZETA = 0.5   # a resonance must peak; heavier damping is a lag/delay look-alike and is left to those
 
 
 def _stress_extent(f: Fitter) -> float:
@@ -107,7 +111,7 @@ def _dynamics_refine(f: Fitter, p: tuple[float, float, float], level: int) -> li
 
     def point(f_top: float, zeta: float, rat: float) -> tuple[float, float, float]:
         rat = min(max(rat, 0.15), 1.0)
-        return (float(f_top), float(min(zeta, 0.95)), float((rat ** -2 - 1.0) / span) if f.stress_varies else 0.0)
+        return (float(f_top), float(min(zeta, MAX_ZETA)), float((rat ** -2 - 1.0) / span) if f.stress_varies else 0.0)
 
     out = [point(fr * k, z, ratio) for k in geom_refine(1.0, 1.4, level)]
     out += [point(fr, z * k, ratio) for k in geom_refine(1.0, 2.4, level)]
@@ -157,7 +161,7 @@ CATALOG: dict[str, Effect] = {
         "stress_dependent_play",
         "the play-operator weights (loop width, the 'coercive current') change with stress, which the "
         "SDPI assumes they do not",
-        3, _stress_testable, lambda f: [True], lambda s, p: s.with_(stress_play=bool(p)), None,
+        1, _stress_testable, lambda f: [True], lambda s, p: s.with_(stress_play=bool(p)), None,
         lambda s: s.stress_play),
     "saturation": Effect(
         "saturation",

@@ -22,14 +22,17 @@ from ..recordings import Recording
 from .catalog import CATALOG, ORDER
 from .data import N_BLOCKS, RecData, noise_floor, prepare
 from .extended import ExtendedModel
-from .fitting import Fitter, SearchResult, Spec, search
+from .fitting import Fitter, SearchResult, Spec, geom_refine, search
 from .locate import Located, locate
 
 MIN_MSE_RATIO = 0.75       # accepted effects cut the held-out MSE by at least 25 % (RMS by ~13 %)
-MIN_LOGLIK_GAIN = 10.0     # penalised held-out log-likelihood gain (nats) an effect must win by
+MIN_LOGLIK_GAIN = 6.0      # penalised held-out log-likelihood gain (nats) an effect must win by
 NOISE_FACTOR = 1.5         # a residual within 1.5x the noise floor is "within noise"
 AMBIGUOUS_NATS = 3.0       # runner-up this close to the winner: look-alikes not told apart
+HUBER_K = 3.0             # Huber scale in robust standard deviations of the recalibrated residual
 MIN_SAMPLES = 400
+JOINT = {"rate_dependence": "delay_s", "time_delay": "eddy_tau"}   # look-alikes searched jointly
+WORKERS = 2                # candidate searches in parallel threads (numba kernels and BLAS release the GIL)
 MIN_REVERSALS = 6          # drive turning points in all (three cycles): fewer cannot separate hysteresis from dynamics
 
 
@@ -172,7 +175,7 @@ def _params_of(effect: str, spec: Spec, coef: np.ndarray, names: list[str], fitt
             out["f_at_most_compressive_hz"] = f / math.sqrt(1 + b * (fitter.stress_top - s_lo))
         return out
     if effect == "stress_dependent_play":
-        return {f"coef_{j}_per_MPa": c.get(f"stress_play_{j}", math.nan) for j in range(fitter.play_thresholds.size)}
+        return {"width_coef_per_MPa": c.get("stress_play", math.nan)}
     if effect == "saturation":
         out = {"drive_lo": fitter.drive_lo, "drive_hi": fitter.drive_hi}
         out.update({k: v for k, v in c.items() if k.startswith("sat_")})
@@ -201,7 +204,8 @@ def build_extended(model: Any, fitter: Fitter, spec: Spec, coef: np.ndarray, nam
                                  "coefficients": [c[f"play_{j}"] for j in range(fitter.play_thresholds.size)]}
     if spec.stress_play:
         blocks["stress_play"] = {"thresholds": [float(v) for v in fitter.play_thresholds],
-                                 "coefficients_per_MPa": [c[f"stress_play_{j}"] for j in range(fitter.play_thresholds.size)]}
+                                 "coefficients_per_MPa": [c["stress_play"] / fitter.play_thresholds.size] *
+                                 fitter.play_thresholds.size}
     if spec.creep_tau:
         blocks["creep"] = {"gain": c["creep_gain"], "tau_s": spec.creep_tau}
     if spec.dynamics is not None:
@@ -266,6 +270,7 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
 
     say("simulating the base model")
     base_core = fitter.core(Spec())
+    _ = fitter.yc_center          # computed once, before any threads share the fitter
     base_pred = [yc for _, yc in base_core]
     rms_before = float(np.sqrt(sum(float(np.sum((d.y - yc) ** 2)) for d, yc in zip(data, base_pred)) / n_samples))
 
@@ -274,7 +279,7 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
     # (e.g. a load change) then weigh in linearly, not quadratically, in fits and in the selection
     r0 = fitter.test_residuals(null_specs)
     robust_sigma = 1.4826 * float(np.median(np.abs(r0 - np.median(r0))))
-    fitter.delta = max(3.0 * robust_sigma, 2.0 * noise, 1e-12)
+    fitter.delta = max(HUBER_K * robust_sigma, 2.0 * noise, 1e-12)
     null = fitter.score(null_specs, want_coef=True)
     n_null = max(null.n_test[0] + null.n_test[1], 1)
     null_loss = (null.sse_test[0] + null.sse_test[1]) / n_null
@@ -313,10 +318,10 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
             break
         tried: list[Candidate] = []
         todo = [c for c in candidates.values() if c.testable and not c.accepted]
+        say(f"round {rnd}: fitting {', '.join(c.effect for c in todo)}")
+        results = _search_all(fitter, current, [c.effect for c in todo])
         for c in todo:
-            say(f"round {rnd}: fitting {c.effect}")
-            eff = CATALOG[c.effect]
-            res = search(fitter, current, eff.make, eff.grid(fitter), eff.refine)
+            res = results[c.effect]
             c.result = res
             c.cv_mse = res.cv_mse
             c.cv_loss = res.cv_loss
@@ -371,12 +376,13 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
             o_cv = (o.sse_test[0] + o.sse_test[1]) / max(o.n_test[0] + o.n_test[1], 1)   # loss
             best_name, best_res = name, None
             slot: list[tuple[float, str]] = []
-            for cand in candidates.values():
-                if not cand.testable or (cand.accepted and cand.effect != name):
-                    continue
-                say(f"checking {name} against {cand.effect} with the other effects in place")
-                eff = CATALOG[cand.effect]
-                res = search(fitter, others, eff.make, eff.grid(fitter), eff.refine)
+            rivals = [c.effect for c in candidates.values()
+                      if c.testable and not (c.accepted and c.effect != name)]
+            say(f"checking {name} against the others with the other effects in place")
+            found = _search_all(fitter, others, rivals)
+            for cand_name in rivals:
+                res = found[cand_name]
+                cand = candidates[cand_name]
                 slot.append((res.cv_loss, cand.effect))
                 if best_res is None or res.cv_loss < best_res.cv_loss:
                     best_name, best_res = cand.effect, res
@@ -400,6 +406,9 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
             importance[name] = o_cv - cur_loss
         accepted.sort(key=lambda n: -importance.get(n, 0.0))
 
+    # parameters of the accepted effects as they stand in the final model (later rounds may retune them)
+    for name in accepted:
+        candidates[name].params = _params_of(name, final.specs[2], final.coef_all, final.names, fitter)
     ext = build_extended(model, fitter, final.specs[2], final.coef_all, final.names, list(accepted))
     final_pred = fitter.predict_full(final.specs[2], final.coef_all)
     for a, b in ambiguous_pairs:
@@ -432,6 +441,34 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
     return Diagnosis(verdict, explanation, located, ordered, rms_before, math.sqrt(null_cv),
                      math.sqrt(cur_cv), noise, validation, conclusive, cannot, ext, data, base_pred, null_pred,
                      final_pred, rounds, rounds[0]["n_eff"] if rounds else float("nan"))
+
+
+def _search_all(fitter: Fitter, base: tuple[Spec, Spec, Spec], names: list[str]) -> dict[str, SearchResult]:
+    """Search several effects on top of `base`, two at a time (the kernels release the GIL)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    def one(name: str) -> SearchResult:
+        eff = CATALOG[name]
+        partner = JOINT.get(name)
+        if partner is None or getattr(base[2], partner) is None:
+            return search(fitter, base, eff.make, eff.grid(fitter), eff.refine)
+        # delay and eddy lag trade off against each other: re-search the accepted one's value with the new one
+        def make(s: Spec, p: Any) -> Spec:
+            old = getattr(s, partner)
+            return eff.make(s, p[0]).with_(**{partner: old * p[1]})
+
+        def refine(f: Fitter, p: Any, level: int) -> list:
+            out = [(q, p[1]) for q in eff.refine(f, p[0], level)] if eff.refine else []
+            return out + [(p[0], min(p[1] * m, 1.5)) for m in geom_refine(1.0, 1.6, level)]
+
+        grid = [(p, k) for p in eff.grid(fitter) for k in (0.3, 0.55, 0.8, 1.0)]
+        return search(fitter, base, make, grid, refine)
+
+    workers = min(WORKERS, max(len(names), 1))
+    if workers <= 1:
+        return {n: one(n) for n in names}
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        return dict(zip(names, pool.map(one, names)))
 
 
 _DECIDERS = {

@@ -142,9 +142,9 @@ class Fitter:
             cols.append(plays[:, j] - u3)
             names.append(f"play_{j}")
         if spec.stress_play:
-            for j in range(self.play_thresholds.size):
-                cols.append(ds * (plays[:, j] - u3))
-                names.append(f"stress_play_{j}")
+            # one parameter: the loop width (all plays alike) scales linearly with stress
+            cols.append(ds * (plays.mean(axis=1) - u3))
+            names.append("stress_play")
         if spec.saturation:
             above = np.maximum(d.u - self.drive_hi, 0.0)
             below = np.maximum(self.drive_lo - d.u, 0.0)

@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def lag_coeff(dt: float, tau: float) -> float:
     """Pole of the ZOH-discretised first-order lag (0 when tau is 0: no lag)."""
     if tau <= 0.0:
@@ -22,7 +22,7 @@ def lag_coeff(dt: float, tau: float) -> float:
     return math.exp(-dt / tau)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def lag_filter(x: np.ndarray, dt: np.ndarray, tau: float, z0: float) -> np.ndarray:
     """First-order lag of x with time constant tau, relaxed at z0; dt[k] is the step into sample k."""
     n = x.shape[0]
@@ -35,7 +35,7 @@ def lag_filter(x: np.ndarray, dt: np.ndarray, tau: float, z0: float) -> np.ndarr
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def lag_inverse(z: np.ndarray, dt: np.ndarray, tau: float, z0: float) -> np.ndarray:
     """Exact inverse of `lag_filter`: the input that makes the lag output equal z."""
     n = z.shape[0]
@@ -48,7 +48,7 @@ def lag_inverse(z: np.ndarray, dt: np.ndarray, tau: float, z0: float) -> np.ndar
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def delay_filter(x: np.ndarray, delay_samples: float, x0: float) -> np.ndarray:
     """Fractional delay by linear interpolation; samples before the start hold x0."""
     n = x.shape[0]
@@ -64,7 +64,7 @@ def delay_filter(x: np.ndarray, delay_samples: float, x0: float) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def msd_coeffs(dt: float, omega: float, zeta: float) -> tuple:
     """(a1, a2, K) of the matched-pole second-order low-pass (poles exp(s dt), DC gain 1)."""
     if zeta < 1.0:
@@ -81,7 +81,7 @@ def msd_coeffs(dt: float, omega: float, zeta: float) -> tuple:
     return a1, a2, 1.0 + a1 + a2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def msd_omega(omega_ref: float, beta: float, stress: float, stress_ref: float) -> float:
     """Natural frequency with the load mass that the stress implies (more compression, more mass)."""
     m = 1.0 + beta * (stress_ref - stress)
@@ -90,7 +90,7 @@ def msd_omega(omega_ref: float, beta: float, stress: float, stress_ref: float) -
     return omega_ref / math.sqrt(m)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def msd_filter(x: np.ndarray, dt: np.ndarray, stress: np.ndarray, omega_ref: float, zeta: float,
                beta: float, stress_ref: float, y0: float) -> np.ndarray:
     """Mass-spring-damper response to the quasi-static displacement x, relaxed at y0."""
@@ -108,7 +108,7 @@ def msd_filter(x: np.ndarray, dt: np.ndarray, stress: np.ndarray, omega_ref: flo
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def msd_filter_columns(X: np.ndarray, dt: np.ndarray, stress: np.ndarray, omega_ref: float, zeta: float,
                        beta: float, stress_ref: float) -> np.ndarray:
     """`msd_filter` applied to every column of X (each relaxed at its first value), one pass."""
@@ -138,7 +138,7 @@ def msd_filter_columns(X: np.ndarray, dt: np.ndarray, stress: np.ndarray, omega_
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def msd_inverse(y: np.ndarray, dt: np.ndarray, stress: np.ndarray, omega_ref: float, zeta: float,
                 beta: float, stress_ref: float, y0: float) -> np.ndarray:
     """Exact inverse of `msd_filter` (3-tap FIR)."""
@@ -155,7 +155,7 @@ def msd_inverse(y: np.ndarray, dt: np.ndarray, stress: np.ndarray, omega_ref: fl
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def play_bank(x: np.ndarray, thresholds: np.ndarray, x0: float) -> np.ndarray:
     """Outputs of play operators H_r[x] (one column per threshold), relaxed at x0."""
     n = x.shape[0]

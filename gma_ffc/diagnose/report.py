@@ -62,16 +62,24 @@ def plot_residuals(dg: Diagnosis) -> str:
     return _png(fig)
 
 
+def _window(d: Any, loc: Any) -> slice:
+    """About five drive cycles at the start of the located window (at most 4000 samples)."""
+    a = int(np.searchsorted(d.t, loc.window_s[0]))
+    b = max(int(np.searchsorted(d.t, loc.window_s[1])), a + 2)
+    seg = d.u[a:b] - np.mean(d.u[a:b])
+    crossings = int(np.sum(np.diff(np.signbit(seg)) != 0))
+    if crossings >= 10:
+        b = a + max(int(10 * (b - a) / crossings), 20)
+    return slice(a, min(b, a + 4000, d.t.size))
+
+
 def plot_overlays(dg: Diagnosis) -> str:
     plt = _plt()
     n = len(dg.data)
     fig, axes = plt.subplots(n, 1, figsize=(10, 2.4 * n), squeeze=False)
     for ax, d, loc, yb, yf in zip(axes[:, 0], dg.data, dg.located, dg.base_predictions, dg.final_predictions):
-        a = int(np.searchsorted(d.t, loc.window_s[0]))
-        b = int(np.searchsorted(d.t, loc.window_s[1]))
-        b = max(b, a + 2)
-        # at most ~4000 samples of the located window, so cycles stay readable
-        b = min(b, a + 4000)
+        w = _window(d, loc)
+        a, b = w.start, w.stop
         ax.plot(d.t[a:b], d.y[a:b], lw=1.2, color="k", label="measured")
         ax.plot(d.t[a:b], yb[a:b], lw=0.9, color="0.55", ls="--", label="base model")
         ax.plot(d.t[a:b], yf[a:b], lw=0.9, color="tab:blue", label="extended model")
@@ -88,15 +96,15 @@ def plot_loops(dg: Diagnosis) -> str:
     cols = min(n, 3)
     rows = (n + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3.3 * rows), squeeze=False)
-    for ax, d, yb, yf in zip(axes.flat, dg.data, dg.base_predictions, dg.final_predictions):
-        sl = _thin(d.t.size, 5000)
-        ax.plot(d.u[sl], d.y[sl], ".", ms=1, color="k", label="measured")
-        ax.plot(d.u[sl], yb[sl], ".", ms=1, color="0.6", label="base")
-        ax.plot(d.u[sl], yf[sl], ".", ms=1, color="tab:blue", label="extended")
-        ax.set_title(d.name, fontsize=9)
+    for ax, d, loc, yb, yf in zip(axes.flat, dg.data, dg.located, dg.base_predictions, dg.final_predictions):
+        w = _window(d, loc)
+        ax.plot(d.u[w], d.y[w], lw=1.2, color="k", label="measured")
+        ax.plot(d.u[w], yb[w], lw=0.9, ls="--", color="0.55", label="base")
+        ax.plot(d.u[w], yf[w], lw=0.9, color="tab:blue", label="extended")
+        ax.set_title(f"{d.name}, t = {d.t[w.start]:.4g}-{d.t[w.stop - 1]:.4g} s", fontsize=9)
         ax.set_xlabel("drive")
         ax.set_ylabel("displacement (um)")
-        ax.legend(fontsize=7, markerscale=6)
+        ax.legend(fontsize=7)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     return _png(fig)
@@ -121,7 +129,7 @@ def plot_candidates(dg: Diagnosis) -> str:
 def render_html(dg: Diagnosis, doc: dict) -> str:
     imgs = [("Residual over time, where it was found", plot_residuals(dg)),
             ("Before and after: measured, base and extended model", plot_overlays(dg)),
-            ("Loops: displacement against drive", plot_loops(dg)),
+            ("Loops where the residual is largest: displacement against drive", plot_loops(dg)),
             ("Candidates: held-out RMS", plot_candidates(dg))]
     e = html.escape
     verdict = ", ".join(dg.verdict) if dg.verdict else "no missing physics named"
