@@ -186,7 +186,6 @@ def _shell_weights(n: int) -> np.ndarray:
 _P = ("preload_N", "g_load", "spring_N_per_m", "area_m2", "stroke_um", "stroke_loss", "expo0", "expo_per",
       "tau_diff_s", "dyn", "k_N_per_m", "m_kg", "zeta", "r_coil", "cc", "cr", "gcr", "gca", "gra",
       "beta_rod", "beta_coil", "tempco", "creep_w", "play_growth", "knee", "soft")
-_IDX = {name: i for i, name in enumerate(_P)}
 
 
 def _param_vector(cfg: AltPlantConfig) -> np.ndarray:
