@@ -63,6 +63,36 @@ def _run(cfg: Any, model: Any, duration: float, driver: Any = None) -> dict[str,
     return s
 
 
+def _bare_clock(rate_hz: float, duration: float) -> dict[str, Any]:
+    """Platform baseline: the same scheduler and clock (same spin, GIL interval, SCHED_FIFO) with
+    no work at all. Overruns here are the machine's (VM steal, other RT work), not the loop's."""
+    from gma_ffc.control.scheduler import MonotonicClock, Scheduler, TickStats
+
+    period = 1.0 / rate_hz
+    clock = MonotonicClock(min(300e-6, 0.5 * period))
+    old_interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-4)
+    old_policy = None
+    if PRIORITY > 0:
+        old_policy = (os.sched_getscheduler(0), os.sched_getparam(0))
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(PRIORITY))
+    try:
+        sched, stats = Scheduler(clock, period), TickStats(period)
+        t0 = sched.start()
+        while True:
+            deadline = sched.wait()
+            start = clock.now()
+            if deadline - t0 >= duration:
+                break
+            stats.record(start, clock.now() - start)
+        stats.overruns, stats.missed = sched.overruns, sched.missed
+    finally:
+        if old_policy is not None:
+            os.sched_setscheduler(0, old_policy[0], old_policy[1])
+        sys.setswitchinterval(old_interval)
+    return {**stats.summary(), "target_rate_hz": rate_hz, "fault_history": []}
+
+
 def _null_driver(period_s: float) -> Any:
     """Baseline: the loop, model step, limits and telemetry with a driver that does no work."""
     from gma_ffc.drivers.base import CURRENT, DISPLACEMENT, FORCE, Driver
@@ -167,6 +197,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"duration {args.duration:g} s per case; telemetry written as in service use; "
               f"SCHED_FIFO {PRIORITY or 'off'}; load average at start {load:.2f} on {os.cpu_count()} cores\n")
         print(HEADER)
+        for rate in (1000.0, 5000.0):
+            bare = _bare_clock(rate, args.duration)
+            results[f"bare_clock_{rate:.0f}Hz"] = bare
+            print(_row(f"bare clock {rate / 1000:g} kHz", bare, None))
         base = _run(_cfg(1000.0, {"kind": "sim"}, tel), model, min(args.duration, 5.0), _null_driver(1e-3))
         results["baseline_null_1kHz"] = base
         print(_row("baseline (null drv)", base, None))
@@ -214,7 +248,8 @@ def main(argv: list[str] | None = None) -> int:
                     proc.terminate()
     print("\njitter = |tick start interval - period|; compute = read + model + limits + write + telemetry push;"
           "\n'vs base' = compute p50 over the null-driver loop's in this same process; (x) = over 0.5 % overruns;"
-          "\nfaults = comms faults during the run (each followed by a reconnect).")
+          "\nfaults = comms faults during the run (each followed by a reconnect); 'bare clock' = the scheduler"
+          "\nalone doing nothing: its overruns are the machine's (VM steal, other load), not the controller's.")
     if args.json:
         args.json.write_text(json.dumps(results, indent=2, default=str))
     return 0

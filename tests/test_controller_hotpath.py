@@ -62,3 +62,25 @@ def test_multisine_is_the_sum_of_its_components():
     t = 0.13
     expect = 3.0 + 2.0 * math.sin(2 * math.pi * t) + math.sin(2 * math.pi * 5 * t + math.pi / 2)
     assert ms.value(t) == pytest.approx(expect)
+
+
+def test_tick_stats_percentiles_and_skipped_deadlines():
+    from gma_ffc.control.scheduler import TickStats
+
+    st = TickStats(1e-3)
+    t = 0.0
+    for i in range(1, 1001):
+        st.record(t, i * 1e-7)            # compute 0.1 .. 100 us, uniformly
+        t += 1e-3
+        if i == 500:
+            t += 2e-3                     # two deadlines skipped: an overrun, not jitter
+        if i == 700:
+            t += 30e-6                    # one tick 30 us late
+    s = st.summary()
+    assert s["ticks"] == 1000
+    assert s["compute_p50_us"] == pytest.approx(50.0, abs=0.2)
+    assert s["compute_p99_us"] == pytest.approx(99.0, abs=0.2)
+    assert s["compute_max_us"] == pytest.approx(100.0)
+    assert s["jitter_max_us"] == pytest.approx(30.0, abs=1e-6)
+    assert s["jitter_p50_us"] <= 0.1 and s["jitter_p99_us"] <= 0.1      # only 2 of 999 intervals jitter
+    assert s["achieved_rate_hz"] == pytest.approx(999 / (999e-3 + 2e-3 + 30e-6))

@@ -73,7 +73,6 @@ TELEMETRY = {
 
 SCHEDULER = {
     "spin_us": Field("float", 300.0, min=0.0, max=100_000.0),
-    "stats_window_s": Field("float", 120.0, min=1.0),
     "realtime_priority": Field("int", 0, min=0, max=99,
                                help="SCHED_FIFO priority of the loop thread (0 = normal scheduling)"),
     "gil_switch_interval_us": Field("float", 100.0, min=10.0, max=5000.0,

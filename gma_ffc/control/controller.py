@@ -65,8 +65,10 @@ class Controller:
             model = load_model(cfg.model)
         self.model = model
         if clock is None:
+            # Spin at most half a period: a loop that never sleeps at SCHED_FIFO would hit the
+            # kernel's RT throttling (50 ms stalls per second) and starve everything else.
             clock = SimulatedClock() if cfg.clock == "simulated" else \
-                MonotonicClock(cfg.scheduler["spin_us"] * 1e-6)
+                MonotonicClock(min(cfg.scheduler["spin_us"] * 1e-6, 0.5 * self.period_s))
         self.clock = clock
         self.driver = driver if driver is not None else \
             driver_class(cfg.driver["kind"])(cfg.driver, self.period_s)
@@ -79,7 +81,7 @@ class Controller:
         self.stepper = model.inverse_stepper(self.period_s, initial_drive=self.safe_A)
         self._set_stress_range(model)
         _warm_up(model, self.period_s, self.stress_lo, self.stress_hi)
-        self.stats = TickStats(self.period_s, cfg.scheduler["stats_window_s"])
+        self.stats = TickStats(self.period_s)
         self.inputs = Inputs()
         self.telemetry: Telemetry | None = None
         self._lock = threading.Lock()

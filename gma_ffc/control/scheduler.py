@@ -65,15 +65,54 @@ class SimulatedClock:
         self.t += dt
 
 
-class TickStats:
-    """Per-tick start times and compute times in preallocated rings; percentiles on demand."""
+class _Histogram:
+    """Fixed bins, 0.1 us wide up to 1 ms, then 10 us wide up to 100 ms (the last bin is open):
+    recording is one index increment, percentiles are a cumulative sum over 20k bins, so a
+    status request never holds the GIL long enough to delay the loop."""
 
-    def __init__(self, period_s: float, window_s: float) -> None:
+    FINE, COARSE = 10_000, 9_900
+
+    def __init__(self) -> None:
+        self.counts = np.zeros(self.FINE + self.COARSE, dtype=np.int64)
+        self.n = 0
+        self.max_us = 0.0
+        edges = np.concatenate([np.arange(1, self.FINE + 1) * 0.1,
+                                1000.0 + np.arange(1, self.COARSE + 1) * 10.0])
+        edges[-1] = np.inf
+        self.upper_edges = edges
+
+    def add(self, us: float) -> None:
+        if us < 1000.0:
+            i = int(us * 10.0)
+        else:
+            i = self.FINE + int((us - 1000.0) * 0.1)
+            if i >= self.FINE + self.COARSE:
+                i = self.FINE + self.COARSE - 1
+        self.counts[i] += 1
+        self.n += 1
+        if us > self.max_us:
+            self.max_us = us
+
+    def percentile(self, q: float) -> float | None:
+        """Upper edge of the bin holding the q-th percentile (a bound, never an underestimate)."""
+        if self.n == 0:
+            return None
+        cum = np.cumsum(self.counts)
+        i = int(np.searchsorted(cum, q / 100.0 * self.n))
+        return float(min(self.upper_edges[i], self.max_us))
+
+
+class TickStats:
+    """Period jitter and compute time per tick as histograms over the whole run; O(1) per tick.
+
+    Jitter is |interval between tick starts - k periods|, k = 1 except after an overrun that
+    skipped deadlines (those are counted as overruns, not as jitter of k periods).
+    """
+
+    def __init__(self, period_s: float) -> None:
         self.period_s = period_s
-        n = max(16, int(window_s / period_s))
-        self._start = np.zeros(n)
-        self._compute = np.zeros(n)
-        self._n = n
+        self.jitter = _Histogram()
+        self.compute = _Histogram()
         self.count = 0
         self.overruns = 0
         self.missed = 0
@@ -81,40 +120,31 @@ class TickStats:
         self.last_start = math.nan
 
     def record(self, start: float, compute_s: float) -> None:
-        i = self.count % self._n
-        self._start[i] = start
-        self._compute[i] = compute_s
         if self.count == 0:
             self.first_start = start
+        else:
+            interval = start - self.last_start
+            k = interval / self.period_s
+            k = 1.0 if k < 1.5 else float(round(k))
+            self.jitter.add(abs(interval - k * self.period_s) * 1e6)
+        self.compute.add(compute_s * 1e6)
         self.last_start = start
         self.count += 1
 
     def summary(self) -> dict[str, float | int | None]:
-        """Achieved rate, period jitter |T_i - T| p50/p99/max, compute time p50/p99/max (us)."""
-        n = min(self.count, self._n)
-        out: dict[str, float | int | None] = {
-            "ticks": self.count, "overruns": self.overruns, "missed_deadlines": self.missed,
-            "achieved_rate_hz": None, "jitter_p50_us": None, "jitter_p99_us": None,
-            "jitter_max_us": None, "compute_p50_us": None, "compute_p99_us": None, "compute_max_us": None,
-        }
+        """Achieved rate, period jitter p50/p99/max, compute time p50/p99/max (us)."""
+        rate = None
         if self.count > 1 and self.last_start > self.first_start:
-            out["achieved_rate_hz"] = (self.count - 1) / (self.last_start - self.first_start)
-        if n >= 1:
-            comp = np.roll(self._compute, -(self.count % self._n))[-n:] if self.count > self._n \
-                else self._compute[:n].copy()
-            out["compute_p50_us"], out["compute_p99_us"] = (float(v) * 1e6 for v in np.percentile(comp, [50, 99]))
-            out["compute_max_us"] = float(comp.max()) * 1e6
-        if n >= 2:
-            starts = np.roll(self._start, -(self.count % self._n))[-n:] if self.count > self._n \
-                else self._start[:n].copy()
-            periods = np.diff(starts)
-            # A skipped deadline is counted as an overrun, not as jitter of k periods.
-            k = np.maximum(1.0, np.round(periods / self.period_s))
-            jitter = np.abs(periods - k * self.period_s)
-            p50, p99 = np.percentile(jitter, [50, 99])
-            out["jitter_p50_us"], out["jitter_p99_us"] = float(p50) * 1e6, float(p99) * 1e6
-            out["jitter_max_us"] = float(jitter.max()) * 1e6
-        return out
+            rate = (self.count - 1) / (self.last_start - self.first_start)
+        j, c = self.jitter, self.compute
+        return {
+            "ticks": self.count, "overruns": self.overruns, "missed_deadlines": self.missed,
+            "achieved_rate_hz": rate,
+            "jitter_p50_us": j.percentile(50), "jitter_p99_us": j.percentile(99),
+            "jitter_max_us": j.max_us if j.n else None,
+            "compute_p50_us": c.percentile(50), "compute_p99_us": c.percentile(99),
+            "compute_max_us": c.max_us if c.n else None,
+        }
 
 
 class Scheduler:
