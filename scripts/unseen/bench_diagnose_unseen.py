@@ -31,7 +31,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 import cases as case_gen  # noqa: E402
-from alt_plant import EFFECTS  # noqa: E402
+from alt_plant import EFFECT_SETTINGS, EFFECTS, AltPlantConfig  # noqa: E402
 
 NONE = "none"
 SHORT = {"rate_dependence": "rate", "mechanical_dynamics": "mech", "thermal_drift": "therm", "creep": "creep",
@@ -51,6 +51,9 @@ class Outcome:
     rms_after: float = math.nan
     explanation: str = ""
     conclusive: bool | None = None          # the json's optional 'conclusive' flag
+    candidates: list = field(default_factory=list)
+    plant: dict = field(default_factory=dict)  # the truth's plant settings (from the manifest)
+    loads_kg: list[float] = field(default_factory=list)
     identify_s: float = 0.0
     diagnose_s: float = 0.0
 
@@ -134,6 +137,8 @@ def run_case(cli: list[str], case_dir: Path, timeout_s: float) -> Outcome:
     out.rms_before = _num(d.get("rms_before_um"))
     out.rms_after = _num(d.get("rms_after_um"))
     out.explanation = str(d.get("explanation", ""))
+    if isinstance(d.get("candidates"), list):
+        out.candidates = [c for c in d["candidates"] if isinstance(c, dict)]
     if isinstance(d.get("conclusive"), bool):
         out.conclusive = d["conclusive"]
     return out
@@ -231,6 +236,8 @@ def report(outcomes: list[Outcome], total_s: float) -> None:
         print(f"  time per case (identify + diagnose): mean {sum(dts) / len(dts):.1f} s, max {max(dts):.1f} s; "
               f"whole benchmark {total_s:.0f} s")
 
+    fitted_vs_true(outcomes)
+
     misses = [o for o in outcomes if not o.exact]
     if misses:
         print("\nmisses and failures (the tool's own explanation)")
@@ -242,6 +249,36 @@ def report(outcomes: list[Outcome], total_s: float) -> None:
                 expl = " ".join(o.explanation.split())
                 print(f"- {o.case_id} [{o.key}] truth {truth}, verdict {o.verdict or '[]'}: "
                       f"{expl[:600]}{'...' if len(expl) > 600 else ''}")
+
+
+def _derived(effect: str, cfg: AltPlantConfig, loads_kg: list[float]) -> str:
+    """The rig's setting in the terms a lumped model would fit."""
+    if effect == "rate_dependence":
+        return f" (slowest diffusion mode {cfg.diffusion_time_ms / 2.4048 ** 2:.3g} ms)"
+    if effect == "mechanical_dynamics":
+        return " (" + ", ".join(f"{cfg.resonance_hz(m):.0f} Hz at {m:g} kg" for m in loads_kg) + ")"
+    if effect == "thermal_drift":
+        fast, slow = cfg.thermal_time_constants_s()
+        return f" (time constants {fast:.0f} s and {slow:.0f} s)"
+    return ""
+
+
+def fitted_vs_true(outcomes: list[Outcome]) -> None:
+    """What the tool fitted for each true effect it named, beside the rig's setting."""
+    lines = []
+    for o in sorted(outcomes, key=lambda o: o.key):
+        for effect in o.truth:
+            if effect not in (o.verdict or []):
+                continue
+            cand = next((c for c in o.candidates if c.get("effect") == effect and c.get("accepted", True)), None)
+            keys = sorted({k for lvl in EFFECT_SETTINGS[effect].values() for k in lvl})
+            true = ", ".join(f"{k}={o.plant.get(k, getattr(AltPlantConfig(), k))}" for k in keys)
+            true += _derived(effect, AltPlantConfig(**o.plant), o.loads_kg)
+            fitted = ", ".join(f"{k}={v}" for k, v in (cand or {}).get("params", {}).items()) or "(no params in json)"
+            lines.append(f"  {o.case_id} {effect}: fitted {fitted}  |  rig {true}")
+    if lines:
+        print("\nfitted parameters of named true effects vs the rig's settings")
+        print("\n".join(lines))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -287,6 +324,9 @@ def main(argv: list[str] | None = None) -> int:
         for o in outcomes:
             c = truth[o.case_id]
             o.key, o.truth, o.levels = c["key"], list(c["effects"]), dict(c["levels"])
+            o.plant = dict(c.get("plant", {}))
+            o.loads_kg = sorted({float(f["load_kg"]) for f in c["test_files"]}
+                                | {float(m) for f in c["test_files"] for _, m in f["load_changes"]})
         report(outcomes, time.perf_counter() - t_all)
         results = [{"id": o.case_id, "key": o.key, "truth": o.truth, "levels": o.levels, "verdict": o.verdict,
                     "error": o.error, "rms_before_um": o.rms_before, "rms_after_um": o.rms_after,
