@@ -293,6 +293,11 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
 
     keys = list(case_gen.QUICK_KEYS) if a.quick else ([k.strip() for k in a.cases.split(",") if k.strip()] if a.cases else None)
+    known = {c.key for c in case_gen.all_cases()}
+    if keys and set(keys) - known:
+        print(f"bench: unknown case key(s) {sorted(set(keys) - known)}; known: {', '.join(sorted(known))}",
+              file=sys.stderr)
+        return 2
     cli = a.cli.split() if a.cli else cli_command()
     why = diagnose_available(cli)
     if why:
