@@ -46,6 +46,7 @@ class Case:
     magnitude: str
     seed: int
     drive_max: float = 1.9          # diagnosis drive peak (A); > identified range only for saturation
+    loads: int = 2                  # load levels in the diagnosis run (3 where a stress effect must be decidable)
     id_max: float = 2.0             # identification drive peak (A)
     notes: dict[str, Any] = field(default_factory=dict)
 
@@ -81,7 +82,8 @@ def cases() -> list[Case]:
     for label, settings in grades.items():
         for k, (sec, values) in enumerate(settings):
             seed += 1
-            out.append(Case(f"{label}#{k + 1}", (label,), _set(**{sec: values}), f"{sec} {values}", seed))
+            out.append(Case(f"{label}#{k + 1}", (label,), _set(**{sec: values}), f"{sec} {values}", seed,
+                            loads=3 if label == "stress_dependent_play" else 2))
     for k, peak in enumerate((2.6, 3.2, 3.9)):
         seed += 1
         out.append(Case(f"saturation#{k + 1}", ("saturation",), _set(), f"drive to {peak} A, model identified to 1.5 A",
@@ -105,7 +107,8 @@ def cases() -> list[Case]:
     return out
 
 
-def diagnosis_drive(rng: np.random.Generator, peak: float, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def diagnosis_drive(rng: np.random.Generator, peak: float, scale: float = 1.0,
+                    loads: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A mixed experiment: sines at several frequencies, steps with holds, a pause with a load change."""
     lo = 0.05
     mid, amp = 0.5 * (peak + lo), 0.5 * (peak - lo)
@@ -113,6 +116,9 @@ def diagnosis_drive(rng: np.random.Generator, peak: float, scale: float = 1.0) -
     for f, dur in ((rng.uniform(3, 5), 8.0), (rng.uniform(15, 25), 6.0), (rng.uniform(50, 80), 6.0)):
         t = np.arange(int(dur * scale * FS)) / FS
         segs.append(mid - amp * np.cos(2 * np.pi * f * t))
+    first_pause = sum(x.size for x in segs)
+    if loads == 3:
+        segs.append(np.zeros(int(3 * scale * FS)))
     levels = rng.uniform(lo + 0.1 * amp, peak - 0.1 * amp, 6)
     segs.append(np.repeat(levels, int(1.5 * scale * FS)))
     pause_start = sum(x.size for x in segs)
@@ -124,10 +130,15 @@ def diagnosis_drive(rng: np.random.Generator, peak: float, scale: float = 1.0) -
     m1, m2 = rng.uniform(0, 12), rng.uniform(28, 45)
     if rng.random() < 0.5:
         m1, m2 = m2, m1
+    if loads == 3:   # a middle load first, changed during an extra pause after the sines
+        m0 = rng.uniform(16, 24)
+        mass0 = np.where(t < t[first_pause] + scale * rng.uniform(0.5, 1.5), m0, m1)
+    else:
+        mass0 = np.full(t.size, m1)
     # the load changes during the zero-current pause while the rod cools (so heating and stress change
     # together across the recording); every effect and the hysteresis see both loads
     t_change = t[pause_start] + scale * rng.uniform(0.5, 1.5)
-    mass = np.where(t < t_change, m1, m2)
+    mass = np.where(t < t_change, mass0, m2)
     return t, i, mass
 
 
@@ -152,7 +163,7 @@ def make_case(case: Case, scale: float = 1.0) -> tuple[Any, Recording]:
         i = 0.5 * case.id_max * (1 - np.cos(2 * np.pi * 3 * t))
         ident_recs.append(record(cfg, t, i, m, f"id_{k}.csv", case.seed * 10 + k))
     model = SDPIIdentifier().fit(ident_recs).model_
-    t, i, mass = diagnosis_drive(rng, case.drive_max, scale)
+    t, i, mass = diagnosis_drive(rng, case.drive_max, scale, case.loads)
     return model, record(cfg, t, i, mass, "recording.csv", case.seed)
 
 

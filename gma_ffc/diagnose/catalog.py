@@ -13,6 +13,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .data import stress_levels
 from .fitting import Fitter, Spec, geom_refine
 
 
@@ -62,6 +63,12 @@ def _stress_testable(f: Fitter) -> tuple[bool, str]:
         return False, ("all recordings are at (nearly) one stress, so play weights that change with stress "
                        "cannot be told from ordinary hysteresis error; record loops at three or more loads "
                        "spanning the model's stress range")
+    levels = stress_levels(f.data)
+    if len(levels) < 3:
+        return False, (f"the recordings dwell at only {len(levels)} distinct stress level(s) "
+                       f"({', '.join(f'{v:.3g}' for v in levels)} MPa): anything else that differs between those "
+                       "parts of the data (temperature, drive content, a leftover of another effect) would look like "
+                       "a stress dependence; record loops at three or more loads spanning the model's stress range")
     return True, ""
 
 
@@ -75,14 +82,14 @@ def _eddy_grid(f: Fitter) -> np.ndarray:
 
 def _creep_grid(f: Fitter) -> np.ndarray:
     # creep is slow: its fastest component (tau / 10) is no quicker than 0.1 s, else it is a lag look-alike
-    lo = max(20 * f.dt_min, 1.0)
+    lo = max(20 * f.dt_min, MIN_CREEP_TAU_S)
     hi = max(f.duration_max / 2, 2 * lo)
     return np.geomspace(lo, hi, 12)
 
 
 def _thermal_grid(f: Fitter) -> np.ndarray:
     # a coil and rod heat up over tens of seconds at least (thermal mass); faster "heating" is creep-like
-    lo = max(50 * f.dt_min, 5.0)
+    lo = max(50 * f.dt_min, MIN_THERMAL_TAU_S)
     hi = max(5 * f.duration_max, 2 * lo)
     return np.geomspace(lo, hi, 12)
 
@@ -96,6 +103,8 @@ def _dynamics_grid(f: Fitter) -> list[tuple[float, float, float]]:
     return [(float(fr), z, 0.0) for fr in freqs for z in zetas]
 
 
+MIN_THERMAL_TAU_S = 10.0   # thermal time constant of a coil and rod: tens of seconds and more
+MIN_CREEP_TAU_S = 1.0      # creep's central time constant (its components span 0.1x..10x of it)
 MAX_ZETA = 0.5   # a resonance must peak; heavier damping is a lag/delay look-alike and is left to those
 
 
@@ -145,12 +154,14 @@ CATALOG: dict[str, Effect] = {
         "Joule heating of the coil and rod: an offset that follows the drive squared through a thermal "
         "time constant and cools back at zero current",
         2, _always, _thermal_grid, lambda s, p: s.with_(thermal_tau=float(p)),
-        lambda _f, p, lv: geom_refine(p, _ratio(1, 10, 12), lv), lambda s: s.thermal_tau is not None),
+        lambda _f, p, lv: [max(q, MIN_THERMAL_TAU_S) for q in geom_refine(p, _ratio(1, 10, 12), lv)],
+        lambda s: s.thermal_tau is not None),
     "creep": Effect(
         "creep",
         "slow relaxation of the displacement after the drive changes, in the direction of the last change",
         2, _always, _creep_grid, lambda s, p: s.with_(creep_tau=float(p)),
-        lambda _f, p, lv: geom_refine(p, _ratio(1, 30, 12), lv), lambda s: s.creep_tau is not None),
+        lambda _f, p, lv: [max(q, MIN_CREEP_TAU_S) for q in geom_refine(p, _ratio(1, 30, 12), lv)],
+        lambda s: s.creep_tau is not None),
     "time_delay": Effect(
         "time_delay",
         "a transport delay in the amplifier, sensor or acquisition: the whole response shifts in time, "
@@ -161,7 +172,7 @@ CATALOG: dict[str, Effect] = {
         "stress_dependent_play",
         "the play-operator weights (loop width, the 'coercive current') change with stress, which the "
         "SDPI assumes they do not",
-        1, _stress_testable, lambda f: [True], lambda s, p: s.with_(stress_play=bool(p)), None,
+        3, _stress_testable, lambda f: [True], lambda s, p: s.with_(stress_play=bool(p)), None,
         lambda s: s.stress_play),
     "saturation": Effect(
         "saturation",

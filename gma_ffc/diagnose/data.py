@@ -82,6 +82,22 @@ def stress_span(data: Sequence[RecData]) -> float:
     return hi - lo
 
 
+def stress_levels(data: Sequence[RecData], gap_MPa: float = 1.0, min_share: float = 0.05) -> list[float]:
+    """Distinct stress levels the recordings dwell at (>= gap apart, each >= min_share of the samples)."""
+    s = np.sort(np.concatenate([d.s for d in data]))
+    if s.size == 0:
+        return []
+    # split the sorted stresses where they jump by more than a fifth of the gap
+    cuts = np.flatnonzero(np.diff(s) > 0.2 * gap_MPa) + 1
+    groups = [g for g in np.split(s, cuts) if g.size >= min_share * s.size]
+    levels: list[float] = []
+    for g in groups:
+        m = float(np.median(g))
+        if not levels or m - levels[-1] >= gap_MPa:
+            levels.append(m)
+    return levels
+
+
 def mean_stress(data: Sequence[RecData]) -> float:
     n = sum(d.s.size for d in data)
     return float(sum(float(d.s.sum()) for d in data) / max(n, 1))

@@ -28,6 +28,7 @@ from .locate import Located, locate
 MIN_MSE_RATIO = 0.75       # accepted effects cut the held-out MSE by at least 25 % (RMS by ~13 %)
 MIN_LOGLIK_GAIN = 6.0      # penalised held-out log-likelihood gain (nats) an effect must win by
 NOISE_FACTOR = 1.5         # a residual within 1.5x the noise floor is "within noise"
+SLOW_RATIO_MAX = 0.8       # stress_dependent_play must also cut the error on slow samples by 20 %
 AMBIGUOUS_NATS = 3.0       # runner-up this close to the winner: look-alikes not told apart
 HUBER_K = 3.0             # Huber scale in robust standard deviations of the recalibrated residual
 MIN_SAMPLES = 400
@@ -175,7 +176,7 @@ def _params_of(effect: str, spec: Spec, coef: np.ndarray, names: list[str], fitt
             out["f_at_most_compressive_hz"] = f / math.sqrt(1 + b * (fitter.stress_top - s_lo))
         return out
     if effect == "stress_dependent_play":
-        return {"width_coef_per_MPa": c.get("stress_play", math.nan)}
+        return {f"coef_{j}_um_per_A_MPa": c.get(f"stress_play_{j}", math.nan) for j in range(fitter.play_thresholds.size)}
     if effect == "saturation":
         out = {"drive_lo": fitter.drive_lo, "drive_hi": fitter.drive_hi}
         out.update({k: v for k, v in c.items() if k.startswith("sat_")})
@@ -204,8 +205,7 @@ def build_extended(model: Any, fitter: Fitter, spec: Spec, coef: np.ndarray, nam
                                  "coefficients": [c[f"play_{j}"] for j in range(fitter.play_thresholds.size)]}
     if spec.stress_play:
         blocks["stress_play"] = {"thresholds": [float(v) for v in fitter.play_thresholds],
-                                 "coefficients_per_MPa": [c["stress_play"] / fitter.play_thresholds.size] *
-                                 fitter.play_thresholds.size}
+                                 "coefficients_per_MPa": [c[f"stress_play_{j}"] for j in range(fitter.play_thresholds.size)]}
     if spec.creep_tau:
         blocks["creep"] = {"gain": c["creep_gain"], "tau_s": spec.creep_tau}
     if spec.dynamics is not None:
@@ -345,6 +345,20 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
         best = tried[0]
         ok = (best.cv_loss < MIN_MSE_RATIO * cur_loss and best.loglik_gain > MIN_LOGLIK_GAIN
               and math.sqrt(cur_loss) - math.sqrt(best.cv_loss) > 0.5 * noise)
+        if ok and best.effect == "stress_dependent_play":
+            # signature: play weights are rate-independent, so the gain must hold where the drive is slow
+            slow_ratio = _slow_gain_ratio(fitter, current, best.result.specs)
+            if slow_ratio > SLOW_RATIO_MAX:
+                best.testable = False
+                best.reason = (f"its held-out gain comes from the fast parts of the drive (on the slowest 40 % of "
+                               f"samples the error only falls to {slow_ratio:.0%} of before), where rate-independent "
+                               "play weights cannot be the cause: a leftover of another effect that changes with the load")
+                tried = tried[1:]
+                if not tried:
+                    break
+                best = tried[0]
+                ok = (best.cv_loss < MIN_MSE_RATIO * cur_loss and best.loglik_gain > MIN_LOGLIK_GAIN
+                      and math.sqrt(cur_loss) - math.sqrt(best.cv_loss) > 0.5 * noise)
         rounds.append({"round": rnd, "n_eff": n_eff, "current_rms_um": math.sqrt(cur_cv),
                        "table": [(c.effect, math.sqrt(c.cv_mse), c.loglik_gain) for c in tried],
                        "accepted": best.effect if ok else None})
@@ -441,6 +455,14 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
     return Diagnosis(verdict, explanation, located, ordered, rms_before, math.sqrt(null_cv),
                      math.sqrt(cur_cv), noise, validation, conclusive, cannot, ext, data, base_pred, null_pred,
                      final_pred, rounds, rounds[0]["n_eff"] if rounds else float("nan"))
+
+
+def _slow_gain_ratio(fitter: Fitter, before: tuple[Spec, Spec, Spec], after: tuple[Spec, Spec, Spec]) -> float:
+    """Held-out MSE after/before on the slowest 40 % of samples (by drive rate)."""
+    slow = fitter.rate_rows <= np.percentile(fitter.rate_rows, 40)
+    r0 = fitter.test_residuals(before)[slow]
+    r1 = fitter.test_residuals(after)[slow]
+    return float(np.mean(r1 * r1) / max(float(np.mean(r0 * r0)), 1e-300))
 
 
 def _search_all(fitter: Fitter, base: tuple[Spec, Spec, Spec], names: list[str]) -> dict[str, SearchResult]:

@@ -92,6 +92,9 @@ class Fitter:
         self.n_a = int(sum(a.size for a in ya))
         self.y_rows = np.concatenate(ya + yb)
         self.segment_lengths = [a.size for a in ya] + [b.size for b in yb]
+        rates = [np.abs(np.gradient(d.u, d.t)) if d.t.size > 1 else np.zeros(d.t.size) for d in self.data]
+        self.rate_rows = np.concatenate([r[ra] for r, (ra, _) in zip(rates, self._rows_ab)] +
+                                        [r[rb] for r, (_, rb) in zip(rates, self._rows_ab)])
         self.evaluations = 0
         self.delta: float | None = None   # Huber scale of the loss (None: plain least squares)
 
@@ -142,9 +145,10 @@ class Fitter:
             cols.append(plays[:, j] - u3)
             names.append(f"play_{j}")
         if spec.stress_play:
-            # one parameter: the loop width (all plays alike) scales linearly with stress
-            cols.append(ds * (plays.mean(axis=1) - u3))
-            names.append("stress_play")
+            # each play's weight may change linearly with stress (loop width and shape)
+            for j in range(self.play_thresholds.size):
+                cols.append(ds * (plays[:, j] - u3))
+                names.append(f"stress_play_{j}")
         if spec.saturation:
             above = np.maximum(d.u - self.drive_hi, 0.0)
             below = np.maximum(self.drive_lo - d.u, 0.0)

@@ -183,10 +183,25 @@ def model_yaml(dg: Diagnosis) -> str:
     return header + yaml.safe_dump(d, sort_keys=False, default_flow_style=None, width=100)
 
 
+def _finite(v: Any) -> Any:
+    """JSON has no NaN/inf: non-finite numbers become null, numpy scalars plain numbers."""
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_finite(x) for x in v]
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(v) else None
+    return v
+
+
 def write_outputs(dg: Diagnosis, out_dir: str | Path) -> dict:
     """Render everything, then write the three files atomically; returns the JSON document."""
     out = Path(out_dir)
-    doc = dg.to_json(MODEL_FILE)
+    doc = _finite(dg.to_json(MODEL_FILE))
     js = json.dumps(doc, indent=2, allow_nan=False)
     page = render_html(dg, doc)
     ym = model_yaml(dg)
