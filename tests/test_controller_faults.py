@@ -234,3 +234,47 @@ def test_driver_that_cannot_open_faults_without_output(models, tmp_path):
     s = ctrl.run(duration_s=1.0)
     assert s["state"] == "fault" and "comms_error" in s["faults"] and driver.log == []
     assert not (tmp_path / "run.csv").exists()
+
+
+CHILD = r'''
+import sys, threading, time
+from gma_ffc.control.config import validate_config
+from gma_ffc.control.controller import Controller
+from gma_ffc.modelio import load_model
+cfg = validate_config({"rate_hz": 500, "model": sys.argv[1], "driver": {"kind": "sim", "load_mass_kg": 15.0},
+                       "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0},
+                       "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
+                       "telemetry": {"path": sys.argv[2], "flush_interval_s": 0.5}})
+ctrl = Controller(cfg)
+threading.Thread(target=ctrl.run, daemon=True).start()
+while ctrl.stats.count == 0:
+    time.sleep(0.001)
+print("running", flush=True)
+time.sleep(60)
+'''
+
+
+def test_killed_process_loses_at_most_a_second_of_telemetry(models, tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from gma_ffc.modelio import save_model
+
+    save_model(models[0], tmp_path / "model.yaml")
+    out = tmp_path / "killed.csv"
+    proc = subprocess.Popen([sys.executable, "-c", CHILD, str(tmp_path / "model.yaml"), str(out)],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "running"
+        t_run = time.monotonic()
+        time.sleep(2.0)
+        elapsed = time.monotonic() - t_run
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+    rec = read_recording(out)                 # whole lines only: a valid recording
+    assert rec.time_s[-1] >= elapsed - 1.0 - 0.2
+    assert len(rec) >= (elapsed - 1.0 - 0.2) * 500 * 0.9

@@ -173,7 +173,7 @@ def test_rtu_timeout_reconnects_and_resumes_without_a_jump(models, bench_factory
     finally:
         th.join(timeout=10.0)
     s = result["s"]
-    assert s["state"] == "stopped" and s["reconnects"] >= 1
+    assert s["state"] == "stopped" and s["reconnects"] >= 1, (s["fault_messages"], s["fault_history"])
     assert any(h["fault"] in LINK for h in s["fault_history"])
     rec = read_recording(cfg.telemetry["path"])
     cmd = rec.columns["current_cmd_A"]

@@ -223,8 +223,10 @@ class Controller:
             return self._reconnect(stop_event)
 
     def _reconnect(self, stop_event: threading.Event) -> bool:
-        """Reconnect with exponential backoff; True when the driver answers again."""
+        """Reconnect with exponential backoff; True when the driver answers again. The amplifier
+        is already at its safe current, so the watchdog is paused while waiting."""
         self.state = "reconnecting"
+        self._heartbeat = math.nan
         comms = self.cfg.comms
         delay = comms["backoff_initial_s"]
         attempt = 0

@@ -46,16 +46,16 @@ class Telemetry:
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._thread: threading.Thread | None = None
-        self._fh: io.TextIOBase | None = None
+        self._fh: int | None = None      # raw fd: each flush is one write() of whole lines
 
     def start(self) -> None:
         if self.path is None:
             return
         self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
-            self._fh = open(self.path, "w", encoding="utf-8", newline="\n")
-            self._fh.write(_format_meta(self.metadata) + ",".join(self.columns) + "\n")
-            self._fh.flush()
+            self._fh = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            self._write_all((_format_meta(self.metadata) + ",".join(self.columns) + "\n").encode())
+            os.fsync(self._fh)
         except OSError as exc:
             raise FaultError(f"telemetry file {self.path}: cannot write ({exc.strerror})") from None
         self._thread = threading.Thread(target=self._run, name="gma-ffc-telemetry", daemon=True)
@@ -107,12 +107,19 @@ class Telemetry:
         for values in block.tolist():      # short steps: the loop can take the GIL between rows
             write(fmt % tuple(values))
         try:
-            self._fh.write(out.getvalue())
-            self._fh.flush()
-            os.fsync(self._fh.fileno())
+            self._write_all(out.getvalue().encode())
+            os.fsync(self._fh)
             self.rows_written += len(block)
         except OSError as exc:   # disk full etc.: reported in status, the loop keeps control
             self.error = f"telemetry write failed: {exc.strerror}"
+
+    def _write_all(self, data: bytes) -> None:
+        """One write() per flush, so a killed process leaves whole lines (a regular-file write is
+        not cut short by a signal); the loop only repeats on a short write (disk nearly full)."""
+        view = memoryview(data)
+        while view:
+            n = os.write(self._fh, view)
+            view = view[n:]
 
     def close(self) -> None:
         """Write everything still in the ring and close the file."""
@@ -123,5 +130,5 @@ class Telemetry:
             self._thread = None
         if self._fh is not None:
             self._drain()
-            self._fh.close()
+            os.close(self._fh)
             self._fh = None
