@@ -122,3 +122,11 @@ def test_drivers_come_from_the_entry_point_group():
     assert driver_class("sim") is SimDriver
     assert driver_class("modbus") is ModbusDriver
     assert driver_class("serial") is SerialDriver
+
+
+def test_stress_source_must_match_the_driver_channels(tmp_path):
+    from gma_ffc.control.controller import Controller
+
+    cfg = validate_config(with_("stress.source", "stress"))
+    with pytest.raises(ConfigError, match=r"'stress.source' is 'stress' but driver 'sim' provides no 'stress_MPa'"):
+        Controller(cfg, model=object())

@@ -72,6 +72,11 @@ class Controller:
         self.clock = clock
         self.driver = driver if driver is not None else \
             driver_class(cfg.driver["kind"])(cfg.driver, self.period_s)
+        want = FORCE if cfg.stress["source"] == "force" else STRESS
+        if self.driver.channels and want not in self.driver.channels:
+            raise ConfigError(f"config key 'stress.source' is {cfg.stress['source']!r} but driver "
+                              f"'{cfg.driver['kind']}' provides no '{want}' channel (it has: "
+                              f"{', '.join(self.driver.channels)})")
         self.reference: Reference = build_reference(cfg.reference)
         lim = cfg.limits
         self.safe_A = lim["safe_current_A"]
