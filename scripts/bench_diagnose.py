@@ -198,21 +198,30 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{r['case']:<22} {','.join(r['truth']) or '-':<40} {','.join(r['verdict']) or '-':<40} "
               f"{r['before']:>10.4f} {r['after']:>8.4f} {'yes' if r['ok'] else 'NO':>3} {r['seconds']:>5.1f}",
               flush=True)
-    # confusion matrix: true label (each effect present, or none) x named label (each named, or none)
+    # confusion matrix over single-effect and null cases: true label x named labels (a case naming two
+    # effects counts in two columns); two-effect cases are listed below it
     cols = list(LABELS) + ["none"]
     mat = {a: {b: 0 for b in cols} for a in cols}
     for r in results:
-        truths = list(r["truth"]) or ["none"]
-        named = list(r["verdict"]) or ["none"]
-        for a in truths:
-            for b in named:
-                mat[a][b] += 1
+        if len(r["truth"]) > 1:
+            continue
+        a = r["truth"][0] if r["truth"] else "none"
+        for b in (list(r["verdict"]) or ["none"]):
+            mat[a][b] += 1
     short = {c: c[:8] for c in cols}
-    print("\nconfusion matrix (rows: true effect, columns: named effect)")
+    print("\nconfusion matrix, single-effect and null cases (rows: true effect, columns: named effect)")
     print(f"{'':<22}" + "".join(f"{short[c]:>9}" for c in cols))
     for a in cols:
         if sum(mat[a].values()):
             print(f"{a:<22}" + "".join(f"{mat[a][b]:>9}" for b in cols))
+    pairs = [r for r in results if len(r["truth"]) > 1]
+    if pairs:
+        print("\ntwo-effect cases")
+        for r in pairs:
+            found = [e for e in r["truth"] if e in r["verdict"]]
+            extra = [e for e in r["verdict"] if e not in r["truth"]]
+            print(f"  {r['case']:<20} named {len(found)}/{len(r['truth'])} true effects"
+                  + (f", extra: {', '.join(extra)}" if extra else ""))
     effect_cases = [r for r in results if r["truth"]]
     nulls = [r for r in results if not r["truth"]]
     correct = sum(r["ok"] for r in results)
