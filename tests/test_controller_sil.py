@@ -121,3 +121,15 @@ def test_reload_refuses_restart_keys_and_keeps_old(models, tmp_path):
     with pytest.raises(ConfigError, match="rate_hz"):
         ctrl.reload(other, model=models[1])
     assert ctrl.cfg is cfg and ctrl.model is models[0]
+
+
+def test_telemetry_feeds_identify(models, tmp_path):
+    """A run's telemetry is a recording `identify` accepts (here: one stress, so an MPI)."""
+    from gma_ffc.identify import SDPIIdentifier
+
+    cfg = sim_cfg(tmp_path, "ident", load_mass_kg=15.0)
+    Controller(cfg, model=models[0]).run(duration_s=1.0)
+    rec = read_recording(cfg.telemetry["path"])
+    model = SDPIIdentifier(n_play=10, n_deadzone=7).fit([rec]).model_
+    pred = model.simulate(rec.time_s, rec.drive, rec.stress_MPa)
+    assert np.sqrt(np.mean((pred - rec.displacement_um) ** 2)) < 1.0

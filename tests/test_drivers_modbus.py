@@ -136,16 +136,20 @@ def run_with_fault(bench, cfg, model, spec, *, clear_after_fault=True, at_s=0.4)
 
 
 @pytest.mark.parametrize("spec,expected", FAULTS)
-def test_tcp_fault_modes_end_at_safe_current(models, bench_factory, tmp_path, spec, expected):
-    bench = bench_factory("tcp", "amplifier_int16.yaml", noise=True)
-    cfg = bench.cfg(tmp_path, "fault", 200, comms={"on_fault": "stop"},
+@pytest.mark.parametrize("transport,rate,map_file", [("tcp", 200, "amplifier_int16.yaml"),
+                                                     ("rtu", 100, "multi_unit_mixed.yaml")])
+def test_fault_modes_end_at_safe_current(models, bench_factory, tmp_path, spec, expected, transport, rate,
+                                         map_file):
+    bench = bench_factory(transport, map_file, noise=True)
+    cfg = bench.cfg(tmp_path, "fault", rate, comms={"on_fault": "stop"},
                     sensor={"bad_ticks": 3, "stale_ticks": 40})
     ctrl, summary = run_with_fault(bench, cfg, models[0], spec)
-    assert summary["state"] == "fault" and summary["ticks"] >= 80   # the fault came after the injection
+    assert summary["state"] == "fault" and summary["ticks"] >= 0.4 * rate   # the fault came after the injection
     assert expected & set(summary["faults"]), summary["fault_messages"]
     assert "safe_write_failed" not in summary["faults"]
     setpoints = bench.rig.history("setpoint")
     assert len(setpoints) > 20                     # it was really driving before the fault
+    assert max(c.value for c in setpoints) > 0.5
     assert setpoints[-1].value == 0.0               # the last command the device received is safe
     assert not bench.rig.output_enabled
     rec = read_recording(cfg.telemetry["path"], require=("time_s", "current_A"))
