@@ -425,6 +425,11 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
         candidates[name].params = _params_of(name, final.specs[2], final.coef_all, final.names, fitter)
     ext = build_extended(model, fitter, final.specs[2], final.coef_all, final.names, list(accepted))
     final_pred = fitter.predict_full(final.specs[2], final.coef_all)
+    if not accepted and cur_cv > rms_before ** 2:
+        # recalibrating did not help on held-out data: the extended model is the base as it was
+        ext = ExtendedModel(model, {}, [])
+        final_pred = list(base_pred)
+        cur_cv = rms_before ** 2
     for a, b in ambiguous_pairs:
         cannot.append(f"{a} and {b} explain the held-out data almost equally well; " + _decider(a, b))
 
