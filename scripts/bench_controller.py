@@ -218,6 +218,8 @@ def main(argv: list[str] | None = None) -> int:
                 if not parent.poll(30):
                     raise SystemExit("the Modbus emulator did not start")
                 host, port = parent.recv()
+                # Warm-up (not reported): the fresh emulator's first requests are slow.
+                _run(_cfg(250.0, _modbus_driver(host, port), tel), model, 1.0)
                 passed: list[float] = []
                 for rate in (float(r) for r in args.modbus_rates.split(",")):
                     s = _run(_cfg(rate, _modbus_driver(host, port), tel), model, args.probe)
