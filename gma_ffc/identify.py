@@ -186,7 +186,9 @@ class SDPIIdentifier:
         if stress_dependent:
             ref = self.reference_stress_MPa if self.reference_stress_MPa is not None else max(levels)
             ref_level = min(levels, key=lambda s: abs(s - ref))
-            ref_data = [d for d, s in zip(data, per_rec_stress) if abs(s - ref_level) <= self.stress_tolerance_MPa]
+            nearest = min(abs(s - ref_level) for s in per_rec_stress)
+            ref_data = [d for d, s in zip(data, per_rec_stress)
+                        if abs(s - ref_level) <= max(self.stress_tolerance_MPa, nearest + 1e-9)]
         else:
             ref_level = levels[0] if levels else None
             ref_data = data
@@ -266,9 +268,13 @@ class SDPIIdentifier:
         if data[0].sigma is None:
             return [], [None] * len(data)
         per_rec = [float(np.median(d.sigma)) for d in data]
-        samples = np.sort(np.concatenate([d.sigma for d in data]))
+        samples = np.concatenate([d.sigma for d in data])
+        # A level is a stress held for a real share of the data; a few outlier rows (a load-cell
+        # glitch) must neither create a level nor decide the reference recordings.
+        bins, counts = np.unique(np.round(samples / self.stress_tolerance_MPa), return_counts=True)
+        held = bins[counts >= max(10, 0.01 * samples.size)] * self.stress_tolerance_MPa
         levels: list[float] = []
-        for s in np.unique(np.round(samples / self.stress_tolerance_MPa) * self.stress_tolerance_MPa):
+        for s in np.sort(held):
             if not levels or abs(s - levels[-1]) > self.stress_tolerance_MPa:
                 levels.append(float(s))
         return levels, per_rec

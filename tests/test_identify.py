@@ -124,3 +124,15 @@ def test_identified_models_satisfy_proposition_3_1_over_the_range(preisach_data)
     for s in np.linspace(lo, hi, 50):
         w = model.deadzone_weights(s)
         assert np.all(weights_to_slopes(w) > 0)
+
+
+def test_a_few_outlier_stress_rows_neither_make_a_level_nor_empty_the_reference(preisach_data) -> None:
+    """A load-cell glitch in one row once crashed identify (no recording matched the 'level')."""
+    t, x, train, _ = preisach_data
+    glitch = train[2].with_column("stress_MPa", train[2].stress_MPa.copy())
+    glitch.columns["stress_MPa"][500] = -2.0  # far less compressive than anything else
+    ident = SDPIIdentifier().fit([glitch])
+    assert ident.model_.kind == "mpi" and "one stress" in ident.notes_[0]
+    ident = SDPIIdentifier().fit([glitch, train[4]])
+    assert ident.model_.kind == "sdpi" and ident.stress_levels_MPa_ == pytest.approx([-21.5, -15.0], abs=0.5)
+    assert all(f.rms_um < 0.02 * f.stroke_um for f in ident.report_)
