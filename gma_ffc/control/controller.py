@@ -77,7 +77,10 @@ class Controller:
             raise ConfigError(f"config key 'stress.source' is {cfg.stress['source']!r} but driver "
                               f"'{cfg.driver['kind']}' provides no '{want}' channel (it has: "
                               f"{', '.join(self.driver.channels)})")
-        self.reference: Reference = build_reference(cfg.reference)
+        # The command uses the reference `lead` ahead (configured latency + the model's delay
+        # preview); telemetry records the reference for *now*, so tracking error is y(t) - r(t).
+        self.reference: Reference = build_reference(cfg.reference, getattr(self.model, "preview_s", 0.0))
+        self.reference_now: Reference = build_reference({**cfg.reference, "lead_s": 0.0})
         lim = cfg.limits
         self.safe_A = lim["safe_current_A"]
         self.limiter = safety.Limiter(lim["current_min_A"], lim["current_max_A"], lim["slew_A_per_s"],
@@ -140,7 +143,8 @@ class Controller:
             from ..modelio import load_model
 
             model = load_model(new_cfg.model)
-        reference = build_reference(new_cfg.reference)
+        reference = (build_reference(new_cfg.reference, getattr(model, "preview_s", 0.0)),
+                     build_reference({**new_cfg.reference, "lead_s": 0.0}))
         rng = getattr(model, "stress_range_MPa", None)
         _warm_up(model, self.period_s, *(rng if rng is not None else (-11.3, -11.3)))
         last = self.limiter.last
@@ -166,7 +170,8 @@ class Controller:
         self.limiter = safety.Limiter(lim["current_min_A"], lim["current_max_A"], lim["slew_A_per_s"],
                                       self.period_s, last)
         self.safe_A = lim["safe_current_A"]
-        self.cfg, self.model, self.reference, self.stepper, self.monitor = cfg, model, reference, stepper, monitor
+        self.cfg, self.model, (self.reference, self.reference_now), self.stepper, self.monitor = \
+            cfg, model, reference, stepper, monitor
         self._set_stress_range(model)
 
     # ---- faults ----------------------------------------------------------------------------
@@ -284,6 +289,7 @@ class Controller:
                 tcfg["path"], cols,
                 {"source": "gma-ffc controller", "start_unix_s": self.started_unix_s,
                  "sample_rate_hz": self.cfg.rate_hz, "driver": self.cfg.driver["kind"],
+                 "command_lead_s": self.reference.lead_s,
                  "model_kind": getattr(self.model, "kind", "?"), "config": self.cfg.source,
                  "current_A_is": "measured (commanded where a reading is missing)"
                  if CURRENT in self.driver.channels else "commanded"},
@@ -384,6 +390,7 @@ class Controller:
                     raise _TickFault(bad, self._sensor_message(bad, inputs))
                 stress = self.monitor.stress
                 ref = self.reference.value(t)
+                ref_now = self.reference_now.value(t)
                 if mode == RUNNING and stress == stress:
                     if stress < self.stress_lo or stress > self.stress_hi:
                         self._stress_out_of_range(stress)
@@ -435,10 +442,10 @@ class Controller:
                 self._write_safe()
                 self.exit_reason = f"exception in the tick: {type(exc).__name__}: {exc}"
                 return
-            self.last_reference_um = ref
+            self.last_reference_um = ref_now
             self.last_cmd_A = cmd
             self.last_stress_MPa = stress
-            self._record_row(row, t_start - t0, ref, cmd, inputs, has_current, disp_col, force_col, tel)
+            self._record_row(row, t_start - t0, ref_now, cmd, inputs, has_current, disp_col, force_col, tel)
             compute = clock.now() - t_start
             stats.record(t_start, compute)
             stats.overruns = sched.overruns

@@ -114,10 +114,15 @@ class Playback(Reference):
         return rs[i] + (rs[i + 1] - rs[i]) * (tt - t0) / (t1 - t0)
 
 
-def build_reference(section: dict[str, Any]) -> Reference:
-    """A reference from a validated `reference` config section."""
+def build_reference(section: dict[str, Any], preview_s: float = 0.0) -> Reference:
+    """A reference from a validated `reference` config section.
+
+    `preview_s` is added to the configured lead: a model that contains a transport delay (an
+    extended model from `gma-ffc diagnose`) can only be inverted by asking for the reference that
+    far ahead.
+    """
     kind = section["kind"]
-    lead = section.get("lead_s", 0.0)
+    lead = section.get("lead_s", 0.0) + max(0.0, float(preview_s))
     if kind == "sine":
         return Sine(section["frequency_hz"], section["amplitude_um"], section["offset_um"],
                     section["phase_deg"], lead)
