@@ -14,6 +14,7 @@ import yaml
 
 from .atomic import atomic_write
 from .errors import ModelError
+from .yamlfile import read_yaml
 
 FORMAT = "gma-ffc-model"
 VERSION = 1
@@ -55,20 +56,7 @@ def model_from_dict(d: Any, source: str = "<dict>") -> Any:
 
 def load_model(path: str | Path) -> Any:
     """Read and validate a model file of any registered kind."""
-    p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ModelError(f"{p}: no such model file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ModelError(f"{p}: cannot read model file ({exc})") from None
-    try:
-        d = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        raise ModelError(f"{p}: damaged model file, not valid YAML{where}") from None
-    return model_from_dict(d, str(p))
+    return model_from_dict(read_yaml(path, "model file", ModelError), str(path))
 
 
 def save_model(model: Any, path: str | Path) -> None:

@@ -24,9 +24,9 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 
 import numpy as np
-import yaml
 
 from gma_ffc.errors import ConfigError, InputError
+from gma_ffc.yamlfile import read_yaml
 
 from . import kernels as K
 
@@ -185,18 +185,7 @@ class PlantConfig:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "PlantConfig":
-        p = Path(path)
-        try:
-            text = p.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise ConfigError(f"{p}: cannot read plant config ({exc.strerror or exc})") from None
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            where = f", line {mark.line + 1}" if mark is not None else ""
-            raise ConfigError(f"{p}{where}: not valid YAML") from None
-        return cls.from_dict(data, str(p))
+        return cls.from_dict(read_yaml(path, "plant config", ConfigError), str(path))
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -77,7 +77,7 @@ def _bad(workdir: Path, name: str, text: str) -> Path:
     (["simulate", "--model", "{d}/model.yaml", "{d}/nocol.csv"], "missing drive column"),
     (["simulate", "--model", "{d}/model.yaml", "{d}/nan.csv"], "'current_A' is nan"),
     (["simulate", "--model", "{d}/model.yaml", "{d}/back.csv"], "time does not increase"),
-    (["simulate", "--model", "{d}/garbage.yaml", "{d}/id_15.2.csv"], "damaged model file"),
+    (["simulate", "--model", "{d}/garbage.yaml", "{d}/id_15.2.csv"], "not valid YAML"),
     (["simulate", "--model", "{d}/model.yaml", "{d}/id_15.2.csv", "--stress", "-40"], "outside the model's identified range"),
     (["simulate", "--model", "{d}/model.yaml", "{d}/nostress.csv"], "no stress_MPa column"),
     (["invert", "--model", "{d}/model.yaml", "{d}/id_15.2.csv"], "missing required column 'reference_um'"),

@@ -66,7 +66,7 @@ def test_inconsistent_files_are_refused_with_the_reason(tmp_path: Path, model: S
 def test_damaged_yaml_and_missing_files_are_refused(tmp_path: Path) -> None:
     bad = tmp_path / "d.yaml"
     bad.write_text("format: gma-ffc-model\nplay: [1, 2\n")
-    with pytest.raises(ModelError, match="damaged model file"):
+    with pytest.raises(ModelError, match=r"d.yaml, line \d+: not valid YAML .*; is it a model file\?"):
         load_model(bad)
     with pytest.raises(ModelError, match="no such model file"):
         load_model(tmp_path / "missing.yaml")

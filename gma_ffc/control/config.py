@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
 
 from ..errors import ConfigError
+from ..yamlfile import read_yaml
 from .schema import Field, pair, validate_section
 
 DEFAULT_ROD_DIAMETER_MM = 7.0
@@ -224,18 +224,7 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
 def load_config(path: str | os.PathLike) -> ControllerConfig:
     """Read and validate a YAML config file; relative paths inside resolve against its folder."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such config file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: cannot read the config ({exc})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f", line {mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{p}{where}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    data = read_yaml(p, "config file", ConfigError)
     if not isinstance(data, Mapping):
         raise ConfigError(f"{p}: the config must be a mapping of keys to values")
     try:

@@ -1,0 +1,32 @@
+"""Read a YAML file the way every gma-ffc input is read: one clear error, never a traceback."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .errors import InputError
+
+
+def read_yaml(path: str | os.PathLike, what: str, error: type[InputError] = InputError) -> Any:
+    """Parsed content of `path`; `error` names the file (and the line) when it cannot be read.
+
+    `what` says what the file should be ("model file", "config file") for "no such ..." messages.
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{p}: no such {what}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise error(f"{p}: cannot read the {what} ({getattr(exc, 'strerror', None) or exc})") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f", line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise error(f"{p}{where}: not valid YAML ({problem}); is it a {what}?") from None
