@@ -35,7 +35,8 @@ def with_(path: str, value):
 def test_example_configs_load(name):
     cfg = load_config(ROOT / "config" / f"{name}.yaml")
     assert cfg.rate_hz > 0 and cfg.driver["kind"] in ("sim", "modbus", "serial")
-    assert Path(cfg.model).is_absolute() and cfg.model.endswith("model.yaml")
+    # the shipped example model, resolved against the config's folder, so the example runs as is
+    assert Path(cfg.model).is_absolute() and Path(cfg.model).is_file()
 
 
 @pytest.mark.parametrize("path,value,message", [

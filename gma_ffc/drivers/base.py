@@ -87,10 +87,21 @@ class Driver(ABC):
         """Command the amplifier's current."""
 
     def safe(self, current_A: float) -> None:
-        """Put the amplifier at its safe current, best effort, never raising past a timeout.
+        """Put the amplifier at its safe current; after a failure, reconnect once and try again,
+        so a dropped link does not stop the safe command getting through."""
+        try:
+            self._safe_once(current_A)
+        except DriverError:
+            try:
+                self.close()
+                self.open()
+            except DriverError:
+                raise DriverError(f"safe current not written: {getattr(self, 'last_error', '')}") from None
+            self._safe_once(current_A)
 
-        The default writes the current; drivers with an output-enable also use it.
-        """
+    def _safe_once(self, current_A: float) -> None:
+        """One attempt at the safe current. The default writes it; drivers with an output-enable
+        switch the output off too, and drivers without acknowledgements read it back."""
         self.write(current_A)
 
     @abstractmethod

@@ -248,22 +248,8 @@ class ModbusDriver(Driver):
                        words[0] if len(words) == 1 else words, device_id=ch.unit_id)
         self.enabled = on
 
-    def safe(self, current_A: float) -> None:
-        """Setpoint to the safe current, then output off (when configured and present).
-
-        After a dropped connection one reconnect is tried so the safe command gets through.
-        """
-        try:
-            self._safe_once(current_A)
-        except DriverError:
-            try:
-                self.close()
-                self.open()
-            except DriverError:
-                raise DriverError(f"safe current not written: {self.last_error}") from None
-            self._safe_once(current_A)
-
     def _safe_once(self, current_A: float) -> None:
+        """Setpoint to the safe current, then output off (when configured and present)."""
         was_enabled = self.enabled
         self.enabled = True          # do not switch the output on from inside safe()
         try:

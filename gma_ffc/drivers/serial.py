@@ -170,18 +170,6 @@ class SerialDriver(Driver):
             self._send(self.cfg["enable"].encode() + self.eol)
             self.enabled = True
 
-    def safe(self, current_A: float) -> None:
-        """Current to the safe value, then the output off; one reconnect if the port is gone."""
-        try:
-            self._safe_once(current_A)
-        except DriverError:
-            try:
-                self.close()
-                self.open()
-            except DriverError:
-                raise DriverError(f"safe current not written: {self.last_error}") from None
-            self._safe_once(current_A)
-
     def _safe_once(self, current_A: float) -> None:
         """Write, switch off, and read the setpoint back: a serial write has no acknowledgement,
         so only the read-back proves the amplifier took the safe current."""
