@@ -48,6 +48,7 @@ def _all_blocks(base) -> ExtendedModel:
                    "center_um": 10.0, "stress_ref_MPa": -16.0},
         "play_correction": {"thresholds": [0.1, 0.3], "coefficients": [0.5, -0.2]},
         "stress_play": {"thresholds": [0.2], "coefficients_per_MPa": [0.05]},
+        "stress_width": {"coef_per_MPa": 0.04, "eps": 0.3},
         "saturation": {"lo": 0.0, "hi": 1.8, "lin_lo": 0.0, "quad_lo": 0.0, "lin_hi": -1.0, "quad_hi": -2.0},
         "creep": {"gain": 0.03, "tau_s": 0.2},
         "dynamics": {"f_ref_hz": 60.0, "zeta": 0.2, "beta_per_MPa": 0.05, "stress_ref_MPa": -12.0},
@@ -78,7 +79,7 @@ def test_forward_stepper_equals_batch(base):
 
 def test_invert_then_simulate_recovers_the_reference(base):
     # every block but the play terms (inverted with one sample of lag) is inverted exactly
-    blocks = {k: v for k, v in _all_blocks(base).blocks().items() if v and k not in ("play_correction", "stress_play")}
+    blocks = {k: v for k, v in _all_blocks(base).blocks().items() if v and k not in ("play_correction", "stress_play", "stress_width")}
     m = ExtendedModel(base, blocks)
     t = np.arange(3000) / FS
     ref = 8.0 + 6.0 * np.sin(2 * np.pi * 2 * t) ** 2
@@ -124,6 +125,8 @@ def test_file_round_trip_and_registration(base, tmp_path):
     ("dynamics", {"f_ref_hz": 50.0, "zeta": math.nan}, "dynamics.zeta"),
     ("flux_capacitor", {"x": 1}, "unknown block"),
     ("stress_play", {"thresholds": [0.1, 0.2], "coefficients_per_MPa": [1.0]}, "stress_play"),
+    ("stress_width", {"coef_per_MPa": 0.1, "eps": 0.0}, "stress_width.eps"),
+    ("stress_width", {"coef_per_MPa": "wide", "eps": 0.3}, "stress_width.coef_per_MPa"),
 ])
 def test_damaged_files_are_refused_with_the_key(base, block, bad, words):
     d = ExtendedModel(base, {}).to_dict()
@@ -137,3 +140,33 @@ def test_missing_base_is_refused(base):
     del d["base"]
     with pytest.raises(ModelError, match="base"):
         ExtendedModel.from_dict(d)
+
+
+def test_stress_width_widens_the_core_loop_with_stress_and_is_inverted(base):
+    """The loop-width block: no effect at the reference stress, a wider loop beyond it; the inverse
+    (one sample behind on the widened core) still tracks the reference."""
+    static = {"offset_um": 0.0, "gain": 1.0, "stress_gain_per_MPa": 0.0, "quadratic_per_um": 0.0,
+              "center_um": 0.0, "stress_ref_MPa": -16.0}
+    m = ExtendedModel(base, {"static": static, "stress_width": {"coef_per_MPa": -0.08, "eps": 0.3}})   # wider under more compression
+    t = np.arange(1000) / FS
+    u = 1.0 - np.cos(2 * np.pi * 2 * t)
+    at_ref = m.simulate(t, u, np.full(t.size, -16.0))
+    np.testing.assert_allclose(at_ref, base.simulate(t, u, np.full(t.size, -16.0)), atol=1e-9)
+    s = np.full(t.size, -20.0)
+    y, yb = m.simulate(t, u, s), base.simulate(t, u, s)
+
+    def width(x: np.ndarray) -> float:      # rising minus falling branch at mid drive, second cycle
+        k = np.arange(500, 1000)
+        mid = np.abs(u[k] - 1.0) < 0.05
+        rising = np.gradient(u)[k] > 0
+        return float(np.mean(x[k][mid & ~rising]) - np.mean(x[k][mid & rising]))
+
+    assert width(y) > width(yb) * 1.1
+    ref = 4.0 + 3.0 * np.sin(2 * np.pi * 2 * t) ** 2
+    drive = m.invert(t, ref, s)
+    x0 = base.drive_range[0]
+    out = m.simulate(t, drive, s, initial_drive=x0)
+    plain = m.simulate(t, base.invert(t, ref, s), s, initial_drive=x0)
+    settled = slice(100, None)
+    err = np.sqrt(np.mean((out[settled] - ref[settled]) ** 2))
+    assert err < 0.5 * np.sqrt(np.mean((plain[settled] - ref[settled]) ** 2))

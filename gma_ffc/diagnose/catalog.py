@@ -103,6 +103,9 @@ def _dynamics_grid(f: Fitter) -> list[tuple[float, float, float]]:
     return [(float(fr), z, 0.0) for fr in freqs for z in zetas]
 
 
+# relative play-threshold steps at which the core's loop widening is linearised (a chord, not only the
+# tangent: a loop that widens by tens of percent across the loads is not linear in the scale)
+WIDTH_STEPS = (-0.3, 0.1, 0.3, 1.0)
 MIN_THERMAL_TAU_S = 10.0   # thermal time constant of a coil and rod: tens of seconds and more
 MIN_CREEP_TAU_S = 1.0      # creep's central time constant (its components span 0.1x..10x of it)
 MAX_ZETA = 0.5   # a resonance must peak; heavier damping is a lag/delay look-alike and is left to those
@@ -170,10 +173,10 @@ CATALOG: dict[str, Effect] = {
         lambda _f, p, lv: geom_refine(p, _ratio(1, 3000, 16), lv), lambda s: s.delay_s is not None),
     "stress_dependent_play": Effect(
         "stress_dependent_play",
-        "the play-operator weights (loop width, the 'coercive current') change with stress, which the "
-        "SDPI assumes they do not",
-        3, _stress_testable, lambda f: [True], lambda s, p: s.with_(stress_play=bool(p)), None,
-        lambda s: s.stress_play),
+        "the play-operator weights and the loop width (the play thresholds, the 'coercive current') change "
+        "with stress, which the SDPI assumes they do not",
+        5, _stress_testable, lambda f: list(WIDTH_STEPS), lambda s, p: s.with_(stress_play=float(p)), None,
+        lambda s: bool(s.stress_play)),
     "saturation": Effect(
         "saturation",
         "the drive goes beyond the range the model was identified on, where the material's curve bends "

@@ -176,7 +176,10 @@ def _params_of(effect: str, spec: Spec, coef: np.ndarray, names: list[str], fitt
             out["f_at_most_compressive_hz"] = f / math.sqrt(1 + b * (fitter.stress_top - s_lo))
         return out
     if effect == "stress_dependent_play":
-        return {f"coef_{j}_um_per_A_MPa": c.get(f"stress_play_{j}", math.nan) for j in range(fitter.play_thresholds.size)}
+        out = {f"coef_{j}_um_per_A_MPa": c.get(f"stress_play_{j}", math.nan) for j in range(fitter.play_thresholds.size)}
+        out["loop_width_change_per_MPa"] = c.get("stress_width", math.nan)
+        out["width_chord_step"] = float(spec.stress_play)
+        return out
     if effect == "saturation":
         out = {"drive_lo": fitter.drive_lo, "drive_hi": fitter.drive_hi}
         out.update({k: v for k, v in c.items() if k.startswith("sat_")})
@@ -206,6 +209,8 @@ def build_extended(model: Any, fitter: Fitter, spec: Spec, coef: np.ndarray, nam
     if spec.stress_play:
         blocks["stress_play"] = {"thresholds": [float(v) for v in fitter.play_thresholds],
                                  "coefficients_per_MPa": [c[f"stress_play_{j}"] for j in range(fitter.play_thresholds.size)]}
+        if "stress_width" in c:
+            blocks["stress_width"] = {"coef_per_MPa": c["stress_width"], "eps": float(spec.stress_play)}
     if spec.creep_tau:
         blocks["creep"] = {"gain": c["creep_gain"], "tau_s": spec.creep_tau}
     if spec.dynamics is not None:
@@ -540,7 +545,11 @@ def _describe(c: Candidate) -> str:
             txt += f" that moves down to {p['f_at_most_compressive_hz']:.4g} Hz at the most compressive load"
         return txt
     if c.effect == "stress_dependent_play":
-        return "play weights (loop width) that change with stress"
+        k = p.get("loop_width_change_per_MPa", math.nan)
+        if not math.isfinite(k):
+            return "play weights (loop width) that change with stress"
+        return (f"play weights and a loop width (coercive current) that change with stress: the width grows by "
+                f"{-k * 100:.2g} % per MPa of extra compression")
     if c.effect == "saturation":
         return (f"a bend of the material's curve beyond the identified drive range "
                 f"{p['drive_lo']:.3g}..{p['drive_hi']:.3g} that the model extrapolates straight through")

@@ -8,6 +8,8 @@ Signal path (every block optional)::
           -> static map: offset + (gain + stress_gain (s - s_ref)) y_c + quadratic (y_c - center)^2
              + play_correction: sum_i a_i (H_ri[u] - u)             (loop-width recalibration)
              + stress_play: sum_i c_i (s - s_ref) (H_ri[u] - u)     (play weights that vary with stress)
+             + stress_width: k (s - s_ref) (y_c,wide - y_c) / eps   (core loop widening with stress: the
+               core re-run with its play thresholds scaled by 1 + eps, a chord of the coercive-current change)
              + saturation: a (u - hi)+ + b (u - hi)+^2 (+ the same below lo)  (beyond the identified range)
           -> creep: + g mean_k (lag(y_c, tau s_k) - y_c), s_k = 0.1, 1, 10 (distributed relaxation)
           -> dynamics: mass-spring-damper, resonance moving with the load mass the stress implies
@@ -40,10 +42,21 @@ INVERTED = {
     "static": "closed form (quadratic root)",
     "play_correction": "using the play states of the previous sample",
     "stress_play": "using the play states of the previous sample",
+    "stress_width": "using the widened core's output at the previous sample's core input",
     "creep": "exact (closed form with the static map)",
     "dynamics": "exact inverse filter (3-tap FIR on the reference)",
     "thermal": "offset model driven by the commanded drive of the previous sample",
 }
+
+
+def widened_core(base: Any, eps: float) -> Any:
+    """The core with every play threshold (loop width, coercive current) scaled by 1 + eps."""
+    import dataclasses
+
+    th = getattr(base, "play_thresholds", None)
+    if th is None or not dataclasses.is_dataclass(base):
+        raise ModelError("extended model: stress_width needs an SDPI/MPI core with play thresholds")
+    return dataclasses.replace(base, play_thresholds=np.asarray(th, dtype=float) * (1.0 + eps))
 
 
 CREEP_SPREAD = (0.1, 1.0, 10.0)   # creep time constants relative to tau_s: a distributed (log-like) relaxation
@@ -93,6 +106,7 @@ class ExtendedModel:
         self.static.update(b.get("static") or {})
         self.stress_play: dict | None = b.get("stress_play")
         self.play_correction: dict | None = b.get("play_correction")
+        self.stress_width: dict | None = b.get("stress_width")
         self.creep: dict | None = b.get("creep")
         self.dynamics: dict | None = b.get("dynamics")
         self.thermal: dict | None = b.get("thermal")
@@ -119,7 +133,8 @@ class ExtendedModel:
 
     def blocks(self) -> dict[str, Any]:
         return {"saturation": self.saturation, "eddy_lag": self.eddy_lag, "delay": self.delay,
-                "static": self.static, "play_correction": self.play_correction, "stress_play": self.stress_play, "creep": self.creep,
+                "static": self.static, "play_correction": self.play_correction, "stress_play": self.stress_play,
+                "stress_width": self.stress_width, "creep": self.creep,
                 "dynamics": self.dynamics, "thermal": self.thermal}
 
     def _check(self) -> None:
@@ -164,6 +179,15 @@ class ExtendedModel:
         self.play_thresholds = np.concatenate(th_all) if th_all else np.zeros(0)
         self.play_c0 = np.concatenate(c0_all) if c0_all else np.zeros(0)
         self.play_c1 = np.concatenate(c1_all) if c1_all else np.zeros(0)
+        self._wide = None
+        if self.stress_width is not None:
+            e = self.stress_width.get("eps")
+            if not isinstance(e, (int, float)) or not math.isfinite(e) or e == 0 or e <= -0.9:
+                raise ModelError(f"extended model: stress_width.eps must be a non-zero number above -0.9, got {e!r}")
+            k = self.stress_width.get("coef_per_MPa")
+            if not isinstance(k, (int, float)) or not math.isfinite(k):
+                raise ModelError(f"extended model: stress_width.coef_per_MPa must be a finite number, got {k!r}")
+            self._wide = widened_core(self.base, float(self.stress_width["eps"]))
         if self.saturation is not None:
             for key in ("lo", "hi", "lin_lo", "quad_lo", "lin_hi", "quad_hi"):
                 v = self.saturation.get(key)
@@ -211,6 +235,13 @@ class ExtendedModel:
             p0 = float(u3[0]) if initial_drive is None else float(initial_drive)
             plays = K.play_bank(u3, self.play_thresholds, p0) - u3[:, None]
             y = y + plays @ self.play_c0 + ds * (plays @ self.play_c1)
+        if self._wide is not None:
+            if initial_drive is None:
+                yw = np.asarray(self._wide.simulate(t, u3, stress_MPa), dtype=float)
+            else:
+                yw = np.asarray(self._wide.simulate(t, u3, stress_MPa, initial_drive=float(initial_drive)), dtype=float)
+            sw = self.stress_width
+            y = y + sw["coef_per_MPa"] * ds * (yw - yc) / sw["eps"]
         if self.saturation:
             y = y + saturation_term(np.asarray(drive, dtype=float), self.saturation)
         if self.creep:
@@ -315,10 +346,16 @@ class ForwardStepper:
         self._c1 = model.play_c1
         self._plays = np.zeros(self._th.size)
         self._core = None
+        self._wide = None
         self.reset(initial_drive)
 
     def reset(self, initial_drive: float = 0.0) -> None:
         u1 = float(initial_drive)
+        if self.m._wide is not None:
+            if self._wide is None:
+                self._wide = self.m._wide.forward_stepper(self.dt, initial_drive=u1)
+            else:
+                self._wide.reset(u1)
         self._eddy = u1
         self._buf[:] = u1
         self._head = 0
@@ -362,6 +399,9 @@ class ForwardStepper:
                 self._plays[j] = p
                 acc += (self._c0[j] + self._c1[j] * ds) * (p - u3)
             y += acc
+        if self._wide is not None:
+            sw = m.stress_width
+            y += sw["coef_per_MPa"] * ds * (float(self._wide.step(u3, s)) - yc) / sw["eps"]
         if m.saturation:
             y += saturation_term(u1, m.saturation)
         if m.creep:
@@ -409,10 +449,17 @@ class InverseStepper:
         self._c1 = model.play_c1
         self._plays = np.zeros(self._th.size)
         self._core = None
+        self._wide = None
         self.reset(initial_drive)
 
     def reset(self, initial_drive: float = 0.0) -> None:
         u1 = float(initial_drive)
+        if self.m._wide is not None:
+            if self._wide is None:
+                self._wide = self.m._wide.forward_stepper(self.dt, initial_drive=u1)
+            else:
+                self._wide.reset(u1)
+        self._width_prev = 0.0      # (y_c,wide - y_c) / eps at the previous sample
         self._u3_prev = u1
         self._plays[:] = u1
         self._drive_prev = u1
@@ -451,6 +498,8 @@ class InverseStepper:
             u = self._u3_prev
             for j in range(self._th.size):
                 extra += (self._c0[j] + self._c1[j] * ds) * (min(max(self._plays[j], u - self._th[j]), u + self._th[j]) - u)
+        if self._wide is not None:
+            extra += m.stress_width["coef_per_MPa"] * ds * self._width_prev
         if m.saturation:
             extra += saturation_term(self._drive_prev, m.saturation)
         # creep: y = static(yc) + g mean_k a_k (z_k - yc), z_k the lags' previous states
@@ -469,6 +518,8 @@ class InverseStepper:
         for k in range(self._z.size):
             self._z[k] = yc if self._first else self._a_creep[k] * self._z[k] + (1.0 - self._a_creep[k]) * yc
         u3 = float(self._core.step(yc, s))
+        if self._wide is not None:
+            self._width_prev = (float(self._wide.step(u3, s)) - yc) / m.stress_width["eps"]
         for j in range(self._th.size):
             self._plays[j] = min(max(self._plays[j], u3 - self._th[j]), u3 + self._th[j])
         if m.eddy_lag:

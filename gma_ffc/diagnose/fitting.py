@@ -19,7 +19,7 @@ import numpy as np
 
 from . import kernels as K
 from .data import RecData, mean_stress, stress_span
-from .extended import CREEP_SPREAD
+from .extended import CREEP_SPREAD, widened_core
 
 
 @dataclass(frozen=True)
@@ -29,7 +29,8 @@ class Spec:
     saturation: bool = False                        # hinge correction beyond the identified drive range
     eddy_tau: float | None = None                   # s
     delay_s: float | None = None                    # s
-    stress_play: bool = False
+    stress_play: float = 0.0                        # != 0: play weights and loop width vary with stress;
+                                                    # the value is the threshold step of the width's chord
     creep_tau: float | None = None                  # s
     dynamics: tuple[float, float, float] | None = None  # (f_ref_hz, zeta, beta_per_MPa)
     thermal_tau: float | None = None                # s
@@ -82,6 +83,7 @@ class Fitter:
         self.play_thresholds = np.array([0.1, 0.25, 0.45]) * self.drive_span
         self._core_cache: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._yc0: float | None = None
+        self._width_cache: dict[tuple, np.ndarray] = {}
         self.dt_min = min(d.dt_med for d in self.data)
         self.duration_max = max(d.duration_s for d in self.data)
         self.duration_total = sum(d.duration_s for d in self.data)
@@ -124,6 +126,21 @@ class Fitter:
             u = K.delay_filter(u, spec.delay_s / d.dt_med, float(u[0]))
         return np.ascontiguousarray(u)
 
+    def width_derivative(self, d: RecData, u3: np.ndarray, yc: np.ndarray, spec: Spec) -> np.ndarray:
+        """(y_c with play thresholds x (1 + eps) - y_c) / eps: how the core's output moves as its loop widens."""
+        eps = float(spec.stress_play)
+        key = (id(d), spec.input_key(), eps)
+        hit = self._width_cache.get(key)
+        if hit is not None:
+            return hit
+        wide = widened_core(self.model, eps)
+        s = d.s if self.model.stress_range_MPa is not None else None
+        out = (np.asarray(wide.simulate(d.t, u3, s), dtype=float) - yc) / eps
+        if len(self._width_cache) > 64:
+            self._width_cache.clear()
+        self._width_cache[key] = out
+        return out
+
     @property
     def yc_center(self) -> float:
         if self._yc0 is None:
@@ -145,10 +162,13 @@ class Fitter:
             cols.append(plays[:, j] - u3)
             names.append(f"play_{j}")
         if spec.stress_play:
-            # each play's weight may change linearly with stress (loop width and shape)
+            # each play's weight may change linearly with stress (loop shape), and the core's loop may
+            # widen with stress (its play thresholds - the coercive current - scaled by 1 + k (s - s_ref))
             for j in range(self.play_thresholds.size):
                 cols.append(ds * (plays[:, j] - u3))
                 names.append(f"stress_play_{j}")
+            cols.append(ds * self.width_derivative(d, u3, yc, spec))
+            names.append("stress_width")
         if spec.saturation:
             above = np.maximum(d.u - self.drive_hi, 0.0)
             below = np.maximum(self.drive_lo - d.u, 0.0)
