@@ -43,3 +43,18 @@ def test_stress_levels_counts_dwell_levels_not_transitions():
     assert len(stress_levels([_rec(t, np.zeros_like(t), s)])) == 3
     two = np.where(t < 15, -12.0, -18.0)
     assert len(stress_levels([_rec(t, np.zeros_like(t), two)])) == 2
+
+
+def test_reversals_are_counted_on_smooth_drives_and_on_steps():
+    """Smooth loops count their turning points (a counter that only saw jumps once returned 0 here)."""
+    from gma_ffc.diagnose.engine import _reversals
+
+    t = np.linspace(0.0, 3.0, 6000)
+    assert _reversals(1.0 - np.cos(2 * np.pi * t)) == 5          # starts at a minimum: 3 maxima, 2 inner minima
+    assert _reversals(np.sin(2 * np.pi * t)) == 6
+    tri = np.abs(((t * 4) % 2) - 1.0)                                 # triangle, 6 periods
+    assert _reversals(tri) >= 10
+    assert _reversals(np.repeat([0.0, 1.0, 0.0, 1.0, 0.0], 10)) == 3
+    assert _reversals(np.linspace(0.0, 1.0, 500)) == 0
+    # turns smaller than 10 % of the span are not reversals
+    assert _reversals(np.linspace(0.0, 1.0, 500) + 0.02 * np.sin(2 * np.pi * 20 * np.linspace(0, 1, 500))) == 0

@@ -111,24 +111,32 @@ def _round(v: float) -> float | None:
 # --------------------------------------------------------------------------------- helpers
 
 def _reversals(u: np.ndarray) -> int:
+    """Turning points of the drive by more than 10 % of its span (hysteresis-style counting)."""
     span = float(np.ptp(u))
     if span <= 0:
         return 0
-    # hysteresis-style counting: a reversal is a turn by more than 10 % of the span
     thr = 0.1 * span
-    count, direction, extreme = 0, 0, u[0]
+    count, direction = 0, 0
+    hi = lo = extreme = float(u[0])
     for v in u[:: max(1, u.size // 20000)]:
-        if direction >= 0:
+        if direction == 0:
+            # no direction yet: track both extremes until the drive has moved away from one of them
+            hi, lo = max(hi, v), min(lo, v)
+            if hi - v > thr:
+                direction, extreme = -1, v
+            elif v - lo > thr:
+                direction, extreme = 1, v
+        elif direction > 0:
             if v > extreme:
                 extreme = v
             elif extreme - v > thr:
-                count += direction != 0
+                count += 1
                 direction, extreme = -1, v
-        if direction <= 0:
+        else:
             if v < extreme:
                 extreme = v
             elif v - extreme > thr:
-                count += direction != 0
+                count += 1
                 direction, extreme = 1, v
     return count
 
