@@ -52,7 +52,7 @@ def _all_blocks(base) -> ExtendedModel:
         "saturation": {"lo": 0.0, "hi": 1.8, "lin_lo": 0.0, "quad_lo": 0.0, "lin_hi": -1.0, "quad_hi": -2.0},
         "creep": {"gain": 0.03, "tau_s": 0.2},
         "dynamics": {"f_ref_hz": 60.0, "zeta": 0.2, "beta_per_MPa": 0.05, "stress_ref_MPa": -12.0},
-        "thermal": {"gain_um_per_A2": 0.4, "tau_s": 3.0},
+        "thermal": {"gain_um_per_A2": 0.4, "tau_s": 3.0, "fast_gain_um_per_A2": -0.2, "fast_tau_s": 0.4},
     }, ["rate_dependence", "time_delay"])
 
 

@@ -155,8 +155,9 @@ CATALOG: dict[str, Effect] = {
     "thermal_drift": Effect(
         "thermal_drift",
         "Joule heating of the coil and rod: an offset that follows the drive squared through a thermal "
-        "time constant and cools back at zero current",
-        2, _always, _thermal_grid, lambda s, p: s.with_(thermal_tau=float(p)),
+        "time constant (plus a part 8x faster, if still slower than 10 s: the coil heats quicker than the rod) and "
+        "cools back at zero current",
+        3, _always, _thermal_grid, lambda s, p: s.with_(thermal_tau=float(p)),
         lambda _f, p, lv: [max(q, MIN_THERMAL_TAU_S) for q in geom_refine(p, _ratio(1, 10, 12), lv)],
         lambda s: s.thermal_tau is not None),
     "creep": Effect(

@@ -21,7 +21,7 @@ from ..errors import InputError
 from ..recordings import Recording
 from .catalog import CATALOG, ORDER
 from .data import N_BLOCKS, RecData, noise_floor, prepare
-from .extended import ExtendedModel
+from .extended import THERMAL_FAST_RATIO, ExtendedModel
 from .fitting import Fitter, SearchResult, Spec, geom_refine, search
 from .locate import Located, locate
 
@@ -173,7 +173,10 @@ def _params_of(effect: str, spec: Spec, coef: np.ndarray, names: list[str], fitt
     if effect == "time_delay":
         return {"delay_s": spec.delay_s}
     if effect == "thermal_drift":
-        return {"tau_s": spec.thermal_tau, "gain_um_per_A2": c.get("thermal_gain", math.nan)}
+        out = {"tau_s": spec.thermal_tau, "gain_um_per_A2": c.get("thermal_gain", math.nan)}
+        if "thermal_fast_gain" in c:
+            out.update(fast_tau_s=spec.thermal_tau * THERMAL_FAST_RATIO, fast_gain_um_per_A2=c["thermal_fast_gain"])
+        return out
     if effect == "creep":
         return {"tau_s": spec.creep_tau, "gain": c.get("creep_gain", math.nan)}
     if effect == "mechanical_dynamics":
@@ -226,6 +229,9 @@ def build_extended(model: Any, fitter: Fitter, spec: Spec, coef: np.ndarray, nam
         blocks["dynamics"] = {"f_ref_hz": f, "zeta": z, "beta_per_MPa": b, "stress_ref_MPa": fitter.stress_top}
     if spec.thermal_tau:
         blocks["thermal"] = {"gain_um_per_A2": c["thermal_gain"], "tau_s": spec.thermal_tau}
+        if "thermal_fast_gain" in c:
+            blocks["thermal"].update(fast_gain_um_per_A2=c["thermal_fast_gain"],
+                                     fast_tau_s=spec.thermal_tau * THERMAL_FAST_RATIO)
     return ExtendedModel(model, blocks, effects)
 
 
@@ -543,7 +549,10 @@ def _describe(c: Candidate) -> str:
     if c.effect == "time_delay":
         return f"a transport delay of {p['delay_s'] * 1e3:.3g} ms"
     if c.effect == "thermal_drift":
-        return f"heating with a thermal time constant of {p['tau_s']:.3g} s ({p['gain_um_per_A2']:+.3g} um per A^2 at equilibrium)"
+        txt = f"heating with a thermal time constant of {p['tau_s']:.3g} s ({p['gain_um_per_A2']:+.3g} um per A^2 at equilibrium)"
+        if math.isfinite(p.get("fast_gain_um_per_A2", math.nan)):
+            txt += f" and a faster part at {p['fast_tau_s']:.3g} s ({p['fast_gain_um_per_A2']:+.3g} um per A^2)"
+        return txt
     if c.effect == "creep":
         return (f"creep of {p['gain'] * 100:+.3g} % of each step relaxing over time constants around "
                 f"{p['tau_s']:.3g} s (0.1x to 10x)")

@@ -13,7 +13,8 @@ Signal path (every block optional)::
              + saturation: a (u - hi)+ + b (u - hi)+^2 (+ the same below lo)  (beyond the identified range)
           -> creep: + g mean_k (lag(y_c, tau s_k) - y_c), s_k = 0.1, 1, 10 (distributed relaxation)
           -> dynamics: mass-spring-damper, resonance moving with the load mass the stress implies
-          -> thermal: + k lag(drive^2, tau)                          (Joule heating, cools at zero current)
+          -> thermal: + k lag(drive^2, tau) [+ k_f lag(drive^2, tau_f)]  (Joule heating, cools at zero
+             current; the optional fast part is a coil that heats quicker than the rod)
 
 Inverse (``invert`` and ``inverse_stepper``), block by block: thermal offset from the commanded
 drive, dynamics by its exact FIR inverse, static map + creep in closed form (quadratic root),
@@ -59,7 +60,9 @@ def widened_core(base: Any, eps: float) -> Any:
     return dataclasses.replace(base, play_thresholds=np.asarray(th, dtype=float) * (1.0 + eps))
 
 
-CREEP_SPREAD = (0.1, 1.0, 10.0)   # creep time constants relative to tau_s: a distributed (log-like) relaxation
+CREEP_SPREAD = (0.1, 1.0, 10.0)
+THERMAL_FAST_RATIO = 0.125        # the fast heating part's time constant relative to the slow one (coil vs rod)
+MIN_FAST_HEAT_S = 10.0            # no thermal part is quicker than this (thermal mass); faster drift is creep-like   # creep time constants relative to tau_s: a distributed (log-like) relaxation
 
 
 def saturation_term(u: Any, sat: Mapping[str, float]) -> Any:
@@ -148,6 +151,11 @@ class ExtendedModel:
         positive(self.eddy_lag, "tau_s", "eddy_lag")
         positive(self.creep, "tau_s", "creep")
         positive(self.thermal, "tau_s", "thermal")
+        if self.thermal is not None and ("fast_tau_s" in self.thermal or "fast_gain_um_per_A2" in self.thermal):
+            positive(self.thermal, "fast_tau_s", "thermal")
+            g = self.thermal.get("fast_gain_um_per_A2")
+            if not isinstance(g, (int, float)) or not math.isfinite(g):
+                raise ModelError(f"extended model: thermal.fast_gain_um_per_A2 must be a finite number, got {g!r}")
         positive(self.dynamics, "f_ref_hz", "dynamics")
         positive(self.dynamics, "zeta", "dynamics")
         if self.delay is not None:
@@ -256,6 +264,9 @@ class ExtendedModel:
         if self.thermal:
             theta = K.lag_filter(np.asarray(drive, dtype=float) ** 2, dt, float(self.thermal["tau_s"]), 0.0)
             y = y + self.thermal["gain_um_per_A2"] * theta
+            if "fast_tau_s" in self.thermal:
+                fast = K.lag_filter(np.asarray(drive, dtype=float) ** 2, dt, float(self.thermal["fast_tau_s"]), 0.0)
+                y = y + self.thermal["fast_gain_um_per_A2"] * fast
         return np.asarray(y)
 
     # ----------------------------------------------------------------- batch inverse
@@ -337,6 +348,8 @@ class ForwardStepper:
             if model.creep else np.zeros(0)
         self._z = np.zeros(self._a_creep.size)
         self._a_heat = K.lag_coeff(self.dt, model.thermal["tau_s"]) if model.thermal else 0.0
+        self._fast_heat = bool(model.thermal) and "fast_tau_s" in model.thermal
+        self._a_heat_fast = K.lag_coeff(self.dt, model.thermal["fast_tau_s"]) if self._fast_heat else 0.0
         dsamp = model.preview_s / self.dt
         self._whole = int(math.floor(dsamp))
         self._frac = dsamp - self._whole
@@ -362,6 +375,7 @@ class ForwardStepper:
         self._plays[:] = u1
         self._first = True
         self._theta = 0.0
+        self._theta_fast = 0.0
         self._y1 = self._y2 = 0.0
         self._z[:] = 0.0
         if self._core is None:
@@ -423,6 +437,9 @@ class ForwardStepper:
         if m.thermal:
             self._theta = self._a_heat * self._theta + (1.0 - self._a_heat) * u1 * u1
             y += m.thermal["gain_um_per_A2"] * self._theta
+            if self._fast_heat:
+                self._theta_fast = self._a_heat_fast * self._theta_fast + (1.0 - self._a_heat_fast) * u1 * u1
+                y += m.thermal["fast_gain_um_per_A2"] * self._theta_fast
         self._first = False
         return float(y)
 
@@ -444,6 +461,8 @@ class InverseStepper:
             if model.creep else np.zeros(0)
         self._z = np.zeros(self._a_creep.size)
         self._a_heat = K.lag_coeff(self.dt, model.thermal["tau_s"]) if model.thermal else 0.0
+        self._fast_heat = bool(model.thermal) and "fast_tau_s" in model.thermal
+        self._a_heat_fast = K.lag_coeff(self.dt, model.thermal["fast_tau_s"]) if self._fast_heat else 0.0
         self._th = model.play_thresholds
         self._c0 = model.play_c0
         self._c1 = model.play_c1
@@ -464,6 +483,7 @@ class InverseStepper:
         self._plays[:] = u1
         self._drive_prev = u1
         self._theta = 0.0
+        self._theta_fast = 0.0
         self._first = True
         self._r1 = self._r2 = 0.0
         self._z[:] = 0.0
@@ -480,6 +500,10 @@ class InverseStepper:
             # heating follows the drive already commanded (one sample behind: tau_s >> dt)
             self._theta = self._a_heat * self._theta + (1.0 - self._a_heat) * self._drive_prev ** 2
             target -= m.thermal["gain_um_per_A2"] * self._theta
+            if self._fast_heat:
+                self._theta_fast = (self._a_heat_fast * self._theta_fast
+                                    + (1.0 - self._a_heat_fast) * self._drive_prev ** 2)
+                target -= m.thermal["fast_gain_um_per_A2"] * self._theta_fast
         if m.dynamics:
             if self._first:
                 self._r1 = self._r2 = target

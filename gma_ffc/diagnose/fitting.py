@@ -19,7 +19,7 @@ import numpy as np
 
 from . import kernels as K
 from .data import RecData, mean_stress, stress_span
-from .extended import CREEP_SPREAD, widened_core
+from .extended import CREEP_SPREAD, MIN_FAST_HEAT_S, THERMAL_FAST_RATIO, widened_core
 
 
 @dataclass(frozen=True)
@@ -192,6 +192,13 @@ class Fitter:
         if spec.thermal_tau:
             cols.append(K.lag_filter(d.u * d.u, d.dt, spec.thermal_tau, 0.0))
             names.append("thermal_gain")
+            # coil and rod heat with different time constants: a faster part with its own gain, where it
+            # is still slow enough to be thermal. On a one-sided drive the drive squared and the core
+            # output rise and fall together, so that fast part and creep are look-alikes: a model with
+            # creep keeps the single heating time constant, and creep is judged as the fast part's rival
+            if spec.thermal_tau * THERMAL_FAST_RATIO >= MIN_FAST_HEAT_S and not spec.creep_tau:
+                cols.append(K.lag_filter(d.u * d.u, d.dt, spec.thermal_tau * THERMAL_FAST_RATIO, 0.0))
+                names.append("thermal_fast_gain")
         return cols, names
 
     def design(self, spec: Spec) -> tuple[np.ndarray, list[str]]:
