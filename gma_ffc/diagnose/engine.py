@@ -473,7 +473,8 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
         "decide it. An effect is accepted if it cuts the held-out loss by >= "
         f"{1 - MIN_MSE_RATIO:.0%}, gains >= {MIN_LOGLIK_GAIN:g} nats of penalised held-out likelihood "
         "(effective sample count from the residual's correlation time, one nat per parameter) and removes "
-        "more than half the noise floor.")
+        "more than half the noise floor. rms_after is scored on the same held-out blocks that chose the effects, "
+        "so it is slightly optimistic: no third set of blocks is kept back for a final, untouched score.")
     ordered = sorted(candidates.values(), key=lambda c: (not c.accepted, not c.testable,
                                                         c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
     return Diagnosis(verdict, explanation, located, ordered, rms_before, math.sqrt(null_cv),
