@@ -203,7 +203,8 @@ def test_run_speaks_notify_protocol_and_writes_stats(rig):
         assert ready and f"MAINPID={proc.pid}" in messages[ready[0]]
         assert "STATUS=running" in messages[ready[0]]
         assert all("WATCHDOG=1" not in m for m in messages[:ready[0]])   # no pings before READY
-        assert collect(lambda: sum(m.startswith("STATUS=") for m in messages) >= 1, 5.0)
+        # STATUS= follows when the status text changes (rate, jitter, overruns): allow for a loaded machine
+        assert collect(lambda: sum(m.startswith("STATUS=") for m in messages) >= 1, 20.0)
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=20)
         collect(lambda: any("STOPPING=1" in m for m in messages), 2.0)
