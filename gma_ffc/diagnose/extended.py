@@ -335,10 +335,11 @@ class ExtendedModel:
         return cls(base, blocks, list(d.get("effects") or []))
 
 
-class ForwardStepper:
-    """Sample-by-sample forward model; equals `ExtendedModel.simulate` for uniform sampling."""
+class _BlockStepper:
+    """What the forward and inverse steppers share: filter coefficients and buffers of the
+    blocks, set up once per sample period, and the widened core's stepper."""
 
-    def __init__(self, model: ExtendedModel, dt_s: float, initial_drive: float = 0.0) -> None:
+    def __init__(self, model: ExtendedModel, dt_s: float) -> None:
         if not (dt_s > 0 and math.isfinite(dt_s)):
             raise ModelError(f"dt_s must be a positive number, got {dt_s!r}")
         self.m = model
@@ -350,25 +351,35 @@ class ForwardStepper:
         self._a_heat = K.lag_coeff(self.dt, model.thermal["tau_s"]) if model.thermal else 0.0
         self._fast_heat = bool(model.thermal) and "fast_tau_s" in model.thermal
         self._a_heat_fast = K.lag_coeff(self.dt, model.thermal["fast_tau_s"]) if self._fast_heat else 0.0
-        dsamp = model.preview_s / self.dt
-        self._whole = int(math.floor(dsamp))
-        self._frac = dsamp - self._whole
-        self._buf = np.zeros(self._whole + 2)
         self._th = model.play_thresholds
         self._c0 = model.play_c0
         self._c1 = model.play_c1
         self._plays = np.zeros(self._th.size)
         self._core = None
         self._wide = None
-        self.reset(initial_drive)
 
-    def reset(self, initial_drive: float = 0.0) -> None:
-        u1 = float(initial_drive)
+    def _reset_wide(self, u1: float) -> None:
         if self.m._wide is not None:
             if self._wide is None:
                 self._wide = self.m._wide.forward_stepper(self.dt, initial_drive=u1)
             else:
                 self._wide.reset(u1)
+
+
+class ForwardStepper(_BlockStepper):
+    """Sample-by-sample forward model; equals `ExtendedModel.simulate` for uniform sampling."""
+
+    def __init__(self, model: ExtendedModel, dt_s: float, initial_drive: float = 0.0) -> None:
+        super().__init__(model, dt_s)
+        dsamp = model.preview_s / self.dt
+        self._whole = int(math.floor(dsamp))
+        self._frac = dsamp - self._whole
+        self._buf = np.zeros(self._whole + 2)
+        self.reset(initial_drive)
+
+    def reset(self, initial_drive: float = 0.0) -> None:
+        u1 = float(initial_drive)
+        self._reset_wide(u1)
         self._eddy = u1
         self._buf[:] = u1
         self._head = 0
@@ -444,40 +455,20 @@ class ForwardStepper:
         return float(y)
 
 
-class InverseStepper:
+class InverseStepper(_BlockStepper):
     """Sample-by-sample inverse (reference -> drive); see the module docstring for each block.
 
     With a delay in the model, feed ``reference(t + preview_s)``: a delay cannot be undone causally.
     """
 
     def __init__(self, model: ExtendedModel, dt_s: float, initial_drive: float = 0.0) -> None:
-        if not (dt_s > 0 and math.isfinite(dt_s)):
-            raise ModelError(f"dt_s must be a positive number, got {dt_s!r}")
-        self.m = model
-        self.dt = float(dt_s)
+        super().__init__(model, dt_s)
         self.preview_s = model.preview_s
-        self._a_eddy = K.lag_coeff(self.dt, model.eddy_lag["tau_s"]) if model.eddy_lag else 0.0
-        self._a_creep = np.array([K.lag_coeff(self.dt, model.creep["tau_s"] * k) for k in CREEP_SPREAD]) \
-            if model.creep else np.zeros(0)
-        self._z = np.zeros(self._a_creep.size)
-        self._a_heat = K.lag_coeff(self.dt, model.thermal["tau_s"]) if model.thermal else 0.0
-        self._fast_heat = bool(model.thermal) and "fast_tau_s" in model.thermal
-        self._a_heat_fast = K.lag_coeff(self.dt, model.thermal["fast_tau_s"]) if self._fast_heat else 0.0
-        self._th = model.play_thresholds
-        self._c0 = model.play_c0
-        self._c1 = model.play_c1
-        self._plays = np.zeros(self._th.size)
-        self._core = None
-        self._wide = None
         self.reset(initial_drive)
 
     def reset(self, initial_drive: float = 0.0) -> None:
         u1 = float(initial_drive)
-        if self.m._wide is not None:
-            if self._wide is None:
-                self._wide = self.m._wide.forward_stepper(self.dt, initial_drive=u1)
-            else:
-                self._wide.reset(u1)
+        self._reset_wide(u1)
         self._width_prev = 0.0      # (y_c,wide - y_c) / eps at the previous sample
         self._u3_prev = u1
         self._plays[:] = u1
