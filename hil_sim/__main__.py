@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from typing import Sequence
 
-from gma_ffc.errors import GmaError, InputError
+from gma_ffc.cli import dispatch
+from gma_ffc.errors import InputError
 from gma_ffc.progress import Progress
 
 DESCRIPTION = """\
@@ -109,28 +109,8 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except GmaError as exc:
-        if os.environ.get("GMA_FFC_DEBUG"):
-            raise
-        print(f"hil_sim {args.command}: error: {exc}", file=sys.stderr)
-        return exc.exit_code
-    except OSError as exc:
-        print(f"hil_sim {args.command}: error: cannot write {exc.filename or args.out}: "
-              f"{exc.strerror or exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"hil_sim {args.command}: interrupted", file=sys.stderr)
-        return 130
-    except Exception as exc:  # a bug, not bad input: one line, exit 1, traceback on request
-        if os.environ.get("GMA_FFC_DEBUG"):
-            raise
-        print(f"hil_sim {args.command}: internal error: {type(exc).__name__}: {exc} "
-              f"(GMA_FFC_DEBUG=1 shows the traceback)", file=sys.stderr)
-        return 1
+    args = build_parser().parse_args(argv)
+    return dispatch(f"hil_sim {args.command}", lambda: args.func(args))
 
 
 if __name__ == "__main__":

@@ -105,3 +105,11 @@ def test_console_script_usage_errors_exit_2_and_help_teaches() -> None:
     assert bad.returncode == 2 and "error:" in bad.stderr and "Traceback" not in bad.stderr
     helptext = subprocess.run(exe + ["identify", "--help"], capture_output=True, text=True)
     assert helptext.returncode == 0 and "example:" in helptext.stdout and "--plays" in helptext.stdout
+
+
+def test_an_output_path_that_cannot_be_written_is_one_line_exit_2(workdir: Path, capsys) -> None:
+    out = "/proc/no-such-dir/out.csv"  # cannot be created, even as root
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "id_15.2.csv"), "-o", out]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("gma-ffc simulate: error: /proc/no-such-dir") and err.count("\n") == 1
+    assert "Traceback" not in err

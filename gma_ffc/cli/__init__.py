@@ -12,7 +12,7 @@ import argparse
 import importlib
 import os
 import sys
-from typing import Sequence
+from typing import Callable, Sequence
 
 from ..errors import GmaError
 
@@ -53,19 +53,37 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+def dispatch(where: str, run: Callable[[], int | None]) -> int:
+    """Run a parsed subcommand under the CLI contract: errors become one line on stderr and
+    exit 2 (bad input, including a path that cannot be read or written) or 1 (run-time fault or
+    bug); GMA_FFC_DEBUG=1 re-raises for the traceback. Shared by every console entry point;
+    `where` prefixes the message ("gma-ffc simulate")."""
     try:
-        return int(args.func(args) or 0)
+        return int(run() or 0)
     except GmaError as exc:
         if os.environ.get("GMA_FFC_DEBUG"):
             raise
-        print(f"gma-ffc {args.command}: error: {exc}", file=sys.stderr)
+        print(f"{where}: error: {exc}", file=sys.stderr)
         return exc.exit_code
+    except OSError as exc:
+        if os.environ.get("GMA_FFC_DEBUG"):
+            raise
+        print(f"{where}: error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
-        print(f"gma-ffc {args.command}: interrupted", file=sys.stderr)
+        print(f"{where}: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # a bug, not bad input: one line, exit 1, traceback on request
+        if os.environ.get("GMA_FFC_DEBUG"):
+            raise
+        print(f"{where}: internal error: {type(exc).__name__}: {exc} "
+              f"(GMA_FFC_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return 1
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return dispatch(f"gma-ffc {args.command}", lambda: args.func(args))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -8,7 +8,8 @@ import signal
 import sys
 import threading
 
-from gma_ffc.errors import GmaError, InputError
+from gma_ffc.cli import dispatch
+from gma_ffc.errors import InputError
 from gma_ffc.registers import load_register_map
 
 from . import DEFAULT_MAP, DEVICE_CONFIGS
@@ -125,11 +126,7 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    try:
-        return run(args)
-    except GmaError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return exc.exit_code
+    return dispatch(f"hil_sim.emulators {args.kind}", lambda: run(args))
 
 
 if __name__ == "__main__":
