@@ -74,7 +74,8 @@ P_NOISE_T = 47
 P_QUANT_T = 48
 P_DT_SUB = 49           # largest internal sub-step, s
 P_DH_MAX = 50           # largest field increment per Jiles-Atherton integration step, A/m
-N_PARAMS = 51
+P_STRESS_SAT = 51       # MPa scale at which the magnetoelastic field saturates (0: linear in stress)
+N_PARAMS = 52
 
 # ---- state vector layout (float64) ------------------------------------------------------------
 S_T = 0          # plant time, s
@@ -166,10 +167,17 @@ def _dm_dh(h: float, m: float, delta: float, alpha_tot: float, k: float, p: np.n
 
 @njit(cache=True)
 def _alpha_total(p: np.ndarray, sigma_mpa: float) -> float:
-    """alpha + Sablik-Jiles magnetoelastic term 9*lambda_s*sigma/(2*mu0*Ms^2), lambda_s=2/3 lambda_sat."""
+    """alpha + Sablik-Jiles magnetoelastic term 9*lambda_s*sigma/(2*mu0*Ms^2), lambda_s=2/3 lambda_sat.
+
+    With a saturation scale S > 0 the stress enters as S*tanh(sigma/S): once compression has
+    turned the domains perpendicular to the rod, more compression changes the loop less (the
+    stroke-vs-prestress curves of Terfenol-D flatten at high prestress).
+    """
     lam_s = p[P_LAMBDA_SAT] * (2.0 / 3.0)
     ms = p[P_MS]
-    return p[P_ALPHA] + p[P_STRESS_COUPLING] * 9.0 * lam_s * sigma_mpa * 1e6 / (2.0 * MU0 * ms * ms)
+    s_sat = p[P_STRESS_SAT]
+    sig = s_sat * math.tanh(sigma_mpa / s_sat) if s_sat > 0.0 else sigma_mpa
+    return p[P_ALPHA] + p[P_STRESS_COUPLING] * 9.0 * lam_s * sig * 1e6 / (2.0 * MU0 * ms * ms)
 
 
 @njit(cache=True)

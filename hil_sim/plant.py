@@ -65,7 +65,8 @@ class MagneticsConfig:
     reversibility: float = 0.2                   # JA 'c'
     interdomain_coupling: float = 0.0            # JA 'alpha'
     saturation_magnetostriction_ppm: float = 1200.0   # 3/2 lambda_s
-    stress_coupling: float = 0.6                 # multiplier on the Sablik-Jiles magnetoelastic field
+    stress_coupling: float = 0.8                 # multiplier on the Sablik-Jiles magnetoelastic field
+    stress_saturation_MPa: float = 6.0           # S: stress enters as S*tanh(sigma/S); 0 = linear
     stress_dependent_width: bool = False         # option: pinning (loop width) follows stress
     width_change_per_MPa: float = 0.12           # relative pinning change per MPa of extra compression
     width_reference_MPa: float = -11.3
@@ -289,6 +290,7 @@ class PlantConfig:
         p[K.P_ALPHA] = mg.interdomain_coupling
         p[K.P_LAMBDA_SAT] = mg.saturation_magnetostriction_ppm * 1e-6
         p[K.P_STRESS_COUPLING] = mg.stress_coupling
+        p[K.P_STRESS_SAT] = mg.stress_saturation_MPa
         p[K.P_K_STRESS] = mg.width_change_per_MPa
         p[K.P_SIGMA_REF] = mg.width_reference_MPa
         p[K.P_ROD_LEN_UM] = rig.rod_length_mm * 1e3

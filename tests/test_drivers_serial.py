@@ -5,6 +5,8 @@ from __future__ import annotations
 import threading
 import time
 
+from pathlib import Path
+
 import pytest
 
 from gma_ffc.control.config import validate_config
@@ -16,12 +18,17 @@ from hil_sim.emulators.rig import EmulatedRig
 from hil_sim.emulators.scpi import SerialAmplifierEmulator
 from hil_sim.plant import GMAPlant, PlantConfig
 
+# Through a transport the loop runs at 100-250 Hz, and its discretisation error (~0.5 um) is as
+# large as the default rig's paper-like stress effect. These tests check that stress reaches the
+# model through the protocol, so they run the strongly stress-sensitive rig, where it decides.
+STRONG_PATH = Path(__file__).parents[1] / "hil_sim" / "configs" / "strong_stress.yaml"
+STRONG = PlantConfig.from_yaml(STRONG_PATH)
 QUERIES = {"force_N": "MEAS:FORC?", "current_A": "MEAS:CURR?", "displacement_um": "MEAS:DISP?"}
 
 
 @pytest.fixture(scope="module")
 def models(request):
-    return cached_sdpi_and_mpi(request.config.cache.mkdir("gma_ffc_sil_models"))
+    return cached_sdpi_and_mpi(request.config.cache.mkdir("gma_ffc_sil_models"), STRONG)
 
 
 @pytest.fixture
@@ -29,7 +36,7 @@ def amplifier():
     started = []
 
     def make(stress=-15.2, noise=False):
-        pc = PlantConfig()
+        pc = PlantConfig.from_yaml(STRONG_PATH)
         pc.noise.enabled = noise
         plant = GMAPlant(pc, seed=0)
         plant.reset(pc.mass_for_stress(stress))

@@ -24,7 +24,8 @@ def test_identification_recording_has_the_spec_columns_stress_and_rate() -> None
     assert tuple(rec.columns) == COLUMN_ORDER
     assert rec.metadata["sample_rate_hz"] == 2000.0
     assert len(rec) == int(round(4 * 2000 / 3.0))                  # four 3 Hz periods
-    assert np.mean(rec.stress_MPa) == pytest.approx(-15.2, abs=0.1)
+    # the preload spring adds ~0.2 MPa over a 55 um stroke (0.2 N/um on a phi 7 mm rod)
+    assert np.mean(rec.stress_MPa) == pytest.approx(-15.2, abs=0.25)
     assert rec.columns["current_cmd_A"].max() == pytest.approx(3.0, abs=1e-3)
     assert 10.0 < np.ptp(rec.displacement_um) < 100.0
     assert np.abs(rec.columns["current_A"] - rec.columns["current_cmd_A"]).max() < 0.01   # noise only

@@ -56,9 +56,10 @@ def tracking_rms_um(rec: Recording, skip_s: float = 0.0) -> float:
     return float(np.sqrt(np.mean(err * err)))
 
 
-def cached_sdpi_and_mpi(cache_dir: str | Path) -> tuple[Any, Any]:
-    """`fit_sdpi_and_mpi(identification_recordings())`, saved as model files in `cache_dir`, keyed
-    by the source of the plant and the identifier, so parallel test workers fit only once."""
+def cached_sdpi_and_mpi(cache_dir: str | Path, plant_cfg: Any = None) -> tuple[Any, Any]:
+    """`fit_sdpi_and_mpi(identification_recordings(plant_cfg))`, saved as model files in
+    `cache_dir`, keyed by the source of the plant and the identifier and by the plant config, so
+    parallel test workers fit only once."""
     from .. import identify, model as model_mod, operators
     from ..errors import ModelError
     from ..modelio import load_model, save_model
@@ -68,6 +69,7 @@ def cached_sdpi_and_mpi(cache_dir: str | Path) -> tuple[Any, Any]:
     digest = hashlib.sha256()
     for mod in (identify, model_mod, operators, hil_sim.kernels, hil_sim.plant):
         digest.update(Path(mod.__file__).read_bytes())
+    digest.update(repr(plant_cfg).encode())
     key = digest.hexdigest()[:16]
     folder = Path(cache_dir)
     paths = folder / f"sdpi_{key}.yaml", folder / f"mpi_{key}.yaml"
@@ -75,7 +77,7 @@ def cached_sdpi_and_mpi(cache_dir: str | Path) -> tuple[Any, Any]:
         return load_model(paths[0]), load_model(paths[1])
     except (ModelError, OSError):
         pass
-    sdpi, mpi = fit_sdpi_and_mpi(identification_recordings())
+    sdpi, mpi = fit_sdpi_and_mpi(identification_recordings(plant_cfg=plant_cfg))
     folder.mkdir(parents=True, exist_ok=True)
     save_model(sdpi, paths[0])
     save_model(mpi, paths[1])
