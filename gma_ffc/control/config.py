@@ -16,6 +16,7 @@ from typing import Any, Mapping
 
 from ..errors import ConfigError
 from ..yamlfile import read_yaml
+from .learning import LearningConfig, reference_period_s
 from .schema import Field, pair, validate_section
 
 DEFAULT_ROD_DIAMETER_MM = 7.0
@@ -33,6 +34,7 @@ TOP = {
     "telemetry": Field("map", {}),
     "scheduler": Field("map", {}),
     "watchdog_s": Field("float", 0.5, min=0.0, min_exclusive=True),
+    "learning": Field("map", {}, help="learning feedforward (off by default): {kind: repetitive}"),
 }
 
 STRESS = {
@@ -143,6 +145,7 @@ class ControllerConfig:
     telemetry: dict[str, Any]
     scheduler: dict[str, Any]
     watchdog_s: float
+    learning: LearningConfig = field(default_factory=LearningConfig)
     source: str = "<memory>"
     raw: dict[str, Any] = field(default_factory=dict, repr=False)
 
@@ -203,6 +206,14 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
     if telemetry["path"] is not None:
         telemetry["path"] = _resolve(telemetry["path"], base)
 
+    learning = LearningConfig.from_mapping(top["learning"] or None)
+    if learning.enabled and learning.period_s is None and reference_period_s(reference) is None \
+            and not (reference["kind"] == "playback" and reference["loop"]):
+        raise ConfigError("config key 'learning.period_s' is required: the reference is not periodic, so the "
+                          "learner cannot take its period from it")
+    if learning.file is not None:
+        learning = LearningConfig(**{**learning.to_dict(), "file": _resolve(learning.file, base)})
+
     return ControllerConfig(
         rate_hz=top["rate_hz"],
         clock=top["clock"],
@@ -216,6 +227,7 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
         telemetry=telemetry,
         scheduler=validate_section(top["scheduler"], SCHEDULER, "scheduler"),
         watchdog_s=top["watchdog_s"],
+        learning=learning,
         source=source,
         raw=dict(data),
     )

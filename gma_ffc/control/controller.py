@@ -29,6 +29,7 @@ from ..drivers import Driver, DriverError, Inputs, driver_class
 from ..drivers.base import CURRENT, DISPLACEMENT, FORCE, STRESS
 from ..errors import ConfigError, GmaError
 from . import safety
+from .learning import RepetitiveLearner, model_gain_table, reference_period_s
 from .config import ControllerConfig
 from .reference import Reference, build_reference
 from .scheduler import MonotonicClock, Scheduler, SimulatedClock, TickStats
@@ -87,6 +88,7 @@ class Controller:
                                       self.period_s, self.safe_A)
         self.monitor = self._make_monitor(cfg)
         self.stepper = model.inverse_stepper(self.period_s, initial_drive=self.safe_A)
+        self.learner = make_learner(cfg, model, self.reference)
         self._set_stress_range(model)
         _warm_up(model, self.period_s, self.stress_lo, self.stress_hi)
         self.stats = TickStats(self.period_s)
@@ -150,8 +152,11 @@ class Controller:
         last = self.limiter.last
         stepper = model.inverse_stepper(self.period_s, initial_drive=last)
         monitor = self._make_monitor(new_cfg)
+        learner = make_learner(new_cfg, model, reference[0])
+        if learner is not None:
+            learner.last_event = "reset: configuration reloaded"
         with self._lock:
-            self._pending = (new_cfg, model, reference, stepper, monitor)
+            self._pending = (new_cfg, model, reference, stepper, monitor, learner)
         if self.state in ("idle", "stopped", "fault"):
             self._apply_pending()
 
@@ -160,7 +165,7 @@ class Controller:
             pending, self._pending = self._pending, None
         if pending is None:
             return
-        cfg, model, reference, stepper, monitor = pending
+        cfg, model, reference, stepper, monitor, learner = pending
         lim = cfg.limits
         last = self.limiter.last
         # Bumpless: the new inverse starts relaxed at the current command; limits keep `last`.
@@ -172,6 +177,7 @@ class Controller:
         self.safe_A = lim["safe_current_A"]
         self.cfg, self.model, (self.reference, self.reference_now), self.stepper, self.monitor = \
             cfg, model, reference, stepper, monitor
+        self.learner = learner
         self._set_stress_range(model)
 
     # ---- faults ----------------------------------------------------------------------------
@@ -218,6 +224,8 @@ class Controller:
             cols.append(DISPLACEMENT)
         if FORCE in ch:
             cols.append(FORCE)
+        if self.learner is not None:
+            cols.append("correction_um")
         return cols
 
     def _open_driver(self, stop_event: threading.Event) -> bool:
@@ -322,6 +330,7 @@ class Controller:
             self._write_safe()
         if watchdog is not None:
             watchdog.join(timeout=2.0)
+        self._save_learned()
         if self.telemetry is not None:
             self.telemetry.close()
             if self.telemetry.error:
@@ -334,6 +343,16 @@ class Controller:
                                                                            or self.stress_policy_fault)]
         self.state = "fault" if hard else "stopped"
         return self._summary()
+
+    def _save_learned(self) -> None:
+        """Keep what was learned for the next run (`learning.file`, `gma-ffc run --learned`)."""
+        path = self.cfg.learning.file
+        if self.learner is None or path is None or self.learner.learned_periods == 0:
+            return
+        try:
+            save_learned(self.learner, path)
+        except OSError as exc:
+            self._raise_fault("learning_save_failed", f"could not save the learned correction to {path}: {exc}")
 
     def _watchdog(self, stop: threading.Event) -> None:
         """Trip when the loop makes no progress for watchdog_s (a hung driver call, a stall)."""
@@ -391,6 +410,9 @@ class Controller:
                 stress = self.monitor.stress
                 ref = self.reference.value(t)
                 ref_now = self.reference_now.value(t)
+                learner = self.learner
+                if learner is not None:      # learning feedforward: the inverse follows r + c
+                    ref += learner.correction(t + self.reference.lead_s)
                 if mode == RUNNING and stress == stress:
                     if stress < self.stress_lo or stress > self.stress_hi:
                         self._stress_out_of_range(stress)
@@ -410,6 +432,16 @@ class Controller:
                 cmd = self.limiter.apply(u)
                 self._at_safe = False
                 driver.write(cmd)
+                if learner is not None:
+                    if mode != RUNNING:
+                        learner.observe(t, ref_now, inputs.displacement_um, stress, False, "stopping")
+                    elif stress != stress:
+                        learner.observe(t, ref_now, inputs.displacement_um, stress, False, "no valid stress yet")
+                    elif cmd != u:
+                        learner.observe(t, ref_now, inputs.displacement_um, stress, False,
+                                        "command limited (ramp, slew or current limit)")
+                    else:
+                        learner.observe(t, ref_now, inputs.displacement_um, stress, True)
             except _TickFault as fault:
                 if read_ok:   # a tick whose read failed has no data to log
                     self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
@@ -425,6 +457,8 @@ class Controller:
                                      disp_col, force_col, tel, safe=True)
                 self._raise_fault(name, str(exc))
                 self._write_safe()
+                if self.learner is not None:
+                    self.learner.freeze(t, "comms fault: at the safe current, reconnecting")
                 if mode == RUNNING and self.cfg.comms["on_fault"] == "reconnect" and self._reconnect(stop_event):
                     self.stepper.reset(self.safe_A)
                     self.monitor.bad_run = 0
@@ -473,6 +507,8 @@ class Controller:
             row[disp_col] = inputs.displacement_um
         if force_col >= 0:
             row[force_col] = inputs.force_N
+        if self.learner is not None:
+            row[-1] = 0.0 if safe else self.learner.last_correction_um
         self.last_current_A = row[3]
         self.last_displacement_um = inputs.displacement_um
         tel.push(row)
@@ -516,6 +552,7 @@ class Controller:
             "exit_reason": self.exit_reason,
             "started_unix_s": self.started_unix_s,
             "model_kind": getattr(self.model, "kind", None),
+            "learning": {"enabled": False} if self.learner is None else self.learner.status(),
             "driver": self.driver.health(),
             "telemetry": None if tel is None else {"path": str(tel.path) if tel.path else None,
                                                    "rows": tel.head, "rows_written": tel.rows_written,
@@ -565,6 +602,41 @@ def _warm_up(model: Any, dt: float, lo: float, hi: float) -> None:
     """Call a throwaway stepper once so JIT compilation / cache loading happens before tick 1."""
     mid = 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else -11.3
     model.inverse_stepper(dt, initial_drive=0.0).step(0.0, mid)
+
+
+def make_learner(cfg: ControllerConfig, model: Any, reference: Reference) -> RepetitiveLearner | None:
+    """The repetitive learner the config asks for (None when learning is off), with the saved
+    correction of an earlier run when `learning.file` holds one learned for this model."""
+    lc = cfg.learning
+    if not lc.enabled:
+        return None
+    period = lc.period_s or reference_period_s(cfg.reference) or getattr(reference, "duration", None)
+    if not period:
+        raise ConfigError("config key 'learning.period_s' is required: the reference is not periodic")
+    learner = RepetitiveLearner(lc, cfg.rate_hz, period, model_gain_table(model), model_fingerprint(model))
+    if lc.file is not None and os.path.exists(lc.file):
+        from ..yamlfile import read_yaml
+
+        learner.load_dict(read_yaml(lc.file, "learned-correction file", ConfigError), lc.file)
+    return learner
+
+
+def model_fingerprint(model: Any) -> str:
+    """A short hash of the model's data: a learned correction belongs to the model it was learned through."""
+    import hashlib
+    import json
+
+    return hashlib.sha256(json.dumps(model.to_dict(), sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def save_learned(learner: RepetitiveLearner, path: str) -> None:
+    import yaml
+
+    from ..atomic import atomic_write
+
+    with atomic_write(path) as fh:
+        fh.write("# gma-ffc learned feedforward correction: loaded by `gma-ffc run --learned FILE`\n")
+        yaml.safe_dump(learner.to_dict(), fh, sort_keys=False)
 
 
 def ref_or_nan(ctrl: Controller) -> float:
