@@ -42,6 +42,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=positive_seconds, metavar="S",
                    help="stop after S seconds (default: run until stopped)")
     p.add_argument("--stats-json", metavar="F", help="write the final status to F (atomically)")
+    p.add_argument("--learned", metavar="FILE",
+                   help="learning feedforward's correction: start from FILE if it exists (learned "
+                        "for this model, period and rate) and save it back there at stop; needs "
+                        "'learning: {kind: repetitive}' in the config (overrides learning.file)")
     add_runtime_dir(p)
     p.add_argument("--no-socket", action="store_true",
                    help="do not serve the control socket (several scripted runs side by side)")
@@ -60,7 +64,27 @@ def _run(args: argparse.Namespace) -> int:
     logging.basicConfig(stream=sys.stderr, level=getattr(logging, args.log_level),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     runtime = None if args.no_socket else runtime_paths(args.runtime_dir)
-    service = Service(config, duration_s=args.duration, stats_json=args.stats_json, runtime=runtime)
+    extra = {} if args.learned is None else {"load_config": _with_learned_file(args.learned)}
+    service = Service(config, duration_s=args.duration, stats_json=args.stats_json, runtime=runtime, **extra)
     code = service.run()
     logging.getLogger("gma_ffc.service").info("stopped: %s", service.status()["service"]["stop_reason"])
     return code
+
+
+def _with_learned_file(path: str):
+    """A config loader that points learning.file at `path` (the --learned option)."""
+    import dataclasses
+
+    from ..control.config import load_config
+
+    learned = str(Path(path).expanduser().resolve())
+
+    def load(config_path: Path):
+        cfg = load_config(config_path)
+        if not cfg.learning.enabled:
+            raise ConfigError(f"--learned {path}: learning is off in {config_path}; add "
+                              f"'learning: {{kind: repetitive}}' to use a learned correction")
+        cfg.learning = dataclasses.replace(cfg.learning, file=learned)
+        return cfg
+
+    return load
