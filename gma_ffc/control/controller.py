@@ -456,6 +456,9 @@ class Controller:
                     self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
                                      disp_col, force_col, tel, safe=True)
                 self._raise_fault(name, str(exc))
+                # Fault handling is bounded (comms timeouts, safe_retry_s, the reconnect policy):
+                # the watchdog, which guards against a loop that hangs, pauses until the next tick.
+                self._heartbeat = math.nan
                 self._write_safe()
                 if self.learner is not None:
                     self.learner.freeze(t, "comms fault: at the safe current, reconnecting")
