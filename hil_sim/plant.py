@@ -65,7 +65,7 @@ class MagneticsConfig:
     reversibility: float = 0.2                   # JA 'c'
     interdomain_coupling: float = 0.0            # JA 'alpha'
     saturation_magnetostriction_ppm: float = 1200.0   # 3/2 lambda_s
-    stress_coupling: float = 0.8                 # multiplier on the Sablik-Jiles magnetoelastic field
+    stress_coupling: float = 0.9                 # multiplier on the Sablik-Jiles magnetoelastic field
     stress_saturation_MPa: float = 6.0           # S: stress enters as S*tanh(sigma/S); 0 = linear
     stress_dependent_width: bool = False         # option: pinning (loop width) follows stress
     width_change_per_MPa: float = 0.12           # relative pinning change per MPa of extra compression
