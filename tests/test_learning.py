@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import tracemalloc
 from pathlib import Path
 
@@ -288,3 +289,12 @@ def test_run_learned_without_learning_in_the_config_is_refused(tmp_path):
     cfg = write_config(tmp_path, {})
     out = gma("run", "--config", cfg, "--duration", 1, "--no-socket", "--learned", tmp_path / "l.yaml")
     assert out.returncode == 2 and "learning is off" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_status_table_shows_learning_and_why_it_froze():
+    from gma_ffc.service.status import format_table
+
+    run = run_tracking(MODEL, 20.0, 12, learning={"kind": "repetitive"})
+    table = format_table(run.status)
+    assert "learning" in table and "periods learned" in table and "stopping" in table   # frozen at stop
+    assert re.search(r"^learning +off$", format_table(run_tracking(MODEL, 20.0, 2).status), re.M)

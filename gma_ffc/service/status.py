@@ -84,6 +84,17 @@ def fields(status: Mapping[str, Any]) -> list[tuple[str, str]]:
         ("reference", _num(_get(status, "reference_um", "last_reference_um"), ".3f", " um")),
         ("faults", ", ".join(faults_of(status)) or "none"),
     ]
+    learning = status.get("learning") or {}
+    if learning.get("enabled"):
+        trend = " ".join(f"{v:.3f}" for v in learning.get("rms_trend_um", [])[-5:]) or "-"
+        state = f"FROZEN since t={learning.get('frozen_since_s', 0):.2f} s: {learning['frozen_reason']}" \
+            if learning.get("frozen") else "learning"
+        rows.append(("learning", f"{state}; {learning.get('learned_periods', 0)} periods learned; "
+                                 f"RMS per period (um, last 5): {trend}"))
+        if learning.get("last_event"):
+            rows.append(("learning event", str(learning["last_event"])))
+    elif "learning" in status:
+        rows.append(("learning", "off"))
     reload = svc.get("last_reload")
     if reload:
         when = _dt.datetime.fromtimestamp(reload.get("at_unix", 0)).strftime("%H:%M:%S")
