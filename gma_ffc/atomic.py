@@ -6,7 +6,7 @@ import contextlib
 import os
 import tempfile
 from pathlib import Path
-from typing import IO, Iterator
+from typing import IO, Iterable, Iterator
 
 
 @contextlib.contextmanager
@@ -41,3 +41,26 @@ def _umask() -> int:
     mask = os.umask(0o022)
     os.umask(mask)
     return mask
+
+
+def refuse_overwrite(output: str | os.PathLike, inputs: "Iterable[str | os.PathLike]", what: str = "output") -> None:
+    """InputError if writing `output` would replace one of `inputs`: the same path, or the same
+    file under another name (a symlink, a hard link, a bind mount: compared by device and inode).
+    Also refuses an output folder that contains an input when `output` is a directory to be filled."""
+    from .errors import InputError
+
+    out = Path(output)
+    try:
+        out_stat = out.stat()
+    except OSError:
+        out_stat = None
+    out_real = os.path.realpath(out)
+    for src in inputs:
+        p = Path(src)
+        same = os.path.realpath(p) == out_real
+        if not same and out_stat is not None:
+            with contextlib.suppress(OSError):
+                st = p.stat()
+                same = (st.st_dev, st.st_ino) == (out_stat.st_dev, out_stat.st_ino)
+        if same:
+            raise InputError(f"{what} {out} is the input {p}: refusing to overwrite it; choose another output name")

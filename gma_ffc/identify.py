@@ -65,6 +65,7 @@ class _Data:
     sigma: np.ndarray | None
     plays: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
     rows: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=int))
+    start: int | None = None      # first fitted sample; None: after the burn-in sweep
 
 
 def slope_basis(z: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -108,6 +109,19 @@ def weights_to_slopes(w: np.ndarray) -> np.ndarray:
     s[..., c:] = np.cumsum(w[..., c:], axis=-1)
     s[..., : c + 1] = np.cumsum(w[..., c::-1], axis=-1)[..., ::-1]
     return s
+
+
+def has_full_sweep(x: np.ndarray, tol: float = 0.1) -> bool:
+    """True when the drive goes from near one extreme of its range to near the other and back
+    (a closed major loop): without it the loop's two branches cannot both be fitted."""
+    lo, hi = (float(v) for v in np.percentile(x, [1.0, 99.0]))  # a start-up or stop ramp is no cycle
+    span = hi - lo
+    if span <= 0:
+        return False
+    level = np.where(x <= lo + tol * span, -1, np.where(x >= hi - tol * span, 1, 0))
+    marks = level[level != 0]
+    changes = np.count_nonzero(np.diff(marks) != 0)
+    return changes >= 2
 
 
 def burn_in_end(x: np.ndarray, tol: float = 0.02) -> int:
@@ -166,8 +180,9 @@ class SDPIIdentifier:
     # -- public ------------------------------------------------------------------------------
     def fit(self, recordings: Sequence[Recording]) -> "SDPIIdentifier":
         self._check_settings()
-        data = self._prepare(recordings)
         self.notes_: list[str] = []
+        data = self._prepare(recordings)
+        self.output_sign_ = self._orientation(data)
         levels, per_rec_stress = self._stress_levels(data)
         self.stress_levels_MPa_ = levels
         x_all = np.concatenate([d.x for d in data])
@@ -181,7 +196,31 @@ class SDPIIdentifier:
             y0 = d.x[0] - x_c + (r_h if self.initial_state == "descending" else 0.0)
             d.plays = np.empty((len(d.x), self.n_play))
             ops.play_outputs(np.ascontiguousarray(d.x - x_c), r_h, y0, d.plays)
+        self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c, (x_lo, x_hi))
+        # A recording whose burn-in sweep is a large share of it (one cycle, a cut-out window)
+        # loses most of its data to the unknown initial state: estimate that state with the
+        # first model and fit again on every sample.
+        short = [d for d in data if burn_in_end(d.x) > 0.2 * len(d.x)]
+        if short:
+            from .initial_state import resolve
 
+            for d in short:
+                start = resolve(self.model_, d.x, d.sigma, "estimate", self.output_sign_ * d.y)
+                d.start = 0
+                ops.play_outputs(np.ascontiguousarray(d.x - x_c), r_h,
+                                 np.ascontiguousarray(start.play_state), d.plays)
+            self.notes_.append(f"{len(short)} recording(s) start with a large share of unknown hysteresis "
+                               "history: their initial state was estimated and all their samples fitted")
+            self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c, (x_lo, x_hi))
+        self._check_degenerate(data)
+        return self
+
+    def _fit_all(self, recordings: Sequence[Recording], data: list[_Data], levels: list[float],
+                 per_rec_stress: list[float | None], r_h: np.ndarray, x_c: float,
+                 drive_range: tuple[float, float]) -> None:
+        """Steps 1-3 (and the joint passes) on prepared data; sets model_ and report_."""
+        x_lo, x_hi = drive_range
+        notes_before = list(self.notes_)
         stress_dependent = len(levels) > 1
         if stress_dependent:
             ref = self.reference_stress_MPa if self.reference_stress_MPa is not None else max(levels)
@@ -192,11 +231,20 @@ class SDPIIdentifier:
         else:
             ref_level = levels[0] if levels else None
             ref_data = data
-            if levels:
-                self.notes_.append(f"all recordings are at one stress ({levels[0]:.3g} MPa): fitted a "
-                                   "stress-independent MPI; give recordings at several stresses for an SDPI")
+            if levels:   # the range the stress really covers (a few glitch rows do not count)
+                lo_s, hi_s = np.percentile(np.concatenate([d.sigma for d in data if d.sigma is not None]),
+                                           [0.5, 99.5])
+            if levels and hi_s - lo_s > 2 * self.stress_tolerance_MPa:
+                note = (f"the stress varies ({lo_s:.3g}..{hi_s:.3g} MPa) but dwells at only "
+                        f"one level ({levels[0]:.3g} MPa): fitted a stress-independent MPI; record at least "
+                        "three levels, each held for a few drive cycles, for an SDPI")
+            elif levels:
+                note = (f"all recordings are at one stress ({levels[0]:.3g} MPa): fitted a stress-independent "
+                        "MPI; give recordings at several stresses for an SDPI")
             else:
-                self.notes_.append("recordings have no stress_MPa column: fitted a stress-independent MPI")
+                note = "recordings have no stress_MPa column: fitted a stress-independent MPI"
+            if note not in self.notes_:
+                self.notes_.append(note)
 
         self._say("step 1: MPI at the reference stress")
         w_h, r_s, slopes, y_c = self._fit_mpi(ref_data)
@@ -225,7 +273,7 @@ class SDPIIdentifier:
         self.model_ = SDPIModel(
             play_thresholds=r_h, play_weights=w_h, deadzone_thresholds=r_s, deadzone_coeffs=coeffs,
             output_coeffs=out_coeffs, input_offset=x_c, stress_range_MPa=stress_range,
-            reference_stress_MPa=ref_level, drive_range=(x_lo, x_hi),
+            reference_stress_MPa=ref_level, drive_range=(x_lo, x_hi), output_sign=self.output_sign_,
             drive_name=recordings[0].drive_name, initial_state=self.initial_state,
             provenance={"tool": "gma-ffc identify", "recordings": [d.name for d in data],
                         "settings": {"n_play": self.n_play, "n_deadzone": self.n_deadzone,
@@ -233,10 +281,42 @@ class SDPIIdentifier:
         )
         violations = self.model_.invertibility_violations()
         if violations:  # cannot happen by construction; refuse rather than hand out a bad inverse
-            raise InputError("identified model violates Proposition 3.1: " + "; ".join(map(str, violations)))
+            raise InputError("identified model violates Proposition 3.1 (no unique inverse): "
+                             + "; ".join(map(str, violations)) + ". Record the full drive range at every "
+                             "stress, or fit fewer dead-zones (--deadzones 5)")
         self.report_ = [self._score(d) for d in data]
         self.model_.provenance["fit_rms_um"] = {f.name: round(f.rms_um, 6) for f in self.report_}
-        return self
+        del notes_before
+
+    def _orientation(self, data: list[_Data]) -> float:
+        """+1 if the displacement rises with the drive, -1 if it falls (the data are then fitted
+        negated, and the model carries output_sign -1): the slope of y on x over all data."""
+        x = np.concatenate([d.x for d in data])
+        y = np.concatenate([d.y for d in data])
+        slope = float(np.polyfit(x, y, 1)[0]) if np.ptp(x) > 0 else 0.0
+        if slope < 0:
+            for d in data:
+                d.y = -d.y
+            self.notes_.append("the displacement falls as the drive rises: identified as a falling actuator "
+                               "(output_sign -1 in the model)")
+            return -1.0
+        return 1.0
+
+    def _check_degenerate(self, data: list[_Data]) -> None:
+        """Refuse a model that explains almost none of the displacement: flat, or noise."""
+        y = np.concatenate([d.y for d in data])
+        pred = np.concatenate([self.output_sign_ * self.model_.simulate(None, d.x, d.sigma) for d in data])
+        total = float(np.var(y))
+        explained = 1.0 - float(np.var(y - pred)) / total if total > 0 else 0.0
+        stroke = float(np.ptp(self.output_sign_ * self.model_.simulate(
+            None, np.linspace(*self.model_.drive_range, 200), None if self.model_.stress_range_MPa is None
+            else self.model_.reference_stress_MPa)))
+        if explained < 0.5 or stroke <= 0:
+            names = ", ".join(d.name for d in data)
+            raise InputError(f"{names}: the displacement hardly follows the drive (the model explains "
+                             f"{100 * max(explained, 0):.0f} % of its variance, stroke {stroke:.3g} um): check that "
+                             "the columns are the drive and the displacement of one actuator, and record with a "
+                             "drive that moves it over most of its stroke")
 
     # -- preparation -------------------------------------------------------------------------
     def _check_settings(self) -> None:
@@ -257,9 +337,20 @@ class SDPIIdentifier:
         if len(drives) > 1:
             raise InputError(f"recordings mix drives {sorted(drives)}; identify one kind at a time")
         data = []
+        min_samples = 8 * (self.n_play + self.n_deadzone)
         for r in recordings:
             if r.displacement_um is None:
                 raise InputError(f"{r.source}: identification needs a displacement_um column")
+            if len(r) < min_samples:
+                raise InputError(f"{r.source}: only {len(r)} samples; identifying {self.n_play} plays and "
+                                 f"{self.n_deadzone} dead-zones needs at least {min_samples}: record at least one "
+                                 "full drive cycle (min to max and back) with tens of samples per cycle")
+            if np.ptp(r.drive) <= 0:
+                raise InputError(f"{r.source}: the drive is constant; a hysteresis model needs a swept drive")
+            if not has_full_sweep(r.drive):
+                raise InputError(f"{r.source}: the drive never sweeps from one end of its range to the other and "
+                                 "back, so the hysteresis loop is not in the data: record at least one full "
+                                 "drive cycle (min to max and back)")
             data.append(_Data(r.name, r.drive.copy(), r.displacement_um.copy(),
                               None if r.stress_MPa is None else r.stress_MPa.copy()))
         return data
@@ -280,7 +371,7 @@ class SDPIIdentifier:
         return levels, per_rec
 
     def _rows(self, d: _Data) -> np.ndarray:
-        start = burn_in_end(d.x)
+        start = burn_in_end(d.x) if d.start is None else d.start
         n = len(d.x) - start
         step = max(1, n // self.max_rows)
         return np.arange(start, len(d.x), step)
@@ -502,9 +593,11 @@ class SDPIIdentifier:
 
     # -- scoring -----------------------------------------------------------------------------
     def _score(self, d: _Data) -> RecordingFit:
-        pred = self.model_.simulate(None, d.x, d.sigma)
-        start = burn_in_end(d.x)
-        err = pred[start:] - d.y[start:]
+        """RMS over the fitted samples, the model started from its estimated initial state."""
+        measured = self.output_sign_ * d.y                 # the recording's own orientation
+        pred = self.model_.simulate(None, d.x, d.sigma, measured_um=measured)
+        start = burn_in_end(d.x) if d.start is None else d.start
+        err = pred[start:] - measured[start:]
         stroke = float(d.y.max() - d.y.min())
         stress = None if d.sigma is None else float(np.median(d.sigma))
         return RecordingFit(d.name, stress, rms(err), stroke, float(np.max(np.abs(err))))

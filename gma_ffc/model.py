@@ -16,7 +16,7 @@ import numpy as np
 
 from . import operators as ops
 from .errors import ModelError
-from .inverse import play_inverse, play_inverse_initial_state
+from .inverse import deadzone_inverse, play_inverse, play_inverse_initial_state
 
 INITIAL_STATES = ("descending", "relaxed")
 
@@ -47,8 +47,11 @@ class SDPIModel:
     output_coeffs     (3,): output offset c(sigma) = o0 + o1 sigma + o2 sigma^2 (um)
     input_offset      x_c: the drive value the operators are centred on
     stress_range_MPa  (lo, hi) identified on, None for a stress-independent MPI
-    initial_state     "descending": plays start as if the drive came down to its first value (a
-                      rig that ended its last run at 0 A); "relaxed": plays start centred on it
+    output_sign       +1 for an actuator whose displacement rises with the drive, -1 for one whose
+                      displacement falls (a poled ceramic driven the other way): y = sign * (...)
+    initial_state     the state a stepper without an explicit one starts from (file format 1's
+                      field, kept): "descending" as if the drive came down to its first value,
+                      "relaxed" centred on it. Batch runs take `gma_ffc.initial_state` rules.
     """
 
     play_thresholds: np.ndarray
@@ -63,6 +66,7 @@ class SDPIModel:
     drive_name: str = "current_A"
     initial_state: str = "descending"
     provenance: dict[str, Any] = field(default_factory=dict)
+    output_sign: float = 1.0
 
     def __post_init__(self) -> None:
         self.play_thresholds = np.ascontiguousarray(self.play_thresholds, dtype=float)
@@ -125,6 +129,9 @@ class SDPIModel:
             lo, hi = self.stress_range_MPa
             if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
                 raise ModelError(f"stress range must be two finite values, low < high, got {self.stress_range_MPa}")
+        if self.output_sign not in (1.0, -1.0):
+            raise ModelError(f"output_sign must be +1 (displacement rises with the drive) or -1 (falls), "
+                             f"got {self.output_sign!r}")
         if self.initial_state not in INITIAL_STATES:
             raise ModelError(f"initial_state must be one of {INITIAL_STATES}, got {self.initial_state!r}")
 
@@ -221,24 +228,75 @@ class SDPIModel:
         state[: self.n_play] = play_inverse_initial_state(self.play_weights, state[: self.n_play])
         return state
 
+    def resolve_initial_state(self, drive: Any, stress_MPa: Any = None, initial_state: Any = None,
+                              measured_um: Any = None, time_s: Any = None) -> Any:
+        """The `gma_ffc.initial_state` rule for a run on `drive` (default: the shared DEFAULT)."""
+        from .initial_state import DEFAULT, ResolvedInitialState, resolve
+
+        if isinstance(initial_state, ResolvedInitialState):
+            return initial_state
+        x = np.ascontiguousarray(drive, dtype=float)
+        s = None if stress_MPa is None else self._stress_array(stress_MPa, x.size)
+        return resolve(self, x, s, DEFAULT if initial_state is None else initial_state, measured_um, time_s)
+
     def simulate(self, time_s: Any, drive: Any, stress_MPa: Any = None,
-                 initial_drive: float | None = None, initial_play_state: Any = None) -> np.ndarray:
-        """Displacement (um) for a drive history; time is unused (rate-independent)."""
+                 initial_drive: float | None = None, initial_play_state: Any = None,
+                 initial_state: Any = None, measured_um: Any = None) -> np.ndarray:
+        """Displacement (um) for a drive history; time is unused (rate-independent).
+
+        The play states at the first sample: `initial_play_state` if given, else relaxed-from
+        `initial_drive` if given (the model's stepper convention), else the `initial_state`
+        rule (`gma_ffc.initial_state`; default "estimate", which uses `measured_um` if given).
+        """
         x = np.ascontiguousarray(drive, dtype=float)
         if x.ndim != 1 or x.size == 0 or not np.all(np.isfinite(x)):
             raise ModelError("drive must be a non-empty 1-D array of finite values")
         s = self._stress_array(stress_MPa, x.size)
+        if initial_play_state is None and initial_drive is None:
+            initial_play_state = self.resolve_initial_state(x, s if self.stress_range_MPa else None,
+                                                            initial_state, measured_um, time_s).play_state
         state = self.forward_state(x[0] if initial_drive is None else initial_drive, initial_play_state)
         out = np.empty_like(x)
         ops.forward_batch(x, s, self._packed, state, out)
+        if self.output_sign < 0:
+            np.negative(out, out=out)
         return out
 
+    def _core_output_inverse(self, y: float, stress: float) -> float:
+        """z with D_sigma(z) + c(sigma) = y: the dead-zone superposition's inverse at one stress."""
+        r_inv, w_inv = deadzone_inverse(self.deadzone_thresholds, self.deadzone_weights(stress))
+        v = y - self.output_offset(stress)
+        z = 0.0
+        for r, w in zip(r_inv, w_inv):
+            z += w * (max(v - r, 0.0) if r > 0 else min(v - r, 0.0) if r < 0 else v)
+        return float(z)
+
+    def invert_initial_state(self, reference_um: np.ndarray, stress0: float | None,
+                             direction: int | None = None) -> tuple[np.ndarray, str]:
+        """Forward play states for `invert` such that the model's output at the first sample IS
+        the reference, and that the shared default rule, applied to invert's own output drive,
+        gives back: plays at the boundary the drive's first monotone stretch implies
+        (`direction`, by default the reference's: the model rises with the drive on every branch)."""
+        from .initial_state import first_direction
+
+        y = self.output_sign * np.asarray(reference_um, dtype=float)
+        d = first_direction(y) if direction is None else direction
+        z0 = self._core_output_inverse(float(y[0]), 0.0 if stress0 is None else stress0)
+        r, w = self.play_thresholds, self.play_weights
+        v0 = (z0 + d * float(np.dot(w, r))) / float(np.sum(w))
+        how = {1: "the drive first rises", -1: "the drive first falls", 0: "the reference never moves"}[d]
+        return v0 - d * r, f"consistent with the first monotone stretch ({how}), output = reference at t0"
+
     def invert(self, time_s: Any, reference_um: Any, stress_MPa: Any = None,
-               initial_drive: float | None = None, initial_play_state: Any = None) -> np.ndarray:
+               initial_drive: float | None = None, initial_play_state: Any = None,
+               initial_state: Any = None) -> np.ndarray:
         """The drive that makes the model follow `reference_um` (analytic inverse, eq. 17).
 
-        The actuator is taken to rest at `initial_drive` (default: the low end of the identified
-        range), or in the forward play state `initial_play_state`, mapped to the inverse by (10).
+        Start: `initial_play_state` (forward plays, mapped to the inverse by (10)) or relaxed at
+        `initial_drive` if given; by default the state whose output is the reference's first
+        value, consistent with the first monotone stretch (see `invert_initial_state`), so that
+        simulating the result with the default rule returns the reference from the first sample.
+        `initial_state` "relaxed" / "drive:V" take those rules at the drive they imply.
         """
         y = np.ascontiguousarray(reference_um, dtype=float)
         if y.ndim != 1 or y.size == 0 or not np.all(np.isfinite(y)):
@@ -247,9 +305,29 @@ class SDPIModel:
         x0 = self.drive_range[0] if initial_drive is None else initial_drive
         if not np.isfinite(x0):
             x0 = 0.0
-        state = self.inverse_state(x0, initial_play_state)
+        yy = y if self.output_sign > 0 else -y
         out = np.empty_like(y)
-        ops.inverse_batch(y, s, self._packed, state, out)
+        if initial_play_state is None and initial_drive is None:
+            from .initial_state import InitialStateSpec, first_direction
+
+            spec = InitialStateSpec.parse("estimate" if initial_state is None else initial_state)
+            s0 = float(s[0]) if self.stress_range_MPa else None
+            if spec.kind in ("relaxed", "drive"):
+                p, _ = self.invert_initial_state(y, s0, 0)
+                v = float(p[0]) if spec.kind == "relaxed" else float(spec.drive) - self.input_offset
+                initial_play_state = np.full(self.n_play, v)
+            else:
+                # The drive's first move can differ from the reference's when stress moves the
+                # output too: keep the start whose own output drive confirms its direction.
+                d_ref = first_direction(self.output_sign * y)
+                for d in dict.fromkeys((d_ref, -d_ref, 0)):
+                    p, _ = self.invert_initial_state(y, s0, d)
+                    ops.inverse_batch(yy, s, self._packed, self.inverse_state(x0, p), out)
+                    if first_direction(out) == d:
+                        return out
+                initial_play_state = p
+        state = self.inverse_state(x0, initial_play_state)
+        ops.inverse_batch(yy, s, self._packed, state, out)
         return out
 
     # -- steppers ----------------------------------------------------------------------------
@@ -265,10 +343,11 @@ class SDPIModel:
         centre = (n_s - 1) // 2
         return {
             "format": "gma-ffc-model",
-            "version": 1,
+            "version": 2,
             "kind": self.kind,
             "units": {"drive": self.drive_name.rsplit("_", 1)[-1], "displacement": "um", "stress": "MPa"},
             "drive_name": self.drive_name,
+            "output_sign": int(self.output_sign),
             "input_offset": float(self.input_offset),
             "initial_state": self.initial_state,
             "play": {
@@ -288,8 +367,16 @@ class SDPIModel:
             "provenance": self.provenance,
         }
 
+    REQUIRED_KEYS = ("kind", "drive_name", "input_offset", "play", "deadzone", "output_offset_coeffs",
+                     "stress_range_MPa", "drive_range", "provenance")
+
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "SDPIModel":
+        required = cls.REQUIRED_KEYS + (("output_sign",) if d.get("version", 1) >= 2 else ())
+        missing = [k for k in required if k not in d]
+        if missing:
+            raise ModelError(f"missing key{'s' if len(missing) > 1 else ''} {', '.join(repr(k) for k in missing)}: "
+                             f"the file is incomplete (cut short?); write it again with gma-ffc identify")
         try:
             play, dz = d["play"], d["deadzone"]
             coeffs = np.asarray(dz["weight_coeffs"], dtype=float)
@@ -309,6 +396,7 @@ class SDPIModel:
                 drive_name=str(d.get("drive_name", "current_A")),
                 initial_state=str(d.get("initial_state", "descending")),
                 provenance=dict(d.get("provenance") or {}),
+                output_sign=float(d.get("output_sign", 1)),
             )
         except ModelError:
             raise
@@ -321,42 +409,47 @@ class SDPIModel:
             raise ModelError(f"kind says {declared!r} but the stress range makes it {model.kind!r}")
         bad = model.invertibility_violations()
         if bad:
-            raise ModelError("violates Proposition 3.1 (no unique inverse): " + "; ".join(map(str, bad[:3])))
+            raise ModelError("violates Proposition 3.1 (no unique inverse): " + "; ".join(map(str, bad[:3]))
+                             + ". The inverse controller cannot use it: identify the model again (gma-ffc "
+                             "identify) from recordings that sweep the full drive range at every stress")
         return model
 
 
 class ForwardStepper:
     """One sample in, one displacement out; state kept between calls; nothing allocated per step."""
 
-    __slots__ = ("_p", "_state", "_model")
+    __slots__ = ("_p", "_state", "_model", "_sign")
 
     def __init__(self, model: SDPIModel, initial_drive: float = 0.0) -> None:
         self._model = model
         self._p = model._packed
+        self._sign = float(model.output_sign)
         self._state = model.forward_state(initial_drive)
 
-    def reset(self, initial_drive: float = 0.0) -> None:
-        self._state[:] = self._model.forward_state(initial_drive)
+    def reset(self, initial_drive: float = 0.0, play_state: Any = None) -> None:
+        self._state[:] = self._model.forward_state(initial_drive, play_state)
 
     def step(self, drive: float, stress_MPa: float = 0.0) -> float:
-        return ops.forward_step(drive, stress_MPa, self._p, self._state)
+        return self._sign * ops.forward_step(drive, stress_MPa, self._p, self._state)
 
 
 class InverseStepper:
     """One reference sample in, one drive out (analytic inverse); state kept, no allocation."""
 
-    __slots__ = ("_p", "_state", "_model")
+    __slots__ = ("_p", "_state", "_model", "_sign")
 
     def __init__(self, model: SDPIModel, initial_drive: float = 0.0) -> None:
         self._model = model
         self._p = model._packed
+        self._sign = float(model.output_sign)
         self._state = model.inverse_state(initial_drive)
 
-    def reset(self, initial_drive: float = 0.0) -> None:
-        self._state[:] = self._model.inverse_state(initial_drive)
+    def reset(self, initial_drive: float = 0.0, play_state: Any = None) -> None:
+        """Back to the relaxed state at `initial_drive`, or to the forward play state given."""
+        self._state[:] = self._model.inverse_state(initial_drive, play_state)
 
     def step(self, reference_um: float, stress_MPa: float = 0.0) -> float:
-        return ops.inverse_step(reference_um, stress_MPa, self._p, self._state)
+        return ops.inverse_step(self._sign * reference_um, stress_MPa, self._p, self._state)
 
 
 def rms(a: Sequence[float] | np.ndarray) -> float:

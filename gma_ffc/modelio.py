@@ -17,7 +17,7 @@ from .errors import ModelError
 from .yamlfile import read_yaml
 
 FORMAT = "gma-ffc-model"
-VERSION = 1
+VERSION = 2              # 2: output_sign (falling actuators); version-1 files still load
 KINDS: dict[str, str] = {
     "sdpi": "gma_ffc.model:SDPIModel",
     "mpi": "gma_ffc.model:SDPIModel",

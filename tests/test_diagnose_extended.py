@@ -66,7 +66,7 @@ def _drive(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def test_forward_stepper_equals_batch(base):
     m = _all_blocks(base)
     t, u, s = _drive(1500)
-    batch = m.simulate(t, u, s)
+    batch = m.simulate(t, u, s, initial_drive=float(u[0]))     # the stepper's start: relaxed-from u[0]
     fwd = m.forward_stepper(1 / FS, initial_drive=float(u[0]))
     steps = np.array([fwd.step(float(a), float(b)) for a, b in zip(u, s)])
     np.testing.assert_allclose(steps, batch, rtol=1e-9, atol=1e-9)

@@ -30,7 +30,7 @@ def test_save_load_round_trip_is_exact(tmp_path: Path, model: SDPIModel) -> None
     x = 1.5 + 1.4 * np.sin(np.linspace(0, 20, 500))
     np.testing.assert_array_equal(back.simulate(None, x, -17.0), model.simulate(None, x, -17.0))
     d = yaml.safe_load(path.read_text())
-    assert d["format"] == "gma-ffc-model" and d["version"] == 1 and d["kind"] == "sdpi"
+    assert d["format"] == "gma-ffc-model" and d["version"] == 2 and d["kind"] == "sdpi" and d["output_sign"] == 1
     assert d["units"] == {"drive": "A", "displacement": "um", "stress": "MPa"}
     assert d["stress_range_MPa"] == [-24.0, -11.3] and d["provenance"]["recordings"] == ["a.csv"]
 

@@ -42,6 +42,22 @@ def check_drive_name(model: Any, rec: Recording) -> None:
         raise InputError(f"{rec.source}: drive column is {rec.drive_name} but the model was identified on {name}")
 
 
+def add_initial_state_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--initial-state", default="estimate", metavar="RULE", type=_initial_state,
+                   help="hysteresis state at the first sample: estimate (default: fitted to the measured "
+                        "displacement where there is one, else consistent with the drive's first monotone "
+                        "stretch), relaxed, or drive:VALUE (relaxed at that drive)")
+
+
+def _initial_state(text: str) -> Any:
+    from ..initial_state import InitialStateSpec
+
+    try:
+        return InitialStateSpec.parse(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def add_stress_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--stress", type=float, metavar="MPA",
                    help="constant stress in MPa (compression negative) for recordings without stress_MPa")

@@ -42,8 +42,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..identify import SDPIIdentifier
 
+    from ..atomic import refuse_overwrite
+
+    refuse_overwrite(args.output, args.recordings)
     if not args.output.endswith((".yaml", ".yml")):
         raise InputError(f"model file must end in .yaml, got {args.output}")
+    if args.plot:
+        refuse_overwrite(args.plot, args.recordings, "plot")
     recs = read_all(args.recordings, require=("time_s", "drive", "displacement_um"))
     with Progress("identify", total=4) as prog:
         ident = SDPIIdentifier(n_play=args.plays, n_deadzone=args.deadzones,

@@ -10,7 +10,8 @@ import numpy as np
 from ..errors import InputError
 from ..modelio import load_model
 from ..recordings import Recording, read_recording, write_recording
-from ._common import add_stress_option, stress_for
+from ..atomic import refuse_overwrite
+from ._common import add_initial_state_option, add_stress_option, stress_for
 
 HELP = """\
 Compute the feedforward drive for a reference displacement with the model's analytic inverse
@@ -18,6 +19,10 @@ Compute the feedforward drive for a reference displacement with the model's anal
 an SDPI model, stress_MPa. The output is a recording whose current_A is the drive (plus the
 reference and stress). The drive is limited to --limit LO HI when given; a drive leaving the
 range the model was identified on is reported.
+
+The run starts, by default, in the hysteresis state whose output is the reference's first
+value, consistent with the direction the drive first moves, so that `gma-ffc simulate` on the
+output (same default) returns the reference from the first sample.
 
 example:
   gma-ffc invert --model model.yaml reference.csv -o drive.csv --limit 0 3
@@ -27,26 +32,48 @@ example:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("invert", help="open-loop drive for a reference", description=HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--model", required=True, metavar="MODEL.yaml")
+    p.add_argument("--model", required=True, metavar="MODEL.yaml",
+                   help="a model file from gma-ffc identify or gma-ffc diagnose (extended_model.yaml)")
     p.add_argument("reference", metavar="REF.csv", help="time_s, reference_um[, stress_MPa]")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.csv")
-    p.add_argument("--limit", nargs=2, type=float, metavar=("LO", "HI"), help="clip the drive to [LO, HI]")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.csv",
+                   help="the drive, written as a recording (never over REF)")
+    p.add_argument("--limit", nargs=2, type=float, metavar=("LO", "HI"),
+                   help="clip the drive to [LO, HI]; the command says how many samples it clipped and where")
     p.add_argument("--initial-drive", type=float, metavar="A",
-                   help="drive the actuator rests at before the run (default: low end of the identified range)")
+                   help="start relaxed at this drive instead (overrides --initial-state)")
+    add_initial_state_option(p)
     add_stress_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    refuse_overwrite(args.output, [args.reference, args.model])
+    if args.limit and args.limit[0] >= args.limit[1]:
+        raise InputError(f"--limit needs LO < HI, got {args.limit[0]} {args.limit[1]}")
     model = load_model(args.model)
     rec = read_recording(args.reference, require=("time_s", "reference_um"))
     stress = stress_for(model, rec, args.stress)
-    kwargs = {} if args.initial_drive is None else {"initial_drive": args.initial_drive}
+    if args.initial_drive is not None:
+        kwargs, how = {"initial_drive": args.initial_drive}, f"relaxed at drive {args.initial_drive:g}"
+    elif getattr(model, "kind", "") in ("sdpi", "mpi"):
+        kwargs = {"initial_state": args.initial_state}
+        how = (model.invert_initial_state(rec.columns["reference_um"], None if stress is None else
+                                          float(np.ravel(stress)[0]))[1]
+               if args.initial_state.kind == "estimate" else f"{args.initial_state}")
+    else:
+        kwargs, how = {}, "the model kind's own start (relaxed at the low end of the identified drive)"
     drive = model.invert(rec.time_s, rec.columns["reference_um"], stress, **kwargs)
+    clipped_note = ""
     if args.limit:
         lo, hi = args.limit
-        if lo >= hi:
-            raise InputError(f"--limit needs LO < HI, got {lo} {hi}")
+        clipped = (drive < lo) | (drive > hi)
+        if clipped.any():
+            where = np.flatnonzero(clipped)
+            clipped_note = (f"warning: --limit clipped {where.size} of {len(drive)} samples "
+                            f"({100 * where.size / len(drive):.1f} %; {np.count_nonzero(drive < lo)} below {lo:g}, "
+                            f"{np.count_nonzero(drive > hi)} above {hi:g}), first at t = {rec.time_s[where[0]]:.6g} s, "
+                            f"last at t = {rec.time_s[where[-1]]:.6g} s: the actuator will not follow the "
+                            "reference there")
         drive = np.clip(drive, lo, hi)
     name = getattr(model, "drive_name", "current_A")
     cols = {"time_s": rec.time_s, name: drive, "reference_um": rec.columns["reference_um"]}
@@ -59,5 +86,8 @@ def run(args: argparse.Namespace) -> int:
     if outside:
         print(f"warning: the drive leaves the identified range {lo:.4g}..{hi:.4g} at {outside} of "
               f"{len(drive)} samples (extrapolation); consider --limit", file=sys.stderr)
+    if clipped_note:
+        print(clipped_note, file=sys.stderr)
     print(f"drive {drive.min():.4g}..{drive.max():.4g} for {len(drive)} samples -> {args.output}")
+    print(f"initial state: {how}")
     return 0

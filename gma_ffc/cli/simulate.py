@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import sys
+
 import numpy as np
 
 from ..model import rms
 from ..modelio import load_model
 from ..recordings import Recording, write_recording
-from ._common import add_stress_option, check_drive_name, stress_for
+from ..atomic import refuse_overwrite
+from ._common import add_initial_state_option, add_stress_option, check_drive_name, stress_for
 
 HELP = """\
 Run a model (any kind: sdpi, mpi, or an extended model from `gma-ffc diagnose`) on the drive and
@@ -16,40 +19,65 @@ stress of a recording. The output is itself a recording: the same time_s, drive 
 columns, displacement_um = the prediction, and the measured displacement (if the input had one)
 kept as measured_displacement_um.
 
+A recording starts in the middle of a hysteresis history the file does not show. By default
+(--initial-state estimate) the model's state at the first sample is fitted to the measured
+displacement where the recording has one, and otherwise taken consistent with the drive's first
+monotone stretch; the command says which it used.
+
 example:
   gma-ffc simulate --model model.yaml run_19MPa.csv -o predicted.csv
+  gma-ffc simulate --model model.yaml run_19MPa.csv -o predicted.csv --initial-state relaxed
 """
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="predict displacement with a model", description=HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--model", required=True, metavar="MODEL.yaml")
+    p.add_argument("--model", required=True, metavar="MODEL.yaml",
+                   help="a model file from gma-ffc identify or gma-ffc diagnose (extended_model.yaml)")
     p.add_argument("recording", metavar="REC", help="recording with time_s, drive and (for SDPI) stress_MPa")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.csv")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.csv",
+                   help="the prediction, written as a recording (never over REC)")
     add_stress_option(p)
+    add_initial_state_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from ..recordings import read_recording
 
+    refuse_overwrite(args.output, [args.recording, args.model])
     model = load_model(args.model)
     rec = read_recording(args.recording, require=("time_s", "drive"))
     check_drive_name(model, rec)
     stress = stress_for(model, rec, args.stress)
-    pred = model.simulate(rec.time_s, rec.drive, stress)
+    measured = rec.displacement_um
+    start = model.resolve_initial_state(rec.drive, stress, args.initial_state, measured, rec.time_s)
+    pred = model.simulate(rec.time_s, rec.drive, stress, initial_state=start)
     cols = {"time_s": rec.time_s, rec.drive_name: rec.drive}
     if stress is not None:
         cols["stress_MPa"] = np.broadcast_to(np.asarray(stress, float), rec.time_s.shape)
     cols["displacement_um"] = pred
-    measured = rec.displacement_um
     if measured is not None:
         cols["measured_displacement_um"] = measured
     meta = {"source": f"gma-ffc simulate --model {args.model}", "input": rec.name, "model_kind": model.kind}
     write_recording(args.output, Recording(cols, meta, args.output))
     msg = f"predicted {len(rec)} samples -> {args.output}"
     if measured is not None:
-        msg += f" (RMS vs measured {rms(pred - measured):.4f} um)"
+        bad = ~np.isfinite(measured)
+        err = pred - measured
+        if not bad.all():
+            msg += f" (RMS vs measured {rms(err[~bad]):.4f} um"
+            late = ~bad & (np.arange(len(rec)) >= start.settled_index)
+            if late.any() and start.settled_index > 0:
+                msg += f"; {rms(err[late]):.4f} um once the initial state is forgotten, " \
+                       f"from t = {rec.time_s[start.settled_index]:.4g} s"
+            msg += ")"
     print(msg)
+    print(f"initial state: {start.how}")
+    if measured is not None and bad.any():
+        where = np.flatnonzero(bad)
+        print(f"warning: {rec.source}: displacement_um has {where.size} NaN/missing samples (first at "
+              f"t = {rec.time_s[where[0]]:.6g} s, last at t = {rec.time_s[where[-1]]:.6g} s), left out of the "
+              f"RMS{'; all of them' if where.size == len(rec) else ''}", file=sys.stderr)
     return 0

@@ -95,10 +95,11 @@ class _Histogram:
 
     def percentile(self, q: float) -> float | None:
         """Upper edge of the bin holding the q-th percentile (a bound, never an underestimate)."""
-        if self.n == 0:
-            return None
         cum = np.cumsum(self.counts)
-        i = int(np.searchsorted(cum, q / 100.0 * self.n))
+        n = int(cum[-1])          # not self.n: the loop may add a tick while a status request reads
+        if n == 0:
+            return None
+        i = min(int(np.searchsorted(cum, q / 100.0 * n)), cum.size - 1)
         return float(min(self.upper_edges[i], self.max_us))
 
 

@@ -214,8 +214,17 @@ class ExtendedModel:
             u = K.delay_filter(u, float(self.delay["delay_s"]) / dt_med, u0)
         return np.ascontiguousarray(u)
 
-    def simulate(self, time_s, drive, stress_MPa=None, initial_drive: float | None = None) -> np.ndarray:
-        """Displacement for a drive history, at rest at `initial_drive` (default: the first drive)."""
+    def resolve_initial_state(self, drive: Any, stress_MPa: Any = None, initial_state: Any = None,
+                              measured_um: Any = None, time_s: Any = None) -> Any:
+        """The core's initial state (`gma_ffc.initial_state`) for the drive as the core sees it."""
+        t = np.arange(len(drive), dtype=float) if time_s is None else np.asarray(time_s, dtype=float)
+        u3 = self.core_input(t, np.asarray(drive, dtype=float))
+        return self.base.resolve_initial_state(u3, stress_MPa, initial_state, measured_um, t)
+
+    def simulate(self, time_s, drive, stress_MPa=None, initial_drive: float | None = None,
+                 initial_state: Any = None, measured_um: Any = None) -> np.ndarray:
+        """Displacement for a drive history, at rest at `initial_drive` if given, else from the
+        core's `initial_state` rule (default: the shared `gma_ffc.initial_state.DEFAULT`)."""
         t = np.asarray(time_s, dtype=float)
         u = np.asarray(drive, dtype=float)
         if t.shape != u.shape or t.ndim != 1 or t.size == 0:
@@ -224,7 +233,8 @@ class ExtendedModel:
             raise ModelError("drive contains NaN or infinite values")
         u3 = self.core_input(t, u, initial_drive)
         if initial_drive is None:
-            yc = np.asarray(self.base.simulate(t, u3, stress_MPa), dtype=float)
+            yc = np.asarray(self.base.simulate(t, u3, stress_MPa, initial_state=initial_state,
+                                               measured_um=measured_um), dtype=float)
         else:
             yc = np.asarray(self.base.simulate(t, u3, stress_MPa, initial_drive=float(initial_drive)), dtype=float)
         return self.output_from_core(t, u, u3, yc, stress_MPa, initial_drive)

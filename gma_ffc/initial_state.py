@@ -1,0 +1,283 @@
+"""The hysteresis state at the first sample of a run: one rule shared by every model run.
+
+A recording almost never starts with the actuator relaxed: it starts in the middle of a history
+the file does not show. Each play operator's output at the first sample can be anywhere in
+[x0 - r, x0 + r], and until the drive has swept 2 r past it, that unknown value shows in the
+output. This module says which state to start from and from which sample on the choice no
+longer matters. Pure maths: no I/O.
+
+The rules (`InitialStateSpec`):
+  - ``relaxed``: every play centred on the first drive value (an actuator demagnetised or
+    depoled there).
+  - ``drive:V``: relaxed at drive V, then moved to the first sample (a rig known to rest at V).
+  - ``estimate`` (the default of simulate, invert, diagnose and the controller): with a measured
+    displacement, the play states that best reproduce it until they are settled (a bounded
+    least-squares fit, started from the monotone-stretch rule); without one, the states
+    consistent with the first monotone stretch of the drive: a drive that first rises starts
+    with every play at its lower boundary (x0 - r), as if it had come up to x0; one that first
+    falls, at its upper boundary (x0 + r).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from . import operators as ops
+
+KINDS = ("relaxed", "estimate", "drive")
+DEFAULT = "estimate"
+
+
+@dataclass(frozen=True)
+class InitialStateSpec:
+    """What the user asked for (``--initial-state relaxed|estimate|drive:VALUE``)."""
+
+    kind: str = DEFAULT
+    drive: float | None = None
+
+    @classmethod
+    def parse(cls, text: "str | InitialStateSpec") -> "InitialStateSpec":
+        if isinstance(text, InitialStateSpec):
+            return text
+        t = str(text).strip()
+        if t in ("relaxed", "estimate"):
+            return cls(t)
+        if t.startswith("drive:"):
+            try:
+                v = float(t.split(":", 1)[1])
+            except ValueError:
+                v = float("nan")
+            if np.isfinite(v):
+                return cls("drive", v)
+        raise ValueError(f"initial state {text!r}: use relaxed, estimate or drive:VALUE (e.g. drive:0)")
+
+    def __str__(self) -> str:
+        return f"drive:{self.drive:g}" if self.kind == "drive" else self.kind
+
+
+@dataclass(frozen=True)
+class ResolvedInitialState:
+    """The forward play outputs at the first sample, from when they stop mattering, and why."""
+
+    play_state: np.ndarray
+    settled_index: int
+    how: str
+
+
+def first_direction(drive: np.ndarray, tol: float | None = None) -> int:
+    """+1 if the drive first moves up (beyond `tol`), -1 if down, 0 if it never moves."""
+    x = np.asarray(drive, dtype=float)
+    if tol is None:
+        tol = 1e-6 * max(float(np.ptp(x)), 1e-300)
+    moved = np.flatnonzero(np.abs(x - x[0]) > tol)
+    if moved.size == 0:
+        return 0
+    return 1 if x[moved[0]] > x[0] else -1
+
+
+def settled_index(model: Any, drive: np.ndarray) -> int:
+    """First sample from which the output no longer depends on the initial play states.
+
+    A play of threshold r forgets its initial value once the drive has spanned 2r since the
+    start: from a minimum its output is at most x_min + r, and rising to x_min + 2r pushes every
+    starting value to x - r (and symmetrically). So the model has settled once the running range
+    of the drive reaches twice the largest threshold; len(drive) if it never does.
+    """
+    x = np.asarray(drive, dtype=float)
+    if x.size == 0:
+        return 0
+    span = np.maximum.accumulate(x) - np.minimum.accumulate(x)
+    need = 2.0 * float(model.play_thresholds[-1]) * (1 - 1e-12)
+    hit = np.flatnonzero(span >= need)
+    return int(hit[0]) if hit.size else int(x.size)
+
+
+def monotone_state(model: Any, drive: np.ndarray) -> tuple[np.ndarray, str]:
+    """Play states consistent with the first monotone stretch of the drive (see module doc)."""
+    u = np.asarray(drive, dtype=float)
+    v0 = u[0] - model.input_offset
+    d = first_direction(u)
+    r = model.play_thresholds
+    if d > 0:
+        return v0 - r, "consistent with the first monotone stretch (the drive first rises)"
+    if d < 0:
+        return v0 + r, "consistent with the first monotone stretch (the drive first falls)"
+    return np.full_like(r, v0), "relaxed at the first drive value (the drive never moves)"
+
+
+def relaxed_state(model: Any, drive_value: float) -> np.ndarray:
+    v0 = drive_value - model.input_offset
+    return np.full_like(model.play_thresholds, v0)
+
+
+def _clamp_to_first(model: Any, state: np.ndarray, first_drive: float) -> np.ndarray:
+    """Move a state to the first sample as eq. (2) does: each play within +-r of the input."""
+    v = first_drive - model.input_offset
+    r = model.play_thresholds
+    return np.clip(state, v - r, v + r)
+
+
+def resolve(model: Any, drive: Any, stress_MPa: Any = None, spec: "str | InitialStateSpec" = DEFAULT,
+            measured_um: Any = None, time_s: Any = None) -> ResolvedInitialState:
+    """The initial play state of `model` (an SDPI/MPI core) for a run on `drive`."""
+    x = np.ascontiguousarray(drive, dtype=float)
+    sp = InitialStateSpec.parse(spec)
+    settled = settled_index(model, x)
+    if sp.kind == "relaxed":
+        return ResolvedInitialState(relaxed_state(model, x[0]), settled, "relaxed at the first drive value")
+    if sp.kind == "drive":
+        state = _clamp_to_first(model, relaxed_state(model, float(sp.drive)), x[0])
+        return ResolvedInitialState(state, settled, f"relaxed at drive {sp.drive:g}, then moved to the first sample")
+    guess, how = monotone_state(model, x)
+    if measured_um is None:
+        return ResolvedInitialState(guess, settled, how + "; no measured displacement to estimate from")
+    y = np.asarray(measured_um, dtype=float)
+    if y.shape != x.shape:
+        raise ValueError("measured displacement and drive differ in length")
+    state, n_used = _fit_state(model, x, stress_MPa, y, guess, settled)
+    if state is None:
+        return ResolvedInitialState(guess, settled, how + "; the measured displacement could not improve on it")
+    where = "" if time_s is None or n_used >= len(x) else f" over the first {float(np.asarray(time_s)[n_used - 1] - np.asarray(time_s)[0]):.3g} s"
+    return ResolvedInitialState(state, settled, f"estimated from the measured displacement{where} "
+                                                f"(play states fitted until they settle)")
+
+
+def _fit_state(model: Any, x: np.ndarray, stress: Any, y: np.ndarray, guess: np.ndarray,
+               settled: int, max_points: int = 600) -> tuple[np.ndarray | None, int]:
+    """Least squares for the play states over the samples where they matter.
+
+    Each play's output is a clamp of its unknown initial value between two envelopes that depend
+    on the drive alone (its outputs started from the bottom and the top of the admissible box),
+    so the output is a known function of one number per play. The fit runs coordinate-wise: for
+    each play a scan of its box then a golden-section polish, a few sweeps, from the rule's guess.
+    The window runs to the settled index plus a margin (at least 64 samples); NaN readings are
+    ignored. Returns None when the fit does not beat the guess.
+    """
+    n = len(x)
+    end = min(n, max(64, settled + max(16, settled // 4)))
+    v = np.ascontiguousarray(x[:end] - model.input_offset)
+    r = model.play_thresholds
+    lo, hi = v[0] - r, v[0] + r
+    low_env = np.empty((end, model.n_play))
+    high_env = np.empty((end, model.n_play))
+    ops.play_outputs(v, r, np.ascontiguousarray(lo), low_env)
+    ops.play_outputs(v, r, np.ascontiguousarray(hi), high_env)
+    pick = np.flatnonzero(np.isfinite(y[:end]))
+    if pick.size < 8:
+        return None, end
+    if pick.size > max_points:
+        pick = pick[np.linspace(0, pick.size - 1, max_points).astype(int)]
+    A, B, ys = low_env[pick], high_env[pick], y[pick] * float(getattr(model, "output_sign", 1.0))
+    s = np.zeros(pick.size) if model.stress_range_MPa is None else \
+        np.asarray(model._stress_array(stress, n), dtype=float)[pick]
+    c = model.deadzone_coeffs
+    ws = c[0][None, :] + s[:, None] * (c[1][None, :] + s[:, None] * c[2][None, :])
+    oc = model.output_coeffs
+    offset = oc[0] + s * (oc[1] + s * oc[2])
+    r_s = model.deadzone_thresholds
+    w_h = model.play_weights
+
+    def output(z: np.ndarray) -> np.ndarray:          # z: (k, m) -> y: (k, m)
+        d = z[..., None] - r_s
+        dz = np.where(r_s > 0, np.maximum(d, 0.0), np.where(r_s < 0, np.minimum(d, 0.0), d))
+        return offset + np.einsum("kmj,mj->km", dz, ws)
+
+    def cost(p: np.ndarray) -> float:
+        return float(np.sum((output(np.sum(w_h * np.clip(p, A, B), axis=1)[None, :])[0] - ys) ** 2))
+
+    guess = np.clip(guess, lo, hi)
+    guess_cost = cost(guess)
+    # Starts: the states real histories leave (the last two turning points before the recording,
+    # on a grid), so the search begins in the right basin rather than on a flat clamp.
+    reach = 2.0 * float(r[-1])
+    step = reach / 11
+    grid = np.linspace(0.0, reach, 12)
+    hist = _history_states(v[0], r, grid, grid)
+    for _level in range(3):                     # zoom in on the best last-two-turning-points pair
+        a0, b0 = min(hist, key=lambda h: cost(h[2]))[:2]
+        step /= 4
+        near = np.arange(-4, 5) * step
+        hist += _history_states(v[0], r, np.clip(a0 + near, 0.0, reach), np.clip(b0 + near, 0.0, reach))
+    cands = [(guess_cost, 0, guess)] + [(cost(h[2]), i + 1, h[2]) for i, h in enumerate(hist)]
+    starts = sorted(cands, key=lambda t: t[:2])[:2]
+    results = [_descend(q, c, lo, hi, w_h, A, B, output, ys, model.n_play) for c, _, q in starts]
+    best_cost, p = min(results, key=lambda t: t[0])
+    if best_cost >= guess_cost:
+        return None, end
+    return p, end
+
+
+def _history_states(v0: float, r: np.ndarray, a_grid: np.ndarray,
+                    b_grid: np.ndarray) -> list[tuple[float, float, np.ndarray]]:
+    """(a, b, play states) after a drive history ...-> v0+a -> v0-b -> v0 or ...-> v0-a -> v0+b
+    -> v0: the last two turning points on a grid within the operators' reach. These are states
+    a real history leaves, not corners of the admissible box."""
+    out = []
+    for a in a_grid:
+        for b in b_grid:
+            for sign in (1.0, -1.0):
+                p = v0 + sign * a - sign * r                  # arrived at the first turning point
+                p = np.clip(p, v0 - sign * b - r, v0 - sign * b + r)
+                out.append((float(a), float(b), np.clip(p, v0 - r, v0 + r)))
+    return out
+
+
+def _descend(p: np.ndarray, best_cost: float, lo: np.ndarray, hi: np.ndarray, w_h: np.ndarray,
+             A: np.ndarray, B: np.ndarray, output: Any, ys: np.ndarray, n_play: int) -> tuple[float, np.ndarray]:
+    """Coordinate search (scan, then golden section) and a joint least-squares polish."""
+    p = p.copy()
+
+    def contrib(i: int, q: np.ndarray) -> np.ndarray:   # (k,) values of play i -> (k, m)
+        return w_h[i] * np.clip(q[:, None], A[:, i], B[:, i])
+
+    def cost_of(z_rest: np.ndarray, i: int, cands: np.ndarray) -> np.ndarray:
+        return np.sum((output(z_rest[None, :] + contrib(i, cands)) - ys) ** 2, axis=1)
+
+    z = np.sum(w_h * np.clip(p, A, B), axis=1)
+    for _ in range(4):
+        before = best_cost
+        for i in range(n_play):
+            if w_h[i] == 0.0 or hi[i] <= lo[i]:
+                continue
+            z_rest = z - contrib(i, p[i:i + 1])[0]
+            grid = np.r_[np.linspace(lo[i], hi[i], 33), p[i]]
+            costs = cost_of(z_rest, i, grid)
+            k = int(np.argmin(costs))
+            a, b = grid[max(k - 1, 0)] if k < 33 else p[i], grid[min(k + 1, 32)] if k < 33 else p[i]
+            best_p, best_c = grid[k], costs[k]
+            for _g in range(14):                          # golden-section polish in [a, b]
+                if b - a <= 1e-12 * max(1.0, abs(b)):
+                    break
+                m1, m2 = b - 0.618 * (b - a), a + 0.618 * (b - a)
+                c1, c2 = cost_of(z_rest, i, np.array([m1, m2]))
+                if c1 <= c2:
+                    b = m2
+                    if c1 < best_c:
+                        best_p, best_c = m1, c1
+                else:
+                    a = m1
+                    if c2 < best_c:
+                        best_p, best_c = m2, c2
+            p[i] = best_p
+            z = z_rest + contrib(i, p[i:i + 1])[0]
+            best_cost = float(best_c)
+        if before - best_cost <= 1e-12 * max(before, 1e-300):
+            break
+    # Plays that only act together (both still inside their boxes) form valleys that a
+    # coordinate search crosses slowly: finish with a joint bounded least-squares step.
+    from scipy.optimize import least_squares
+
+    span = np.maximum(hi - lo, 1e-12)
+
+    def resid(q: np.ndarray) -> np.ndarray:
+        pp = lo + q * span
+        return output(np.sum(w_h * np.clip(pp, A, B), axis=1)[None, :])[0] - ys
+
+    sol = least_squares(resid, np.clip((p - lo) / span, 0.0, 1.0), bounds=(0.0, 1.0), xtol=1e-14,
+                        ftol=1e-14, gtol=1e-14, max_nfev=100 * n_play)
+    if 2 * sol.cost < best_cost:
+        p, best_cost = lo + sol.x * span, float(2 * sol.cost)
+    return best_cost, p

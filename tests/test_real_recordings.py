@@ -1,0 +1,250 @@
+"""Issue 8: recordings as labs have them (unknown initial state, either polarity) and the
+refusals that protect a user's data. The measured piezo recording is used to find what breaks,
+never to tune: the cuts are spread over the file, and the bounds are the issue's."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from gma_ffc.cli import main
+from gma_ffc.identify import SDPIIdentifier
+from gma_ffc.initial_state import InitialStateSpec, resolve, settled_index
+from gma_ffc.model import rms
+from gma_ffc.modelio import load_model, save_model
+from gma_ffc.recordings import Recording, read_recording, write_recording
+from test_inverse import histories, sdpi_models
+
+PIEZO = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "piezo_150V_1Hz" / "piezo_150V_1Hz.csv"
+needs_piezo = pytest.mark.skipif(not PIEZO.exists(), reason="the measured recording lives in shared/ beside the repo")
+
+
+def cut(rec: Recording, a: float, b: float = np.inf, name: str | None = None) -> Recording:
+    keep = (rec.time_s >= a) & (rec.time_s < b)
+    return Recording({k: v[keep] for k, v in rec.columns.items()}, dict(rec.metadata), name or f"cut_{a:g}")
+
+
+# ---- the measured piezo recording: simulate over the whole of any window -----------------------
+
+@pytest.fixture(scope="module")
+def piezo():
+    rec = read_recording(PIEZO)
+    model = SDPIIdentifier().fit([cut(rec, 3.0, 7.0, "train")]).model_
+    return rec, model
+
+
+@needs_piezo
+@pytest.mark.parametrize("start_s", [0.0, 2.0, 3.4, 3.73, 4.1, 5.5, 6.0, 7.3, 8.0])
+def test_simulate_over_the_whole_window_is_as_good_as_after_the_first_cycle(piezo, start_s):
+    rec, model = piezo
+    w = cut(rec, start_s)
+    pred = model.simulate(w.time_s, w.drive, measured_um=w.displacement_um)
+    err = pred - w.displacement_um
+    moving = np.flatnonzero(np.abs(w.drive - w.drive[0]) > 1.0)[0]
+    after_cycle = w.time_s >= w.time_s[moving] + 1.0             # the drive is 1 Hz
+    whole, after = rms(err), rms(err[after_cycle])
+    assert whole <= 1.5 * after, (whole, after)
+    assert whole < 0.01 * np.ptp(w.displacement_um)
+    # the rule that ignores the measurement (relaxed) is what broke before: keep it visibly worse
+    relaxed = rms(model.simulate(w.time_s, w.drive, initial_state="relaxed") - w.displacement_um)
+    assert whole <= relaxed + 1e-12
+
+
+@needs_piezo
+def test_simulate_command_says_which_initial_state_it_used(piezo, tmp_path, capsys):
+    rec, model = piezo
+    save_model(model, tmp_path / "m.yaml")
+    write_recording(tmp_path / "w.csv", cut(rec, 5.5))
+    assert main(["simulate", "--model", str(tmp_path / "m.yaml"), str(tmp_path / "w.csv"), "-o",
+                 str(tmp_path / "p.csv")]) == 0
+    out = capsys.readouterr().out
+    assert "initial state: estimated from the measured displacement" in out
+
+
+# ---- properties on random models ---------------------------------------------------------------
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(model=sdpi_models(), hist=histories(), seed=st.integers(0, 2**31))
+def test_estimated_state_reproduces_the_true_output_after_the_first_reversal(model, hist, seed):
+    x, stress, _ = hist
+    rng = np.random.default_rng(seed)
+    pre = rng.uniform(-3.0, 4.0, 6)                            # an unseen history leaves a true state
+    stepper = model.forward_stepper(initial_drive=float(pre[0]))
+    for v in np.r_[pre, x[0]]:
+        stepper.step(float(v), float(stress[0]))
+    true_state = stepper._state[: model.n_play].copy()
+    y_true = model.simulate(None, x, stress, initial_play_state=true_state)
+    start = resolve(model, x, stress, "estimate", y_true)
+    y_est = model.simulate(None, x, stress, initial_play_state=start.play_state)
+    d = np.diff(x)
+    turns = np.flatnonzero(np.sign(d[1:]) * np.sign(d[:-1]) < 0)
+    first_reversal = int(turns[0]) + 2 if turns.size else len(x)
+    scale = max(np.ptp(y_true), 1e-9)
+    assert np.max(np.abs(y_est - y_true)[first_reversal:], initial=0.0) <= 1e-2 * scale
+    assert np.max(np.abs(y_est - y_true)[settled_index(model, x):], initial=0.0) <= 1e-9 * scale
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(model=sdpi_models(), hist=histories())
+def test_simulating_inverts_output_returns_the_reference_from_the_first_sample(model, hist):
+    x, stress, _ = hist
+    ref = model.simulate(None, x, stress, initial_state="relaxed")     # any reachable reference
+    drive = model.invert(None, ref, stress)
+    back = model.simulate(None, drive, stress)                        # the shared default rule
+    assert np.max(np.abs(back - ref)) <= 1e-9 * max(1.0, np.ptp(ref))
+
+
+def test_initial_state_spec_parses_and_refuses():
+    assert InitialStateSpec.parse("drive:0.5") == InitialStateSpec("drive", 0.5)
+    assert str(InitialStateSpec.parse("relaxed")) == "relaxed"
+    with pytest.raises(ValueError, match="relaxed, estimate or drive:VALUE"):
+        InitialStateSpec.parse("drive:abc")
+
+
+# ---- either polarity ----------------------------------------------------------------------------
+
+def _hil_recordings():
+    from hil_sim.record import make_recordings
+
+    return make_recordings("identification", seed=4, effects=["noise"], stresses=(-11.3, -15.2, -19.1, -24.0))
+
+
+def test_a_falling_actuator_is_fitted_as_well_as_the_rising_one():
+    rising = _hil_recordings()
+    falling = [Recording({**r.columns, "displacement_um": -r.displacement_um}, dict(r.metadata), r.source)
+               for r in rising]
+    up, down = SDPIIdentifier().fit(rising), SDPIIdentifier().fit(falling)
+    assert up.model_.output_sign == 1 and down.model_.output_sign == -1
+    assert any("falling actuator" in n for n in down.notes_)
+    for a, b in zip(up.report_, down.report_):
+        assert b.rms_um == pytest.approx(a.rms_um, rel=0.02)
+    # simulated and inverted correctly: the falling model follows a falling reference
+    r = falling[1]
+    pred = down.model_.simulate(r.time_s, r.drive, r.stress_MPa, measured_um=r.displacement_um)
+    assert rms(pred - r.displacement_um) < 0.01 * np.ptp(r.displacement_um)
+    ref = -20.0 - 10.0 * np.sin(np.linspace(0, 6 * np.pi, 900))
+    drive = down.model_.invert(None, ref, -15.2)
+    assert rms(down.model_.simulate(None, drive, -15.2) - ref) < 1e-9
+    assert np.ptp(drive) < 4.0                                        # no +-1e13 A drives
+
+
+def test_a_flat_recording_is_refused_saying_what_is_wrong(tmp_path, capsys):
+    rec = _hil_recordings()[0]
+    rng = np.random.default_rng(0)
+    flat = Recording({**rec.columns, "displacement_um": rng.normal(0, 0.02, len(rec))}, {}, "flat")
+    write_recording(tmp_path / "flat.csv", flat)
+    assert main(["identify", str(tmp_path / "flat.csv"), "-o", str(tmp_path / "m.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert "hardly follows the drive" in err and err.count("\n") == 1
+    assert not (tmp_path / "m.yaml").exists()
+
+
+# ---- refusals: one line, exit 2, nothing written ------------------------------------------------
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("refuse")
+    recs = _hil_recordings()
+    for r in recs:
+        write_recording(d / f"{Path(r.source).stem or r.source}.csv", r)
+    good = sorted(d.glob("*.csv"))
+    assert main(["identify", *map(str, good), "-o", str(d / "model.yaml")]) == 0
+    r = recs[1]
+    write_recording(d / "three_rows.csv", cut(r, 0, r.time_s[3]))
+    write_recording(d / "partial.csv", cut(r, r.time_s[100], r.time_s[300]))
+    nan = r.displacement_um.copy()
+    nan[[10, 50, 51]] = np.nan
+    write_recording(d / "nan_meas.csv", Recording({**r.columns, "displacement_um": nan}, {}, "nan"))
+    t = np.arange(0, 1, 1e-3)
+    write_recording(d / "ref.csv", Recording({"time_s": t, "reference_um": 30 + 30 * np.sin(2 * np.pi * 3 * t),
+                                              "stress_MPa": np.full_like(t, -15.2)}, {}, "ref"))
+    return d, good
+
+
+def run_refused(argv, capsys, message):
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert message in err, err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    return err
+
+
+def test_too_few_samples_is_refused_naming_the_file(files, capsys):
+    d, good = files
+    run_refused(["identify", good[0], d / "three_rows.csv", "-o", d / "x.yaml"], capsys, "three_rows.csv: only 3 samples")
+    assert not (d / "x.yaml").exists()
+
+
+def test_no_full_sweep_is_refused_with_what_to_record(files, capsys):
+    d, good = files
+    err = run_refused(["identify", d / "partial.csv", "-o", d / "x.yaml"], capsys, "partial.csv")
+    assert "never sweeps" in err and "record at least one full drive cycle" in err
+
+
+def test_a_model_file_cut_short_is_refused(files, capsys):
+    d, _ = files
+    lines = (d / "model.yaml").read_text().splitlines(keepends=True)
+    keep = lines[: next(i for i, line in enumerate(lines) if line.startswith("drive_range"))]   # cut at a line
+    (d / "cut.yaml").write_text("".join(keep))
+    err = run_refused(["simulate", "--model", d / "cut.yaml", d / "nan_meas.csv", "-o", d / "x.csv"], capsys,
+                      "missing key")
+    assert "drive_range" in err and "provenance" in err
+
+
+def test_proposition_3_1_refusal_says_what_to_do(files, capsys):
+    d, _ = files
+    m = yaml.safe_load((d / "model.yaml").read_text())
+    m["play"]["weights"][0] = -1.0
+    (d / "bad31.yaml").write_text(yaml.safe_dump(m))
+    err = run_refused(["simulate", "--model", d / "bad31.yaml", d / "nan_meas.csv", "-o", d / "x.csv"], capsys,
+                      "Proposition 3.1")
+    assert "identify" in err
+
+
+def test_nan_in_the_measured_displacement_is_reported_not_averaged(files, capsys):
+    d, _ = files
+    assert main(["simulate", "--model", str(d / "model.yaml"), str(d / "nan_meas.csv"), "-o", str(d / "p.csv")]) == 0
+    out, err = capsys.readouterr()
+    assert "nan" not in out.lower().replace("nan/missing", "")
+    assert "3 NaN/missing samples" in err and "RMS vs measured" in out
+
+
+def test_invert_limit_reports_what_it_clipped(files, capsys):
+    d, _ = files
+    assert main(["invert", "--model", str(d / "model.yaml"), str(d / "ref.csv"), "-o", str(d / "drv.csv"),
+                 "--limit", "0", "1.5"]) == 0
+    err = capsys.readouterr().err
+    assert "--limit clipped" in err and "first at t =" in err
+
+
+def alias(target: Path, how: str, name: Path) -> Path:
+    """`target` itself, or a new hard link / symlink to it called `name`."""
+    if how == "same path":
+        return target
+    name.unlink(missing_ok=True)
+    if how == "hard link":
+        os.link(target, name)
+    else:
+        name.symlink_to(target)
+    return name
+
+
+@pytest.mark.parametrize("how", ["same path", "hard link", "symlink"])
+@pytest.mark.parametrize("command", ["simulate", "invert", "identify"])
+def test_no_output_overwrites_an_input(files, capsys, how, command):
+    d, good = files
+    src = {"simulate": d / "nan_meas.csv", "invert": d / "ref.csv", "identify": good[0]}[command]
+    before = src.read_bytes()
+    out = alias(src, how, d / f"alias_{command}{'.yaml' if command == 'identify' else '.csv'}")
+    if command == "identify":
+        argv = ["identify", *good, "-o", out]
+    else:
+        argv = [command, "--model", d / "model.yaml", src, "-o", out]
+    run_refused(argv, capsys, "refusing to overwrite")
+    assert src.read_bytes() == before
