@@ -88,6 +88,7 @@ class Controller:
                                       self.period_s, self.safe_A)
         self.monitor = self._make_monitor(cfg)
         self.stepper = model.inverse_stepper(self.period_s, initial_drive=self.safe_A)
+        self.initial_state = start_stepper(self.stepper, model, self.safe_A)
         self.learner = make_learner(cfg, model, self.reference)
         self._set_stress_range(model)
         _warm_up(model, self.period_s, self.stress_lo, self.stress_hi)
@@ -463,7 +464,7 @@ class Controller:
                 if self.learner is not None:
                     self.learner.freeze(t, "comms fault: at the safe current, reconnecting")
                 if mode == RUNNING and self.cfg.comms["on_fault"] == "reconnect" and self._reconnect(stop_event):
-                    self.stepper.reset(self.safe_A)
+                    start_stepper(self.stepper, self.model, self.safe_A)
                     self.monitor.bad_run = 0
                     self.monitor.stale_run = 0
                     self.state = "running"
@@ -555,6 +556,7 @@ class Controller:
             "exit_reason": self.exit_reason,
             "started_unix_s": self.started_unix_s,
             "model_kind": getattr(self.model, "kind", None),
+            "initial_state": self.initial_state,
             "learning": {"enabled": False} if self.learner is None else self.learner.status(),
             "driver": self.driver.health(),
             "telemetry": None if tel is None else {"path": str(tel.path) if tel.path else None,
@@ -605,6 +607,20 @@ def _warm_up(model: Any, dt: float, lo: float, hi: float) -> None:
     """Call a throwaway stepper once so JIT compilation / cache loading happens before tick 1."""
     mid = 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else -11.3
     model.inverse_stepper(dt, initial_drive=0.0).step(0.0, mid)
+
+
+def start_stepper(stepper: Any, model: Any, safe_A: float) -> str:
+    """Put the inverse stepper in the shared default start (`gma_ffc.initial_state`): the loop
+    starts at the safe current and its drive first moves towards the middle of the identified
+    range, so the plays start consistent with that first monotone stretch. Returns how."""
+    if getattr(model, "kind", None) not in ("sdpi", "mpi"):
+        stepper.reset(safe_A)
+        return f"relaxed at the safe current ({safe_A:g}), the {getattr(model, 'kind', '?')} model's own start"
+    lo, hi = model.drive_range
+    target = 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else safe_A + 1.0
+    start = model.resolve_initial_state(np.array([safe_A, target if target != safe_A else safe_A + 1.0]))
+    stepper.reset(safe_A, start.play_state)
+    return f"{start.how.split(';')[0]}, from the safe current {safe_A:g}"
 
 
 def make_learner(cfg: ControllerConfig, model: Any, reference: Reference) -> RepetitiveLearner | None:
