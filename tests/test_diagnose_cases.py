@@ -25,14 +25,17 @@ def test_benchmark_case(name):
     dg = diagnose(model, [rec])
     assert set(dg.verdict) == set(case.truth), dg.explanation
     if case.truth:
+        assert dg.outcome == "effects_named"
         # the improvement is measured on held-out blocks and at least halves the error
         assert dg.rms_after_um <= 0.5 * dg.rms_before_um
         accepted = [c for c in dg.candidates if c.accepted]
         assert {c.effect for c in accepted} == set(case.truth)
         assert all(0.5 < c.evidence <= 1.0 for c in accepted)
     else:
-        assert dg.verdict == []
+        # no false alarm: nothing named; what the identified core misses is either near the noise
+        # or described as unexplained, never called physics
+        assert dg.verdict == [] and dg.outcome in ("within_noise", "unexplained"), dg.explanation
         assert "no effect" in dg.explanation.lower() or "within the noise" in dg.explanation
     # the extended model reproduces the selected fit
-    pred = dg.extended.simulate(rec.time_s, rec.drive, rec.stress_MPa)
+    pred = dg.extended.simulate(rec.time_s, rec.drive, rec.stress_MPa, initial_state=dg.data[0].start)
     assert abs(((pred - dg.final_predictions[0]) ** 2).mean()) ** 0.5 < 1e-6 + 1e-3 * dg.rms_after_um

@@ -66,7 +66,12 @@ def run(args: argparse.Namespace) -> int:
         dg = diagnose(model, recs, max_effects=args.max_effects, progress=lambda msg: prog.advance(note=msg))
         prog.advance(note="writing report")
         doc = write_outputs(dg, out)
-    verdict = ", ".join(doc["verdict"]) if doc["verdict"] else "none (no missing physics named)"
+    words = {"within_noise": "the model explains the recordings within their noise",
+             "effects_named": "missing physics found, modelled and shown to help on held-out data",
+             "unexplained": "the residual is well above the noise and nothing in the vocabulary explains it",
+             "inconclusive": "the data cannot decide; see 'cannot conclude' for the recording that would"}
+    print(f"outcome: {doc['outcome']}: {words[doc['outcome']]}")
+    verdict = ", ".join(doc["verdict"]) if doc["verdict"] else "none"
     print(f"verdict: {verdict}")
     print(f"held-out RMS {doc['rms_before_um']:.4g} um -> {doc['rms_after_um']:.4g} um "
           f"(noise floor {doc['noise_floor_um']:.3g} um)")

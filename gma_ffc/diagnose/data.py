@@ -33,6 +33,8 @@ class RecData:
     rows: np.ndarray          # sample indices used by the least squares
     clamped_fraction: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)
+    start: Any = None         # the core's initial state, estimated from this recording (gma_ffc.initial_state)
+    settled: int = 0          # first sample the unknown initial state no longer affects: nothing before is scored
 
     @property
     def duration_s(self) -> float:
@@ -65,13 +67,20 @@ def prepare(recordings: Sequence[Recording], model: Any) -> list[RecData]:
             s = np.clip(s_raw, srange[0], srange[1])
             clamped = float(np.mean(np.abs(s - s_raw) > 1e-6 * max(1.0, abs(srange[0]))))
         block = np.minimum((np.arange(n) * N_BLOCKS) // max(n, 1), N_BLOCKS - 1)
+        core = getattr(model, "base", model)
+        start = core.resolve_initial_state(rec.drive, s if srange is not None else None, "estimate",
+                                           rec.displacement_um, t)
+        rows = np.arange(0, n, stride)
+        rows = rows[rows >= start.settled_index]
         out.append(RecData(
             name=rec.name, t=t, dt=dt, dt_med=dt_med,
             u=np.ascontiguousarray(rec.drive, dtype=float),
             y=np.ascontiguousarray(rec.displacement_um, dtype=float),
             s=np.ascontiguousarray(s), s_raw=s_raw, fold=(block % 2).astype(np.int8),
-            rows=np.arange(0, n, stride), clamped_fraction=clamped,
-            extra={"temperature_C": rec.columns.get("temperature_C")}))
+            rows=rows, clamped_fraction=clamped,
+            extra={"temperature_C": rec.columns.get("temperature_C"),
+                   "drive_symbol": "V" if rec.drive_name.endswith("_V") else "I"}, start=start,
+            settled=min(start.settled_index, n)))
     return out
 
 

@@ -28,13 +28,17 @@ from .locate import Located, locate
 MIN_MSE_RATIO = 0.75       # accepted effects cut the held-out MSE by at least 25 % (RMS by ~13 %)
 MIN_LOGLIK_GAIN = 6.0      # penalised held-out log-likelihood gain (nats) an effect must win by
 NOISE_FACTOR = 1.5         # a residual within 1.5x the noise floor is "within noise"
+MODEL_ERROR_FACTOR = 3.0   # below 3x the noise floor, what a recalibrated core leaves is ordinary identification
+                           # error (a core fitted to similar data reaches 2-3x its sensor noise): nothing to explain
 SLOW_RATIO_MAX = 0.8       # stress_dependent_play must also cut the error on slow samples by 20 %
 AMBIGUOUS_NATS = 3.0       # runner-up this close to the winner: look-alikes not told apart
 HUBER_K = 3.0             # Huber scale in robust standard deviations of the recalibrated residual
 MIN_SAMPLES = 400
 JOINT = {"rate_dependence": "delay_s", "time_delay": "eddy_tau"}   # look-alikes searched jointly
 WORKERS = 2                # candidate searches in parallel threads (numba kernels and BLAS release the GIL)
-MIN_REVERSALS = 6          # drive turning points in all (three cycles): fewer cannot separate hysteresis from dynamics
+MIN_REVERSALS = 2 * N_BLOCKS   # drive turning points in all: on average a full drive cycle per time block, or a
+                               # held-out block is a piece of one branch that the neighbouring training blocks
+                               # interpolate, and blocked cross-validation tests interpolation, not prediction
 
 
 @dataclass
@@ -64,8 +68,12 @@ class Candidate:
         return d
 
 
+OUTCOMES = ("within_noise", "effects_named", "unexplained", "inconclusive")
+
+
 @dataclass
 class Diagnosis:
+    outcome: str               # one of OUTCOMES (docs/cli.md): what `verdict == []` means is never ambiguous
     verdict: list[str]
     explanation: str
     located: list[Located]
@@ -87,6 +95,7 @@ class Diagnosis:
 
     def to_json(self, model_file: str = "extended_model.yaml") -> dict:
         return {
+            "outcome": self.outcome,
             "verdict": list(self.verdict),
             "explanation": self.explanation,
             "located": [loc.to_json() for loc in self.located],
@@ -273,8 +282,16 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
     fitter = Fitter(model, data)
     cannot: list[str] = []
 
-    n_samples = sum(d.t.size for d in data)
-    reversals = sum(_reversals(d.u) for d in data)
+    n_samples = sum(d.t.size - d.settled for d in data)      # samples scored: after the initial state settles
+    reversals = sum(_reversals(d.u[d.settled:]) for d in data if d.settled < d.t.size)
+    for d in data:
+        if d.settled >= d.t.size:
+            cannot.append(f"{d.name}: the drive never sweeps far enough for the model to forget its unknown "
+                          "initial state, so none of it is scored; record at least one full drive cycle")
+        elif d.settled > 0:
+            d.extra["settled_note"] = (f"{d.name}: the first {d.t[d.settled] - d.t[0]:.3g} s are not scored: "
+                                       "until the drive has swept the model's full loop, the output still "
+                                       "depends on the unknown hysteresis state at the start")
     too_little = n_samples < MIN_SAMPLES or reversals < MIN_REVERSALS
     if too_little:
         cannot.append(
@@ -291,7 +308,8 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
     base_core = fitter.core(Spec())
     _ = fitter.yc_center          # computed once, before any threads share the fitter
     base_pred = [yc for _, yc in base_core]
-    rms_before = float(np.sqrt(sum(float(np.sum((d.y - yc) ** 2)) for d, yc in zip(data, base_pred)) / n_samples))
+    rms_before = float(np.sqrt(sum(float(np.sum((d.y - yc)[d.settled:] ** 2)) for d, yc in zip(data, base_pred))
+                               / max(n_samples, 1)))
 
     null_specs = (Spec(), Spec(), Spec())
     # Huber scale from the recalibrated base's held-out residual: bursts the core cannot follow at all
@@ -304,7 +322,7 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
     null_loss = (null.sse_test[0] + null.sse_test[1]) / n_null
     null_cv = (null.sq_test[0] + null.sq_test[1]) / n_null
     null_pred = fitter.predict_full(Spec(), null.coef_all)
-    located = [locate(d, d.y - yb, d.y - yn) for d, yb, yn in zip(data, base_pred, null_pred)]
+    located = [locate(d, _scored(d, d.y - yb), _scored(d, d.y - yn)) for d, yb, yn in zip(data, base_pred, null_pred)]
     lengths = fitter.segment_lengths
 
     candidates = {name: Candidate(name, *CATALOG[name].testable(fitter)) for name in ORDER}
@@ -444,8 +462,18 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
         candidates[name].params = _params_of(name, final.specs[2], final.coef_all, final.names, fitter)
     ext = build_extended(model, fitter, final.specs[2], final.coef_all, final.names, list(accepted))
     final_pred = fitter.predict_full(final.specs[2], final.coef_all)
-    if not accepted and cur_cv > rms_before ** 2:
-        # recalibrating did not help on held-out data: the extended model is the base as it was
+    if cur_cv > rms_before ** 2:
+        # Worse than the base model as given, on held-out data: never the verdict. The extended
+        # model is the base as it was, and nothing is named.
+        if accepted:
+            cannot.append(f"{', '.join(accepted)} improved on the recalibrated model but not on the base model "
+                          f"itself on held-out data ({math.sqrt(cur_cv):.4g} um against {rms_before:.4g} um), "
+                          "so nothing is named: longer recordings, or several at different drive frequencies, "
+                          "would let the fit be judged on more than the blocks it was chosen on")
+            for name in accepted:
+                candidates[name].accepted = False
+            accepted = []
+            ambiguous_pairs = []
         ext = ExtendedModel(model, {}, [])
         final_pred = list(base_pred)
         cur_cv = rms_before ** 2
@@ -454,12 +482,23 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
 
     verdict = [] if too_little else list(accepted)
     conclusive = not too_little and not ambiguous_pairs
+    well_above = math.sqrt(cur_cv) > MODEL_ERROR_FACTOR * noise
+    if too_little or ambiguous_pairs:
+        outcome = "inconclusive"     # too little data, or look-alikes the data cannot tell apart
+    elif verdict:
+        outcome = "effects_named"
+    elif not well_above:
+        outcome = "within_noise"
+    else:
+        outcome = "unexplained"
+    cannot.extend(d.extra["settled_note"] for d in data if "settled_note" in d.extra)
     for old_name, new_name, old_rms, new_rms in swapped:
         runner_note += (f" {old_name} was first chosen while a larger effect dominated the residual; with the other "
                         f"effects in place {new_name} explains the held-out data better ({new_rms:.4g} um against "
                         f"{old_rms:.4g} um), so it replaced {old_name}.")
     explanation = _explain(verdict, candidates, located, rms_before, math.sqrt(null_cv), math.sqrt(cur_cv),
-                           noise, within_noise, too_little, runner_note.strip(), fitter)
+                           noise, within_noise, too_little, runner_note.strip(), fitter, outcome,
+                           _drive_unit(model))
     validation = (
         f"each recording was cut into {N_BLOCKS} contiguous time blocks; every model was fitted on the even blocks "
         "and scored on the odd ones, and the other way round (2-fold blocked cross-validation). Models are "
@@ -477,9 +516,23 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
         "so it is slightly optimistic: no third set of blocks is kept back for a final, untouched score.")
     ordered = sorted(candidates.values(), key=lambda c: (not c.accepted, not c.testable,
                                                         c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
-    return Diagnosis(verdict, explanation, located, ordered, rms_before, math.sqrt(null_cv),
+    return Diagnosis(outcome, verdict, explanation, located, ordered, rms_before, math.sqrt(null_cv),
                      math.sqrt(cur_cv), noise, validation, conclusive, cannot, ext, data, base_pred, null_pred,
                      final_pred, rounds, rounds[0]["n_eff"] if rounds else float("nan"))
+
+
+def _scored(d: RecData, r: np.ndarray) -> np.ndarray:
+    """The residual with the samples before the initial state settles set to zero (not scored)."""
+    if d.settled <= 0:
+        return r
+    out = r.copy()
+    out[: d.settled] = 0.0
+    return out
+
+
+def _drive_unit(model: Any) -> str:
+    """"A" for a current-driven actuator, "V" for a voltage-driven one (no coil to heat)."""
+    return "V" if str(getattr(model, "drive_name", "current_A")).endswith("_V") else "A"
 
 
 def _slow_gain_ratio(fitter: Fitter, before: tuple[Spec, Spec, Spec], after: tuple[Spec, Spec, Spec]) -> float:
@@ -543,16 +596,18 @@ def _runner_up_note(best: Candidate, runner: Candidate) -> str:
                if math.isfinite(runner.loglik_gain) else "") + ".")
 
 
-def _describe(c: Candidate) -> str:
+def _describe(c: Candidate, unit: str = "A") -> str:
     p = c.params
     if c.effect == "rate_dependence":
         return f"an eddy-current lag of tau = {p['tau_s'] * 1e3:.3g} ms"
     if c.effect == "time_delay":
         return f"a transport delay of {p['delay_s'] * 1e3:.3g} ms"
     if c.effect == "thermal_drift":
-        txt = f"heating with a thermal time constant of {p['tau_s']:.3g} s ({p['gain_um_per_A2']:+.3g} um per A^2 at equilibrium)"
+        what = "heating" if unit == "A" else "a thermal drift (self-heating or ambient)"
+        txt = (f"{what} with a thermal time constant of {p['tau_s']:.3g} s ({p['gain_um_per_A2']:+.3g} um per "
+               f"{unit}^2 at equilibrium)")
         if math.isfinite(p.get("fast_gain_um_per_A2", math.nan)):
-            txt += f" and a faster part at {p['fast_tau_s']:.3g} s ({p['fast_gain_um_per_A2']:+.3g} um per A^2)"
+            txt += f" and a faster part at {p['fast_tau_s']:.3g} s ({p['fast_gain_um_per_A2']:+.3g} um per {unit}^2)"
         return txt
     if c.effect == "creep":
         return (f"creep of {p['gain'] * 100:+.3g} % of each step relaxing over time constants around "
@@ -574,9 +629,28 @@ def _describe(c: Candidate) -> str:
     return c.effect
 
 
+VOLTAGE_PHYSICS = {
+    "thermal_drift": "a voltage-driven actuator has no coil current to heat it: a drift that follows the drive "
+                     "squared through a thermal time constant is self-heating of the stack (dielectric loss) or "
+                     "the ambient temperature; a temperature_C column would tell which",
+}
+
+
+def _residual_words(worst: Located) -> str:
+    """What an unexplained residual looks like: where, at which frequencies, what it follows."""
+    strong = sorted(((abs(v), k, v) for k, v in worst.conditions.items() if abs(v) >= 0.3), reverse=True)
+    names = {"drive_rate": "the drive rate", "drive_amplitude": "the drive amplitude",
+             "cumulative_heating": "the cumulative drive squared (time)", "stress": "stress",
+             "after_steps": "the time since drive steps"}
+    follows = (", ".join(f"{names[k]} (r = {v:+.2f})" for _, k, v in strong[:3]) if strong
+               else "none of drive rate, amplitude, stress or elapsed time (|r| < 0.3)")
+    return (f"The residual left is {worst.residual_rms_recalibrated_um:.3g} um RMS in {worst.recording} "
+            f"({worst.where}); it correlates with {follows}.")
+
+
 def _explain(verdict: list[str], candidates: dict[str, Candidate], located: list[Located], rms_before: float,
              rms_null: float, rms_after: float, noise: float, within_noise: bool, too_little: bool,
-             runner_note: str, fitter: Fitter) -> str:
+             runner_note: str, fitter: Fitter, outcome: str = "", unit: str = "A") -> str:
     worst = max(located, key=lambda loc: loc.residual_rms_recalibrated_um)
     parts = [f"The base model misses the recordings by {rms_before:.4g} um RMS; a static recalibration "
              f"(gain/offset/curvature/loop width) leaves {rms_null:.4g} um on held-out data, against a noise floor of "
@@ -586,23 +660,34 @@ def _explain(verdict: list[str], candidates: dict[str, Candidate], located: list
                      "cannot_conclude for the experiment that would decide.")
         return " ".join(parts)
     if not verdict:
-        if within_noise:
-            parts.append("That is within the noise: the model explains the recordings, no effect is named.")
+        if outcome == "within_noise":
+            ratio = rms_after / max(noise, 1e-12)
+            parts.append("That is within the noise: the model explains the recordings, no effect is named."
+                         if ratio <= NOISE_FACTOR else
+                         f"That is {ratio:.1f}x the noise floor, the size of ordinary identification error: no "
+                         "structured residual is left for an effect to explain, so no effect is named.")
+        elif outcome == "inconclusive":
+            parts.append("The residual is above the noise but the data cannot decide what it is: see "
+                         "cannot_conclude for what could not be tested and the recording that would decide.")
+            parts.append(_residual_words(worst))
         else:
             tried = [c for c in candidates.values() if c.testable and math.isfinite(c.cv_mse)]
             tried.sort(key=lambda c: c.cv_mse)
             if tried:
                 b = tried[0]
-                parts.append(f"No effect in the catalog explains the rest convincingly: the best, {b.effect}, "
-                             f"reaches {math.sqrt(b.cv_mse):.4g} um held-out, short of the margin required, "
-                             "so the remainder is ordinary model error (re-identify the core on data like these).")
+                parts.append(f"No effect in the vocabulary explains the rest: the best, {b.effect}, "
+                             f"reaches {math.sqrt(b.cv_mse):.4g} um held-out, short of the margin required. The "
+                             "model is outside its class here or the physics is not in the vocabulary "
+                             "(re-identify the core on data like these, or model it yourself).")
+            parts.append(_residual_words(worst))
         return " ".join(parts)
     named = [candidates[v] for v in verdict]
-    parts.append("The recordings show " + "; then ".join(f"{_describe(c)} ({c.effect})" for c in named) + ".")
+    parts.append("The recordings show " + "; then ".join(f"{_describe(c, unit)} ({c.effect})" for c in named) + ".")
     parts.append(f"With {'it' if len(named) == 1 else 'them'} the held-out RMS falls to {rms_after:.4g} um "
                  f"({rms_after / max(rms_before, 1e-12):.0%} of before).")
     for c in named:
-        parts.append(f"{c.effect}: {CATALOG[c.effect].physics}.")
+        physics = VOLTAGE_PHYSICS.get(c.effect, CATALOG[c.effect].physics) if unit == "V" else CATALOG[c.effect].physics
+        parts.append(f"{c.effect}: {physics}.")
     if runner_note:
         parts.append(runner_note)
     return " ".join(parts)

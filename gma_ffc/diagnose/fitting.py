@@ -111,7 +111,7 @@ class Fitter:
         for d in self.data:
             u3 = self.core_input(d, spec)
             s = d.s if self.model.stress_range_MPa is not None else None
-            yc = np.asarray(self.model.simulate(d.t, u3, s), dtype=float)
+            yc = np.asarray(self.model.simulate(d.t, u3, s, initial_state=d.start), dtype=float)
             out.append((u3, yc))
         if len(self._core_cache) > 64:
             self._core_cache.clear()
@@ -135,7 +135,7 @@ class Fitter:
             return hit
         wide = widened_core(self.model, eps)
         s = d.s if self.model.stress_range_MPa is not None else None
-        out = (np.asarray(wide.simulate(d.t, u3, s), dtype=float) - yc) / eps
+        out = (np.asarray(wide.simulate(d.t, u3, s, initial_play_state=d.start.play_state), dtype=float) - yc) / eps
         if len(self._width_cache) > 64:
             self._width_cache.clear()
         self._width_cache[key] = out

@@ -99,7 +99,7 @@ def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows
         if fin.sum() > 10:
             cond["after_steps"] = _corr(size[fin], -np.log(since[fin] + d.dt_med))
     words = {"drive_rate": "grows with the drive rate", "drive_amplitude": "grows with the drive amplitude",
-             "cumulative_heating": "follows the integral of I^2 (cumulative heating)",
+             "cumulative_heating": f"follows the integral of {d.extra.get('drive_symbol', 'I')}^2 (cumulative heating)",
              "stress": "changes with stress", "after_steps": "is largest just after steps"}
     strong = sorted(((abs(v), key) for key, v in cond.items() if abs(v) >= 0.3), reverse=True)
     band_txt = (f"{band[0]:g}-{band[1]:g} Hz" if np.isfinite(band[1]) else f"above {band[0]:g} Hz")

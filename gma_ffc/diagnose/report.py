@@ -126,18 +126,35 @@ def plot_candidates(dg: Diagnosis) -> str:
     return _png(fig)
 
 
+HEADLINES = {   # outcome -> (headline, colour, one sentence a reader takes away)
+    "within_noise": ("Within noise", "#2e7d32", "The model explains the recordings within their noise: no missing "
+                                                 "physics is needed."),
+    "effects_named": ("Missing physics found", "#1565c0", "Effects the model leaves out were found, modelled and shown "
+                                                          "to help on data the fit did not see."),
+    "unexplained": ("Unexplained residual", "#c62828", "The residual is well above the noise and nothing in the "
+                                                       "vocabulary explains it: the model is outside its class here, or "
+                                                       "the physics is not in the vocabulary."),
+    "inconclusive": ("Inconclusive", "#ef6c00", "The data cannot decide: see 'What cannot be concluded' for the "
+                                                "recording that would."),
+}
+
+
 def render_html(dg: Diagnosis, doc: dict) -> str:
     imgs = [("Residual over time, where it was found", plot_residuals(dg)),
             ("Before and after: measured, base and extended model", plot_overlays(dg)),
             ("Loops where the residual is largest: displacement against drive", plot_loops(dg)),
             ("Candidates: held-out RMS", plot_candidates(dg))]
     e = html.escape
-    verdict = ", ".join(dg.verdict) if dg.verdict else "no missing physics named"
+    title, colour, sentence = HEADLINES[dg.outcome]
+    if dg.verdict:
+        title += ": " + ", ".join(dg.verdict)
     parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'><title>gma-ffc diagnosis</title>",
              "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}"
              "table{border-collapse:collapse}td,th{border:1px solid #bbb;padding:3px 6px;font-size:13px}"
-             "img{max-width:100%}</style></head><body>",
-             f"<h1>Diagnosis: {e(verdict)}</h1>",
+             "img{max-width:100%}.headline{padding:10px 14px;border-radius:6px;color:#fff}"
+             "pre{white-space:pre-wrap;word-break:break-word}</style></head><body>",
+             f"<h1 class='headline' style='background:{colour}'>{e(title)}</h1>",
+             f"<p><b>{e(sentence)}</b></p>",
              f"<p><b>Held-out RMS</b>: {dg.rms_before_um:.4g} um before, {dg.rms_after_um:.4g} um after "
              f"(noise floor {dg.noise_um:.3g} um).</p>"]
     for title, data in imgs:
@@ -172,7 +189,8 @@ def render_html(dg: Diagnosis, doc: dict) -> str:
     parts.append(f"<h2>Extended model</h2><p><a href='{MODEL_FILE}'>{MODEL_FILE}</a>: blocks "
                  f"{e(', '.join(k for k, v in dg.extended.blocks().items() if v))}; "
                  f"invert and the controller compensate them as listed under 'inverted' in the file.</p>")
-    parts.append("<h2>diagnosis.json</h2><pre>" + e(json.dumps(doc, indent=1)) + "</pre></body></html>")
+    parts.append("<details><summary>diagnosis.json (as written beside this report)</summary><pre>"
+                 + e(json.dumps(doc, indent=1)) + "</pre></details></body></html>")
     return "".join(parts)
 
 
