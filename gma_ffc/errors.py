@@ -34,3 +34,7 @@ class ConfigError(InputError):
 
 class FaultError(GmaError):
     """A fault at run time (comms, device, internal)."""
+
+
+class NotRunningError(FaultError):
+    """Nobody answers on the control socket: no controller is running there."""

@@ -11,6 +11,28 @@ import yaml
 from .errors import InputError
 
 
+class DuplicateKeyError(yaml.YAMLError):
+    """A mapping names the same key twice: YAML keeps the last silently, we refuse."""
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """SafeLoader that refuses duplicate keys, naming the key and both lines."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            line = key_node.start_mark.line + 1
+            try:
+                first = seen.get(key)
+            except TypeError:            # an unhashable key: let the base class say so
+                continue
+            if first is not None:
+                raise DuplicateKeyError(f"key {key!r} appears twice, on lines {first} and {line}")
+            seen[key] = line
+        return super().construct_mapping(node, deep)
+
+
 def read_yaml(path: str | os.PathLike, what: str, error: type[InputError] = InputError) -> Any:
     """Parsed content of `path`; `error` names the file (and the line) when it cannot be read.
 
@@ -24,7 +46,9 @@ def read_yaml(path: str | os.PathLike, what: str, error: type[InputError] = Inpu
     except (OSError, UnicodeDecodeError) as exc:
         raise error(f"{p}: cannot read the {what} ({getattr(exc, 'strerror', None) or exc})") from None
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_UniqueKeyLoader)
+    except DuplicateKeyError as exc:
+        raise error(f"{p}: {exc}; keep one of them") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f", line {mark.line + 1}" if mark is not None else ""

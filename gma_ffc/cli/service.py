@@ -70,8 +70,18 @@ def _status(args: argparse.Namespace) -> int:
     from ..service.paths import runtime_paths
     from ..service.status import format_table
 
+    from ..errors import NotRunningError
+
     runtime = runtime_paths(args.runtime_dir)
-    status = ask(runtime.socket, {"cmd": "status"})["status"]
+    try:
+        status = ask(runtime.socket, {"cmd": "status"})["status"]
+    except NotRunningError as exc:
+        if not args.json:
+            raise
+        # machine readers always get JSON: say that nothing runs there, and exit as before (1)
+        json.dump({"state": "not running", "socket": str(runtime.socket), "message": str(exc)}, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 1
     if args.json:
         json.dump(status, sys.stdout, indent=2, default=_jsonable)
         sys.stdout.write("\n")

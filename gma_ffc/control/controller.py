@@ -380,6 +380,12 @@ class Controller:
         force_col = tel.columns.index(FORCE) if FORCE in tel.columns else -1
         sched = Scheduler(clock, self.period_s)
         t0 = sched.start()
+        # Wall-clock time of t = 0 (the first deadline), from one reading of both clocks, so a
+        # row's unix time is start_unix_s + time_s to well within a millisecond.
+        wall, mono = time.time(), clock.now()
+        self.started_unix_s = wall - (mono - t0) if not clock.simulated else wall
+        tel.metadata["start_unix_s"] = self.started_unix_s
+        tel.metadata["unix_time_of_a_row"] = "start_unix_s + time_s"
         mode = RUNNING
         stop_started = 0.0
         end_t = math.inf if duration_s is None else duration_s

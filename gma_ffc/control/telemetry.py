@@ -7,10 +7,16 @@ that much. Each flush writes whole lines in one call, so the file is always a va
 
 With a real clock a full ring drops rows (counted in `dropped`, never blocking the loop); with
 a simulated clock `push` waits for the writer instead, so fast runs lose nothing.
+
+One file, one writer: `start` takes an exclusive lock (flock on FILE.lock, which names the
+holder's pid) before it truncates anything, and a second controller pointed at the same file is
+refused with the other's pid. The header is written with the first rows, so it can carry the
+wall-clock time of the first tick (`start_unix_s`; a row's unix time is start_unix_s + time_s).
 """
 
 from __future__ import annotations
 
+import fcntl
 import io
 import os
 import threading
@@ -20,7 +26,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import FaultError
+from ..errors import ConfigError, FaultError
 from ..recordings import _format_meta
 
 
@@ -47,19 +53,49 @@ class Telemetry:
         self._wake = threading.Event()
         self._thread: threading.Thread | None = None
         self._fh: int | None = None      # raw fd: each flush is one write() of whole lines
+        self._lock_fd: int | None = None
+        self._header_written = False
 
     def start(self) -> None:
         if self.path is None:
             return
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._lock()
         try:
             self._fh = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-            self._write_all((_format_meta(self.metadata) + ",".join(self.columns) + "\n").encode())
-            os.fsync(self._fh)
         except OSError as exc:
+            self._unlock()
             raise FaultError(f"telemetry file {self.path}: cannot write ({exc.strerror})") from None
         self._thread = threading.Thread(target=self._run, name="gma-ffc-telemetry", daemon=True)
         self._thread.start()
+
+    def _lock(self) -> None:
+        """Exclusive, non-blocking lock on FILE.lock; refuse (naming the holder) if taken."""
+        assert self.path is not None
+        lock_path = self.path.with_name(self.path.name + ".lock")
+        try:
+            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise FaultError(f"telemetry file {self.path}: cannot create its lock {lock_path} ({exc.strerror})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise ConfigError(f"telemetry file {self.path} is being written by another controller (pid {holder}); "
+                              "give this one another telemetry.path") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        self._lock_fd = fd
+
+    def _unlock(self) -> None:
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)          # closing releases the flock
+            self._lock_fd = None
+
+    def _write_header(self) -> None:
+        self._write_all((_format_meta(self.metadata) + ",".join(self.columns) + "\n").encode())
+        self._header_written = True
 
     def push(self, row: np.ndarray) -> None:
         """Copy one row (length ncols) into the ring; hot path."""
@@ -96,8 +132,14 @@ class Telemetry:
 
     def _drain(self) -> None:
         head, tail = self.head, self.tail
-        if head == tail or self._fh is None:
+        if self._fh is None or head == tail:
             return
+        if not self._header_written:     # with the first rows: the loop has stamped start_unix_s by then
+            try:
+                self._write_header()
+            except OSError as exc:
+                self.error = f"telemetry write failed: {exc.strerror}"
+                return
         idx = np.arange(tail, head) % self.capacity
         block = self.buf[idx]
         self.tail = head
@@ -130,5 +172,11 @@ class Telemetry:
             self._thread = None
         if self._fh is not None:
             self._drain()
+            if not self._header_written:  # a run without a single tick still leaves a valid recording
+                try:
+                    self._write_header()
+                except OSError as exc:
+                    self.error = f"telemetry write failed: {exc.strerror}"
             os.close(self._fh)
             self._fh = None
+        self._unlock()

@@ -22,7 +22,7 @@ import threading
 from pathlib import Path
 from typing import Any, Callable
 
-from ..errors import ConfigError, FaultError
+from ..errors import ConfigError, FaultError, NotRunningError
 
 log = logging.getLogger(__name__)
 
@@ -192,7 +192,7 @@ def request(path: Path, message: dict[str, Any], timeout_s: float = 5.0) -> dict
         try:
             sock.connect(str(path))
         except (FileNotFoundError, ConnectionRefusedError):
-            raise FaultError(f"no controller running (socket {path})") from None
+            raise NotRunningError(f"no controller running (socket {path})") from None
         except PermissionError:
             raise FaultError(f"permission denied on socket {path}: it belongs to another user "
                              "(run as that user, or pass --runtime-dir)") from None

@@ -1,0 +1,92 @@
+"""Issue 10 faults found on an unseen rig: the telemetry's wall clock, one writer per telemetry
+file, status --json with nothing running, and duplicate config keys."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from gma_ffc.control.config import load_config, validate_config
+from gma_ffc.control.controller import Controller
+from gma_ffc.control.telemetry import Telemetry
+from gma_ffc.drivers.sim import SimDriver
+from gma_ffc.errors import ConfigError
+from gma_ffc.recordings import read_recording
+
+ROOT = Path(__file__).resolve().parents[1]
+MODEL = ROOT / "config" / "models" / "sim_sdpi.yaml"
+
+
+def cfg_for(tmp_path, **extra):
+    data = {"rate_hz": 100, "clock": "real", "model": str(MODEL), "driver": {"kind": "sim", "load_mass_kg": 15.3},
+            "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 10.0, "offset_um": 20.0},
+            "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
+            "telemetry": {"path": str(tmp_path / "tel.csv"), "flush_interval_s": 0.2}, "watchdog_s": 2.0}
+    data.update(extra)
+    return validate_config(data)
+
+
+class WallStampingSim(SimDriver):
+    """The sim rig, noting the wall-clock time of every read: the instrument the lab aligns with."""
+
+    def __init__(self, *a, **k):
+        super().__init__(*a, **k)
+        self.walls: list[float] = []
+
+    def read(self, inputs):
+        self.walls.append(time.time())
+        super().read(inputs)
+
+
+@pytest.mark.realtime
+@pytest.mark.slow
+def test_telemetry_wall_clock_is_within_2_ms_at_start_and_after_60_s(tmp_path):
+    cfg = cfg_for(tmp_path)
+    drv = WallStampingSim(cfg.driver, cfg.period_s)
+    status = Controller(cfg, driver=drv).run(duration_s=61.0)
+    assert status["ok"], status["fault_messages"]
+    rec = read_recording(cfg.telemetry["path"])
+    start = float(rec.metadata["start_unix_s"])
+    rows = start + rec.time_s
+    n = min(len(rows), len(drv.walls))
+    first = abs(rows[0] - drv.walls[0])
+    at_60 = [abs(rows[k] - drv.walls[k]) for k in range(n) if rec.time_s[k] >= 60.0][:10]
+    assert first < 2e-3, first
+    assert at_60 and max(at_60) < 2e-3, at_60
+    assert abs(status["started_unix_s"] - start) < 1e-6
+
+
+def test_a_second_controller_on_the_same_telemetry_file_is_refused_naming_the_first(tmp_path):
+    first = Telemetry(tmp_path / "tel.csv", ["time_s", "x"], {}, capacity=64)
+    first.start()
+    try:
+        with pytest.raises(ConfigError, match=f"another controller \\(pid {os.getpid()}\\)"):
+            Telemetry(tmp_path / "tel.csv", ["time_s", "x"], {}, capacity=64).start()
+        cfg = cfg_for(tmp_path, clock="simulated")
+        status = Controller(cfg).run(duration_s=0.1)
+        assert not status["ok"] and any("another controller" in m for m in status["fault_messages"].values())
+    finally:
+        first.close()
+    assert Controller(cfg_for(tmp_path, clock="simulated")).run(duration_s=0.1)["ok"]   # free again
+    assert read_recording(tmp_path / "tel.csv").time_s.size > 0
+    assert b"\0" not in (tmp_path / "tel.csv").read_bytes()
+
+
+def test_duplicate_config_keys_are_refused_naming_the_key_and_both_lines(tmp_path):
+    (tmp_path / "cfg.yaml").write_text(f"rate_hz: 100\nmodel: {MODEL}\nrate_hz: 200\n")
+    with pytest.raises(ConfigError, match="'rate_hz' appears twice, on lines 1 and 3"):
+        load_config(tmp_path / "cfg.yaml")
+
+
+def test_status_json_with_nothing_running_is_still_json(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "gma_ffc.cli", "status", "--json", "--runtime-dir",
+                          str(tmp_path / "rt")], capture_output=True, text=True, timeout=60)
+    doc = json.loads(out.stdout)
+    assert doc["state"] == "not running" and out.returncode == 1
