@@ -90,3 +90,28 @@ def test_status_json_with_nothing_running_is_still_json(tmp_path):
                           str(tmp_path / "rt")], capture_output=True, text=True, timeout=60)
     doc = json.loads(out.stdout)
     assert doc["state"] == "not running" and out.returncode == 1
+
+
+@pytest.mark.parametrize("policy", ["warn", "clamp", "fault"])
+def test_a_command_beyond_the_identified_drive_range_is_never_silent(tmp_path, policy):
+    """A reference beyond the model's stroke with current limits wider than the identified range
+    (the unseen rig commanded 7.8 A on a model identified to 3 A, silently)."""
+    cfg = cfg_for(tmp_path, clock="simulated",
+                  reference={"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 40.0, "offset_um": 40.0},
+                  limits={"current_min_A": 0.0, "current_max_A": 8.0, "slew_A_per_s": 500.0,
+                          "beyond_model": policy})
+    ctrl = Controller(cfg)
+    status = ctrl.run(duration_s=1.0)
+    lo, hi = ctrl.model.drive_range
+    assert "drive_out_of_model_range" in status["faults"]
+    assert status["outside_model"]["drive_ticks"] > 0 and status["outside_model"]["policy"] == policy
+    rec = read_recording(cfg.telemetry["path"])
+    assert (rec.columns["outside_model"].astype(int) & 1).any()
+    cmd = rec.columns["current_cmd_A"]
+    if policy == "clamp":
+        assert cmd.max() <= hi + 0.01 * (hi - lo) + 1e-9
+    elif policy == "warn":
+        assert cmd.max() > hi + 0.01 * (hi - lo)
+        assert status["ok"]
+    else:
+        assert not status["ok"] and status["state"] == "fault" and cmd[-1] == 0.0

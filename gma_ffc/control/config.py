@@ -50,6 +50,9 @@ LIMITS = {
     "slew_A_per_s": Field("float", min=0.0, min_exclusive=True),
     "safe_current_A": Field("float", 0.0),
     "stop_ramp_max_s": Field("float", 2.0, min=0.0),
+    "beyond_model": Field("choice", "warn", choices=("warn", "clamp", "fault"),
+                          help="a command outside the drive range the model was identified on: warn (flag it "
+                               "in status and telemetry), clamp (to that range) or fault (ramp to safe, stop)"),
 }
 
 SENSOR = {

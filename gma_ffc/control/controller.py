@@ -102,6 +102,9 @@ class Controller:
         self.active_faults: dict[str, str] = {}
         self.fault_history: collections.deque[dict[str, Any]] = collections.deque(maxlen=FAULT_HISTORY)
         self.stress_clamped_ticks = 0
+        self.drive_outside_ticks = 0
+        self._outside = 0
+        self.limits_beyond = cfg.limits["beyond_model"]
         self.reconnects = 0
         self.exit_reason = ""
         self.started_unix_s: float | None = None
@@ -120,10 +123,16 @@ class Controller:
         return safety.SensorMonitor(cfg.stress["source"], cfg.rod_area_mm2, tuple(cfg.stress["valid_range_MPa"]),
                                     cfg.sensor["force_limit_N"], cfg.sensor["bad_ticks"], cfg.sensor["stale_ticks"])
 
+    def _set_drive_range(self, model: Any) -> None:
+        lo, hi = getattr(model, "drive_range", (-math.inf, math.inf))
+        pad = 0.01 * (hi - lo) if math.isfinite(hi - lo) else 0.0    # rounding at the identified extremes
+        self.drive_lo, self.drive_hi = float(lo) - pad, float(hi) + pad
+
     def _set_stress_range(self, model: Any) -> None:
         rng = getattr(model, "stress_range_MPa", None)
         self.stress_lo, self.stress_hi = (float(rng[0]), float(rng[1])) if rng is not None else (-math.inf, math.inf)
         self.stress_policy_fault = self.cfg.stress["out_of_range"] == "fault"
+        self._set_drive_range(model)
 
     # ---- requests from other threads -----------------------------------------------------
     def request_stop(self, reason: str = "stop requested") -> None:
@@ -176,6 +185,7 @@ class Controller:
         self.limiter = safety.Limiter(lim["current_min_A"], lim["current_max_A"], lim["slew_A_per_s"],
                                       self.period_s, last)
         self.safe_A = lim["safe_current_A"]
+        self.limits_beyond = lim["beyond_model"]
         self.cfg, self.model, (self.reference, self.reference_now), self.stepper, self.monitor = \
             cfg, model, reference, stepper, monitor
         self.learner = learner
@@ -227,6 +237,7 @@ class Controller:
             cols.append(FORCE)
         if self.learner is not None:
             cols.append("correction_um")
+        cols.append("outside_model")       # 1: drive beyond the identified range, 2: stress beyond it, 3: both
         return cols
 
     def _open_driver(self, stop_event: threading.Event) -> bool:
@@ -340,8 +351,9 @@ class Controller:
             self.driver.close()
         except Exception as exc:
             self._raise_fault("close_failed", f"{type(exc).__name__}: {exc}")
-        hard = [f for f in self.active_faults if f not in _WARNINGS and (f != safety.STRESS_RANGE
-                                                                           or self.stress_policy_fault)]
+        hard = [f for f in self.active_faults if f not in _WARNINGS
+                and (f != safety.STRESS_RANGE or self.stress_policy_fault)
+                and (f != safety.DRIVE_RANGE or self.limits_beyond == "fault")]
         self.state = "fault" if hard else "stopped"
         return self._summary()
 
@@ -434,6 +446,19 @@ class Controller:
                     u = self.stepper.step(ref, stress)
                     if u != u:
                         raise _TickFault(safety.EXCEPTION, "the inverse model returned NaN")
+                    if u < self.drive_lo or u > self.drive_hi:
+                        self._outside = 1
+                        u = self._beyond_drive(u)
+                        if self.limits_beyond == "fault":
+                            mode = STOPPING
+                            stop_started = t
+                            self.exit_reason = self.active_faults[safety.DRIVE_RANGE]
+                            self.state = "stopping"
+                            u = self.safe_A
+                    else:
+                        self._outside = 0
+                    if stress < self.stress_lo or stress > self.stress_hi:
+                        self._outside += 2
                 else:
                     u = self.safe_A      # stopping, or no good stress yet: head for the safe current
                 cmd = self.limiter.apply(u)
@@ -518,10 +543,24 @@ class Controller:
         if force_col >= 0:
             row[force_col] = inputs.force_N
         if self.learner is not None:
-            row[-1] = 0.0 if safe else self.learner.last_correction_um
+            row[-2] = 0.0 if safe else self.learner.last_correction_um
+        row[-1] = self._outside
         self.last_current_A = row[3]
         self.last_displacement_um = inputs.displacement_um
         tel.push(row)
+
+    def _beyond_drive(self, u: float) -> float:
+        """Flag a command outside the model's identified drive range; clamp it if configured."""
+        self.drive_outside_ticks += 1
+        if safety.DRIVE_RANGE not in self.active_faults:
+            verb = {"warn": "commanded anyway (limits.beyond_model: warn)",
+                    "clamp": "clamped to the identified range (limits.beyond_model: clamp)",
+                    "fault": "fault (limits.beyond_model: fault)"}[self.limits_beyond]
+            self._raise_fault(safety.DRIVE_RANGE, f"the inverse asks for {u:.4g} outside the drive range the model "
+                                                  f"was identified on [{self.drive_lo:.4g}, {self.drive_hi:.4g}]: {verb}")
+        if self.limits_beyond == "clamp":
+            return min(max(u, self.drive_lo), self.drive_hi)
+        return u
 
     def _stress_out_of_range(self, stress: float) -> None:
         self.stress_clamped_ticks += 1
@@ -558,6 +597,9 @@ class Controller:
             "fault_messages": faults,
             "fault_history": history,
             "stress_clamped_ticks": self.stress_clamped_ticks,
+            "outside_model": {"drive_ticks": self.drive_outside_ticks, "stress_ticks": self.stress_clamped_ticks,
+                              "policy": self.limits_beyond,
+                              "drive_range": [_finite(self.drive_lo), _finite(self.drive_hi)]},
             "reconnects": self.reconnects,
             "exit_reason": self.exit_reason,
             "started_unix_s": self.started_unix_s,

@@ -26,6 +26,7 @@ SENSOR_NAN = "sensor_nan"          # NaN or missing
 SENSOR_ABSURD = "sensor_absurd"    # outside the plausible range
 SENSOR_STALE = "sensor_stale"      # unchanged for stale_ticks ticks
 STRESS_RANGE = "stress_out_of_model_range"
+DRIVE_RANGE = "drive_out_of_model_range"   # the inverse asks for a drive the model was not identified on
 STOP = "stop_requested"
 
 IMMEDIATE = frozenset({COMMS_TIMEOUT, COMMS_ERROR, EXCEPTION, WATCHDOG, SENSOR_NAN, SENSOR_ABSURD, SENSOR_STALE})
