@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import Sequence
 
-from gma_ffc.cli import dispatch
+from gma_ffc.console import dispatch
 from gma_ffc.errors import InputError
 from gma_ffc.progress import Progress
 

@@ -1,4 +1,4 @@
-"""The `gma-ffc` console script: one parser, one module per subcommand (see shared/spec/cli.md).
+"""The `gma-ffc` console script: one parser, one module per subcommand (see docs/cli.md).
 
 Each subcommand module exposes ``register(subparsers)``, which adds its parser and sets
 ``func(args) -> int``. Errors raised on purpose (`GmaError`) become one line on stderr and the
@@ -10,11 +10,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import os
 import sys
-from typing import Callable, Sequence
+from typing import Sequence
 
-from ..errors import GmaError
+from ..console import dispatch
 
 # Order here is the order in `gma-ffc --help`.
 SUBCOMMAND_MODULES = ("identify", "simulate", "invert", "diagnose", "run", "service", "demo")
@@ -51,34 +50,6 @@ def build_parser() -> argparse.ArgumentParser:
     for name in SUBCOMMAND_MODULES:
         importlib.import_module(f"{__name__}.{name}").register(sub)
     return parser
-
-
-def dispatch(where: str, run: Callable[[], int | None]) -> int:
-    """Run a parsed subcommand under the CLI contract: errors become one line on stderr and
-    exit 2 (bad input, including a path that cannot be read or written) or 1 (run-time fault or
-    bug); GMA_FFC_DEBUG=1 re-raises for the traceback. Shared by every console entry point;
-    `where` prefixes the message ("gma-ffc simulate")."""
-    try:
-        return int(run() or 0)
-    except GmaError as exc:
-        if os.environ.get("GMA_FFC_DEBUG"):
-            raise
-        print(f"{where}: error: {exc}", file=sys.stderr)
-        return exc.exit_code
-    except OSError as exc:
-        if os.environ.get("GMA_FFC_DEBUG"):
-            raise
-        print(f"{where}: error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{where}: interrupted", file=sys.stderr)
-        return 130
-    except Exception as exc:  # a bug, not bad input: one line, exit 1, traceback on request
-        if os.environ.get("GMA_FFC_DEBUG"):
-            raise
-        print(f"{where}: internal error: {type(exc).__name__}: {exc} "
-              f"(GMA_FFC_DEBUG=1 shows the traceback)", file=sys.stderr)
-        return 1
 
 
 def main(argv: Sequence[str] | None = None) -> int:

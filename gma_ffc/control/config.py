@@ -17,7 +17,7 @@ from typing import Any, Mapping
 from ..errors import ConfigError
 from ..yamlfile import read_yaml
 from .learning import LearningConfig, reference_period_s
-from .schema import Field, pair, validate_section
+from ..schema import Field, pair, validate_section
 
 DEFAULT_ROD_DIAMETER_MM = 7.0
 
@@ -170,7 +170,7 @@ def _resolve(path: str, base: Path | None) -> str:
 
 def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | None = None) -> ControllerConfig:
     """Validate a parsed config mapping; relative file paths resolve against `base_dir`."""
-    from ..drivers import driver_class   # late: drivers import control.schema
+    from ..drivers import driver_class
 
     top = validate_section(data, TOP, "")
     base = Path(base_dir) if base_dir is not None else None

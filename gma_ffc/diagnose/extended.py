@@ -65,8 +65,16 @@ THERMAL_FAST_RATIO = 0.125        # the fast heating part's time constant relati
 MIN_FAST_HEAT_S = 10.0            # no thermal part is quicker than this (thermal mass); faster drift is creep-like   # creep time constants relative to tau_s: a distributed (log-like) relaxation
 
 
+def saturation_scalar(u: float, sat: Mapping[str, float]) -> float:
+    """`saturation_term` for one sample in plain float arithmetic: the steppers' form (no numpy
+    scalars, so a step allocates nothing)."""
+    hi = u - sat["hi"] if u > sat["hi"] else 0.0
+    lo = sat["lo"] - u if u < sat["lo"] else 0.0
+    return sat["lin_hi"] * hi + sat["quad_hi"] * hi * hi + sat["lin_lo"] * lo + sat["quad_lo"] * lo * lo
+
+
 def saturation_term(u: Any, sat: Mapping[str, float]) -> Any:
-    """Hinge correction beyond the identified drive range (scalar or array)."""
+    """Hinge correction beyond the identified drive range (arrays; see `saturation_scalar`)."""
     hi = np.maximum(np.asarray(u, dtype=float) - sat["hi"], 0.0)
     lo = np.maximum(sat["lo"] - np.asarray(u, dtype=float), 0.0)
     return sat["lin_hi"] * hi + sat["quad_hi"] * hi * hi + sat["lin_lo"] * lo + sat["quad_lo"] * lo * lo
@@ -438,7 +446,7 @@ class ForwardStepper(_BlockStepper):
             sw = m.stress_width
             y += sw["coef_per_MPa"] * ds * (float(self._wide.step(u3, s)) - yc) / sw["eps"]
         if m.saturation:
-            y += saturation_term(u1, m.saturation)
+            y += saturation_scalar(u1, m.saturation)
         if m.creep:
             acc = 0.0
             for k in range(self._z.size):
@@ -526,7 +534,7 @@ class InverseStepper(_BlockStepper):
         if self._wide is not None:
             extra += m.stress_width["coef_per_MPa"] * ds * self._width_prev
         if m.saturation:
-            extra += saturation_term(self._drive_prev, m.saturation)
+            extra += saturation_scalar(float(self._drive_prev), m.saturation)
         # creep: y = static(yc) + g mean_k a_k (z_k - yc), z_k the lags' previous states
         ga = 0.0
         zc = 0.0

@@ -55,7 +55,7 @@ class Driver(ABC):
     """Base class of every driver plugin.
 
     Subclasses set `channels` (which of CHANNELS `read` fills) after `open()` at the latest and
-    implement `validate_config` for their config section (use gma_ffc.control.schema).
+    implement `validate_config` for their config section (use gma_ffc.schema).
     """
 
     kind: str = "abstract"

@@ -22,7 +22,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from ..control.schema import Field, key_name, validate_section
+from ..schema import Field, key_name, validate_section
 from ..errors import ConfigError
 from ..registers import (CURRENT, CURRENT_SETPOINT, DISPLACEMENT, FORCE, OUTPUT_ENABLE, TYPES, Channel, ReadBlock,
                          RegisterMap, load_register_map)

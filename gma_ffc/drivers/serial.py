@@ -16,7 +16,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from ..control.schema import Field, key_name, validate_section
+from ..schema import Field, key_name, validate_section
 from ..errors import ConfigError
 from .base import CURRENT, DISPLACEMENT, FORCE, STRESS, Driver, DriverError, Inputs
 

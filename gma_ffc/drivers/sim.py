@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from ..control.schema import Field, validate_section
+from ..schema import Field, validate_section
 from ..errors import ConfigError
 from .base import CURRENT, DISPLACEMENT, FORCE, Driver, DriverError, Inputs
 

@@ -8,7 +8,7 @@ import signal
 import sys
 import threading
 
-from gma_ffc.cli import dispatch
+from gma_ffc.console import dispatch
 from gma_ffc.errors import InputError
 from gma_ffc.registers import load_register_map
 

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
-from ..errors import ConfigError
+from .errors import ConfigError
 
 _MISSING = object()
 
