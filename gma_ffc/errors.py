@@ -21,7 +21,7 @@ class InputError(GmaError):
 
 
 class RecordingError(InputError):
-    """A recording file violates shared/spec/recordings.md."""
+    """A recording file violates docs/recordings.md."""
 
 
 class ModelError(InputError):

@@ -1,4 +1,4 @@
-"""Recordings: read, validate and write the format of shared/spec/recordings.md.
+"""Recordings: read, validate and write the format of docs/recordings.md.
 
 A recording is a CSV file (optional ``# key: value`` metadata lines, a header, numeric rows) or a
 MATLAB ``.mat`` file with the same variable names. Every command reads and writes this one format,
@@ -152,14 +152,26 @@ def _parse_metadata(lines: Iterable[tuple[int, str]], source: str) -> dict[str, 
 
 
 def read_csv(path: Path, require: Sequence[str]) -> Recording:
+    """A CSV recording: Arrow's multi-threaded C++ parser for the rows, this module's checks and
+    messages for everything else. Spreadsheet exports are understood: a UTF-8 byte-order mark is
+    dropped, and a ';'-separated file with decimal commas is read as such."""
     source = str(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        with open(path, "rb") as fh:
+            head = fh.read(65536)
     except FileNotFoundError:
         raise RecordingError(f"{source}: no such file") from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except OSError as exc:
         raise RecordingError(f"{source}: cannot read ({exc})") from None
-    lines = text.splitlines()
+    try:
+        text_head = head.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        # a cut multi-byte character at the 64 KiB boundary is fine; anything else is not UTF-8
+        try:
+            text_head = head[:-4].decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            raise RecordingError(f"{source}: cannot read ({exc}); a recording is UTF-8 text (or .mat, .tdms, .h5)") from None
+    lines = text_head.splitlines()
     meta_lines: list[tuple[int, str]] = []
     header_idx = None
     for idx, line in enumerate(lines):
@@ -171,26 +183,67 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
             break
     if header_idx is None:
         raise RecordingError(f"{source}: no header line (expected e.g. 'time_s,current_A,displacement_um')")
-    names = [n.strip() for n in lines[header_idx].split(",")]
+    header = lines[header_idx]
+    first_row = next((ln for ln in lines[header_idx + 1:] if ln.strip() and not ln.lstrip().startswith("#")), "")
+    delimiter, decimal = _dialect(header, first_row)
+    names = [n.strip().strip('"') for n in header.split(delimiter)]
     header_line = header_idx + 1
     for name in names:
         check_column_name(name, source, header_line)
     if len(set(names)) != len(names):
         dup = next(n for n in names if names.count(n) > 1)
         raise RecordingError(f"{source}, line {header_line}: column '{dup}' appears twice")
-    body = lines[header_idx + 1:]
-    data = _parse_rows(body, len(names), source, header_line)
+    data = _parse_rows_fast(path, header_idx, names, delimiter, decimal)
+    if data is None:      # Arrow could not: the careful parser finds the line and says what is wrong
+        try:
+            text = path.read_text(encoding="utf-8-sig")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise RecordingError(f"{source}: cannot read ({exc})") from None
+        body = text.splitlines()[header_idx + 1:]
+        data = _parse_rows(body, len(names), source, header_line, delimiter, decimal)
     rec = Recording({n: data[:, k] for k, n in enumerate(names)}, _parse_metadata(meta_lines, source), source)
     return validate(rec, require, header_line)
 
 
-def _parse_rows(body: list[str], ncols: int, source: str, header_line: int) -> np.ndarray:
-    """Fast numpy parse; on failure, find the first offending line and say what is wrong there."""
+def _dialect(header: str, first_row: str) -> tuple[str, str]:
+    """(delimiter, decimal mark): ',' and '.', or a spreadsheet's ';' and ',' (European locale)."""
+    if ";" in header and "," not in header:
+        return ";", ("," if "," in first_row else ".")
+    return ",", "."
+
+
+def _parse_rows_fast(path: Path, header_idx: int, names: list[str], delimiter: str,
+                     decimal: str) -> np.ndarray | None:
+    """The rows as a float array via pyarrow.csv, or None if anything is not plainly numeric
+    (empty cells, words, ragged rows, comment lines among the rows): the slow path explains."""
+    import pyarrow as pa
+    from pyarrow import csv as pacsv
+
+    try:
+        table = pacsv.read_csv(
+            path,
+            read_options=pacsv.ReadOptions(skip_rows=header_idx + 1, column_names=names, encoding="utf8"),
+            parse_options=pacsv.ParseOptions(delimiter=delimiter, ignore_empty_lines=True),
+            convert_options=pacsv.ConvertOptions(column_types={n: pa.float64() for n in names},
+                                                 decimal_point=decimal, strings_can_be_null=False,
+                                                 null_values=[], quoted_strings_can_be_null=False))
+    except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError, OSError):
+        return None
+    if table.num_rows == 0 or any(col.null_count for col in table.columns):
+        return None
+    return np.column_stack([table.column(n).to_numpy() for n in names]).astype(float, copy=False)
+
+
+def _parse_rows(body: list[str], ncols: int, source: str, header_line: int, delimiter: str = ",",
+                decimal: str = ".") -> np.ndarray:
+    """Careful parse line by line: finds the first offending line and says what is wrong there."""
     rows = [ln for ln in body if ln.strip() and not ln.lstrip().startswith("#")]
     if not rows:
         raise RecordingError(f"{source}: header but no data rows")
+    if decimal == ",":
+        rows = [ln.replace(",", ".") for ln in rows]
     try:
-        data = np.loadtxt(io.StringIO("\n".join(rows)), delimiter=",", ndmin=2, dtype=float)
+        data = np.loadtxt(io.StringIO("\n".join(rows)), delimiter=delimiter, ndmin=2, dtype=float)
         if data.shape[1] == ncols:
             return data
     except ValueError:
@@ -199,12 +252,14 @@ def _parse_rows(body: list[str], ncols: int, source: str, header_line: int) -> n
         lineno = header_line + 1 + offset
         if not line.strip() or line.lstrip().startswith("#"):
             continue
-        cells = line.split(",")
+        cells = line.split(delimiter)
         if len(cells) != ncols:
-            raise RecordingError(f"{source}, line {lineno}: {len(cells)} cells, header has {ncols}")
+            more = ("; a ';'-separated file with decimal commas is read as such only when its header "
+                    "uses ';' too") if delimiter == "," and ";" in line else ""
+            raise RecordingError(f"{source}, line {lineno}: {len(cells)} cells, header has {ncols}{more}")
         for col, cell in enumerate(cells):
             try:
-                float(cell)
+                float(cell.replace(",", ".") if decimal == "," else cell)
             except ValueError:
                 raise RecordingError(
                     f"{source}, line {lineno}: cell {col + 1} '{cell.strip()}' is not a number") from None
@@ -239,10 +294,92 @@ def read_mat(path: Path, require: Sequence[str]) -> Recording:
     return validate(rec, require, header_line=0)
 
 
-def read_recording(path: str | Path, require: Sequence[str] = (TIME, "drive", DISPLACEMENT)) -> Recording:
-    """Read and validate a recording (.csv or .mat); raises RecordingError on any violation."""
+def read_tdms(path: Path, require: Sequence[str], group: str | None = None) -> Recording:
+    """LabVIEW TDMS (npTDMS): channels named like the columns, in one group (or `group`); time
+    from a time_s channel or from the waveform's wf_increment; properties become metadata."""
+    from nptdms import TdmsFile
+
+    source = str(path)
+    try:
+        tdms = TdmsFile.read(str(path))
+    except FileNotFoundError:
+        raise RecordingError(f"{source}: no such file") from None
+    except Exception as exc:  # npTDMS raises ValueError/KeyError/... on damaged files
+        raise RecordingError(f"{source}: not a readable TDMS file ({type(exc).__name__}: {exc})") from None
+    groups = {g.name: g for g in tdms.groups()}
+    if group is not None:
+        if group not in groups:
+            raise RecordingError(f"{source}: no group {group!r}; the file has: {', '.join(groups) or 'none'}")
+        chosen = groups[group]
+    else:
+        with_data = [g for g in groups.values() if g.channels()]
+        if not with_data:
+            raise RecordingError(f"{source}: not a readable TDMS file with channels (no group holds any); is it "
+                                 "a LabVIEW TDMS recording?")
+        if len(with_data) != 1:
+            raise RecordingError(f"{source}: {len(with_data)} groups hold channels ({', '.join(g.name for g in with_data)}); "
+                                 "choose one with --group NAME")
+        chosen = with_data[0]
+    columns: dict[str, np.ndarray] = {}
+    increment = None
+    for ch in chosen.channels():
+        check_column_name(ch.name, f"{source}, group {chosen.name!r}", 0)
+        columns[ch.name] = np.asarray(ch[:], dtype=float)
+        increment = increment or ch.properties.get("wf_increment")
+    if TIME not in columns and columns:
+        if not increment:
+            raise RecordingError(f"{source}: no time_s channel and no wf_increment property to build time from")
+        n = len(next(iter(columns.values())))
+        columns = {TIME: np.arange(n) * float(increment), **columns}
+    meta = {str(k): plain(v) for k, v in {**tdms.properties, **chosen.properties}.items()}
+    return validate(Recording(columns, meta, source), require, header_line=0)
+
+
+def read_hdf5(path: Path, require: Sequence[str], group: str | None = None) -> Recording:
+    """HDF5 (h5py): 1-D datasets named like the columns, at the root or in `group`; attributes
+    become metadata."""
+    import h5py
+
+    source = str(path)
+    try:
+        fh = h5py.File(str(path), "r")
+    except FileNotFoundError:
+        raise RecordingError(f"{source}: no such file") from None
+    except OSError as exc:
+        raise RecordingError(f"{source}: not a readable HDF5 file ({exc})") from None
+    with fh:
+        node = fh
+        if group is not None:
+            if group not in fh or not isinstance(fh[group], h5py.Group):
+                raise RecordingError(f"{source}: no group {group!r}; the file has: {', '.join(fh.keys()) or 'none'}")
+            node = fh[group]
+        columns = {}
+        for name, item in node.items():
+            if isinstance(item, h5py.Dataset) and item.ndim == 1 and item.dtype.kind in "fiu":
+                check_column_name(name, source, 0)
+                columns[name] = np.asarray(item[()], dtype=float)
+        if not columns:
+            groups = [k for k, v in fh.items() if isinstance(v, h5py.Group)]
+            hint = f"; choose a group with --group ({', '.join(groups)})" if groups else ""
+            raise RecordingError(f"{source}: no 1-D numeric datasets at {node.name}{hint}")
+        meta = {str(k): plain(v) for k, v in {**fh.attrs, **node.attrs}.items()}
+    return validate(Recording(columns, meta, source), require, header_line=0)
+
+
+READERS = {".mat": read_mat, ".tdms": read_tdms, ".h5": read_hdf5, ".hdf5": read_hdf5}
+
+
+def read_recording(path: str | Path, require: Sequence[str] = (TIME, "drive", DISPLACEMENT),
+                   group: str | None = None) -> Recording:
+    """Read and validate a recording (.csv, .mat, .tdms, .h5/.hdf5); RecordingError on any violation.
+    `group` picks the TDMS or HDF5 group holding the channels."""
     p = Path(path)
-    if p.suffix.lower() == ".mat":
+    suffix = p.suffix.lower()
+    if suffix in (".tdms", ".h5", ".hdf5"):
+        return READERS[suffix](p, require, group)
+    if group is not None:
+        raise RecordingError(f"{p}: --group applies to .tdms and .h5 files only")
+    if suffix == ".mat":
         return read_mat(p, require)
     return read_csv(p, require)
 
@@ -272,14 +409,14 @@ def _format_meta(meta: Mapping[str, Any]) -> str:
     return "".join(out)
 
 
-def write_recording(path: str | Path, rec: Recording, precision: int = 12) -> None:
+def write_recording(path: str | Path, rec: Recording) -> None:
     """Write atomically: the file appears complete or not at all.
 
-    12 significant digits: exact for any measured value, and 1e-12 relative for computed ones.
+    Every value is written in its shortest form that reads back to the same double (Arrow's
+    writer), so a round trip is exact and no digit is noise.
     """
     p = Path(path)
     names = list(rec.columns)
-    data = np.column_stack([rec.columns[n] for n in names]) if names else np.empty((0, 0))
     if p.suffix.lower() == ".mat":
         import scipy.io
 
@@ -287,10 +424,15 @@ def write_recording(path: str | Path, rec: Recording, precision: int = 12) -> No
             scipy.io.savemat(fh, {**{k: v for k, v in rec.columns.items()},
                                   **{k: v for k, v in rec.metadata.items() if isinstance(v, (int, float, str))}})
         return
-    with atomic_write(p, "w", encoding="utf-8", newline="\n") as fh:
-        fh.write(_format_meta(rec.metadata))
-        fh.write(",".join(names) + "\n")
-        np.savetxt(fh, data, delimiter=",", fmt=f"%.{precision}g")
+    import pyarrow as pa
+    from pyarrow import csv as pacsv
+
+    table = pa.table({n: rec.columns[n] for n in names}) if names else None
+    with atomic_write(p, "wb") as fh:
+        fh.write((_format_meta(rec.metadata) + ",".join(names) + "\n").encode("utf-8"))
+        if table is not None and table.num_rows:
+            pacsv.write_csv(table, fh, write_options=pacsv.WriteOptions(include_header=False,
+                                                                        quoting_style="none"))
 
 
 def finite_or_none(value: float) -> float | None:

@@ -14,7 +14,7 @@ DESCRIPTION = """\
 Simulated giant magnetostrictive actuator (Jiles-Atherton + stress, phi 7 mm Terfenol-D rod,
 -11.3 MPa preload, up to 50 kg load) for testing gma-ffc without hardware.
 
-  record    write CSV recordings (shared/spec/recordings.md format) for one experiment kind
+  record    write CSV recordings (docs/recordings.md format) for one experiment kind
 """
 
 RECORD_EPILOG = """\

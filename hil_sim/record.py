@@ -1,4 +1,4 @@
-"""Recordings from the simulated GMA, in the format of shared/spec/recordings.md.
+"""Recordings from the simulated GMA, in the format of docs/recordings.md.
 
 Each kind is a set of experiments (drive signal + load mass over time) run on a fresh plant.
 The files carry what a rig would log (source, sample rate, seed, load mass) but never which

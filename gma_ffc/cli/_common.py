@@ -19,8 +19,13 @@ def existing_output_dir_parent(path: str) -> Path:
     return p
 
 
-def read_all(paths: Sequence[str], require: Sequence[str]) -> list[Recording]:
-    return [read_recording(p, require=require) for p in paths]
+def read_all(paths: Sequence[str], require: Sequence[str], group: str | None = None) -> list[Recording]:
+    return [read_recording(p, require=require, group=group) for p in paths]
+
+
+def add_group_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--group", metavar="NAME",
+                   help="for .tdms and .h5 recordings: the group holding the channels (needed when there are several)")
 
 
 def stress_for(model: Any, rec: Recording, override: float | None) -> np.ndarray | float | None:

@@ -57,6 +57,8 @@ class TrackingResult:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo", help="the whole job on the built-in simulated actuator",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="examples:\n  gma-ffc demo\n  gma-ffc demo --out /tmp/demo --seed 3",
         description="Record identification data on the simulated rig, identify SDPI (four stresses) "
                     "and MPI (-11.3 MPa), track a 3 Hz sine at -15.2 and -19.1 MPa with each through "
                     "the real controller (simulated clock), print the comparison with the paper and "

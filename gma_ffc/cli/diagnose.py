@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
+from ._common import add_group_option
 
 HELP = """\
 Compare a model with recordings, locate where they differ (time windows, frequency bands, drive
@@ -35,6 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="folder for diagnosis.json, report.html, extended_model.yaml")
     p.add_argument("--max-effects", type=int, default=3, metavar="N",
                    help="at most this many effects are named (default 3)")
+    add_group_option(p)
     p.set_defaults(func=run)
 
 
@@ -57,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(args.model)
     if model.kind == "extended":
         raise InputError(f"{args.model} is already an extended model; diagnose its base sdpi/mpi model instead")
-    recs = [read_recording(p, require=("time_s", "drive", "displacement_um")) for p in args.recordings]
+    recs = [read_recording(p, require=("time_s", "drive", "displacement_um"), group=args.group)
+            for p in args.recordings]
     name = getattr(model, "drive_name", "current_A")
     for rec in recs:
         if rec.drive_name != name:

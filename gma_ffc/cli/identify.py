@@ -8,12 +8,12 @@ import sys
 from ..errors import InputError
 from ..modelio import save_model
 from ..progress import Progress
-from ._common import read_all
+from ._common import add_group_option, read_all
 
 HELP = """\
 Fit a stress-dependent Prandtl-Ishlinskii model (SDPI, seed paper section 3.3) from recordings at
 several stresses, or a stress-independent MPI from recordings at one stress or without a
-stress_MPa column. Recordings follow shared/spec/recordings.md (time_s, current_A,
+stress_MPa column. Recordings follow docs/recordings.md (time_s, current_A,
 displacement_um, stress_MPa). Quasi-static drives (a few Hz) sweeping the full current range
 give the best models; the first sweep of each recording is skipped while the model's memory
 settles.
@@ -36,6 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-refine", action="store_true",
                    help="skip the output-error refinement (the paper's equation-error fit (15) alone)")
     p.add_argument("--plot", metavar="PNG", help="also save measured vs modelled loops to this image")
+    add_group_option(p)
     p.set_defaults(func=run)
 
 
@@ -49,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"model file must end in .yaml, got {args.output}")
     if args.plot:
         refuse_overwrite(args.plot, args.recordings, "plot")
-    recs = read_all(args.recordings, require=("time_s", "drive", "displacement_um"))
+    recs = read_all(args.recordings, require=("time_s", "drive", "displacement_um"), group=args.group)
     with Progress("identify", total=4) as prog:
         ident = SDPIIdentifier(n_play=args.plays, n_deadzone=args.deadzones,
                                reference_stress_MPa=args.reference_stress, refine=not args.no_refine,

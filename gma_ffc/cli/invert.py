@@ -11,7 +11,7 @@ from ..errors import InputError
 from ..modelio import load_model
 from ..recordings import Recording, read_recording, write_recording
 from ..atomic import refuse_overwrite
-from ._common import add_initial_state_option, add_stress_option, stress_for
+from ._common import add_group_option, add_initial_state_option, add_stress_option, stress_for
 
 HELP = """\
 Compute the feedforward drive for a reference displacement with the model's analytic inverse
@@ -43,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="start relaxed at this drive instead (overrides --initial-state)")
     add_initial_state_option(p)
     add_stress_option(p)
+    add_group_option(p)
     p.set_defaults(func=run)
 
 
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     if args.limit and args.limit[0] >= args.limit[1]:
         raise InputError(f"--limit needs LO < HI, got {args.limit[0]} {args.limit[1]}")
     model = load_model(args.model)
-    rec = read_recording(args.reference, require=("time_s", "reference_um"))
+    rec = read_recording(args.reference, require=("time_s", "reference_um"), group=args.group)
     stress = stress_for(model, rec, args.stress)
     if args.initial_drive is not None:
         kwargs, how = {"initial_drive": args.initial_drive}, f"relaxed at drive {args.initial_drive:g}"

@@ -33,6 +33,10 @@ def add_runtime_dir(p: argparse.ArgumentParser) -> None:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "run", help="run the controller in the foreground (what the systemd unit runs)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="examples:\n"
+               "  gma-ffc run --config config/sim.yaml --duration 10 --stats-json stats.json\n"
+               "  gma-ffc run --config rig.yaml --learned learned.yaml   # learning feedforward, kept across runs",
         description="Run the controller in the foreground until --duration ends, SIGTERM/SIGINT "
                     "or 'gma-ffc stop'. Speaks systemd's notify protocol when NOTIFY_SOCKET is "
                     "set (READY, STATUS, WATCHDOG while the loop progresses, STOPPING). SIGHUP "

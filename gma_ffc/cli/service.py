@@ -11,9 +11,14 @@ from .run import add_runtime_dir, positive_seconds
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("start", help="start the controller as a background service",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
                        description="Start 'gma-ffc run' in the background (own session, pid file "
                                    "and log in the runtime directory) and return once it reports "
-                                   "ready, or fail with its reason.")
+                                   "ready, or fail with its reason.",
+                       epilog="examples:\n"
+                              "  gma-ffc start --config config/sim.yaml      # the simulated rig, as shipped\n"
+                              "  gma-ffc start --config rig.yaml --duration 600\n"
+                              "  gma-ffc status; gma-ffc stop")
     p.add_argument("--config", required=True, metavar="CFG.yaml", help="controller configuration")
     p.add_argument("--duration", type=positive_seconds, metavar="S",
                    help="stop after S seconds (default: run until 'gma-ffc stop')")
@@ -23,17 +28,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_start)
 
     p = sub.add_parser("stop", help="stop the background controller",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
                        description="Ask the controller to stop over its socket (it puts the "
                                    "amplifier at its safe current first), wait, and escalate to "
-                                   "SIGTERM if it does not stop.")
+                                   "SIGTERM if it does not stop.",
+                       epilog="example:\n  gma-ffc stop            # prints how it stopped and any active faults")
     p.add_argument("--timeout", type=positive_seconds, default=10.0, metavar="S",
                    help="how long to wait before SIGTERM (default 10)")
     add_runtime_dir(p)
     p.set_defaults(func=_stop)
 
     p = sub.add_parser("status", help="show the running controller's status",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
                        description="State, achieved rate, period jitter p50/p99/max, overruns, "
-                                   "last stress, current and reference, active faults.")
+                                   "last stress, current and reference, active faults, learning "
+                                   "feedforward, and whether the model is used outside its range.",
+                       epilog="examples:\n"
+                              "  gma-ffc status\n"
+                              "  gma-ffc status --json | jq .state     # JSON always, also when nothing runs")
     p.add_argument("--json", action="store_true", help="machine-readable JSON")
     add_runtime_dir(p)
     p.set_defaults(func=_status)

@@ -11,7 +11,7 @@ from ..model import rms
 from ..modelio import load_model
 from ..recordings import Recording, write_recording
 from ..atomic import refuse_overwrite
-from ._common import add_initial_state_option, add_stress_option, check_drive_name, stress_for
+from ._common import add_group_option, add_initial_state_option, add_stress_option, check_drive_name, stress_for
 
 HELP = """\
 Run a model (any kind: sdpi, mpi, or an extended model from `gma-ffc diagnose`) on the drive and
@@ -40,6 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the prediction, written as a recording (never over REC)")
     add_stress_option(p)
     add_initial_state_option(p)
+    add_group_option(p)
     p.set_defaults(func=run)
 
 
@@ -48,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
 
     refuse_overwrite(args.output, [args.recording, args.model])
     model = load_model(args.model)
-    rec = read_recording(args.recording, require=("time_s", "drive"))
+    rec = read_recording(args.recording, require=("time_s", "drive"), group=args.group)
     check_drive_name(model, rec)
     stress = stress_for(model, rec, args.stress)
     measured = rec.displacement_um

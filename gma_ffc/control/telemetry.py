@@ -1,7 +1,7 @@
 """Telemetry: every tick as a row of a recording, written off the hot path.
 
 The hot path copies one row into a preallocated ring (`push`, no allocation beyond Python
-floats); a writer thread appends the rows to a CSV recording (shared/spec/recordings.md) and
+floats); a writer thread appends the rows to a CSV recording (docs/recordings.md) and
 flushes + fsyncs at least every `flush_interval_s` (<= 1 s), so a killed process loses at most
 that much. Each flush writes whole lines in one call, so the file is always a valid recording.
 

@@ -1,0 +1,93 @@
+#!/usr/bin/env python3
+"""Recording I/O at lab scale: read, simulate and write 1,000,000 rows, the Arrow-based reader and
+writer against the previous numpy/Python-level ones, in the same process on the same file.
+
+    python scripts/bench_io.py [--rows 1000000]
+
+Prints seconds per stage, best of --repeat runs, and new/old ratios; also times the whole
+`gma-ffc simulate` command (a fresh process, as a user runs it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from gma_ffc.modelio import load_model  # noqa: E402
+from gma_ffc.recordings import Recording, _format_meta, _parse_rows, read_recording, write_recording  # noqa: E402
+
+
+def old_read(path: Path) -> np.ndarray:
+    """The previous reader's work: Python-level split of the text, numpy.loadtxt on the rows."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    header = next(i for i, ln in enumerate(lines) if ln.strip() and not ln.startswith("#"))
+    ncols = len(lines[header].split(","))
+    return _parse_rows(lines[header + 1:], ncols, str(path), header + 1)
+
+
+def old_write(path: Path, rec: Recording) -> None:
+    names = list(rec.columns)
+    with open(path, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(_format_meta(rec.metadata) + ",".join(names) + "\n")
+        np.savetxt(fh, np.column_stack([rec.columns[n] for n in names]), delimiter=",", fmt="%.12g")
+
+
+def best(fn, repeat: int) -> float:
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--rows", type=int, default=1_000_000)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    model = load_model(ROOT / "config" / "models" / "sim_sdpi.yaml")
+    n = args.rows
+    t = np.arange(n) / 2000.0
+    drive = 1.5 - 1.5 * np.cos(2 * np.pi * 3 * t)
+    stress = -15.2 + 0.01 * np.sin(t)
+    rec = Recording({"time_s": t, "current_A": drive, "stress_MPa": stress,
+                     "displacement_um": model.simulate(t, drive, stress, initial_state="relaxed")},
+                    {"source": "bench_io"}, "in.csv")
+    with tempfile.TemporaryDirectory() as tmp:
+        src, out = Path(tmp) / "in.csv", Path(tmp) / "out.csv"
+        write_recording(src, rec)
+        loaded = read_recording(src)
+        assert np.array_equal(old_read(src)[:, 1], loaded.drive)
+        rows = {
+            "read": (best(lambda: old_read(src), args.repeat), best(lambda: read_recording(src), args.repeat)),
+            "simulate (model only)": (best(lambda: model.simulate(t, drive, stress, initial_state="relaxed"),
+                                           args.repeat),) * 2,
+            "write": (best(lambda: old_write(out, rec), args.repeat), best(lambda: write_recording(out, rec), args.repeat)),
+        }
+        print(f"{n:,} rows, 4 columns, best of {args.repeat}")
+        print(f"{'stage':<24}{'old (s)':>10}{'new (s)':>10}{'new/old':>9}")
+        for stage, (a, b) in rows.items():
+            print(f"{stage:<24}{a:>10.3f}{b:>10.3f}{b / a:>9.2f}")
+        total_old = sum(a for a, _ in rows.values())
+        total_new = sum(b for _, b in rows.values())
+        print(f"{'read+simulate+write':<24}{total_old:>10.3f}{total_new:>10.3f}{total_new / total_old:>9.2f}")
+        gma = [sys.executable, "-m", "gma_ffc.cli", "simulate", "--model",
+               str(ROOT / "config" / "models" / "sim_sdpi.yaml"), str(src), "-o", str(out), "--initial-state", "relaxed"]
+        whole = best(lambda: subprocess.run(gma, check=True, capture_output=True), 2)
+        print(f"\n`gma-ffc simulate` on {n:,} rows, whole process (import, read, simulate, write): {whole:.2f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

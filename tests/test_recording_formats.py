@@ -1,0 +1,88 @@
+"""The formats labs have (issue 11): TDMS and HDF5 written by their own libraries, a
+spreadsheet CSV with a byte-order mark, and a ';'-separated one with decimal commas all give the
+same recording as the plain CSV; bad files get one clear message."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gma_ffc.errors import RecordingError
+from gma_ffc.recordings import Recording, read_recording, write_recording
+
+N = 500
+
+
+@pytest.fixture
+def plain(tmp_path):
+    t = np.arange(N) / 1000.0
+    rec = Recording({"time_s": t, "current_A": 1.5 - 1.5 * np.cos(2 * np.pi * 3 * t),
+                     "displacement_um": 20 * np.sin(t) ** 2 + 0.123456789, "stress_MPa": np.full(N, -15.2)},
+                    {"source": "bench rig 2"}, "plain.csv")
+    write_recording(tmp_path / "plain.csv", rec)
+    return read_recording(tmp_path / "plain.csv")
+
+
+def same(a: Recording, b: Recording, rtol: float = 0.0) -> None:
+    assert set(a.columns) == set(b.columns)
+    for k in a.columns:
+        np.testing.assert_allclose(a.columns[k], b.columns[k], rtol=rtol, atol=0)
+
+
+def test_tdms_from_nptdms(tmp_path, plain):
+    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+    with TdmsWriter(str(tmp_path / "r.tdms")) as w:
+        chans = [ChannelObject("run", k, v, properties={"wf_increment": 0.001}) for k, v in plain.columns.items()
+                 if k != "time_s"]
+        w.write_segment([RootObject(properties={"operator": "lab"}), GroupObject("run", properties={"rig": 2}),
+                         *chans])
+    rec = read_recording(tmp_path / "r.tdms")
+    same(rec, plain, rtol=1e-12)          # time from wf_increment: i * 0.001 against the CSV's i / 1000
+    assert rec.metadata["operator"] == "lab" and rec.metadata["rig"] == 2
+
+
+def test_tdms_with_two_groups_needs_group(tmp_path, plain):
+    from nptdms import ChannelObject, TdmsWriter
+
+    with TdmsWriter(str(tmp_path / "two.tdms")) as w:
+        w.write_segment([ChannelObject(g, k, v) for g in ("a", "b") for k, v in plain.columns.items()])
+    with pytest.raises(RecordingError, match="choose one with --group"):
+        read_recording(tmp_path / "two.tdms")
+    same(read_recording(tmp_path / "two.tdms", group="b"), plain)
+
+
+def test_hdf5_from_h5py(tmp_path, plain):
+    import h5py
+
+    with h5py.File(tmp_path / "r.h5", "w") as f:
+        g = f.create_group("runs/rig2")
+        for k, v in plain.columns.items():
+            g[k] = v
+        g.attrs["sample_rate_hz"] = 1000.0
+    with pytest.raises(RecordingError, match="--group"):
+        read_recording(tmp_path / "r.h5")
+    rec = read_recording(tmp_path / "r.h5", group="runs/rig2")
+    same(rec, plain)
+    assert rec.metadata["sample_rate_hz"] == 1000.0
+
+
+def test_spreadsheet_csvs_bom_and_semicolon_with_decimal_commas(tmp_path, plain):
+    text = (tmp_path / "plain.csv").read_text()
+    (tmp_path / "bom.csv").write_bytes(b"\xef\xbb\xbf" + text.encode())
+    same(read_recording(tmp_path / "bom.csv"), plain)
+    body = [line for line in text.splitlines() if not line.startswith("#")]
+    semi = "\n".join(line.replace(",", ";").replace(".", ",") for line in body) + "\n"
+    (tmp_path / "semi.csv").write_bytes(b"\xef\xbb\xbf" + semi.encode())
+    same(read_recording(tmp_path / "semi.csv"), plain)
+
+
+def test_bad_files_of_each_format_get_one_clear_message(tmp_path):
+    (tmp_path / "bad.tdms").write_bytes(b"not a tdms file at all")
+    (tmp_path / "bad.h5").write_bytes(b"not hdf5")
+    (tmp_path / "bad.csv").write_text("time_s;current_A;displacement_um\n0;1,5;2\n1;x;3\n")
+    for name, msg in (("bad.tdms", "not a readable TDMS file"), ("bad.h5", "not a readable HDF5 file"),
+                      ("bad.csv", "line 3: cell 2 'x' is not a number")):
+        with pytest.raises(RecordingError, match=msg) as err:
+            read_recording(tmp_path / name)
+        assert name in str(err.value) and "\n" not in str(err.value)
