@@ -286,10 +286,11 @@ def _plot_tracking(runs: Sequence[TrackingResult], path: Path) -> None:
     top.set_title(f"Tracking a {SINE['frequency_hz']:g} Hz sine at {stress:g} MPa (simulated rig)", fontsize=11)
     top.set_ylabel("displacement [um]")
     bottom.set_ylabel("error [um]")
-    bottom.set_xlabel("time within the last two periods of each run [s]")
+    for ax in (top, bottom):
+        ax.set_xlabel("time within the last two periods of each run [s]")
     for ax in (top, bottom):
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right")
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     save_figure(fig, path)
 
 

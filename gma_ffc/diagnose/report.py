@@ -44,10 +44,19 @@ def _thin(n: int, target: int = 6000) -> slice:
     return slice(None, None, max(1, n // target))
 
 
-def plot_residuals(dg: Diagnosis) -> str:
+def _drive_label(d: Any) -> str:
+    return "drive voltage (V)" if d.extra.get("drive_symbol") == "V" else "drive current (A)"
+
+
+def _legend_outside(ax: Any) -> None:
+    """Legends beside the panel, never on the data."""
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, frameon=False)
+
+
+def plot_residuals(dg: Diagnosis, render: Any = None) -> Any:
     plt = _plt()
     n = len(dg.data)
-    fig, axes = plt.subplots(n, 1, figsize=(10, 2.4 * n), squeeze=False)
+    fig, axes = plt.subplots(n, 1, figsize=(10, 2.5 * n + 0.4), squeeze=False, constrained_layout=True)
     for ax, d, loc, yb, yn, yf in zip(axes[:, 0], dg.data, dg.located, dg.base_predictions,
                                      dg.null_predictions, dg.final_predictions):
         sl = _thin(d.t.size)
@@ -55,11 +64,14 @@ def plot_residuals(dg: Diagnosis) -> str:
         ax.plot(d.t[sl], (d.y - yn)[sl], lw=0.7, color="tab:orange", label="recalibrated")
         ax.plot(d.t[sl], (d.y - yf)[sl], lw=0.7, color="tab:blue", label="extended")
         ax.axvspan(*loc.window_s, color="tab:red", alpha=0.12, label="largest residual")
+        if d.settled > 0:
+            ax.axvspan(d.t[0], d.t[min(d.settled, d.t.size - 1)], color="0.85", alpha=0.6,
+                       label="not scored (initial state)")
         ax.set_title(d.name, fontsize=9)
         ax.set_ylabel("residual (um)")
-        ax.legend(fontsize=7, loc="upper right", ncol=4)
-    axes[-1, 0].set_xlabel("time (s)")
-    return _png(fig)
+        ax.set_xlabel("time (s)")
+        _legend_outside(ax)
+    return (render or _png)(fig)      # render=lambda fig: fig hands tests the figure
 
 
 def _window(d: Any, loc: Any) -> slice:
@@ -73,11 +85,14 @@ def _window(d: Any, loc: Any) -> slice:
     return slice(a, min(b, a + 4000, d.t.size))
 
 
-def plot_overlays(dg: Diagnosis) -> str:
+def plot_overlays(dg: Diagnosis, render: Any = None) -> Any:
+    """Measured against base and extended where the residual is largest, and beside it the two
+    residuals on their own scale (on the displacement scale a 0.3 um improvement is invisible)."""
     plt = _plt()
     n = len(dg.data)
-    fig, axes = plt.subplots(n, 1, figsize=(10, 2.4 * n), squeeze=False)
-    for ax, d, loc, yb, yf in zip(axes[:, 0], dg.data, dg.located, dg.base_predictions, dg.final_predictions):
+    fig, axes = plt.subplots(n, 2, figsize=(12, 2.7 * n + 0.4), squeeze=False, constrained_layout=True,
+                             gridspec_kw={"width_ratios": [1.2, 1.0]})
+    for (ax, axr), d, loc, yb, yf in zip(axes, dg.data, dg.located, dg.base_predictions, dg.final_predictions):
         w = _window(d, loc)
         a, b = w.start, w.stop
         ax.plot(d.t[a:b], d.y[a:b], lw=1.2, color="k", label="measured")
@@ -85,35 +100,43 @@ def plot_overlays(dg: Diagnosis) -> str:
         ax.plot(d.t[a:b], yf[a:b], lw=0.9, color="tab:blue", label="extended model")
         ax.set_title(f"{d.name}: where the residual is largest", fontsize=9)
         ax.set_ylabel("displacement (um)")
-        ax.legend(fontsize=7, loc="upper right", ncol=3)
-    axes[-1, 0].set_xlabel("time (s)")
-    return _png(fig)
+        ax.set_xlabel("time (s)")
+        _legend_outside(ax)
+        axr.axhline(0.0, color="0.8", lw=0.8)
+        axr.plot(d.t[a:b], (d.y - yb)[a:b], lw=0.9, color="0.55", label="measured - base")
+        axr.plot(d.t[a:b], (d.y - yf)[a:b], lw=0.9, color="tab:blue", label="measured - extended")
+        axr.set_title("residuals, own scale", fontsize=9)
+        axr.set_ylabel("residual (um)")
+        axr.set_xlabel("time (s)")
+        _legend_outside(axr)
+    return (render or _png)(fig)      # render=lambda fig: fig hands tests the figure
 
 
-def plot_loops(dg: Diagnosis) -> str:
+def plot_loops(dg: Diagnosis, render: Any = None) -> Any:
     plt = _plt()
     n = len(dg.data)
-    cols = min(n, 3)
+    cols = min(n, 2)
     rows = (n + cols - 1) // cols
-    fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3.3 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(6 * cols, 3.4 * rows + 0.4), squeeze=False,
+                             constrained_layout=True)
     for ax, d, loc, yb, yf in zip(axes.flat, dg.data, dg.located, dg.base_predictions, dg.final_predictions):
         w = _window(d, loc)
         ax.plot(d.u[w], d.y[w], lw=1.2, color="k", label="measured")
         ax.plot(d.u[w], yb[w], lw=0.9, ls="--", color="0.55", label="base")
         ax.plot(d.u[w], yf[w], lw=0.9, color="tab:blue", label="extended")
         ax.set_title(f"{d.name}, t = {d.t[w.start]:.4g}-{d.t[w.stop - 1]:.4g} s", fontsize=9)
-        ax.set_xlabel("drive")
+        ax.set_xlabel(_drive_label(d))
         ax.set_ylabel("displacement (um)")
-        ax.legend(fontsize=7)
+        _legend_outside(ax)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
-    return _png(fig)
+    return (render or _png)(fig)      # render=lambda fig: fig hands tests the figure
 
 
-def plot_candidates(dg: Diagnosis) -> str:
+def plot_candidates(dg: Diagnosis, render: Any = None) -> Any:
     plt = _plt()
     cands = [c for c in dg.candidates if math.isfinite(c.cv_mse)]
-    fig, ax = plt.subplots(figsize=(8, 0.45 * max(len(cands), 1) + 1.2))
+    fig, ax = plt.subplots(figsize=(9, 0.45 * max(len(cands), 1) + 1.4), constrained_layout=True)
     names = [c.effect for c in cands]
     vals = [math.sqrt(c.cv_mse) for c in cands]
     colors = ["tab:blue" if c.accepted else "0.6" for c in cands]
@@ -121,9 +144,10 @@ def plot_candidates(dg: Diagnosis) -> str:
     ax.axvline(dg.rms_recalibrated_um, color="tab:orange", ls="--", label="recalibrated base (null)")
     ax.axvline(dg.noise_um, color="tab:green", ls=":", label="noise floor")
     ax.set_xlabel("held-out RMS (um), last round each effect was tried")
+    ax.set_ylabel("candidate effect (blue: accepted)")
     ax.invert_yaxis()
-    ax.legend(fontsize=7)
-    return _png(fig)
+    _legend_outside(ax)
+    return (render or _png)(fig)      # render=lambda fig: fig hands tests the figure
 
 
 HEADLINES = {   # outcome -> (headline, colour, one sentence a reader takes away)
@@ -141,9 +165,10 @@ HEADLINES = {   # outcome -> (headline, colour, one sentence a reader takes away
 
 def render_html(dg: Diagnosis, doc: dict) -> str:
     imgs = [("Residual over time, where it was found", plot_residuals(dg)),
-            ("Before and after: measured, base and extended model", plot_overlays(dg)),
-            ("Loops where the residual is largest: displacement against drive", plot_loops(dg)),
-            ("Candidates: held-out RMS", plot_candidates(dg))]
+            ("Before and after: measured, base and extended model, and their residuals", plot_overlays(dg)),
+            ("Loops where the residual is largest: displacement against drive", plot_loops(dg))]
+    if any(math.isfinite(c.cv_mse) for c in dg.candidates):      # no empty chart when nothing was tried
+        imgs.append(("Candidates: held-out RMS", plot_candidates(dg)))
     e = html.escape
     title, colour, sentence = HEADLINES[dg.outcome]
     if dg.verdict:
