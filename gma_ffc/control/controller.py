@@ -29,6 +29,7 @@ from ..drivers import Driver, DriverError, Inputs, driver_class
 from ..drivers.base import CURRENT, DISPLACEMENT, FORCE, STRESS
 from ..errors import ConfigError, GmaError
 from . import safety
+from .law import FeedforwardController
 from .learning import RepetitiveLearner, model_gain_table, reference_period_s
 from .config import ControllerConfig
 from .reference import Reference, build_reference
@@ -105,6 +106,7 @@ class Controller:
         self.drive_outside_ticks = 0
         self._outside = 0
         self.limits_beyond = cfg.limits["beyond_model"]
+        self.law = self._make_law()
         self.reconnects = 0
         self.exit_reason = ""
         self.started_unix_s: float | None = None
@@ -122,6 +124,11 @@ class Controller:
     def _make_monitor(cfg: ControllerConfig) -> safety.SensorMonitor:
         return safety.SensorMonitor(cfg.stress["source"], cfg.rod_area_mm2, tuple(cfg.stress["valid_range_MPa"]),
                                     cfg.sensor["force_limit_N"], cfg.sensor["bad_ticks"], cfg.sensor["stale_ticks"])
+
+    def _make_law(self) -> FeedforwardController:
+        """The tick's control law from the current reference, stepper, learner and model range."""
+        return FeedforwardController(self.reference, self.stepper, self.learner, (self.drive_lo, self.drive_hi),
+                                     self.limits_beyond)
 
     def _set_drive_range(self, model: Any) -> None:
         lo, hi = getattr(model, "drive_range", (-math.inf, math.inf))
@@ -190,6 +197,7 @@ class Controller:
             cfg, model, reference, stepper, monitor
         self.learner = learner
         self._set_stress_range(model)
+        self.law = self._make_law()
 
     # ---- faults ----------------------------------------------------------------------------
     def _raise_fault(self, name: str, message: str) -> None:
@@ -390,6 +398,7 @@ class Controller:
         has_current = CURRENT in driver.channels
         disp_col = tel.columns.index(DISPLACEMENT) if DISPLACEMENT in tel.columns else -1
         force_col = tel.columns.index(FORCE) if FORCE in tel.columns else -1
+        self.law = self._make_law()          # configure: the law from what the controller holds now
         sched = Scheduler(clock, self.period_s)
         t0 = sched.start()
         # Wall-clock time of t = 0 (the first deadline), from one reading of both clocks, so a
@@ -427,11 +436,8 @@ class Controller:
                 if bad:
                     raise _TickFault(bad, self._sensor_message(bad, inputs))
                 stress = self.monitor.stress
-                ref = self.reference.value(t)
                 ref_now = self.reference_now.value(t)
                 learner = self.learner
-                if learner is not None:      # learning feedforward: the inverse follows r + c
-                    ref += learner.correction(t + self.reference.lead_s)
                 if mode == RUNNING and stress == stress:
                     if stress < self.stress_lo or stress > self.stress_hi:
                         self._stress_out_of_range(stress)
@@ -443,12 +449,12 @@ class Controller:
                     elif self.stress_clamped_ticks and safety.STRESS_RANGE in self.active_faults:
                         self._clear_fault(safety.STRESS_RANGE)
                 if mode == RUNNING and stress == stress:
-                    u = self.stepper.step(ref, stress)
+                    u = self.law.update(t, stress)
                     if u != u:
                         raise _TickFault(safety.EXCEPTION, "the inverse model returned NaN")
-                    if u < self.drive_lo or u > self.drive_hi:
+                    if self.law.beyond:
                         self._outside = 1
-                        u = self._beyond_drive(u)
+                        self._beyond_drive(self.law.raw)
                         if self.limits_beyond == "fault":
                             mode = STOPPING
                             stop_started = t
@@ -543,14 +549,14 @@ class Controller:
         if force_col >= 0:
             row[force_col] = inputs.force_N
         if self.learner is not None:
-            row[-2] = 0.0 if safe else self.learner.last_correction_um
+            row[-2] = 0.0 if safe else self.law.correction
         row[-1] = self._outside
         self.last_current_A = row[3]
         self.last_displacement_um = inputs.displacement_um
         tel.push(row)
 
-    def _beyond_drive(self, u: float) -> float:
-        """Flag a command outside the model's identified drive range; clamp it if configured."""
+    def _beyond_drive(self, u: float) -> None:
+        """Flag a command outside the model's identified drive range (the law clamps it if configured)."""
         self.drive_outside_ticks += 1
         if safety.DRIVE_RANGE not in self.active_faults:
             verb = {"warn": "commanded anyway (limits.beyond_model: warn)",
@@ -558,9 +564,6 @@ class Controller:
                     "fault": "fault (limits.beyond_model: fault)"}[self.limits_beyond]
             self._raise_fault(safety.DRIVE_RANGE, f"the inverse asks for {u:.4g} outside the drive range the model "
                                                   f"was identified on [{self.drive_lo:.4g}, {self.drive_hi:.4g}]: {verb}")
-        if self.limits_beyond == "clamp":
-            return min(max(u, self.drive_lo), self.drive_hi)
-        return u
 
     def _stress_out_of_range(self, stress: float) -> None:
         self.stress_clamped_ticks += 1
