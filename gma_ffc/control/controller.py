@@ -21,6 +21,7 @@ import os
 import sys
 import threading
 import time
+from enum import Enum
 from typing import Any, Iterator
 
 import numpy as np
@@ -36,7 +37,22 @@ from .reference import Reference, build_reference
 from .scheduler import MonotonicClock, Scheduler, SimulatedClock, TickStats
 from .telemetry import Telemetry
 
-RUNNING, STOPPING = 0, 1
+RUNNING, STOPPING = 0, 1      # the loop's own mode within State.RUNNING / State.STOPPING
+
+
+class State(str, Enum):
+    """The controller's lifecycle state; a str so status and JSON read as plain words."""
+
+    IDLE = "idle"
+    STARTING = "starting"
+    RUNNING = "running"
+    RECONNECTING = "reconnecting"
+    STOPPING = "stopping"
+    STOPPED = "stopped"
+    FAULT = "fault"
+
+    def __str__(self) -> str:
+        return self.value
 FAULT_HISTORY = 200     # most recent faults kept for the status (bounded for long service lives)
 _WARNINGS = ("realtime_priority_refused",)
 _RESTART_KEYS = ("rate_hz", "clock", "driver", "telemetry", "scheduler")
@@ -99,7 +115,7 @@ class Controller:
         self._lock = threading.Lock()
         self._pending: tuple | None = None
         self._stop_reason: str | None = None
-        self.state = "idle"
+        self.state = State.IDLE
         self.active_faults: dict[str, str] = {}
         self.fault_history: collections.deque[dict[str, Any]] = collections.deque(maxlen=FAULT_HISTORY)
         self.stress_clamped_ticks = 0
@@ -174,7 +190,7 @@ class Controller:
             learner.last_event = "reset: configuration reloaded"
         with self._lock:
             self._pending = (new_cfg, model, reference, stepper, monitor, learner)
-        if self.state in ("idle", "stopped", "fault"):
+        if self.state in (State.IDLE, State.STOPPED, State.FAULT):
             self._apply_pending()
 
     def _apply_pending(self) -> None:
@@ -263,7 +279,7 @@ class Controller:
     def _reconnect(self, stop_event: threading.Event) -> bool:
         """Reconnect with exponential backoff; True when the driver answers again. The amplifier
         is already at its safe current, so the watchdog is paused while waiting."""
-        self.state = "reconnecting"
+        self.state = State.RECONNECTING
         self._heartbeat = math.nan
         comms = self.cfg.comms
         delay = comms["backoff_initial_s"]
@@ -299,7 +315,7 @@ class Controller:
     def run(self, stop_event: threading.Event | None = None, duration_s: float | None = None) -> dict[str, Any]:
         """Blocking fixed-rate loop; the safe current is written on every way out."""
         stop_event = stop_event or threading.Event()
-        self.state = "starting"
+        self.state = State.STARTING
         self._at_safe = False
         self.exit_reason = ""
         self.started_unix_s = time.time()
@@ -339,7 +355,7 @@ class Controller:
             self._raise_fault(safety.EXCEPTION, f"{type(exc).__name__}: {exc}")
             self.exit_reason = f"{type(exc).__name__}: {exc}"
         finally:
-            if self.state not in ("stopped", "fault"):
+            if self.state not in (State.STOPPED, State.FAULT):
                 self._finish(opened, watchdog, wd_stop)
         return self._summary()
 
@@ -362,7 +378,7 @@ class Controller:
         hard = [f for f in self.active_faults if f not in _WARNINGS
                 and (f != safety.STRESS_RANGE or self.stress_policy_fault)
                 and (f != safety.DRIVE_RANGE or self.limits_beyond == "fault")]
-        self.state = "fault" if hard else "stopped"
+        self.state = State.FAULT if hard else State.STOPPED
         return self._summary()
 
     def _save_learned(self) -> None:
@@ -411,7 +427,7 @@ class Controller:
         stop_started = 0.0
         end_t = math.inf if duration_s is None else duration_s
         watchdog_s = self.cfg.watchdog_s
-        self.state = "running"
+        self.state = State.RUNNING
         read_ok = False
         while True:
             deadline = sched.wait()
@@ -422,7 +438,7 @@ class Controller:
                 mode = STOPPING
                 stop_started = t
                 self.exit_reason = self._stop_reason or ("stop requested" if stop_event.is_set() else "duration reached")
-                self.state = "stopping"
+                self.state = State.STOPPING
             if self._pending is not None:
                 self._apply_pending()
             try:
@@ -445,7 +461,7 @@ class Controller:
                             mode = STOPPING
                             stop_started = t
                             self.exit_reason = self.active_faults[safety.STRESS_RANGE]
-                            self.state = "stopping"
+                            self.state = State.STOPPING
                     elif self.stress_clamped_ticks and safety.STRESS_RANGE in self.active_faults:
                         self._clear_fault(safety.STRESS_RANGE)
                 if mode == RUNNING and stress == stress:
@@ -459,7 +475,7 @@ class Controller:
                             mode = STOPPING
                             stop_started = t
                             self.exit_reason = self.active_faults[safety.DRIVE_RANGE]
-                            self.state = "stopping"
+                            self.state = State.STOPPING
                             u = self.safe_A
                     else:
                         self._outside = 0
@@ -504,7 +520,7 @@ class Controller:
                     start_stepper(self.stepper, self.model, self.safe_A)
                     self.monitor.bad_run = 0
                     self.monitor.stale_run = 0
-                    self.state = "running"
+                    self.state = State.RUNNING
                     sched.next_deadline = clock.now()
                     continue
                 self.exit_reason = str(exc)
@@ -588,7 +604,7 @@ class Controller:
             history = list(self.fault_history)
         tel = self.telemetry
         return {
-            "state": self.state,
+            "state": self.state.value,
             "target_rate_hz": self.cfg.rate_hz,
             **s,
             "stress_MPa": _finite(self.last_stress_MPa),
