@@ -33,7 +33,7 @@ MAP = ROOT / "hil_sim" / "configs" / "devices" / "amplifier_int16.yaml"
 
 
 def _models():
-    from gma_ffc.control.sil import cached_sdpi_and_mpi
+    from gma_ffc.sil import cached_sdpi_and_mpi
 
     return cached_sdpi_and_mpi(Path(tempfile.gettempdir()) / "gma_ffc_bench_models")
 

@@ -22,7 +22,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hil_sim.closedloop import run_tracking  # noqa: E402
+from gma_ffc.sil import run_tracking  # noqa: E402
 
 MODEL = ROOT / "config" / "models" / "sim_sdpi.yaml"
 STEP_MASS_KG = 30.6     # -19.1 MPa on the paper's rig

@@ -12,7 +12,7 @@ import pytest
 
 from gma_ffc.control.config import validate_config
 from gma_ffc.control.controller import Controller
-from gma_ffc.control.sil import cached_sdpi_and_mpi
+from gma_ffc.sil import cached_sdpi_and_mpi
 from gma_ffc.drivers import DriverError
 from gma_ffc.drivers.sim import SimDriver
 from gma_ffc.recordings import read_recording

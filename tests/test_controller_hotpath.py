@@ -11,7 +11,7 @@ import pytest
 from gma_ffc.control.config import validate_config
 from gma_ffc.control.controller import Controller
 from gma_ffc.control.reference import MultiSine, Sine, Triangle
-from gma_ffc.control.sil import cached_sdpi_and_mpi
+from gma_ffc.sil import cached_sdpi_and_mpi
 
 
 @pytest.fixture(scope="module")

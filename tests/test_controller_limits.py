@@ -14,7 +14,7 @@ from gma_ffc.control.config import validate_config
 from gma_ffc.control.controller import Controller
 from gma_ffc.control.reference import Playback
 from gma_ffc.control.safety import Limiter
-from gma_ffc.control.sil import cached_sdpi_and_mpi
+from gma_ffc.sil import cached_sdpi_and_mpi
 from gma_ffc.drivers.base import CURRENT, DISPLACEMENT, FORCE, Driver
 
 any_float = st.floats(allow_nan=True, allow_infinity=True, width=64)

@@ -11,7 +11,7 @@ import pytest
 
 from gma_ffc.control.config import validate_config
 from gma_ffc.control.controller import Controller
-from gma_ffc.control.sil import cached_sdpi_and_mpi, tracking_rms_um
+from gma_ffc.sil import cached_sdpi_and_mpi, tracking_rms_um
 from gma_ffc.recordings import read_recording
 from hil_sim.plant import PlantConfig
 

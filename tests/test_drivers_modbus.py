@@ -13,7 +13,7 @@ import pytest
 
 from gma_ffc.control.config import validate_config
 from gma_ffc.control.controller import Controller
-from gma_ffc.control.sil import cached_sdpi_and_mpi, tracking_rms_um
+from gma_ffc.sil import cached_sdpi_and_mpi, tracking_rms_um
 from gma_ffc.errors import ConfigError
 from gma_ffc.recordings import read_recording
 from gma_ffc.registers import load_register_map

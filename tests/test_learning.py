@@ -18,7 +18,7 @@ from gma_ffc.control.config import validate_config
 from gma_ffc.control.learning import (LearningConfig, RepetitiveLearner, _lowpass_circular,
                                       filter_coefficient, reference_period_s)
 from gma_ffc.errors import ConfigError
-from hil_sim.closedloop import run_tracking
+from gma_ffc.sil import run_tracking
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "config" / "models" / "sim_sdpi.yaml"

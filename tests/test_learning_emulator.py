@@ -15,7 +15,7 @@ import pytest
 from gma_ffc.control.controller import Controller
 from gma_ffc.recordings import read_recording
 from test_drivers_modbus import STRONG, Bench, wait_ticks  # noqa: F401  (fixtures reused)
-from gma_ffc.control.sil import cached_sdpi_and_mpi
+from gma_ffc.sil import cached_sdpi_and_mpi
 
 RATE = 250
 FREQ = 2.5                       # 100 samples a period at 250 Hz
