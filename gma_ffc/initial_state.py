@@ -128,8 +128,8 @@ def resolve(model: Any, drive: Any, stress_MPa: Any = None, spec: "str | Initial
     settled = settled_index(model, x)
     if sp.kind == "relaxed":
         return ResolvedInitialState(relaxed_state(model, x[0]), settled, "relaxed at the first drive value")
-    if sp.kind == "drive":
-        state = _clamp_to_first(model, relaxed_state(model, float(sp.drive)), x[0])
+    if sp.kind == "drive" and sp.drive is not None:
+        state = _clamp_to_first(model, relaxed_state(model, sp.drive), x[0])
         return ResolvedInitialState(state, settled, f"relaxed at drive {sp.drive:g}, then moved to the first sample")
     guess, how = monotone_state(model, x)
     if measured_um is None:
@@ -137,9 +137,10 @@ def resolve(model: Any, drive: Any, stress_MPa: Any = None, spec: "str | Initial
     y = np.asarray(measured_um, dtype=float)
     if y.shape != x.shape:
         raise ValueError("measured displacement and drive differ in length")
-    state, n_used = _fit_state(model, x, stress_MPa, y, guess, settled)
-    if state is None:
+    fitted, n_used = _fit_state(model, x, stress_MPa, y, guess, settled)
+    if fitted is None:
         return ResolvedInitialState(guess, settled, how + "; the measured displacement could not improve on it")
+    state = fitted
     where = "" if time_s is None or n_used >= len(x) else f" over the first {float(np.asarray(time_s)[n_used - 1] - np.asarray(time_s)[0]):.3g} s"
     return ResolvedInitialState(state, settled, f"estimated from the measured displacement{where} "
                                                 f"(play states fitted until they settle)")

@@ -366,7 +366,7 @@ def read_hdf5(path: Path, require: Sequence[str], group: str | None = None) -> R
     return validate(Recording(columns, meta, source), require, header_line=0)
 
 
-READERS = {".mat": read_mat, ".tdms": read_tdms, ".h5": read_hdf5, ".hdf5": read_hdf5}
+GROUPED_READERS = {".tdms": read_tdms, ".h5": read_hdf5, ".hdf5": read_hdf5}   # formats with groups
 
 
 def read_recording(path: str | Path, require: Sequence[str] = (TIME, "drive", DISPLACEMENT),
@@ -376,7 +376,7 @@ def read_recording(path: str | Path, require: Sequence[str] = (TIME, "drive", DI
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix in (".tdms", ".h5", ".hdf5"):
-        return READERS[suffix](p, require, group)
+        return GROUPED_READERS[suffix](p, require, group)
     if group is not None:
         raise RecordingError(f"{p}: --group applies to .tdms and .h5 files only")
     if suffix == ".mat":

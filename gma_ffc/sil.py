@@ -46,7 +46,7 @@ def fit_sdpi_and_mpi(recordings: Sequence[Recording], mpi_stress_MPa: float = -1
     from .identify import SDPIIdentifier
 
     sdpi = SDPIIdentifier(n_play=10, n_deadzone=7).fit(list(recordings)).model_
-    nearest = min(recordings, key=lambda r: abs(float(np.mean(r.stress_MPa)) - mpi_stress_MPa))
+    nearest = min(recordings, key=lambda r: abs(float(np.mean(r.columns["stress_MPa"])) - mpi_stress_MPa))
     mpi_rec = Recording({k: v for k, v in nearest.columns.items() if k != "stress_MPa"},
                         dict(nearest.metadata), nearest.source)
     mpi = SDPIIdentifier(n_play=10, n_deadzone=7).fit([mpi_rec]).model_
@@ -73,7 +73,7 @@ def cached_sdpi_and_mpi(cache_dir: str | Path, plant_cfg: Any = None) -> tuple[A
 
     digest = hashlib.sha256()
     for mod in (identify, model_mod, operators, hil_sim.kernels, hil_sim.plant):
-        digest.update(Path(mod.__file__).read_bytes())
+        digest.update(Path(str(mod.__file__)).read_bytes())
     digest.update(repr(plant_cfg).encode())
     key = digest.hexdigest()[:16]
     folder = Path(cache_dir)

@@ -158,9 +158,11 @@ class Telemetry:
     def _write_all(self, data: bytes) -> None:
         """One write() per flush, so a killed process leaves whole lines (a regular-file write is
         not cut short by a signal); the loop only repeats on a short write (disk nearly full)."""
+        fd = self._fh
+        assert fd is not None
         view = memoryview(data)
         while view:
-            n = os.write(self._fh, view)
+            n = os.write(fd, view)
             view = view[n:]
 
     def close(self) -> None:

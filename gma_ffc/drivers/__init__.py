@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import difflib
-from importlib.metadata import entry_points
+from importlib.metadata import EntryPoint, entry_points
 
 from ..errors import ConfigError
 from .base import Driver, DriverError, Inputs
@@ -14,7 +14,7 @@ GROUP = "gma_ffc.drivers"
 __all__ = ["Driver", "DriverError", "Inputs", "GROUP", "available_drivers", "driver_class"]
 
 
-def available_drivers() -> dict[str, object]:
+def available_drivers() -> dict[str, EntryPoint]:
     """Installed drivers: name -> entry point (not yet imported)."""
     return {ep.name: ep for ep in entry_points(group=GROUP)}
 

@@ -94,13 +94,12 @@ class ModbusDriver(Driver):
     def __init__(self, cfg: dict[str, Any], period_s: float) -> None:
         super().__init__(cfg, period_s)
         self.devices = [_Device(n, d) for n, d in cfg["devices"].items()]
-        self._setpoint: tuple[_Device, Channel] | None = None
         self._enable: tuple[_Device, Channel] | None = None
         found: dict[str, tuple[_Device, Channel]] = {}
         for dev in self.devices:
             for ch in dev.map:
                 found[ch.name] = (dev, ch)
-        self._setpoint = found[CURRENT_SETPOINT]
+        self._setpoint: tuple[_Device, Channel] = found[CURRENT_SETPOINT]
         self._enable = found.get(OUTPUT_ENABLE)
         self.channels = tuple(n for n in READ_CHANNELS if n in found)
         for dev in self.devices:
@@ -236,6 +235,8 @@ class ModbusDriver(Driver):
             self._set_enable(True)
 
     def _set_enable(self, on: bool) -> None:
+        if self._enable is None:
+            return
         dev, ch = self._enable
         client = dev.client
         if ch.is_bit:

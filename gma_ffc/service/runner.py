@@ -277,7 +277,7 @@ class Service:
         def on_hup(_signum: int, _frame: Any) -> None:
             self._reload_flag.set()
 
-        previous = {}
+        previous: dict[int, Any] = {}
         for signum, handler in ((signal.SIGTERM, on_stop), (signal.SIGINT, on_stop),
                                 (signal.SIGHUP, on_hup)):
             previous[signum] = signal.signal(signum, handler)
@@ -285,6 +285,8 @@ class Service:
 
     def _write_stats(self, final: dict[str, Any]) -> None:
         payload = {"status": final, "summary": self.summary}
+        if self.stats_json is None:
+            return
         with atomic_write(self.stats_json) as fh:
             json.dump(payload, fh, indent=2, default=_jsonable)
             fh.write("\n")
