@@ -11,7 +11,6 @@ Prints seconds per stage, best of --repeat runs, and new/old ratios; also times 
 from __future__ import annotations
 
 import argparse
-import io
 import subprocess
 import sys
 import tempfile

@@ -43,7 +43,7 @@ def main() -> int:
         step = periods // 2
         for label, a, b in (("periods 10-19 (before the step)", 10, 20),
                             ("the period of the load step", step, step + 1),
-                            (f"last 10 periods (after the step)", periods - 10, periods)):
+                            ("last 10 periods (after the step)", periods - 10, periods)):
             r_ff = float(np.mean(ff.period_rms_um[a:b]))
             r_ln = float(np.mean(ln.period_rms_um[a:b]))
             rows.append((f, label, r_ff, r_ln, r_ln / r_ff))

@@ -2,19 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 
 import pytest
 
+from gma_ffc import sil_cases as bench
 from gma_ffc.diagnose.engine import diagnose
 
-_spec = importlib.util.spec_from_file_location(
-    "bench_diagnose", Path(__file__).resolve().parents[1] / "scripts" / "bench_diagnose.py")
-bench = importlib.util.module_from_spec(_spec)
-sys.modules.setdefault("bench_diagnose", bench)
-_spec.loader.exec_module(bench)  # type: ignore[union-attr]
 CASES = {c.name: c for c in bench.cases()}
 
 

@@ -2,23 +2,17 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from gma_ffc.cli import main
+from gma_ffc import sil_cases as bench
 from gma_ffc.modelio import load_model, save_model
 from gma_ffc.recordings import Recording, read_recording, write_recording
 
-_spec = importlib.util.spec_from_file_location(
-    "bench_diagnose", Path(__file__).resolve().parents[1] / "scripts" / "bench_diagnose.py")
-bench = importlib.util.module_from_spec(_spec)
-sys.modules.setdefault("bench_diagnose", bench)
-_spec.loader.exec_module(bench)  # type: ignore[union-attr]
 
 
 @pytest.fixture(scope="module")

@@ -4,15 +4,10 @@ principle. The subset: a null case, a slow effect and a fast effect."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 
 import gma_ffc.diagnose.engine as engine
 
-ROOT = Path(__file__).resolve().parents[1]
 THRESHOLDS = ("MIN_MSE_RATIO", "MIN_LOGLIK_GAIN", "NOISE_FACTOR", "MODEL_ERROR_FACTOR", "SLOW_RATIO_MAX",
               "HUBER_K", "AMBIGUOUS_NATS")
 SUBSET = ("null#1", "thermal_drift#3", "time_delay#2")
@@ -20,10 +15,8 @@ SUBSET = ("null#1", "thermal_drift#3", "time_delay#2")
 
 @pytest.fixture(scope="module")
 def cases():
-    spec = importlib.util.spec_from_file_location("bench_diagnose", ROOT / "scripts" / "bench_diagnose.py")
-    bench = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("bench_diagnose", bench)
-    spec.loader.exec_module(bench)  # type: ignore[union-attr]
+    from gma_ffc import sil_cases as bench
+
     by_name = {c.name: c for c in bench.cases()}
     return {name: bench.make_case(by_name[name], scale=0.5) + (by_name[name].truth,) for name in SUBSET}
 

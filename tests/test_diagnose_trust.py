@@ -3,13 +3,12 @@ from the start-up transient, words that follow the drive, and a short recording 
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from gma_ffc import sil_cases as bench
 from gma_ffc.diagnose.engine import OUTCOMES, diagnose
 from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.model import SDPIModel
@@ -17,10 +16,6 @@ from gma_ffc.recordings import Recording, read_recording
 
 ROOT = Path(__file__).resolve().parents[1]
 PIEZO = ROOT.parent / "shared" / "data" / "real" / "piezo_150V_1Hz" / "piezo_150V_1Hz.csv"
-_spec = importlib.util.spec_from_file_location("bench_diagnose", ROOT / "scripts" / "bench_diagnose.py")
-bench = importlib.util.module_from_spec(_spec)
-sys.modules.setdefault("bench_diagnose", bench)
-_spec.loader.exec_module(bench)  # type: ignore[union-attr]
 CASES = {c.name: c for c in bench.cases()}
 
 

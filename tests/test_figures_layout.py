@@ -3,24 +3,17 @@ no overlapping text, no legend on the data, both axes labelled with a unit (issu
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import pytest
 
 from figure_layout import layout_problems
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_diagnose", ROOT / "scripts" / "bench_diagnose.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("bench_diagnose", mod)
-    spec.loader.exec_module(mod)  # type: ignore[union-attr]
-    return mod
+    from gma_ffc import sil_cases
+
+    return sil_cases
 
 
 def test_the_checker_sees_what_a_reader_sees():

@@ -17,7 +17,7 @@ from gma_ffc.cli import main
 from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.initial_state import InitialStateSpec, resolve, settled_index
 from gma_ffc.model import rms
-from gma_ffc.modelio import load_model, save_model
+from gma_ffc.modelio import save_model
 from gma_ffc.recordings import Recording, read_recording, write_recording
 from test_inverse import histories, sdpi_models
 

@@ -1,0 +1,151 @@
+"""The diagnose benchmark's concealed cases on the simulated rig (hil_sim): a base SDPI identified
+from separate quasi-static recordings, and one noisy diagnosis recording with one effect (or two,
+or none) switched on in the plant. Shared by scripts/bench_diagnose.py and the tests, so both
+judge diagnose on exactly the same cases; the truth stays in `Case.truth`, never in the files.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from .identify import SDPIIdentifier
+from .recordings import Recording
+
+from hil_sim.plant import GMAPlant, PlantConfig
+
+FS = 2000.0
+LABELS = ("rate_dependence", "mechanical_dynamics", "thermal_drift", "creep", "time_delay",
+          "stress_dependent_play", "saturation")
+
+
+@dataclass
+class Case:
+    name: str
+    truth: tuple[str, ...]
+    configure: Callable[[PlantConfig], None]
+    magnitude: str
+    seed: int
+    drive_max: float = 1.9          # diagnosis drive peak (A); > identified range only for saturation
+    loads: int = 2                  # load levels in the diagnosis run (3 where a stress effect must be decidable)
+    id_max: float = 2.0             # identification drive peak (A)
+    notes: dict[str, Any] = field(default_factory=dict)
+
+
+def _set(**sections: dict[str, Any]) -> Callable[[PlantConfig], None]:
+    def apply(cfg: PlantConfig) -> None:
+        for sec, values in sections.items():
+            obj = getattr(cfg, sec)
+            for k, v in values.items():
+                setattr(obj, k, v)
+    return apply
+
+
+def _both(*fns: Callable[[PlantConfig], None]) -> Callable[[PlantConfig], None]:
+    def apply(cfg: PlantConfig) -> None:
+        for f in fns:
+            f(cfg)
+    return apply
+
+
+def cases() -> list[Case]:
+    out: list[Case] = []
+    seed = 100
+    grades = {
+        "rate_dependence": [("eddy", {"enabled": True, "time_constant_ms": v}) for v in (0.6, 1.5, 4.0)],
+        "time_delay": [("delay", {"enabled": True, "delay_ms": v}) for v in (0.5, 1.5, 4.0)],
+        "mechanical_dynamics": [("dynamics", {"enabled": True, "damping_ratio": v}) for v in (0.3, 0.12, 0.04)],
+        "thermal_drift": [("thermal", {"enabled": True, "drift_um_per_K": v}) for v in (0.08, 0.2, 0.5)],
+        "creep": [("creep", {"enabled": True, "gains": [v, v, v]}) for v in (0.02, 0.04, 0.08)],
+        "stress_dependent_play": [("magnetics", {"stress_dependent_width": True, "width_change_per_MPa": v})
+                                  for v in (0.1, 0.2, 0.35)],
+    }
+    for label, settings in grades.items():
+        for k, (sec, values) in enumerate(settings):
+            seed += 1
+            out.append(Case(f"{label}#{k + 1}", (label,), _set(**{sec: values}), f"{sec} {values}", seed,
+                            loads=3 if label == "stress_dependent_play" else 2))
+    for k, peak in enumerate((2.6, 3.2, 3.9)):
+        seed += 1
+        out.append(Case(f"saturation#{k + 1}", ("saturation",), _set(), f"drive to {peak} A, model identified to 1.5 A",
+                        seed, drive_max=peak, id_max=1.5))
+    for k in range(4):
+        seed += 1
+        out.append(Case(f"null#{k + 1}", (), _set(), "no missing physics", seed))
+    seed += 1
+    out.append(Case("thermal+dynamics", ("thermal_drift", "mechanical_dynamics"),
+                    _set(thermal={"enabled": True, "drift_um_per_K": 0.3},
+                         dynamics={"enabled": True, "damping_ratio": 0.08}),
+                    "heating while the load (and the resonance) changes", seed))
+    seed += 1
+    out.append(Case("delay+eddy", ("time_delay", "rate_dependence"),
+                    _set(delay={"enabled": True, "delay_ms": 2.0}, eddy={"enabled": True, "time_constant_ms": 2.0}),
+                    "delay and eddy lag at the same frequencies", seed))
+    seed += 1
+    out.append(Case("thermal+delay", ("thermal_drift", "time_delay"),
+                    _set(thermal={"enabled": True, "drift_um_per_K": 0.2}, delay={"enabled": True, "delay_ms": 1.0}),
+                    "heating while the load changes, with a delay", seed))
+    return out
+
+
+def diagnosis_drive(rng: np.random.Generator, peak: float, scale: float = 1.0,
+                    loads: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A mixed experiment: sines at several frequencies, steps with holds, a pause with a load change."""
+    lo = 0.05
+    mid, amp = 0.5 * (peak + lo), 0.5 * (peak - lo)
+    segs: list[np.ndarray] = []
+    for f, dur in ((rng.uniform(3, 5), 8.0), (rng.uniform(15, 25), 6.0), (rng.uniform(50, 80), 6.0)):
+        t = np.arange(int(dur * scale * FS)) / FS
+        segs.append(mid - amp * np.cos(2 * np.pi * f * t))
+    first_pause = sum(x.size for x in segs)
+    if loads == 3:
+        segs.append(np.zeros(int(3 * scale * FS)))
+    levels = rng.uniform(lo + 0.1 * amp, peak - 0.1 * amp, 6)
+    segs.append(np.repeat(levels, int(1.5 * scale * FS)))
+    pause_start = sum(x.size for x in segs)
+    segs.append(np.zeros(int(4 * scale * FS)))
+    t = np.arange(int(6 * scale * FS)) / FS
+    segs.append(mid - amp * np.cos(2 * np.pi * rng.uniform(8, 12) * t))
+    i = np.concatenate(segs)
+    t = np.arange(i.size) / FS
+    m1, m2 = rng.uniform(0, 12), rng.uniform(28, 45)
+    if rng.random() < 0.5:
+        m1, m2 = m2, m1
+    if loads == 3:   # a middle load first, changed during an extra pause after the sines
+        m0 = rng.uniform(16, 24)
+        mass0 = np.where(t < t[first_pause] + scale * rng.uniform(0.5, 1.5), m0, m1)
+    else:
+        mass0 = np.full(t.size, m1)
+    # the load changes during the zero-current pause while the rod cools (so heating and stress change
+    # together across the recording); every effect and the hysteresis see both loads
+    t_change = t[pause_start] + scale * rng.uniform(0.5, 1.5)
+    mass = np.where(t < t_change, mass0, m2)
+    return t, i, mass
+
+
+def record(cfg: PlantConfig, t: np.ndarray, i: np.ndarray, mass: Any, name: str, seed: int) -> Recording:
+    out = GMAPlant(cfg, seed=seed).run(t, i, load_mass_kg=mass)
+    return Recording({"time_s": t, "current_A": out["current_A"], "stress_MPa": out["stress_MPa"],
+                      "displacement_um": out["displacement_um"]}, {}, name)
+
+
+def make_case(case: Case, scale: float = 1.0) -> tuple[Any, Recording]:
+    """The base model (from separate 3 Hz recordings) and the concealed diagnosis recording."""
+    rng = np.random.default_rng(case.seed)
+    cfg = PlantConfig()
+    case.configure(cfg)
+    cfg = cfg.with_effects(["noise"] + [e for e in ("eddy", "dynamics", "thermal", "creep", "delay")
+                                        if getattr(cfg, e).enabled])
+    cfg.magnetics = copy.deepcopy(cfg.magnetics)
+    # base model: separate quasi-static 3 Hz recordings at four loads, same actuator
+    ident_recs = []
+    for k, m in enumerate((0.0, 15.0, 30.0, 50.0)):
+        t = np.arange(int(3 * FS)) / FS
+        i = 0.5 * case.id_max * (1 - np.cos(2 * np.pi * 3 * t))
+        ident_recs.append(record(cfg, t, i, m, f"id_{k}.csv", case.seed * 10 + k))
+    model = SDPIIdentifier().fit(ident_recs).model_
+    t, i, mass = diagnosis_drive(rng, case.drive_max, scale, case.loads)
+    return model, record(cfg, t, i, mass, "recording.csv", case.seed)
