@@ -36,7 +36,7 @@ def test_two_second_stall_freezes_learning_goes_safe_and_tracking_returns(tmp_pa
                         learning={"kind": "repetitive"})
         ctrl = Controller(cfg, model=model)
         result = {}
-        th = threading.Thread(target=lambda: result.setdefault("s", ctrl.run(duration_s=14.0)))
+        th = threading.Thread(target=lambda: result.setdefault("s", ctrl.run(duration_s=16.0)))
         th.start()
         frozen_during_stall = None
         try:
@@ -67,10 +67,22 @@ def test_two_second_stall_freezes_learning_goes_safe_and_tracking_returns(tmp_pa
         assert ramp[0] <= SLEW / RATE + 1e-6                      # resumes from the safe current ...
         assert np.abs(np.diff(ramp)).max() <= SLEW / RATE + 1e-6  # ... within the slew limit
         n = int(RATE / FREQ)
+        # the learned correction was kept through the stall: the period after the link is back
+        # applies the same correction, phase for phase, as the last period before it
+        corr = rec.columns["correction_um"]
+        phase = np.round((t * FREQ) % 1.0 * n).astype(int) % n
+        last = {p: c for p, c in zip(phase[gap - n:gap + 1], corr[gap - n:gap + 1])}
+        back = slice(gap + 1 + RATE // 5, gap + 1 + RATE // 5 + n)     # once the ramp is over
+        kept = [abs(c - last[p]) for p, c in zip(phase[back], corr[back]) if p in last]
+        span = np.ptp(corr[gap - n:gap + 1])
+        assert len(kept) > n // 2 and np.median(kept) <= 0.25 * span + 1e-3, (np.median(kept), span)
+        # and tracking is back at its pre-stall level within 5 periods. Real time on a shared
+        # machine: the best 2-period window 5 to 8 periods after is judged, so one late burst of
+        # ticks cannot fail it, while a lost correction (about 2x the error for several periods) does.
         before = np.sqrt(np.mean(err[gap - 3 * n:gap] ** 2))
         resumed = gap + 1 + 5 * n                                  # 5 periods after the link is back
-        after = np.sqrt(np.mean(err[resumed:resumed + 2 * n] ** 2))
-        assert len(err) >= resumed + 2 * n
+        assert len(err) >= resumed + 5 * n
+        after = min(np.sqrt(np.mean(err[a:a + 2 * n] ** 2)) for a in range(resumed, resumed + 3 * n + 1, n // 2))
         assert after <= 1.5 * before, (before, after)
         assert s["learning"]["learned_periods"] > learned_before
     finally:
