@@ -33,6 +33,9 @@ class Case:
     loads: int = 2                  # load levels in the diagnosis run (3 where a stress effect must be decidable)
     id_max: float = 2.0             # identification drive peak (A)
     notes: dict[str, Any] = field(default_factory=dict)
+    start_s: float = 0.0            # the diagnosis recording starts this late: cut mid-cycle, mid-history
+    falling: bool = False           # mounted the other way round: displacement falls as the drive rises
+    voltage: bool = False           # the drive column is labelled voltage_V (a voltage-driven actuator)
 
 
 def _set(**sections: dict[str, Any]) -> Callable[[PlantConfig], None]:
@@ -91,6 +94,54 @@ def cases() -> list[Case]:
     return out
 
 
+HOLDOUT_SEED = 20261122   # fixed before the set was first run; never changed to move a result
+
+
+def holdout_cases() -> list[Case]:
+    """The never-tuned set: magnitudes, seeds and variants drawn once from HOLDOUT_SEED.
+
+    Nothing in diagnose may be adjusted while looking at these results; they are quoted apart from
+    `cases()`, which the thresholds were developed on. Each effect at a magnitude drawn from its range,
+    nulls, a pair, and the families users bring: cut mid-cycle, voltage-labelled, falling polarity.
+    """
+    rng = np.random.default_rng(HOLDOUT_SEED)
+    ranges: dict[str, tuple[str, str, tuple[float, float]]] = {
+        "rate_dependence": ("eddy", "time_constant_ms", (0.8, 3.5)),
+        "time_delay": ("delay", "delay_ms", (0.7, 3.5)),
+        "mechanical_dynamics": ("dynamics", "damping_ratio", (0.05, 0.25)),
+        "thermal_drift": ("thermal", "drift_um_per_K", (0.12, 0.45)),
+        "creep": ("creep", "gains", (0.03, 0.07)),
+        "stress_dependent_play": ("magnetics", "width_change_per_MPa", (0.15, 0.35)),
+    }
+    out: list[Case] = []
+    for label, (sec, key, (lo, hi)) in ranges.items():
+        v = float(np.round(rng.uniform(lo, hi), 3))
+        values: dict[str, Any] = {key: [v, v, v] if key == "gains" else v}
+        if sec == "magnetics":
+            values["stress_dependent_width"] = True
+        else:
+            values["enabled"] = True
+        variant = ("plain", "cut", "voltage", "falling")[int(rng.integers(4))]
+        out.append(Case(f"holdout:{label}", (label,), _set(**{sec: values}), f"{sec} {values} ({variant})",
+                        int(rng.integers(10_000, 99_999)), loads=3 if label == "stress_dependent_play" else 2,
+                        start_s=float(np.round(rng.uniform(0.1, 1.9), 3)) if variant == "cut" else 0.0,
+                        voltage=variant == "voltage", falling=variant == "falling"))
+    peak = float(np.round(rng.uniform(2.7, 3.6), 2))
+    out.append(Case("holdout:saturation", ("saturation",), _set(), f"drive to {peak} A, model identified to 1.5 A",
+                    int(rng.integers(10_000, 99_999)), drive_max=peak, id_max=1.5))
+    for k, variant in enumerate(("plain", "cut", "voltage", "falling")):
+        out.append(Case(f"holdout:null#{k + 1}", (), _set(), f"no missing physics ({variant})",
+                        int(rng.integers(10_000, 99_999)),
+                        start_s=float(np.round(rng.uniform(0.1, 1.9), 3)) if variant == "cut" else 0.0,
+                        voltage=variant == "voltage", falling=variant == "falling"))
+    tau, zeta = float(np.round(rng.uniform(1.0, 3.0), 2)), float(np.round(rng.uniform(0.06, 0.2), 3))
+    out.append(Case("holdout:eddy+dynamics", ("rate_dependence", "mechanical_dynamics"),
+                    _set(eddy={"enabled": True, "time_constant_ms": tau},
+                         dynamics={"enabled": True, "damping_ratio": zeta}),
+                    f"eddy tau {tau} ms with a resonance (zeta {zeta})", int(rng.integers(10_000, 99_999))))
+    return out
+
+
 def diagnosis_drive(rng: np.random.Generator, peak: float, scale: float = 1.0,
                     loads: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A mixed experiment: sines at several frequencies, steps with holds, a pause with a load change."""
@@ -146,6 +197,26 @@ def make_case(case: Case, scale: float = 1.0) -> tuple[Any, Recording]:
         t = np.arange(int(3 * FS)) / FS
         i = 0.5 * case.id_max * (1 - np.cos(2 * np.pi * 3 * t))
         ident_recs.append(record(cfg, t, i, m, f"id_{k}.csv", case.seed * 10 + k))
+    if case.falling:
+        ident_recs = [_variant(r, case) for r in ident_recs]
     model = SDPIIdentifier().fit(ident_recs).model_
+    if case.voltage:
+        d = model.to_dict()
+        d["drive_name"] = "voltage_V"
+        model = type(model).from_dict(d)
     t, i, mass = diagnosis_drive(rng, case.drive_max, scale, case.loads)
-    return model, record(cfg, t, i, mass, "recording.csv", case.seed)
+    rec = _variant(record(cfg, t, i, mass, "recording.csv", case.seed), case)
+    if case.start_s > 0:
+        keep = rec.time_s >= rec.time_s[0] + case.start_s
+        rec = Recording({k: v[keep] for k, v in rec.columns.items()}, dict(rec.metadata), rec.name)
+    return model, rec
+
+
+def _variant(rec: Recording, case: Case) -> Recording:
+    """The recording as the case's user brings it: falling displacement, drive labelled in volts."""
+    cols = dict(rec.columns)
+    if case.falling:
+        cols["displacement_um"] = -cols["displacement_um"]
+    if case.voltage:
+        cols["voltage_V"] = cols.pop("current_A")
+    return Recording(cols, dict(rec.metadata), rec.name)
