@@ -350,6 +350,7 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
     runner_note = ""
     ambiguous_pairs: list[tuple[str, str]] = []
     swapped: list[tuple[str, str, float, float]] = []
+    outside_class = ""
     for rnd in range(1, max_effects + 1):
         if math.sqrt(cur_cv) <= NOISE_FACTOR * noise:
             break
@@ -390,6 +391,19 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
                 best.reason = (f"its held-out gain comes from the fast parts of the drive (on the slowest 40 % of "
                                f"samples the error only falls to {slow_ratio:.0%} of before), where rate-independent "
                                "play weights cannot be the cause: a leftover of another effect that changes with the load")
+                tried = tried[1:]
+                if not tried:
+                    break
+                best = tried[0]
+                ok = (best.cv_loss < MIN_MSE_RATIO * cur_loss and best.loglik_gain > MIN_LOGLIK_GAIN
+                      and math.sqrt(cur_loss) - math.sqrt(best.cv_loss) > 0.5 * noise)
+        if ok and best.effect == "saturation":
+            # signature: saturation flattens the material's curve beyond the identified range, it never
+            # turns it round; a correction that reverses the slope is the model used outside its class
+            reverses = _saturation_reverses(model, fitter, best.params, best.result, noise)
+            if reverses:
+                best.testable, best.reason = False, reverses
+                outside_class = reverses
                 tried = tried[1:]
                 if not tried:
                     break
@@ -480,6 +494,19 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
     for a, b in ambiguous_pairs:
         cannot.append(f"{a} and {b} explain the held-out data almost equally well; " + _decider(a, b))
 
+    if outside_class and accepted and not too_little:
+        # the residual is dominated by drive the model's class cannot follow: whatever else fits it is
+        # fitted to that, so nothing is named until the core is identified over the drive range used
+        cannot.append(f"{', '.join(accepted)} would be fitted to the part of the residual the model's class cannot "
+                      "follow, so nothing is named")
+        for name in accepted:
+            candidates[name].accepted = False
+        accepted, ambiguous_pairs = [], []
+        ext = ExtendedModel(model, {}, [])
+        final_pred = list(base_pred)
+        cur_cv = rms_before ** 2
+    if outside_class:
+        cannot.insert(0, f"outside the model's class: {outside_class}")
     verdict = [] if too_little else list(accepted)
     conclusive = not too_little and not ambiguous_pairs
     well_above = math.sqrt(cur_cv) > MODEL_ERROR_FACTOR * noise
@@ -487,7 +514,7 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
         outcome = "inconclusive"     # too little data, or look-alikes the data cannot tell apart
     elif verdict:
         outcome = "effects_named"
-    elif not well_above:
+    elif not well_above and not outside_class:
         outcome = "within_noise"
     else:
         outcome = "unexplained"
@@ -541,6 +568,52 @@ def _slow_gain_ratio(fitter: Fitter, before: tuple[Spec, Spec, Spec], after: tup
     r0 = fitter.test_residuals(before)[slow]
     r1 = fitter.test_residuals(after)[slow]
     return float(np.mean(r1 * r1) / max(float(np.mean(r0 * r0)), 1e-300))
+
+
+def _saturation_reverses(model: Any, fitter: Fitter, params: dict[str, float], res: SearchResult,
+                         noise: float) -> str:
+    """Why a fitted saturation bend is not saturation ('' when it is one).
+
+    Saturation flattens the material's curve beyond the identified range; it never turns it round.
+    Beyond each end of the range, the recalibrated model's own slope at that end plus the fitted
+    hinge is integrated out to the farthest drive in the data: if the curve comes back by more than
+    ordinary identification error (MODEL_ERROR_FACTOR x the noise floor), it reversed.
+    """
+    lo, hi = fitter.drive_lo, fitter.drive_hi
+    u_min = min(float(d.u.min()) for d in fitter.data)
+    u_max = max(float(d.u.max()) for d in fitter.data)
+    c = dict(zip(res.names, (float(v) for v in res.coef_all)))
+    ramp = np.linspace(lo, hi, 401)
+    du = float(ramp[1] - ramp[0])
+    there_and_back = np.concatenate([ramp, ramp[::-1]])
+    y = model.simulate(there_and_back, there_and_back, np.full(there_and_back.size, fitter.stress_ref),
+                       initial_state="relaxed")
+    n = ramp.size
+
+    def static_slope(y_end: float, dy: float) -> float:      # the recalibration's map applied to the core
+        return dy / du * (c.get("gain", 1.0) + 2.0 * c.get("quadratic", 0.0) * (y_end - fitter.yc_center))
+
+    tolerance = MODEL_ERROR_FACTOR * noise
+    out = []
+    for side, end, far, slope in (("above", hi, u_max, static_slope(float(y[n - 1]), float(y[n - 1] - y[n - 2]))),
+                                  ("below", lo, u_min, static_slope(float(y[-1]), float(y[-2] - y[-1])))):
+        if (far - end) * (1 if side == "above" else -1) <= 0:
+            continue
+        x = np.linspace(0.0, abs(far - end), 200)          # distance beyond the end of the range
+        lin = params.get("sat_lin_hi" if side == "above" else "sat_lin_lo", 0.0)
+        quad = params.get("sat_quad_hi" if side == "above" else "sat_quad_lo", 0.0)
+        along = slope * x if side == "above" else -slope * x      # the model's straight extrapolation
+        curve = along + lin * x + quad * x * x
+        rising = slope > 0 if side == "above" else slope < 0      # the curve's direction moving away from the range
+        turn = float(np.max(curve) - curve[-1]) if rising else float(curve[-1] - np.min(curve))
+        if turn > tolerance:
+            out.append(f"{side} {end:.3g} the fitted bend turns the curve round: it comes back {turn:.3g} um by "
+                       f"the drive of {far:.3g}")
+    if not out:
+        return ""
+    return ("; ".join(out) + ". Saturation flattens a magnetostrictive or piezoelectric curve, it never reverses "
+            "it: the drive takes the model outside its class there (a bipolar drive on a model identified on one "
+            "polarity, or domain switching). Re-identify on data that cover that drive range")
 
 
 def _search_all(fitter: Fitter, base: tuple[Spec, Spec, Spec], names: list[str]) -> dict[str, SearchResult]:
