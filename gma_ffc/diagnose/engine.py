@@ -494,6 +494,17 @@ def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
     for a, b in ambiguous_pairs:
         cannot.append(f"{a} and {b} explain the held-out data almost equally well; " + _decider(a, b))
 
+    if not accepted and cur_cv < rms_before ** 2:
+        # nothing named: the static recalibration alone is kept only where it generalises, i.e. it
+        # beats the base model on the held-out blocks of every recording (on data with nothing
+        # missing, a recalibration fitted to one recording's quirks makes the next one worse)
+        worse = _recalibration_hurts(fitter, final.specs, base_pred)
+        if worse:
+            cannot.append(f"the static recalibration was left out of the extended model: on held-out blocks it "
+                          f"is worse than the base model on {', '.join(worse)}")
+            ext = ExtendedModel(model, {}, [])
+            final_pred = list(base_pred)
+            cur_cv = rms_before ** 2
     if outside_class and accepted and not too_little:
         # the residual is dominated by drive the model's class cannot follow: whatever else fits it is
         # fitted to that, so nothing is named until the core is identified over the drive range used
@@ -568,6 +579,18 @@ def _slow_gain_ratio(fitter: Fitter, before: tuple[Spec, Spec, Spec], after: tup
     r0 = fitter.test_residuals(before)[slow]
     r1 = fitter.test_residuals(after)[slow]
     return float(np.mean(r1 * r1) / max(float(np.mean(r0 * r0)), 1e-300))
+
+
+def _recalibration_hurts(fitter: Fitter, specs: tuple[Spec, Spec, Spec], base_pred: list[np.ndarray]) -> list[str]:
+    """Recordings on whose held-out blocks the selected (recalibrated) model does worse than the base."""
+    held_out = fitter.test_residuals(specs)
+    rows = fitter.row_blocks()                      # per recording: (fold A rows, fold B rows) in held_out
+    worse = []
+    for d, yb, idx, (ra, rb) in zip(fitter.data, base_pred, rows, fitter.rows_ab):
+        base_r = np.concatenate([(d.y - yb)[ra], (d.y - yb)[rb]])
+        if float(held_out[idx] @ held_out[idx]) > float(base_r @ base_r):
+            worse.append(d.name)
+    return worse
 
 
 def _saturation_reverses(model: Any, fitter: Fitter, params: dict[str, float], res: SearchResult,

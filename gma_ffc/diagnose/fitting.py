@@ -282,6 +282,20 @@ class Fitter:
         return Score(tuple(sse_train), tuple(sse_test), tuple(n_train), tuple(n_test),  # type: ignore[arg-type]
                      self.loss(r), int(y.size), c_all if want_coef else None, names, tuple(sq_test))  # type: ignore[arg-type]
 
+    @property
+    def rows_ab(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per recording, its least-squares rows in fold A and in fold B (sample indices)."""
+        return self._rows_ab
+
+    def row_blocks(self) -> list[np.ndarray]:
+        """Per recording, where its fold A rows and then its fold B rows sit in `y_rows`."""
+        a_sizes = [ra.size for ra, _ in self._rows_ab]
+        b_sizes = [rb.size for _, rb in self._rows_ab]
+        a_start = np.concatenate([[0], np.cumsum(a_sizes)])
+        b_start = self.n_a + np.concatenate([[0], np.cumsum(b_sizes)])
+        return [np.concatenate([np.arange(a_start[k], a_start[k] + a_sizes[k]),
+                                np.arange(b_start[k], b_start[k] + b_sizes[k])]) for k in range(len(a_sizes))]
+
     def test_residuals(self, specs: tuple[Spec, Spec, Spec]) -> np.ndarray:
         """Held-out residuals at the least-squares rows (each fold predicted by the other fold's fit)."""
         y = self.y_rows
