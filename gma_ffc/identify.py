@@ -35,6 +35,7 @@ from scipy import optimize
 
 from . import operators as ops
 from .errors import InputError
+from .initial_state import first_direction, resolve
 from .inverse import deadzone_inverse
 from .model import SDPIModel, rms
 from .recordings import Recording
@@ -112,16 +113,22 @@ def weights_to_slopes(w: np.ndarray) -> np.ndarray:
 
 
 def has_full_sweep(x: np.ndarray, tol: float = 0.1) -> bool:
-    """True when the drive goes from near one extreme of its range to near the other and back
-    (a closed major loop): without it the loop's two branches cannot both be fitted."""
+    """True when the drive travels the whole of its range upwards and downwards: a closed major
+    loop, wherever in it the recording starts (a cycle cut mid-rise counts; a single ramp does
+    not). Without it the loop's two branches cannot both be fitted.
+
+    Travel is counted on the drive passed through a play of half-width tol/2 of the range, so
+    noise and small reversals add nothing."""
     lo, hi = (float(v) for v in np.percentile(x, [1.0, 99.0]))  # a start-up or stop ramp is no cycle
     span = hi - lo
     if span <= 0:
         return False
-    level = np.where(x <= lo + tol * span, -1, np.where(x >= hi - tol * span, 1, 0))
-    marks = level[level != 0]
-    changes = np.count_nonzero(np.diff(marks) != 0)
-    return changes >= 2
+    xs = np.ascontiguousarray(np.clip(x, lo, hi), dtype=float)
+    p = np.empty((xs.size, 1))
+    ops.play_outputs(xs, np.array([0.5 * tol * span]), np.array([xs[0]]), p)
+    step = np.diff(p[:, 0])
+    need = (1.0 - 2.0 * tol) * span
+    return float(step[step > 0].sum()) >= need and float(-step[step < 0].sum()) >= need
 
 
 def burn_in_end(x: np.ndarray, tol: float = 0.02) -> int:
@@ -192,21 +199,22 @@ class SDPIIdentifier:
         if half <= 0:
             raise InputError("the drive is constant in every recording; a hysteresis model needs a swept drive")
         r_h = np.arange(self.n_play) * half / self.n_play
-        for d in data:
-            y0 = d.x[0] - x_c + (r_h if self.initial_state == "descending" else 0.0)
-            d.plays = np.empty((len(d.x), self.n_play))
-            ops.play_outputs(np.ascontiguousarray(d.x - x_c), r_h, y0, d.plays)
-        self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c, (x_lo, x_hi))
         # A recording whose burn-in sweep is a large share of it (one cycle, a cut-out window)
-        # loses most of its data to the unknown initial state: estimate that state with the
-        # first model and fit again on every sample.
+        # would lose most of its data to the unknown initial state. Its first fit uses every
+        # sample, from the state consistent with the drive's first monotone stretch; that state
+        # is then estimated from the measurement with the first model, and the fit repeated.
         short = [d for d in data if burn_in_end(d.x) > 0.2 * len(d.x)]
+        for d in data:
+            y0 = d.x[0] - x_c + (r_h if self.initial_state == "descending" else np.zeros_like(r_h))
+            if any(d is s for s in short):
+                y0 = d.x[0] - x_c - first_direction(d.x) * r_h
+                d.start = 0
+            d.plays = np.empty((len(d.x), self.n_play))
+            ops.play_outputs(np.ascontiguousarray(d.x - x_c), r_h, np.ascontiguousarray(y0, dtype=float), d.plays)
+        self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c, (x_lo, x_hi))
         if short:
-            from .initial_state import resolve
-
             for d in short:
                 start = resolve(self.model_, d.x, d.sigma, "estimate", self.output_sign_ * d.y)
-                d.start = 0
                 ops.play_outputs(np.ascontiguousarray(d.x - x_c), r_h,
                                  np.ascontiguousarray(start.play_state), d.plays)
             self.notes_.append(f"{len(short)} recording(s) start with a large share of unknown hysteresis "

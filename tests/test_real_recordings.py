@@ -107,6 +107,32 @@ def test_initial_state_spec_parses_and_refuses():
         InitialStateSpec.parse("drive:abc")
 
 
+@needs_piezo
+@pytest.mark.parametrize("start_s", [4.3, 5.1, 5.77, 6.0])
+def test_a_one_cycle_recording_contributes_all_its_samples(piezo, start_s):
+    """One drive period cut anywhere (here mid-rise, mid-fall, near a turn) is identified from
+    all its samples, and predicts the rest of the recording as well as four cycles do."""
+    rec, four_cycles = piezo
+    fit = SDPIIdentifier().fit([cut(rec, start_s, start_s + 1.0, "one_cycle")])
+    assert any("all their samples fitted" in n for n in fit.notes_)
+    unseen = cut(rec, 7.0)
+    err = {name: rms(m.simulate(unseen.time_s, unseen.drive, measured_um=unseen.displacement_um)
+                     - unseen.displacement_um) for name, m in (("one", fit.model_), ("four", four_cycles))}
+    assert err["one"] <= 1.5 * err["four"], err
+    assert err["one"] < 0.01 * np.ptp(unseen.displacement_um)
+
+
+def test_a_full_sweep_is_travel_both_ways_wherever_the_recording_starts():
+    from gma_ffc.identify import has_full_sweep
+
+    t = np.linspace(0.0, 1.0, 1000, endpoint=False)
+    rng = np.random.default_rng(3)
+    for phase in (0.0, 0.3, 1.6, 2.9, 4.4):                  # one period, cut anywhere
+        assert has_full_sweep(np.sin(2 * np.pi * t + phase) + rng.normal(0, 0.01, t.size))
+    assert not has_full_sweep(t + rng.normal(0, 0.01, t.size))            # a noisy ramp
+    assert not has_full_sweep(np.sin(2 * np.pi * 0.75 * t))               # three quarters of a period
+
+
 # ---- either polarity ----------------------------------------------------------------------------
 
 def _hil_recordings():
