@@ -200,13 +200,15 @@ class SDPIIdentifier:
             raise InputError("the drive is constant in every recording; a hysteresis model needs a swept drive")
         r_h = np.arange(self.n_play) * half / self.n_play
         # A recording whose burn-in sweep is a large share of it (one cycle, a cut-out window)
-        # would lose most of its data to the unknown initial state. Its first fit uses every
-        # sample, from the state consistent with the drive's first monotone stretch; that state
-        # is then estimated from the measurement with the first model, and the fit repeated.
+        # would lose much of its data to the unknown initial state: that state is estimated from
+        # the measurement with a first model, and the fit repeated on every sample. Where what
+        # follows the burn-in is no full cycle, the first fit too uses every sample, started
+        # from the state consistent with the drive's first monotone stretch.
         short = [d for d in data if burn_in_end(d.x) > 0.2 * len(d.x)]
+        no_cycle_after_burn_in = [d for d in short if not has_full_sweep(d.x[burn_in_end(d.x):])]
         for d in data:
             y0 = d.x[0] - x_c + (r_h if self.initial_state == "descending" else np.zeros_like(r_h))
-            if any(d is s for s in short):
+            if any(d is s for s in no_cycle_after_burn_in):
                 y0 = d.x[0] - x_c - first_direction(d.x) * r_h
                 d.start = 0
             d.plays = np.empty((len(d.x), self.n_play))
@@ -215,6 +217,7 @@ class SDPIIdentifier:
         if short:
             for d in short:
                 start = resolve(self.model_, d.x, d.sigma, "estimate", self.output_sign_ * d.y)
+                d.start = 0
                 ops.play_outputs(np.ascontiguousarray(d.x - x_c), r_h,
                                  np.ascontiguousarray(start.play_state), d.plays)
             self.notes_.append(f"{len(short)} recording(s) start with a large share of unknown hysteresis "
