@@ -21,7 +21,7 @@ VERSION = 2              # 2: output_sign (falling actuators); version-1 files s
 KINDS: dict[str, str] = {
     "sdpi": "gma_ffc.model:SDPIModel",
     "mpi": "gma_ffc.model:SDPIModel",
-    "extended": "gma_ffc.diagnose.extended:ExtendedModel",
+    "extended": "gma_ffc.extended:ExtendedModel",
 }
 
 

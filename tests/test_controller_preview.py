@@ -10,7 +10,7 @@ import yaml
 from gma_ffc.control.config import validate_config
 from gma_ffc.control.controller import Controller
 from gma_ffc.sil import cached_sdpi_and_mpi, tracking_rms_um
-from gma_ffc.diagnose.extended import ExtendedModel
+from gma_ffc.extended import ExtendedModel
 from gma_ffc.recordings import read_recording
 
 DELAY_S = 0.006

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from gma_ffc.diagnose.extended import ExtendedModel
+from gma_ffc.extended import ExtendedModel
 from gma_ffc.errors import ModelError
 from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.modelio import load_model, save_model

@@ -90,3 +90,11 @@ def test_no_import_cycle_between_subpackages():
 def test_the_checker_finds_a_cycle():
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_the_models_never_import_the_diagnosis():
+    """Effects and the extended model sit under the models: the diagnosis uses them (issue 9)."""
+    g = graph()
+    for mod, deps in g.items():
+        if mod.startswith("gma_ffc.effects") or mod in ("gma_ffc.extended", "gma_ffc.model", "gma_ffc.modelio"):
+            assert not any(d.startswith("gma_ffc.diagnose") for d in deps), (mod, sorted(deps))

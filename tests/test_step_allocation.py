@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def extended_model():
-    from gma_ffc.diagnose.extended import ExtendedModel
+    from gma_ffc.extended import ExtendedModel
 
     base = load_model(ROOT / "config" / "models" / "sim_sdpi.yaml")
     return ExtendedModel(base, {

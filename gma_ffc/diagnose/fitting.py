@@ -1,45 +1,74 @@
-"""Fit extension blocks around a fixed core and score them on held-out blocks.
+"""Fit effects around a fixed core and score them on held-out blocks.
 
-A model under test is a `Spec`: the nonlinear parameters of its blocks (time constants, delay,
-resonance). Given a spec, every linear parameter (static gain/offset/curvature, stress gain,
-creep and heating gains, stress-play weights) follows by least squares, because each block is
-linear in them once the nonlinear parameters are fixed (the resonance filter is linear, so it can
-be applied to each regressor). Nonlinear parameters are searched on a grid refined locally,
+A model under test is a `Spec`: effect name -> the effect's nonlinear parameter (time constant,
+delay, resonance). Given a spec, every linear parameter (static gain/offset/curvature, stress
+gain, creep and heating gains, stress-play weights) follows by least squares, because each
+effect is linear in them once its nonlinear parameter is fixed (the resonance filter is linear,
+so it can be applied to each regressor). Each effect class builds its own regressors
+(`gma_ffc.effects`); input-side effects change the core's input instead, and core runs are
+cached by them. Nonlinear parameters are searched on a grid refined locally,
 separately for each fold using only that fold's training samples.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from . import kernels as K
-from .data import RecData, mean_stress, stress_span
-from .extended import CREEP_SPREAD, MIN_FAST_HEAT_S, THERMAL_FAST_RATIO, widened_core
+from ..effects import path_order
+from ..effects.base import Effect, Regressors
+from ..effects.static import StaticMap
+from .data import RecData, mean_stress, stress_levels, stress_span
 
 
-@dataclass(frozen=True)
-class Spec:
-    """Nonlinear parameters of the blocks in a model under test (None: block absent)."""
+def _plain(p: Any) -> Any:
+    """A parameter as plain Python (grid points may be numpy scalars): equal values, equal specs."""
+    if isinstance(p, (bool, np.bool_)):
+        return bool(p)
+    if isinstance(p, (tuple, list, np.ndarray)):
+        return tuple(float(v) for v in p)
+    return float(p)
 
-    saturation: bool = False                        # hinge correction beyond the identified drive range
-    eddy_tau: float | None = None                   # s
-    delay_s: float | None = None                    # s
-    stress_play: float = 0.0                        # != 0: play weights and loop width vary with stress;
-                                                    # the value is the threshold step of the width's chord
-    creep_tau: float | None = None                  # s
-    dynamics: tuple[float, float, float] | None = None  # (f_ref_hz, zeta, beta_per_MPa)
-    thermal_tau: float | None = None                # s
 
-    def with_(self, **kw: Any) -> "Spec":
-        return dataclasses.replace(self, **kw)
+class Spec(Mapping[str, Any]):
+    """A model under test: effect name -> its nonlinear parameter (time constant, delay, resonance
+    (f_ref_hz, zeta, beta_per_MPa), width chord step, True). An effect not in it is absent.
+    Hashable and order-free, so fits and core runs are cached by spec."""
 
-    def input_key(self) -> tuple:
-        return (self.eddy_tau, self.delay_s)
+    __slots__ = ("_items",)
+
+    def __init__(self, items: Mapping[str, Any] | Iterable[tuple[str, Any]] = ()) -> None:
+        self._items = tuple(sorted((k, _plain(v)) for k, v in dict(items).items()))
+
+    def __getitem__(self, name: str) -> Any:
+        for k, v in self._items:
+            if k == name:
+                return v
+        raise KeyError(name)
+
+    def __iter__(self) -> Iterator[str]:
+        return (k for k, _ in self._items)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __hash__(self) -> int:
+        return hash(self._items)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Spec) and self._items == other._items
+
+    def __repr__(self) -> str:
+        return f"Spec({dict(self._items)!r})"
+
+    def with_(self, name: str, p: Any) -> "Spec":
+        return Spec({**dict(self._items), name: p})
+
+    def without(self, name: str) -> "Spec":
+        return Spec({k: v for k, v in self._items if k != name})
 
 
 @dataclass
@@ -81,9 +110,12 @@ class Fitter:
         self.stress_top = max(float(d.s.max()) for d in self.data)
         self.stress_varies = model.stress_range_MPa is not None and stress_span(self.data) >= 1.0
         self.play_thresholds = np.array([0.1, 0.25, 0.45]) * self.drive_span
+        # the effects as registered now, in signal-path order: input-side ones change the core input
+        self.effects: list[type[Effect]] = [c for c in path_order() if c.candidate]
+        self._inputs = [c for c in self.effects if c.stage == "input"]
         self._core_cache: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._yc0: float | None = None
-        self._width_cache: dict[tuple, np.ndarray] = {}
+        self._cache: dict[tuple, np.ndarray] = {}
         self.dt_min = min(d.dt_med for d in self.data)
         self.duration_max = max(d.duration_s for d in self.data)
         self.duration_total = sum(d.duration_s for d in self.data)
@@ -101,9 +133,13 @@ class Fitter:
         self.delta: float | None = None   # Huber scale of the loss (None: plain least squares)
 
     # ------------------------------------------------------------------ the core
+    def input_key(self, spec: Spec) -> tuple:
+        """What the core's input depends on: the spec's input-side effects."""
+        return tuple(spec.get(c.name) for c in self._inputs)
+
     def core(self, spec: Spec) -> list[tuple[np.ndarray, np.ndarray]]:
-        """(core input u3, core output y_c) per recording for the spec's input-side blocks."""
-        key = spec.input_key()
+        """(core input u3, core output y_c) per recording for the spec's input-side effects."""
+        key = self.input_key(spec)
         hit = self._core_cache.get(key)
         if hit is not None:
             return hit
@@ -120,26 +156,24 @@ class Fitter:
 
     def core_input(self, d: RecData, spec: Spec) -> np.ndarray:
         u = d.u
-        if spec.eddy_tau:
-            u = K.lag_filter(u, d.dt, spec.eddy_tau, float(u[0]))
-        if spec.delay_s:
-            u = K.delay_filter(u, spec.delay_s / d.dt_med, float(u[0]))
+        for c in self._inputs:
+            if c.name in spec:
+                u = c.filter_input(u, d, spec[c.name])
         return np.ascontiguousarray(u)
 
-    def width_derivative(self, d: RecData, u3: np.ndarray, yc: np.ndarray, spec: Spec) -> np.ndarray:
-        """(y_c with play thresholds x (1 + eps) - y_c) / eps: how the core's output moves as its loop widens."""
-        eps = float(spec.stress_play)
-        key = (id(d), spec.input_key(), eps)
-        hit = self._width_cache.get(key)
+    def cached(self, key: tuple, compute: Callable[[], np.ndarray]) -> np.ndarray:
+        """compute() once per key (e.g. a re-run of the core an effect's regressor needs)."""
+        hit = self._cache.get(key)
         if hit is not None:
             return hit
-        wide = widened_core(self.model, eps)
-        s = d.s if self.model.stress_range_MPa is not None else None
-        out = (np.asarray(wide.simulate(d.t, u3, s, initial_play_state=d.start.play_state), dtype=float) - yc) / eps
-        if len(self._width_cache) > 64:
-            self._width_cache.clear()
-        self._width_cache[key] = out
+        out = compute()
+        if len(self._cache) > 64:
+            self._cache.clear()
+        self._cache[key] = out
         return out
+
+    def stress_levels(self) -> list[float]:
+        return stress_levels(self.data)
 
     @property
     def yc_center(self) -> float:
@@ -150,56 +184,14 @@ class Fitter:
 
     # ------------------------------------------------------------------ regressors
     def columns(self, d: RecData, u3: np.ndarray, yc: np.ndarray, spec: Spec) -> tuple[list[np.ndarray], list[str]]:
-        """Full-length regressors of one recording (before row selection)."""
-        ds = d.s - self.stress_ref
-        cols = [yc, (yc - self.yc_center) ** 2, np.ones_like(yc)]
-        names = ["gain", "quadratic", "offset"]
-        if self.stress_varies:
-            cols.append(ds * yc)
-            names.append("stress_gain")
-        plays = K.play_bank(u3, self.play_thresholds, float(u3[0]))
-        for j in range(self.play_thresholds.size):
-            cols.append(plays[:, j] - u3)
-            names.append(f"play_{j}")
-        if spec.stress_play:
-            # each play's weight may change linearly with stress (loop shape), and the core's loop may
-            # widen with stress (its play thresholds - the coercive current - scaled by 1 + k (s - s_ref))
-            for j in range(self.play_thresholds.size):
-                cols.append(ds * (plays[:, j] - u3))
-                names.append(f"stress_play_{j}")
-            cols.append(ds * self.width_derivative(d, u3, yc, spec))
-            names.append("stress_width")
-        if spec.saturation:
-            above = np.maximum(d.u - self.drive_hi, 0.0)
-            below = np.maximum(self.drive_lo - d.u, 0.0)
-            for side, h in (("hi", above), ("lo", below)):
-                if np.any(h > 0.02 * self.drive_span):
-                    cols += [h, h * h]
-                    names += [f"sat_lin_{side}", f"sat_quad_{side}"]
-        if spec.creep_tau:
-            acc = np.zeros_like(yc)
-            for k in CREEP_SPREAD:
-                acc += K.lag_filter(yc, d.dt, spec.creep_tau * k, float(yc[0])) - yc
-            cols.append(acc / len(CREEP_SPREAD))
-            names.append("creep_gain")
-        if spec.dynamics is not None:
-            f, zeta, beta = spec.dynamics
-            idx = [j for j, name in enumerate(names) if name != "offset"]
-            filt = K.msd_filter_columns(np.column_stack([cols[j] for j in idx]), d.dt, d.s, 2 * math.pi * f,
-                                        zeta, beta, self.stress_top)
-            for k, j in enumerate(idx):
-                cols[j] = filt[:, k]
-        if spec.thermal_tau:
-            cols.append(K.lag_filter(d.u * d.u, d.dt, spec.thermal_tau, 0.0))
-            names.append("thermal_gain")
-            # coil and rod heat with different time constants: a faster part with its own gain, where it
-            # is still slow enough to be thermal. On a one-sided drive the drive squared and the core
-            # output rise and fall together, so that fast part and creep are look-alikes: a model with
-            # creep keeps the single heating time constant, and creep is judged as the fast part's rival
-            if spec.thermal_tau * THERMAL_FAST_RATIO >= MIN_FAST_HEAT_S and not spec.creep_tau:
-                cols.append(K.lag_filter(d.u * d.u, d.dt, spec.thermal_tau * THERMAL_FAST_RATIO, 0.0))
-                names.append("thermal_fast_gain")
-        return cols, names
+        """Full-length regressors of one recording (before row selection): the static map's, then
+        each effect's in signal-path order (a filter effect transforms those before it)."""
+        r = Regressors(d, u3, yc, self.input_key(spec), spec, [], [], {})
+        StaticMap.columns(self, r, None)
+        for c in self.effects:
+            if c.stage != "input" and c.name in spec:
+                c.columns(self, r, spec[c.name])
+        return r.cols, r.names
 
     def design(self, spec: Spec) -> tuple[np.ndarray, list[str]]:
         """Regressors at the least-squares rows: fold A rows of every recording, then fold B rows."""
@@ -328,11 +320,12 @@ class SearchResult:
 
 
 def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, Any], Spec],
-           grid: Sequence[Any], refine: Callable[[Fitter, Any], Sequence[Any]] | None = None) -> SearchResult:
+           grid: Iterable[Any], refine: Callable[[Fitter, Any, int], Sequence[Any] | None] | None = None
+           ) -> SearchResult:
     """Grid (plus local refinement) over one block's parameters; per-fold choice by training error."""
     results: dict[Any, Score] = {}
 
-    def run(points: Sequence[Any]) -> None:
+    def run(points: Iterable[Any]) -> None:
         for p in points:
             if p in results:
                 continue
@@ -345,7 +338,7 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
                            min(results, key=lambda p: results[p].train_mse(1)),
                            min(results, key=lambda p: results[p].all_mse)}
             for bp in best_points:
-                run(refine(fitter, bp, level))
+                run(refine(fitter, bp, level) or [])
     pa = min(results, key=lambda p: results[p].train_mse(0))
     pb = min(results, key=lambda p: results[p].train_mse(1))
     pall = min(results, key=lambda p: results[p].all_mse)
@@ -355,10 +348,5 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
     mse = (ra.sq_test[0] + rb.sq_test[1]) / max(n_test, 1)
     specs = (make(base[0], pa), make(base[1], pb), make(base[2], pall))
     final = fitter.score(specs, want_coef=True)
+    assert final.coef_all is not None
     return SearchResult(specs, cv, mse, final.all_mse, n_test, final.coef_all, final.names, len(results))
-
-
-def geom_refine(p: float, ratio: float, level: int = 1) -> list[float]:
-    """Points around p on a log scale for zoom level 1, 2, ... of a grid of spacing `ratio`."""
-    step = 3.0 ** -level
-    return [p * ratio ** (e * step) for e in (-2.0, -1.0, 1.0, 2.0)]

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import kernels as K
+from ..effects import kernels as K
 from .data import RecData
 
 BANDS_HZ = (0.0, 0.5, 5.0, 50.0, 500.0, np.inf)

@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 
 from ..atomic import atomic_write
-from .engine import Diagnosis
+from .results import Diagnosis
 
 MODEL_FILE = "extended_model.yaml"
 

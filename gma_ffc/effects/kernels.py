@@ -1,4 +1,4 @@
-"""Numba kernels of the extension blocks (pure maths, no I/O).
+"""Numba kernels of the effect blocks (pure maths, no I/O), shared by the extended model and the diagnosis.
 
 Each forward block has an exact discrete inverse, so the extended model can be inverted sample by
 sample: the first-order lag (eddy currents, heating, creep) uses the ZOH form

@@ -1,0 +1,118 @@
+"""The diagnosis in words: each effect as its class describes it, the residual left, the validation."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from ..effects import REGISTRY
+from .data import N_BLOCKS
+from .fitting import Fitter
+from .locate import Located
+from .results import Candidate
+
+
+def drive_unit(model: Any) -> str:
+    """"A" for a current-driven actuator, "V" for a voltage-driven one (no coil to heat)."""
+    return "V" if str(getattr(model, "drive_name", "current_A")).endswith("_V") else "A"
+
+
+def decider(a: str, b: str) -> str:
+    """The experiment that tells look-alikes a and b apart (each effect class names its own)."""
+    for x, y in ((a, b), (b, a)):
+        cls = REGISTRY.get(x)
+        if cls is not None and y in cls.deciders:
+            return cls.deciders[y]
+    return "an experiment that changes one of them and not the other would decide"
+
+
+def runner_up_note(best: Candidate, runner: Candidate) -> str:
+    return (f"The runner-up, {runner.effect}, lost: held-out RMS {math.sqrt(runner.cv_mse):.4g} um against "
+            f"{math.sqrt(best.cv_mse):.4g} um for {best.effect}"
+            + (f" ({best.loglik_gain - runner.loglik_gain:.0f} nats less penalised held-out likelihood)"
+               if math.isfinite(runner.loglik_gain) else "") + ".")
+
+
+def describe(c: Candidate, unit: str = "A") -> str:
+    cls = REGISTRY.get(c.effect)
+    return c.effect if cls is None else cls.describe(c.params, unit)
+
+
+def physics(effect: str, unit: str) -> str:
+    cls = REGISTRY[effect]
+    return (cls.physics_voltage or cls.physics) if unit == "V" else cls.physics
+
+
+def residual_words(worst: Located) -> str:
+    """What an unexplained residual looks like: where, at which frequencies, what it follows."""
+    strong = sorted(((abs(v), k, v) for k, v in worst.conditions.items() if abs(v) >= 0.3), reverse=True)
+    names = {"drive_rate": "the drive rate", "drive_amplitude": "the drive amplitude",
+             "cumulative_heating": "the cumulative drive squared (time)", "stress": "stress",
+             "after_steps": "the time since drive steps"}
+    follows = (", ".join(f"{names[k]} (r = {v:+.2f})" for _, k, v in strong[:3]) if strong
+               else "none of drive rate, amplitude, stress or elapsed time (|r| < 0.3)")
+    return (f"The residual left is {worst.residual_rms_recalibrated_um:.3g} um RMS in {worst.recording} "
+            f"({worst.where}); it correlates with {follows}.")
+
+
+def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[Located], rms_before: float,
+            rms_null: float, rms_after: float, noise: float, too_little: bool, runner_note: str,
+            outcome: str, unit: str, noise_factor: float) -> str:
+    worst = max(located, key=lambda loc: loc.residual_rms_recalibrated_um)
+    parts = [f"The base model misses the recordings by {rms_before:.4g} um RMS; a static recalibration "
+             f"(gain/offset/curvature/loop width) leaves {rms_null:.4g} um on held-out data, against a noise floor of "
+             f"{noise:.3g} um estimated from the data. The largest residual is in {worst.recording}: {worst.where}."]
+    if too_little:
+        parts.append("There is too little data to tell the effects apart, so no effect is named; see "
+                     "cannot_conclude for the experiment that would decide.")
+        return " ".join(parts)
+    if not verdict:
+        if outcome == "within_noise":
+            ratio = rms_after / max(noise, 1e-12)
+            parts.append("That is within the noise: the model explains the recordings, no effect is named."
+                         if ratio <= noise_factor else
+                         f"That is {ratio:.1f}x the noise floor, the size of ordinary identification error: no "
+                         "structured residual is left for an effect to explain, so no effect is named.")
+        elif outcome == "inconclusive":
+            parts.append("The residual is above the noise but the data cannot decide what it is: see "
+                         "cannot_conclude for what could not be tested and the recording that would decide.")
+            parts.append(residual_words(worst))
+        else:
+            tried = [c for c in candidates.values() if c.testable and math.isfinite(c.cv_mse)]
+            tried.sort(key=lambda c: c.cv_mse)
+            if tried:
+                b = tried[0]
+                parts.append(f"No effect in the vocabulary explains the rest: the best, {b.effect}, "
+                             f"reaches {math.sqrt(b.cv_mse):.4g} um held-out, short of the margin required. The "
+                             "model is outside its class here or the physics is not in the vocabulary "
+                             "(re-identify the core on data like these, or model it yourself).")
+            parts.append(residual_words(worst))
+        return " ".join(parts)
+    named = [candidates[v] for v in verdict]
+    parts.append("The recordings show " + "; then ".join(f"{describe(c, unit)} ({c.effect})" for c in named) + ".")
+    parts.append(f"With {'it' if len(named) == 1 else 'them'} the held-out RMS falls to {rms_after:.4g} um "
+                 f"({rms_after / max(rms_before, 1e-12):.0%} of before).")
+    for c in named:
+        parts.append(f"{c.effect}: {physics(c.effect, unit)}.")
+    if runner_note:
+        parts.append(runner_note)
+    return " ".join(parts)
+
+
+def validation_words(fitter: Fitter, null_cv: float, min_mse_ratio: float, min_loglik_gain: float) -> str:
+    """How every figure of the diagnosis was validated."""
+    return (
+        f"each recording was cut into {N_BLOCKS} contiguous time blocks; every model was fitted on the even blocks "
+        "and scored on the odd ones, and the other way round (2-fold blocked cross-validation). Models are "
+        "simulated over the whole recording from its drive and stress only, so no held-out displacement "
+        "enters a fit. Nonlinear parameters (time constants, delay, resonance) are chosen per fold from that "
+        "fold's training blocks. rms_before is the base model as given; rms_after is the held-out RMS of the "
+        "selected model; the null every effect had to beat is the base with a static recalibration "
+        f"(gain, offset, curvature, loop width{', stress gain' if fitter.stress_varies else ''}), held-out RMS "
+        f"{math.sqrt(null_cv):.4g} um. Fits and the selection use a Huber loss (squared error up to "
+        f"{fitter.delta:.3g} um, linear beyond) so that a few bursts no model in the catalog can follow do not "
+        "decide it. An effect is accepted if it cuts the held-out loss by >= "
+        f"{1 - min_mse_ratio:.0%}, gains >= {min_loglik_gain:g} nats of penalised held-out likelihood "
+        "(effective sample count from the residual's correlation time, one nat per parameter) and removes "
+        "more than half the noise floor. rms_after is scored on the same held-out blocks that chose the effects, "
+        "so it is slightly optimistic: no third set of blocks is kept back for a final, untouched score.")

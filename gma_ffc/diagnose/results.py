@@ -1,0 +1,90 @@
+"""What a diagnosis returns: the candidates it tried and the `Diagnosis` (verdict, outcome, models)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..extended import ExtendedModel
+from .data import RecData
+from .fitting import SearchResult
+from .locate import Located
+
+
+@dataclass
+class Candidate:
+    effect: str
+    testable: bool
+    reason: str = ""
+    cv_mse: float = math.nan
+    cv_loss: float = math.nan
+    loglik_gain: float = math.nan
+    evidence: float = 0.0
+    params: dict[str, float] = field(default_factory=dict)
+    round: int = 0
+    accepted: bool = False
+    result: SearchResult | None = None
+
+    def to_json(self) -> dict:
+        d: dict[str, Any] = {"effect": self.effect, "evidence": round(float(self.evidence), 4),
+                             "params": {k: _round(v) for k, v in self.params.items()}}
+        d["validation_rms_um"] = None if not math.isfinite(self.cv_mse) else _round(math.sqrt(self.cv_mse))
+        d["heldout_loglik_gain"] = None if not math.isfinite(self.loglik_gain) else round(self.loglik_gain, 2)
+        d["accepted"] = self.accepted
+        d["testable"] = self.testable
+        if self.reason:
+            d["note"] = self.reason
+        d["round"] = self.round
+        return d
+
+
+OUTCOMES = ("within_noise", "effects_named", "unexplained", "inconclusive")
+
+
+@dataclass
+class Diagnosis:
+    outcome: str               # one of OUTCOMES (docs/cli.md): what `verdict == []` means is never ambiguous
+    verdict: list[str]
+    explanation: str
+    located: list[Located]
+    candidates: list[Candidate]
+    rms_before_um: float
+    rms_recalibrated_um: float
+    rms_after_um: float
+    noise_um: float
+    validation: str
+    conclusive: bool
+    cannot_conclude: list[str]
+    extended: ExtendedModel
+    data: list[RecData]
+    base_predictions: list[np.ndarray]
+    null_predictions: list[np.ndarray]
+    final_predictions: list[np.ndarray]
+    rounds: list[dict]
+    n_eff: float
+
+    def to_json(self, model_file: str = "extended_model.yaml") -> dict:
+        return {
+            "outcome": self.outcome,
+            "verdict": list(self.verdict),
+            "explanation": self.explanation,
+            "located": [loc.to_json() for loc in self.located],
+            "candidates": [c.to_json() for c in self.candidates],
+            "rms_before_um": _round(self.rms_before_um),
+            "rms_after_um": _round(self.rms_after_um),
+            "rms_recalibrated_um": _round(self.rms_recalibrated_um),
+            "noise_floor_um": _round(self.noise_um),
+            "validation": self.validation,
+            "conclusive": self.conclusive,
+            "cannot_conclude": list(self.cannot_conclude),
+            "extended_model": model_file,
+        }
+
+
+def _round(v: float) -> float | None:
+    if v is None or not math.isfinite(v):
+        return None
+    return float(f"{v:.6g}")

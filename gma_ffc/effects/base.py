@@ -1,0 +1,366 @@
+"""What every effect class offers: the `Effect` protocol, the signals its steppers share, and helpers.
+
+An effect is one physical mechanism the SDPI/MPI core lacks (eddy currents, a delay, heating...).
+Its class carries both sides of it, so that adding an effect means adding one file:
+
+* the model side (instances hold the block's parameters): validation from the file's blocks,
+  the batch filter, and a stepper state for the forward and the inverse sample-by-sample paths;
+* the diagnosis side (class methods, no instance): when the data can test it, the grid of its
+  nonlinear parameter, its least-squares regressors once that parameter is fixed, and how the
+  fitted coefficients become the block's parameters.
+
+This package never imports `gma_ffc.diagnose`: the diagnosis hands its fitter in as an argument
+(typed here as `FitData`), so data flow stays one-way.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar, Iterable, Mapping, Protocol, Sequence
+
+import numpy as np
+
+from ..errors import ModelError
+from . import kernels as K
+
+# Where an effect sits on the signal path drive -> [input] -> core -> [sum] -> [filter] -> [after]:
+#   input  changes the drive the core sees (eddy lag, delay); inverted after the core's inverse
+#   sum    adds a term to the recalibrated core output (static map, plays, saturation, creep);
+#          inverted together in closed form by the static map's quadratic root
+#   filter filters everything summed so far (the resonance); inverted before the sum
+#   after  adds a term after the filter (heating offset); inverted first
+STAGES = ("input", "sum", "filter", "after")
+
+
+class StepSignals:
+    """One sample's signals, shared by the stepper states of a model (allocated once per stepper,
+    so a step allocates nothing: states read and write these floats in place)."""
+
+    __slots__ = ("u1", "u3", "s", "ds", "yc", "y", "target", "const", "lin", "u3_prev", "drive_prev")
+
+    def __init__(self) -> None:
+        self.u1 = self.u3 = self.s = self.ds = self.yc = self.y = 0.0   # drive, core input, stress, s - s_ref
+        self.target = self.const = self.lin = 0.0     # inverse: reference left to explain; sum terms c + l * yc
+        self.u3_prev = self.drive_prev = 0.0          # inverse: the previous sample's core input and drive
+
+
+@dataclass
+class BatchSignals:
+    """The arrays a batch filter of the output side may read."""
+
+    t: np.ndarray
+    dt: np.ndarray                 # dt[k] = t[k] - t[k-1], dt[0] the median step
+    drive: np.ndarray              # the drive as commanded
+    u3: np.ndarray                 # the drive as the core sees it
+    yc: np.ndarray                 # the core's displacement
+    stress: np.ndarray             # stress per sample (zeros without stress)
+    ds: np.ndarray                 # stress - the static map's reference stress
+    stress_arg: Any                # stress as the caller gave it (None, scalar or array), for core re-runs
+    initial_drive: float | None    # at rest at this drive before the first sample, if given
+
+
+class EffectState(Protocol):
+    """An effect's state in a forward or inverse stepper (built once per sample period)."""
+
+    def reset(self, initial_drive: float) -> None: ...
+
+    def step(self, x: StepSignals) -> None:
+        """Forward: input stage maps x.u3 in place; output stages update x.y."""
+
+    def inverse_step(self, x: StepSignals) -> None:
+        """Inverse: input stage maps x.u3 back towards the drive; filter and after stages update
+        x.target; sum stage adds its term's constant and yc-coefficient to x.const and x.lin."""
+
+    def commit(self, x: StepSignals) -> None:
+        """Inverse, sum stage: update the state once x.yc and x.u3 of this sample are known."""
+
+
+class FitData(Protocol):
+    """What the diagnosis' fitter offers an effect class (see `gma_ffc.diagnose.fitting.Fitter`)."""
+
+    model: Any
+    data: list[Any]
+    drive_lo: float
+    drive_hi: float
+    drive_span: float
+    dt_min: float
+    duration_max: float
+    stress_ref: float
+    stress_top: float
+    stress_varies: bool
+    play_thresholds: np.ndarray
+
+    @property
+    def yc_center(self) -> float: ...
+
+    def cached(self, key: tuple, compute: Any) -> np.ndarray:
+        """compute() once per key (the fitter's cache, bounded)."""
+
+    def stress_levels(self) -> list[float]:
+        """Distinct stress levels the recordings dwell at."""
+
+
+@dataclass
+class Regressors:
+    """One recording's least-squares regressors as the effects of a spec build them up, in
+    signal-path order (the static map's first)."""
+
+    d: Any                         # the recording (gma_ffc.diagnose.data.RecData)
+    u3: np.ndarray                 # the core's input after the spec's input-side effects
+    yc: np.ndarray                 # the core's output for it
+    input_key: tuple               # identifies u3 (for caches)
+    spec: Any                      # the whole spec (an effect may depend on another's presence)
+    cols: list[np.ndarray]
+    names: list[str]
+    shared: dict[str, Any]         # computed once per recording and call (e.g. the play bank)
+
+
+@dataclass
+class SignatureCheck:
+    """What an effect's signature check may look at once it has won a round (see `Effect.signature`)."""
+
+    fitter: Any                    # the diagnosis' Fitter
+    model: Any                     # the base model
+    before: tuple                  # specs (fold A, fold B, all) before the effect was added
+    result: Any                    # the effect's SearchResult
+    params: dict[str, float]       # its reported parameters
+    noise: float                   # the noise floor (um)
+    slow_ratio_max: float          # the selector's thresholds the checks use
+    model_error_factor: float
+
+
+@dataclass
+class SignatureFailure:
+    """Why a winning effect is not that effect; `outside_class` marks a drive the model's class
+    cannot follow at all (then nothing is named)."""
+
+    reason: str
+    outside_class: bool = False
+
+
+class Effect(Protocol):
+    """One physical effect: its block in the extended model and how the diagnosis fits it."""
+
+    name: ClassVar[str]                     # the diagnosis' word for it, e.g. "rate_dependence"
+    keys: ClassVar[tuple[str, ...]]         # its block(s) in model files, e.g. ("eddy_lag",)
+    stage: ClassVar[str]                    # one of STAGES
+    position: ClassVar[int]                 # order along the signal path (lower: nearer the drive)
+    inverted: ClassVar[Mapping[str, str]]   # per block key: how the inverse undoes it (written to files)
+    physics: ClassVar[str]                  # what it is, for a current-driven actuator
+    physics_voltage: ClassVar[str | None]   # the same for a voltage-driven one, where it differs
+    candidate: ClassVar[bool]               # False: always present, never selected (the static map)
+    n_params: ClassVar[int]                 # parameters the block adds (nonlinear + gains): the penalty
+    slow: ClassVar[bool]                    # a slow effect (needs long recordings to separate)
+    joint_with: ClassVar[str | None]        # a look-alike whose parameter is re-searched with this one
+    deciders: ClassVar[Mapping[str, str]]   # per look-alike: the experiment that tells the two apart
+
+    # ---- model side
+    @classmethod
+    def from_blocks(cls, blocks: Mapping[str, Any], base: Any) -> "Effect | None":
+        """The effect from a model file's blocks (None when none of its keys is there); raises ModelError."""
+
+    def to_blocks(self) -> dict[str, dict[str, Any]]: ...
+
+    @property
+    def preview_s(self) -> float:
+        """How far ahead an inverse must see the reference because of this effect (delays)."""
+
+    def apply_input(self, u: np.ndarray, dt: np.ndarray, dt_med: float, u0: float) -> np.ndarray:
+        """Input stage, batch: the drive after this effect."""
+
+    def apply(self, y: np.ndarray, sig: BatchSignals) -> np.ndarray:
+        """Output stages, batch: the displacement after this effect."""
+
+    def state(self, dt: float, stress_ref: float, inverse: bool) -> EffectState: ...
+
+    # ---- diagnosis side
+    @classmethod
+    def testable(cls, fitter: FitData) -> tuple[bool, str]: ...
+
+    @classmethod
+    def grid(cls, fitter: FitData) -> Iterable[Any]: ...
+
+    @classmethod
+    def refine(cls, fitter: FitData, p: Any, level: int) -> Sequence[Any] | None:
+        """Points around p at zoom level 1, 2, ... (None: the grid is all there is)."""
+
+    @classmethod
+    def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
+        """Add (or transform) least-squares regressors of one recording for parameter p."""
+
+    @classmethod
+    def filter_input(cls, u: np.ndarray, d: Any, p: Any) -> np.ndarray:
+        """Input stage: the diagnosis' core input through this effect (a recording's time steps)."""
+
+    @classmethod
+    def fitted_params(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, float]:
+        """The parameters reported for it (nan where a coefficient is missing)."""
+
+    @classmethod
+    def fitted_blocks(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, dict[str, Any]]:
+        """Its block(s) of the extended model from the fitted coefficients."""
+
+    @classmethod
+    def signature(cls, check: SignatureCheck) -> SignatureFailure | None:
+        """A check that the win has the effect's signature (None: it has, or there is no check)."""
+
+    @staticmethod
+    def describe(params: Mapping[str, float], unit: str) -> str: ...
+
+
+# --------------------------------------------------------------------------- shared helpers
+
+class NoState:
+    """A stepper state with nothing to remember (defaults every hook to 'leave the signals')."""
+
+    def reset(self, initial_drive: float) -> None:
+        pass
+
+    def step(self, x: StepSignals) -> None:
+        pass
+
+    def inverse_step(self, x: StepSignals) -> None:
+        pass
+
+    def commit(self, x: StepSignals) -> None:
+        pass
+
+
+class EffectBase:
+    """Defaults for the optional parts of the protocol, so each effect file states only what it does.
+
+    A one-block effect is built from its block's mapping (checked by the subclass's constructor)
+    and writes it back as given."""
+
+    keys: ClassVar[tuple[str, ...]]
+    physics_voltage: ClassVar[str | None] = None
+    candidate: ClassVar[bool] = True
+    slow: ClassVar[bool] = False
+    joint_with: ClassVar[str | None] = None
+    deciders: ClassVar[Mapping[str, str]] = {}
+
+    def __init__(self, block: Mapping[str, Any]) -> None:
+        self.block = dict(block)
+
+    @classmethod
+    def from_blocks(cls, blocks: Mapping[str, Any], base: Any) -> Any:
+        b = block_of(blocks, cls.keys[0])
+        return None if b is None else cls(b)
+
+    def to_blocks(self) -> dict[str, dict[str, Any]]:
+        return {self.keys[0]: dict(self.block)}
+
+    @property
+    def preview_s(self) -> float:
+        return 0.0
+
+    def apply_input(self, u: np.ndarray, dt: np.ndarray, dt_med: float, u0: float) -> np.ndarray:
+        return u
+
+    def apply(self, y: np.ndarray, sig: BatchSignals) -> np.ndarray:
+        return y
+
+    @classmethod
+    def testable(cls, fitter: FitData) -> tuple[bool, str]:
+        return True, ""
+
+    @classmethod
+    def refine(cls, fitter: FitData, p: Any, level: int) -> Sequence[Any] | None:
+        return None
+
+    @classmethod
+    def signature(cls, check: SignatureCheck) -> SignatureFailure | None:
+        return None
+
+    @classmethod
+    def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
+        pass                            # input-side effects change the core input, not the columns
+
+    @classmethod
+    def filter_input(cls, u: np.ndarray, d: Any, p: Any) -> np.ndarray:
+        return u
+
+
+def block_of(blocks: Mapping[str, Any], key: str) -> dict[str, Any] | None:
+    """A block of a model file as a fresh dict (None when absent)."""
+    v = blocks.get(key)
+    if v is None:
+        return None
+    if not isinstance(v, Mapping):
+        raise ModelError(f"extended model: {key} must be a mapping, got {v!r}")
+    return dict(v)
+
+
+def positive(block: Mapping[str, Any], key: str, name: str) -> float:
+    v = block.get(key)
+    if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+        raise ModelError(f"extended model: {name}.{key} must be a positive number, got {v!r}")
+    return float(v)
+
+
+def finite(block: Mapping[str, Any], key: str, name: str) -> float:
+    v = block.get(key)
+    if not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ModelError(f"extended model: {name}.{key} must be a finite number, got {v!r}")
+    return float(v)
+
+
+def play_weights(block: Mapping[str, Any], key: str, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """(thresholds, coefficients) of a play-bank block, checked."""
+    try:
+        th = np.asarray(block.get("thresholds", []), dtype=float)
+        co = np.asarray(block.get(key, []), dtype=float)
+    except (TypeError, ValueError):
+        raise ModelError(f"extended model: {name} thresholds and {key} must be numbers") from None
+    if th.shape != co.shape or th.ndim != 1 or not np.all(np.isfinite(th)) or not np.all(np.isfinite(co)) \
+            or np.any(th < 0):
+        raise ModelError(f"extended model: {name} needs equal-length finite thresholds (>= 0) and {key}")
+    return th, co
+
+
+def play_sum(sig: BatchSignals, thresholds: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+    """sum_j c_j (H_rj[u3] - u3) over a batch, the plays relaxed at the run's start."""
+    u3 = sig.u3
+    p0 = float(u3[0]) if sig.initial_drive is None else float(sig.initial_drive)
+    return np.asarray((K.play_bank(u3, thresholds, p0) - u3[:, None]) @ coefficients)
+
+
+class PlayBankState:
+    """Play operators stepped in plain floats (a step allocates nothing): sum_j c_j (H_rj[u] - u)."""
+
+    def __init__(self, thresholds: np.ndarray, coefficients: np.ndarray) -> None:
+        self.th = [float(v) for v in thresholds]
+        self.c = [float(v) for v in coefficients]
+        self.p = [0.0] * len(self.th)
+
+    def reset(self, u: float) -> None:
+        for j in range(len(self.p)):
+            self.p[j] = u
+
+    def advance(self, u: float) -> float:
+        """Move the plays to input u and return sum_j c_j (p_j - u)."""
+        acc = 0.0
+        for j in range(len(self.p)):
+            p = min(max(self.p[j], u - self.th[j]), u + self.th[j])
+            self.p[j] = p
+            acc += self.c[j] * (p - u)
+        return acc
+
+    def peek(self, u: float) -> float:
+        """The same sum if the plays moved to u, without moving them."""
+        acc = 0.0
+        for j in range(len(self.p)):
+            acc += self.c[j] * (min(max(self.p[j], u - self.th[j]), u + self.th[j]) - u)
+        return acc
+
+
+def geom_refine(p: float, ratio: float, level: int = 1) -> list[float]:
+    """Points around p on a log scale for zoom level 1, 2, ... of a grid of spacing `ratio`."""
+    step = 3.0 ** -level
+    return [p * ratio ** (e * step) for e in (-2.0, -1.0, 1.0, 2.0)]
+
+
+def grid_ratio(grid_lo: float, grid_hi: float, n: int) -> float:
+    """Spacing of a geometric grid of n points from grid_lo to grid_hi."""
+    return (grid_hi / grid_lo) ** (1.0 / (n - 1))

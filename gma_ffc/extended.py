@@ -1,0 +1,344 @@
+"""The extended model: an SDPI/MPI core with an ordered list of physical effects around it.
+
+Signal path (each effect optional but the static map; see `gma_ffc.effects` for each one)::
+
+    drive -> input effects   (eddy_lag: first-order lag of the field; delay: transport delay)
+          -> core SDPI/MPI   (rate-independent hysteresis)                        = y_c
+          -> sum effects     static map offset + (gain + stress_gain ds) y_c + quadratic (y_c - center)^2
+                             + play_correction, + stress_play / stress_width, + saturation, + creep
+          -> filter effects  (dynamics: mass-spring-damper, resonance moving with the load)
+          -> after effects   (thermal: Joule heating offset, cools at zero current)
+
+Inverse (``invert`` and ``inverse_stepper``), stage by stage backwards: the after effects are
+subtracted from the reference, the filter undone by its exact inverse, the sum effects (each
+linear in this sample's y_c, or known from the previous sample) folded into the static map's
+quadratic and solved in closed form, the core by its own inverse, the input effects by their
+inverse filters. A delay cannot be undone causally: batch ``invert`` previews the known
+reference by ``preview_s``; the inverse stepper expects the caller to feed
+``reference(t + preview_s)``.
+
+The file form (`to_dict`, version 1) keeps one mapping per block under ``blocks``; each effect
+class reads and writes its own keys.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from .effects import by_block_key
+from .effects.base import BatchSignals, Effect, EffectState, StepSignals
+from .effects.static import StaticMap
+from .errors import ModelError
+
+KIND = "extended"
+
+
+def _stress_array(stress: Any, n: int) -> np.ndarray:
+    if stress is None:
+        return np.zeros(n)
+    s = np.asarray(stress, dtype=float)
+    if s.ndim == 0:
+        return np.full(n, float(s))
+    if s.shape != (n,):
+        raise ModelError(f"stress_MPa has {s.size} values but the drive has {n}")
+    return s
+
+
+def _time_steps(time_s: np.ndarray) -> tuple[np.ndarray, float]:
+    t = np.asarray(time_s, dtype=float)
+    if t.size < 2:
+        return np.ones(t.size), 1.0
+    d = np.diff(t)
+    med = float(np.median(d))
+    return np.concatenate(([med], d)), med
+
+
+def effects_from_blocks(blocks: Mapping[str, Any], base: Any) -> list[Effect]:
+    """The effect objects a model file's blocks describe (ModelError for unknown or damaged blocks)."""
+    owners = by_block_key()
+    unknown = set(blocks) - set(owners)
+    if unknown:
+        raise ModelError(f"extended model: unknown block(s) {sorted(unknown)}; known: {sorted(owners)}")
+    out = []
+    for cls in dict.fromkeys(owners[k] for k in blocks):
+        eff = cls.from_blocks(blocks, base)
+        if eff is not None:
+            out.append(eff)
+    return out
+
+
+class ExtendedModel:
+    """An SDPI/MPI core with physical effects around it (see module docstring).
+
+    `chain` is either the effect objects (any order: they are placed by their position on the
+    signal path) or a model file's ``blocks`` mapping. Without a static map, the identity one is used.
+    `effects` are the names the diagnosis gave (kept in the file for the reader).
+    """
+
+    kind = KIND
+
+    def __init__(self, base: Any, chain: Mapping[str, Any] | Sequence[Effect] | None = None,
+                 effects: list[str] | None = None) -> None:
+        self.base = base
+        if chain is None or isinstance(chain, Mapping):
+            items = effects_from_blocks(chain or {}, base)
+        else:
+            items = list(chain)
+        statics = [e for e in items if isinstance(e, StaticMap)]
+        self.static: StaticMap = statics[0] if statics else StaticMap()
+        if not statics:
+            items.append(self.static)
+        self.chain: list[Effect] = sorted(items, key=lambda e: e.position)
+        self.effects = list(effects or [])
+
+    # ----------------------------------------------------------------- contract properties
+    @property
+    def stress_range_MPa(self) -> Any:
+        return self.base.stress_range_MPa
+
+    @property
+    def drive_range(self) -> Any:
+        return self.base.drive_range
+
+    @property
+    def drive_name(self) -> str:
+        return getattr(self.base, "drive_name", "current_A")
+
+    @property
+    def preview_s(self) -> float:
+        """How far ahead the inverse stepper's reference must be (the transport delay)."""
+        return float(sum(e.preview_s for e in self.chain))
+
+    def blocks(self) -> dict[str, dict[str, Any]]:
+        """The model file's blocks, in signal-path order (the static map always among them)."""
+        out: dict[str, dict[str, Any]] = {}
+        for e in self.chain:
+            out.update(e.to_blocks())
+        return out
+
+    def stage(self, name: str) -> list[Effect]:
+        return [e for e in self.chain if e.stage == name]
+
+    # ----------------------------------------------------------------- batch forward
+    def core_input(self, time_s: np.ndarray, drive: np.ndarray, initial_drive: float | None = None) -> np.ndarray:
+        """The drive as the core sees it after the input-side effects (at rest at initial_drive before)."""
+        u = np.asarray(drive, dtype=float)
+        u0 = float(u[0]) if initial_drive is None else float(initial_drive)
+        dt, dt_med = _time_steps(time_s)
+        for e in self.stage("input"):
+            u = e.apply_input(u, dt, dt_med, u0)
+        return np.ascontiguousarray(u)
+
+    def resolve_initial_state(self, drive: Any, stress_MPa: Any = None, initial_state: Any = None,
+                              measured_um: Any = None, time_s: Any = None) -> Any:
+        """The core's initial state (`gma_ffc.initial_state`) for the drive as the core sees it."""
+        t = np.arange(len(drive), dtype=float) if time_s is None else np.asarray(time_s, dtype=float)
+        u3 = self.core_input(t, np.asarray(drive, dtype=float))
+        return self.base.resolve_initial_state(u3, stress_MPa, initial_state, measured_um, t)
+
+    def simulate(self, time_s: Any, drive: Any, stress_MPa: Any = None, initial_drive: float | None = None,
+                 initial_state: Any = None, measured_um: Any = None) -> np.ndarray:
+        """Displacement for a drive history, at rest at `initial_drive` if given, else from the
+        core's `initial_state` rule (default: the shared `gma_ffc.initial_state.DEFAULT`)."""
+        t = np.asarray(time_s, dtype=float)
+        u = np.asarray(drive, dtype=float)
+        if t.shape != u.shape or t.ndim != 1 or t.size == 0:
+            raise ModelError(f"time_s and drive must be 1-D of equal, non-zero length ({t.shape} vs {u.shape})")
+        if not np.all(np.isfinite(u)):
+            raise ModelError("drive contains NaN or infinite values")
+        u3 = self.core_input(t, u, initial_drive)
+        if initial_drive is None:
+            yc = np.asarray(self.base.simulate(t, u3, stress_MPa, initial_state=initial_state,
+                                               measured_um=measured_um), dtype=float)
+        else:
+            yc = np.asarray(self.base.simulate(t, u3, stress_MPa, initial_drive=float(initial_drive)), dtype=float)
+        return self.output_from_core(t, u, u3, yc, stress_MPa, initial_drive)
+
+    def output_from_core(self, t: np.ndarray, drive: np.ndarray, u3: np.ndarray, yc: np.ndarray,
+                         stress_MPa: Any, initial_drive: float | None = None) -> np.ndarray:
+        """Apply the output-side effects to the core's displacement."""
+        dt, _ = _time_steps(t)
+        s = _stress_array(stress_MPa, t.size)
+        sig = BatchSignals(t, dt, np.asarray(drive, dtype=float), u3, yc, s, s - self.static.stress_ref,
+                           stress_MPa, initial_drive)
+        y = self.static.apply(np.zeros_like(yc), sig)
+        for e in self.chain:
+            if e.stage != "input" and e is not self.static:
+                y = e.apply(y, sig)
+        return np.asarray(y)
+
+    # ----------------------------------------------------------------- batch inverse
+    def invert(self, time_s: Any, reference_um: Any, stress_MPa: Any = None) -> np.ndarray:
+        """Open-loop drive; runs the inverse stepper over the reference previewed by the delay."""
+        t = np.asarray(time_s, dtype=float)
+        r = np.asarray(reference_um, dtype=float)
+        if t.shape != r.shape or t.ndim != 1 or t.size < 2:
+            raise ModelError("time_s and reference_um must be 1-D of equal length (at least 2 samples)")
+        lo, hi = self.stress_range_MPa or (-math.inf, math.inf)
+        s = _stress_array(stress_MPa, t.size) if stress_MPa is not None else None
+        if s is not None and (s.min() < lo - 1e-9 or s.max() > hi + 1e-9):
+            raise ModelError(f"stress {s.min():.3g}..{s.max():.3g} MPa is outside the model's range {lo:.3g}..{hi:.3g} MPa")
+        if self.preview_s > 0:
+            r = np.interp(t + self.preview_s, t, r)
+        dt = float(np.median(np.diff(t)))
+        # the actuator rests at the low end of the identified range, as the core's own inverse assumes
+        x0 = self.drive_range[0] if math.isfinite(self.drive_range[0]) else 0.0
+        inv = self.inverse_stepper(dt, initial_drive=x0)
+        out = np.empty_like(r)
+        for k in range(t.size):
+            out[k] = inv.step(float(r[k]), None if s is None else float(s[k]))
+        return out
+
+    # ----------------------------------------------------------------- steppers
+    def forward_stepper(self, dt_s: float, initial_drive: float = 0.0) -> "ForwardStepper":
+        return ForwardStepper(self, dt_s, initial_drive)
+
+    def inverse_stepper(self, dt_s: float, initial_drive: float = 0.0) -> "InverseStepper":
+        return InverseStepper(self, dt_s, initial_drive)
+
+    # ----------------------------------------------------------------- files
+    def to_dict(self) -> dict[str, Any]:
+        blocks = {k: _plain(v) for k, v in self.blocks().items()}
+        inverted = {k: e.inverted[k] for e in self.chain for k in e.to_blocks()}
+        return {"format": "gma-ffc-model", "version": 1, "kind": KIND, "effects": list(self.effects),
+                "inverted": inverted, "blocks": blocks, "base": self.base.to_dict()}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "ExtendedModel":
+        if not isinstance(d, Mapping) or d.get("kind") != KIND:
+            raise ModelError("extended model: 'kind' must be 'extended'")
+        base_d = d.get("base")
+        if not isinstance(base_d, Mapping):
+            raise ModelError("extended model: missing 'base' (the SDPI/MPI core it extends)")
+        if base_d.get("kind") == KIND:
+            raise ModelError("extended model: 'base' must be an sdpi or mpi model, not another extended model")
+        from .modelio import model_from_dict
+
+        base = model_from_dict(dict(base_d))
+        blocks = d.get("blocks") or {}
+        if not isinstance(blocks, Mapping):
+            raise ModelError("extended model: 'blocks' must be a mapping")
+        return cls(base, blocks, list(d.get("effects") or []))
+
+
+def _plain(v: Any) -> Any:
+    """Numbers and lists as YAML writes them (no numpy types)."""
+    if isinstance(v, dict):
+        return {k: _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [_plain(x) for x in v]
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    return v
+
+
+def _clamp(s: float, rng: tuple[float, float] | None) -> float:
+    if rng is None:
+        return s
+    return min(max(s, rng[0]), rng[1])
+
+
+class _Stepper:
+    """What the forward and inverse steppers share: one state per effect, built once per sample
+    period, and the signals they pass along (allocated once: a step allocates nothing)."""
+
+    def __init__(self, model: ExtendedModel, dt_s: float, inverse: bool) -> None:
+        if not (dt_s > 0 and math.isfinite(dt_s)):
+            raise ModelError(f"dt_s must be a positive number, got {dt_s!r}")
+        self.m = model
+        self.dt = float(dt_s)
+        self._x = StepSignals()
+        self._sref = model.static.stress_ref
+        self._range = model.stress_range_MPa
+        states = {id(e): e.state(self.dt, self._sref, inverse) for e in model.chain}
+        self._static = states[id(model.static)]
+        self._input: list[EffectState] = [states[id(e)] for e in model.stage("input")]
+        self._sum: list[EffectState] = [states[id(e)] for e in model.stage("sum")]
+        self._filter: list[EffectState] = [states[id(e)] for e in model.stage("filter")]
+        self._after: list[EffectState] = [states[id(e)] for e in model.stage("after")]
+        self._all = list(states.values())
+
+    def _reset_states(self, u1: float) -> None:
+        for st in self._all:
+            st.reset(u1)
+
+    def _stress(self, stress_MPa: float | None) -> None:
+        x = self._x
+        x.s = 0.0 if stress_MPa is None else _clamp(float(stress_MPa), self._range)
+        x.ds = x.s - self._sref
+
+
+class ForwardStepper(_Stepper):
+    """Sample-by-sample forward model; equals `ExtendedModel.simulate` for uniform sampling."""
+
+    def __init__(self, model: ExtendedModel, dt_s: float, initial_drive: float = 0.0) -> None:
+        super().__init__(model, dt_s, inverse=False)
+        self._outputs = [st for st in self._sum if st is not self._static] + self._filter + self._after
+        self._core = model.base.forward_stepper(self.dt, initial_drive=float(initial_drive))
+        self._reset_states(float(initial_drive))
+
+    def reset(self, initial_drive: float = 0.0) -> None:
+        self._reset_states(float(initial_drive))
+        self._core.reset(float(initial_drive))
+
+    def step(self, drive: float, stress_MPa: float | None = None) -> float:
+        x = self._x
+        x.u1 = float(drive)
+        x.u3 = x.u1
+        for st in self._input:
+            st.step(x)
+        self._stress(stress_MPa)
+        x.yc = float(self._core.step(x.u3, x.s))
+        self._static.step(x)
+        for st in self._outputs:
+            st.step(x)
+        return float(x.y)
+
+
+class InverseStepper(_Stepper):
+    """Sample-by-sample inverse (reference -> drive); see the module docstring for each stage.
+
+    With a delay in the model, feed ``reference(t + preview_s)``: a delay cannot be undone causally.
+    """
+
+    def __init__(self, model: ExtendedModel, dt_s: float, initial_drive: float = 0.0) -> None:
+        super().__init__(model, dt_s, inverse=True)
+        self.preview_s = model.preview_s
+        self._before_sum = self._after[::-1] + self._filter[::-1]
+        self._input_back = self._input[::-1]
+        self._solve = getattr(self._static, "solve")
+        self._core = model.base.inverse_stepper(self.dt, initial_drive=float(initial_drive))
+        self._start(float(initial_drive))
+
+    def _start(self, u1: float) -> None:
+        self._reset_states(u1)
+        self._x.u3_prev = u1
+        self._x.drive_prev = u1
+
+    def reset(self, initial_drive: float = 0.0) -> None:
+        self._start(float(initial_drive))
+        self._core.reset(float(initial_drive))
+
+    def step(self, reference_um: float, stress_MPa: float | None = None) -> float:
+        x = self._x
+        self._stress(stress_MPa)
+        x.target = float(reference_um)
+        for st in self._before_sum:
+            st.inverse_step(x)
+        x.const = 0.0
+        x.lin = 0.0
+        for st in self._sum:
+            st.inverse_step(x)
+        x.yc = self._solve(x)
+        u3 = float(self._core.step(x.yc, x.s))
+        x.u3 = u3
+        for st in self._sum:
+            st.commit(x)
+        for st in self._input_back:
+            st.inverse_step(x)
+        x.u3_prev = u3
+        x.drive_prev = x.u3
+        return float(x.u3)
