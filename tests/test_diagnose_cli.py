@@ -128,3 +128,17 @@ def test_one_stress_cannot_test_stress_effects(case_files, capsys, tmp_path):
     play = next(c for c in doc["candidates"] if c["effect"] == "stress_dependent_play")
     assert play["testable"] is False and "stress" in play["note"]
     assert any(s.startswith("stress_dependent_play") for s in doc["cannot_conclude"])
+
+
+@pytest.mark.parametrize("rule, words", [(None, "estimated from the measured"), ("relaxed", "relaxed")])
+def test_diagnose_shares_the_initial_state_rule_and_says_which_it_used(case_files, capsys, tmp_path, rule, words):
+    """Issue 8: simulate, invert, diagnose and the controller share one default rule; each says
+    which state it started from (on stderr and, for diagnose, in diagnosis.json)."""
+    extra = [] if rule is None else ["--initial-state", rule]
+    code, _, err = _run(capsys, "diagnose", "--model", str(case_files / "model.yaml"), str(case_files / "long_run.csv"),
+                        "--out", str(tmp_path / "d"), *extra)
+    assert code == 0
+    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    (state,) = doc["initial_state"]
+    assert state["rule"] == (rule or "estimate") and words in state["how"]
+    assert f"initial state ({state['recording']}): {state['how']}" in err

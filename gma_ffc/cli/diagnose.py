@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._common import add_group_option
+from ._common import add_group_option, add_initial_state_option
 
 HELP = """\
 Compare a model with recordings, locate where they differ (time windows, frequency bands, drive
@@ -36,6 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="folder for diagnosis.json, report.html, extended_model.yaml")
     p.add_argument("--max-effects", type=int, default=3, metavar="N",
                    help="at most this many effects are named (default 3)")
+    add_initial_state_option(p)
     add_group_option(p)
     p.set_defaults(func=run)
 
@@ -66,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
         if rec.drive_name != name:
             raise InputError(f"{rec.source}: drive column is {rec.drive_name} but the model was identified on {name}")
     with Progress("diagnose") as prog:
-        dg = diagnose(model, recs, max_effects=args.max_effects, progress=lambda msg: prog.advance(note=msg))
+        dg = diagnose(model, recs, max_effects=args.max_effects, progress=lambda msg: prog.advance(note=msg),
+                      initial_state=args.initial_state)
         prog.advance(note="writing report")
         doc = write_outputs(dg, out)
     words = {"within_noise": "the model explains the recordings within their noise",
@@ -78,6 +80,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"verdict: {verdict}")
     print(f"held-out RMS {doc['rms_before_um']:.4g} um -> {doc['rms_after_um']:.4g} um "
           f"(noise floor {doc['noise_floor_um']:.3g} um)")
+    for state in doc["initial_state"]:
+        print(f"initial state ({state['recording']}): {state['how']}", file=sys.stderr)
     for note in doc["cannot_conclude"]:
         print(f"cannot conclude: {note}", file=sys.stderr)
     print(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'}, {out / 'extended_model.yaml'}")

@@ -41,8 +41,9 @@ class RecData:
         return float(self.t[-1] - self.t[0])
 
 
-def prepare(recordings: Sequence[Recording], model: Any) -> list[RecData]:
-    """Arrays per recording; stresses outside the model's range are clamped (and counted)."""
+def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "estimate") -> list[RecData]:
+    """Arrays per recording; stresses outside the model's range are clamped (and counted). The
+    core's state at each first sample follows `initial_state` (`gma_ffc.initial_state`)."""
     total = sum(len(r) for r in recordings)
     stride = max(1, int(np.ceil(total / MAX_FIT_ROWS)))
     out: list[RecData] = []
@@ -68,7 +69,7 @@ def prepare(recordings: Sequence[Recording], model: Any) -> list[RecData]:
             clamped = float(np.mean(np.abs(s - s_raw) > 1e-6 * max(1.0, abs(srange[0]))))
         block = np.minimum((np.arange(n) * N_BLOCKS) // max(n, 1), N_BLOCKS - 1)
         core = getattr(model, "base", model)
-        start = core.resolve_initial_state(rec.drive, s if srange is not None else None, "estimate",
+        start = core.resolve_initial_state(rec.drive, s if srange is not None else None, initial_state,
                                            rec.displacement_um, t)
         rows = np.arange(0, n, stride)
         rows = rows[rows >= start.settled_index]

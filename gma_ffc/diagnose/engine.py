@@ -16,6 +16,7 @@ __all__ = ["OUTCOMES", "Candidate", "Diagnosis", "EffectSelector", "diagnose"]
 
 
 def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
-             progress: Callable[[str], None] | None = None) -> Diagnosis:
+             progress: Callable[[str], None] | None = None, initial_state: Any = "estimate") -> Diagnosis:
     """Run the whole diagnosis (no I/O) with the default thresholds."""
-    return EffectSelector(max_effects=max_effects).fit(model, recordings, progress).diagnosis_
+    selector = EffectSelector(max_effects=max_effects, initial_state=initial_state)
+    return selector.fit(model, recordings, progress).diagnosis_

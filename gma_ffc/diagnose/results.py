@@ -65,6 +65,13 @@ class Diagnosis:
     final_predictions: list[np.ndarray]
     rounds: list[dict]
     n_eff: float
+    initial_state: str = "estimate"   # the rule asked for; each recording's resolved state is in data[k].start
+
+    def initial_states(self) -> list[dict]:
+        """Per recording: the rule, how its state was chosen, and how long it is not scored."""
+        return [{"recording": d.name, "rule": self.initial_state, "how": d.start.how,
+                 "not_scored_s": _round(float(d.t[min(d.settled, d.t.size - 1)] - d.t[0]) if d.settled else 0.0)}
+                for d in self.data]
 
     def to_json(self, model_file: str = "extended_model.yaml") -> dict:
         return {
@@ -80,6 +87,7 @@ class Diagnosis:
             "validation": self.validation,
             "conclusive": self.conclusive,
             "cannot_conclude": list(self.cannot_conclude),
+            "initial_state": self.initial_states(),
             "extended_model": model_file,
         }
 

@@ -79,6 +79,10 @@ class EffectSelector:
         Scored samples needed at all; below, any effect is fitted to the loops it is judged on.
     workers (2)
         Candidate searches in parallel threads (numba kernels and BLAS release the GIL).
+    initial_state ("estimate")
+        The core's hysteresis state at each recording's first sample, by the rule every model run
+        shares (`gma_ffc.initial_state`): estimated from the measured displacement by default;
+        whatever the rule, nothing before the state has settled is scored.
 
     Attributes after `fit`: `outcome_`, `verdict_`, `candidates_`, `extended_model_` and the whole
     `diagnosis_` (`gma_ffc.diagnose.results.Diagnosis`, what the report shows).
@@ -87,7 +91,7 @@ class EffectSelector:
     def __init__(self, max_effects: int = 3, *, min_mse_ratio: float = 0.75, min_loglik_gain: float = 6.0,
                  noise_factor: float = 1.5, model_error_factor: float = 3.0, slow_ratio_max: float = 0.8,
                  ambiguous_nats: float = 3.0, huber_k: float = 3.0, min_samples: int = 400,
-                 workers: int = 2) -> None:
+                 workers: int = 2, initial_state: Any = "estimate") -> None:
         self.max_effects = max_effects
         self.min_mse_ratio = min_mse_ratio
         self.min_loglik_gain = min_loglik_gain
@@ -98,6 +102,7 @@ class EffectSelector:
         self.huber_k = huber_k
         self.min_samples = min_samples
         self.workers = workers
+        self.initial_state = initial_state
 
     def fit(self, model: Any, recordings: Sequence[Recording],
             progress: Callable[[str], None] | None = None) -> "EffectSelector":
@@ -197,7 +202,7 @@ class _Run:
         if not recordings:
             raise InputError("give at least one recording to compare with the model")
         check_overlap(self.model, recordings)
-        self.data = data = prepare(recordings, self.model)
+        self.data = data = prepare(recordings, self.model, sel.initial_state)
         self.fitter = Fitter(self.model, data)
         self.n_samples = sum(d.t.size - d.settled for d in data)   # samples scored: after the initial state settles
         n_rev = sum(reversals(d.u[d.settled:]) for d in data if d.settled < d.t.size)
@@ -517,4 +522,5 @@ class _Run:
         return Diagnosis(outcome, verdict, explanation, self.located, ordered, self.rms_before,
                          math.sqrt(self.null_cv), math.sqrt(self.cur_cv), self.noise, validation, conclusive,
                          self.cannot, self.ext, self.data, self.base_pred, self.null_pred, self.final_pred,
-                         self.rounds, self.rounds[0]["n_eff"] if self.rounds else float("nan"))
+                         self.rounds, self.rounds[0]["n_eff"] if self.rounds else float("nan"),
+                         str(self.sel.initial_state))
