@@ -4,6 +4,10 @@ Lifecycle: ``open()``, then per tick ``read(inputs)`` and ``write(current_A)``, 
 ``safe(current_A)`` and ``close()``. Comms failures raise `DriverError`; the controller, not the
 driver, decides what is safe. ``read`` fills a preallocated `Inputs` record, so the hot path
 allocates no containers.
+
+`DriverProtocol` is the contract as a type: everything the controller and config validation use.
+The `Driver` base class satisfies it (the shipped drivers subclass it and inherit its safe-write
+retry, reconnect and health report); a lab's plugin may instead implement every member itself.
 """
 
 from __future__ import annotations
@@ -11,7 +15,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 from ..errors import FaultError
 
@@ -49,6 +53,47 @@ class Inputs:
         self.stress_MPa = NAN
         self.current_A = NAN
         self.displacement_um = NAN
+
+
+@runtime_checkable
+class DriverProtocol(Protocol):
+    """What the controller needs from a driver object, whether or not it subclasses `Driver`."""
+
+    kind: str
+    simulated_clock_ok: bool         # True only for a device simulated in-process (clock: simulated)
+    channels: tuple[str, ...]        # which of CHANNELS `read` fills, set by `open()` at the latest
+    last_written_A: float
+    errors: int
+    last_error: str                  # the controller sets it too, from a failed reconnect
+
+    def __init__(self, cfg: dict[str, Any], period_s: float) -> None: ...
+
+    @classmethod
+    def validate_config(cls, section: dict[str, Any], prefix: str, base_dir: Path | None) -> dict[str, Any]: ...
+
+    def open(self) -> None: ...
+
+    def read(self, inputs: Inputs) -> None: ...
+
+    def write(self, current_A: float) -> None: ...
+
+    def safe(self, current_A: float) -> None: ...
+
+    def close(self) -> None: ...
+
+    def reconnect(self) -> None: ...
+
+    def health(self) -> dict[str, Any]: ...
+
+
+# Members a driver class must define itself, and those a constructed driver must have besides.
+CLASS_MEMBERS = ("kind", "validate_config", "open", "read", "write", "safe", "close", "reconnect", "health")
+INSTANCE_MEMBERS = CLASS_MEMBERS + ("simulated_clock_ok", "channels", "last_written_A", "errors", "last_error")
+
+
+def missing_members(obj: object, names: tuple[str, ...] = CLASS_MEMBERS) -> list[str]:
+    """The contract's members `obj` (a driver class or instance) lacks, in contract order."""
+    return [n for n in names if not hasattr(obj, n)]
 
 
 class Driver(ABC):
