@@ -82,5 +82,5 @@ def test_a_plugin_without_the_base_class_must_offer_the_whole_contract(monkeypat
     ep = EntryPoint("half", f"{__name__}:_NotADriver", drivers.GROUP)
     monkeypatch.setattr(drivers, "available_drivers", lambda: {"half": ep})
     with pytest.raises(ConfigError, match="neither subclasses gma_ffc.drivers.Driver nor defines validate_config, "
-                                          "read, write, safe, close, reconnect, health"):
+                                          "activate, read, write, safe, deactivate, close, reconnect, health"):
         driver_class("half")

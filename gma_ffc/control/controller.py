@@ -270,7 +270,7 @@ class Controller:
         return cols
 
     def _open_driver(self, stop_event: threading.Event) -> bool:
-        """Open, retrying with backoff when the policy says reconnect; False when it gave up."""
+        """Open (configure), retrying with backoff when the policy says reconnect; False when it gave up."""
         try:
             self.driver.open()
             return True
@@ -295,6 +295,7 @@ class Controller:
                 return False
             try:
                 self.driver.reconnect()
+                self.driver.activate()         # safe() may have switched the output off
             except DriverError as exc:
                 self.driver.last_error = str(exc)
                 delay = min(delay * 2.0, comms["backoff_max_s"])
@@ -351,6 +352,7 @@ class Controller:
                 watchdog = threading.Thread(target=self._watchdog, args=(wd_stop,), name="gma-ffc-watchdog",
                                             daemon=True)
                 watchdog.start()
+            self.driver.activate()        # output on just before the first command, never by a write
             with _realtime(self):
                 self._loop(stop_event, duration_s)
         except GmaError as exc:
@@ -365,10 +367,16 @@ class Controller:
         return self._summary()
 
     def _finish(self, opened: bool, watchdog: threading.Thread | None, wd_stop: threading.Event) -> dict[str, Any]:
-        """Safe current first, then stop the watchdog, flush telemetry, close the driver."""
+        """Safe current and output off (deactivate) first, then stop the watchdog, flush telemetry
+        and close the driver."""
         wd_stop.set()
         if opened and not self._at_safe:
             self._write_safe()
+        if opened:
+            try:
+                self.driver.deactivate()
+            except Exception as exc:   # after the safe current: the output may still be on, say so
+                self._raise_fault("deactivate_failed", f"output not switched off: {type(exc).__name__}: {exc}")
         if watchdog is not None:
             watchdog.join(timeout=2.0)
         self._save_learned()

@@ -1,9 +1,11 @@
 """The driver interface: what the controller needs from the hardware, and nothing more.
 
-Lifecycle: ``open()``, then per tick ``read(inputs)`` and ``write(current_A)``, then
-``safe(current_A)`` and ``close()``. Comms failures raise `DriverError`; the controller, not the
-driver, decides what is safe. ``read`` fills a preallocated `Inputs` record, so the hot path
-allocates no containers.
+Lifecycle, as ros2_control's hardware interface: ``open()`` (configure: connect), ``activate()``
+(switch the amplifier's output on, before the first command), then per tick ``read(inputs)`` and
+``write(current_A)``, then ``safe(current_A)``, ``deactivate()`` (output off) and ``close()``
+(cleanup). A write never switches the output on by itself. Comms failures raise `DriverError`;
+the controller, not the driver, decides what is safe. ``read`` fills a preallocated `Inputs`
+record, so the hot path allocates no containers.
 
 `DriverProtocol` is the contract as a type: everything the controller and config validation use.
 The `Driver` base class satisfies it (the shipped drivers subclass it and inherit its safe-write
@@ -77,7 +79,11 @@ class DriverProtocol(Protocol):
 
     def write(self, current_A: float) -> None: ...
 
+    def activate(self) -> None: ...
+
     def safe(self, current_A: float) -> None: ...
+
+    def deactivate(self) -> None: ...
 
     def close(self) -> None: ...
 
@@ -87,7 +93,8 @@ class DriverProtocol(Protocol):
 
 
 # Members a driver class must define itself, and those a constructed driver must have besides.
-CLASS_MEMBERS = ("kind", "validate_config", "open", "read", "write", "safe", "close", "reconnect", "health")
+CLASS_MEMBERS = ("kind", "validate_config", "open", "activate", "read", "write", "safe", "deactivate", "close",
+                 "reconnect", "health")
 INSTANCE_MEMBERS = CLASS_MEMBERS + ("simulated_clock_ok", "channels", "last_written_A", "errors", "last_error")
 
 
@@ -127,9 +134,14 @@ class Driver(ABC):
     def read(self, inputs: Inputs) -> None:
         """Fill `inputs` with this tick's measurements (NaN for what is missing)."""
 
+    def activate(self) -> None:
+        """Switch the amplifier's output on; called after `open()` (and after each reconnect)
+        before the first command. The default does nothing: a device without an output switch
+        is always on."""
+
     @abstractmethod
     def write(self, current_A: float) -> None:
-        """Command the amplifier's current."""
+        """Command the amplifier's current (the output stays as `activate`/`safe` left it)."""
 
     def safe(self, current_A: float) -> None:
         """Put the amplifier at its safe current; after a failure, reconnect once and try again,
@@ -148,6 +160,10 @@ class Driver(ABC):
         """One attempt at the safe current. The default writes it; drivers with an output-enable
         switch the output off too, and drivers without acknowledgements read it back."""
         self.write(current_A)
+
+    def deactivate(self) -> None:
+        """Switch the output off at the end of a run, after the safe current was written. The
+        default does nothing (no output switch)."""
 
     @abstractmethod
     def close(self) -> None:
