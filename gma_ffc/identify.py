@@ -68,6 +68,13 @@ class _Data:
     rows: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=int))
     start: int | None = None      # first fitted sample; None: after the burn-in sweep
 
+    @property
+    def stress(self) -> np.ndarray:
+        """`sigma` where a stress-dependent step needs it (`_prepare` gives all recordings a stress or none)."""
+        if self.sigma is None:
+            raise InputError(f"{self.name}: no stress_MPa column")
+        return self.sigma
+
 
 def slope_basis(z: np.ndarray, r: np.ndarray) -> np.ndarray:
     """phi_k(z): the length of z's path inside each linear piece of a dead-zone superposition.
@@ -227,12 +234,13 @@ class SDPIIdentifier:
         return self
 
     def _fit_all(self, recordings: Sequence[Recording], data: list[_Data], levels: list[float],
-                 per_rec_stress: list[float | None], r_h: np.ndarray, x_c: float,
+                 per_rec_stress: list[float], r_h: np.ndarray, x_c: float,
                  drive_range: tuple[float, float]) -> None:
         """Steps 1-3 (and the joint passes) on prepared data; sets model_ and report_."""
         x_lo, x_hi = drive_range
         notes_before = list(self.notes_)
         stress_dependent = len(levels) > 1
+        ref_level: float | None
         if stress_dependent:
             ref = self.reference_stress_MPa if self.reference_stress_MPa is not None else max(levels)
             ref_level = min(levels, key=lambda s: abs(s - ref))
@@ -243,8 +251,7 @@ class SDPIIdentifier:
             ref_level = levels[0] if levels else None
             ref_data = data
             if levels:   # the range the stress really covers (a few glitch rows do not count)
-                lo_s, hi_s = np.percentile(np.concatenate([d.sigma for d in data if d.sigma is not None]),
-                                           [0.5, 99.5])
+                lo_s, hi_s = np.percentile(np.concatenate([d.stress for d in data]), [0.5, 99.5])
             if levels and hi_s - lo_s > 2 * self.stress_tolerance_MPa:
                 note = (f"the stress varies ({lo_s:.3g}..{hi_s:.3g} MPa) but dwells at only "
                         f"one level ({levels[0]:.3g} MPa): fitted a stress-independent MPI; record at least "
@@ -267,8 +274,8 @@ class SDPIIdentifier:
 
         if stress_dependent:
             self._say("steps 2-3: quadratic dead-zone weights over stress")
-            s_lo = min(float(d.sigma.min()) for d in data)
-            s_hi = max(float(d.sigma.max()) for d in data)
+            s_lo = min(float(d.stress.min()) for d in data)
+            s_hi = max(float(d.stress.max()) for d in data)
             coeffs, out_coeffs = self._fit_stress(data, w_h, r_s, (s_lo, s_hi), len(levels))
             if self.joint_passes:
                 self._say("joint refinement of play weights over all stresses")
@@ -366,11 +373,12 @@ class SDPIIdentifier:
                               None if r.stress_MPa is None else r.stress_MPa.copy()))
         return data
 
-    def _stress_levels(self, data: list[_Data]) -> tuple[list[float], list[float | None]]:
+    def _stress_levels(self, data: list[_Data]) -> tuple[list[float], list[float]]:
+        """The stress levels held, and each recording's median stress; both empty without stress."""
         if data[0].sigma is None:
-            return [], [None] * len(data)
-        per_rec = [float(np.median(d.sigma)) for d in data]
-        samples = np.concatenate([d.sigma for d in data])
+            return [], []
+        per_rec = [float(np.median(d.stress)) for d in data]
+        samples = np.concatenate([d.stress for d in data])
         # A level is a stress held for a real share of the data; a few outlier rows (a load-cell
         # glitch) must neither create a level nor decide the reference recordings.
         bins, counts = np.unique(np.round(samples / self.stress_tolerance_MPa), return_counts=True)
@@ -397,12 +405,12 @@ class SDPIIdentifier:
             raise InputError("the displacement is constant: nothing to identify")
         l = (self.n_deadzone - 1) // 2
         r_inv = np.arange(-l, l + 1) * y_half / (l + 1)
-        H, Phi = [], []
+        H_parts, Phi_parts = [], []
         for d in data:
             rows = self._rows(d)
-            H.append(d.plays[rows])
-            Phi.append(slope_basis(d.y[rows] - y_c, r_inv))
-        H, Phi = np.vstack(H), np.vstack(Phi)
+            H_parts.append(d.plays[rows])
+            Phi_parts.append(slope_basis(d.y[rows] - y_c, r_inv))
+        H, Phi = np.vstack(H_parts), np.vstack(Phi_parts)
         c = l
         others = [k for k in range(self.n_deadzone) if k != c]
         A = np.hstack([H, -Phi[:, others]])
@@ -482,7 +490,7 @@ class SDPIIdentifier:
         blocks, targets = [], []
         for d in data:
             rows = self._rows(d)
-            u = (d.sigma[rows] - mid) / half
+            u = (d.stress[rows] - mid) / half
             powers = np.vstack([u ** p for p in range(degree + 1)]).T  # (rows, degree+1)
             phi = slope_basis(d.plays[rows] @ w_h, r_s)
             feats = (phi[:, None, :] * powers[:, :, None]).reshape(len(rows), -1)  # [p, k] order
@@ -569,7 +577,7 @@ class SDPIIdentifier:
         stress QP (play weights held). Keeps the best pass; each step cannot break Prop. 3.1."""
         rows = [self._rows(d) for d in data]
         H = np.vstack([d.plays[r] for d, r in zip(data, rows)])
-        sig = np.concatenate([d.sigma[r] for d, r in zip(data, rows)])
+        sig = np.concatenate([d.stress[r] for d, r in zip(data, rows)])
         y = np.concatenate([d.y[r] for d, r in zip(data, rows)])
         n_s = len(r_s)
         edges = np.r_[-np.inf, r_s[: (n_s - 1) // 2], r_s[(n_s + 1) // 2:], np.inf]

@@ -10,13 +10,16 @@ minimum on an interval is at an end or at the vertex.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
 from . import operators as ops
 from .errors import ModelError
 from .inverse import deadzone_inverse, play_inverse, play_inverse_initial_state
+
+if TYPE_CHECKING:
+    from .initial_state import ResolvedInitialState
 
 INITIAL_STATES = ("descending", "relaxed")
 
@@ -81,7 +84,11 @@ class SDPIModel:
         if self.stress_range_MPa is not None:
             lo, hi = (float(v) for v in self.stress_range_MPa)
             self.stress_range_MPa = (lo, hi)
-        self.drive_range = tuple(float(v) for v in self.drive_range)  # type: ignore[assignment]
+        try:
+            drive_lo, drive_hi = (float(v) for v in self.drive_range)
+        except (TypeError, ValueError):
+            raise ModelError(f"drive range must be two values (low, high), got {self.drive_range!r}") from None
+        self.drive_range = (drive_lo, drive_hi)
         self._validate_structure()
         r_inv, w_inv = play_inverse(self.play_thresholds, self.play_weights)
         lo, hi = self.stress_range_MPa if self.stress_range_MPa else (-np.inf, np.inf)
@@ -98,6 +105,11 @@ class SDPIModel:
     @property
     def kind(self) -> str:
         return "mpi" if self.stress_range_MPa is None else "sdpi"
+
+    @property
+    def preview_s(self) -> float:
+        """The model contract's transport delay: none in a rate-independent SDPI/MPI."""
+        return 0.0
 
     @property
     def n_play(self) -> int:
@@ -229,7 +241,7 @@ class SDPIModel:
         return state
 
     def resolve_initial_state(self, drive: Any, stress_MPa: Any = None, initial_state: Any = None,
-                              measured_um: Any = None, time_s: Any = None) -> Any:
+                              measured_um: Any = None, time_s: Any = None) -> ResolvedInitialState:
         """The `gma_ffc.initial_state` rule for a run on `drive` (default: the shared DEFAULT)."""
         from .initial_state import DEFAULT, ResolvedInitialState, resolve
 
@@ -314,7 +326,10 @@ class SDPIModel:
             s0 = float(s[0]) if self.stress_range_MPa else None
             if spec.kind in ("relaxed", "drive"):
                 p, _ = self.invert_initial_state(y, s0, 0)
-                v = float(p[0]) if spec.kind == "relaxed" else float(spec.drive) - self.input_offset
+                if spec.kind == "relaxed" or spec.drive is None:     # parse() gives "drive" a value
+                    v = float(p[0])
+                else:
+                    v = float(spec.drive) - self.input_offset
                 initial_play_state = np.full(self.n_play, v)
             else:
                 # The drive's first move can differ from the reference's when stress moves the
@@ -392,7 +407,7 @@ class SDPIModel:
                 input_offset=float(d.get("input_offset", 0.0)),
                 stress_range_MPa=None if sr is None else (float(sr[0]), float(sr[1])),
                 reference_stress_MPa=d.get("reference_stress_MPa"),
-                drive_range=tuple(float(v) for v in d.get("drive_range", (-np.inf, np.inf))),
+                drive_range=d.get("drive_range", (-np.inf, np.inf)),      # two floats, checked on construction
                 drive_name=str(d.get("drive_name", "current_A")),
                 initial_state=str(d.get("initial_state", "descending")),
                 provenance=dict(d.get("provenance") or {}),

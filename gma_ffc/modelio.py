@@ -14,6 +14,7 @@ import yaml
 
 from .atomic import atomic_write
 from .errors import ModelError
+from .protocols import Model
 from .yamlfile import read_yaml
 
 FORMAT = "gma-ffc-model"
@@ -36,7 +37,7 @@ def _class_for(kind: str) -> Any:
         raise ModelError(f"model kind {kind!r} is not available in this installation ({exc})") from None
 
 
-def model_from_dict(d: Any, source: str = "<dict>") -> Any:
+def model_from_dict(d: Any, source: str = "<dict>") -> Model:
     """Build the model a dict describes; ModelError (naming `source`) if it is not a valid model."""
     if not isinstance(d, dict):
         raise ModelError(f"{source}: not a model file (expected a YAML mapping)")
@@ -54,12 +55,12 @@ def model_from_dict(d: Any, source: str = "<dict>") -> Any:
         raise ModelError(f"{source}: {exc}") from None
 
 
-def load_model(path: str | Path) -> Any:
+def load_model(path: str | Path) -> Model:
     """Read and validate a model file of any registered kind."""
     return model_from_dict(read_yaml(path, "model file", ModelError), str(path))
 
 
-def save_model(model: Any, path: str | Path) -> None:
+def save_model(model: Model, path: str | Path) -> None:
     """Write `model.to_dict()` as YAML; the file appears whole or not at all."""
     d = model.to_dict()
     header = (f"# gma-ffc model ({d.get('kind')}). Units: drive in A (or V), displacement in um, stress in MPa,\n"

@@ -9,6 +9,7 @@ import numpy as np
 
 from .atomic import atomic_write
 from .identify import burn_in_end
+from .protocols import Model
 from .recordings import Recording
 
 
@@ -31,7 +32,7 @@ def save_figure(fig: Any, path: str | Path) -> None:
     plt.close(fig)
 
 
-def plot_loops(model: Any, recordings: Sequence[Recording], path: str | Path | None = None) -> Any:
+def plot_loops(model: Model, recordings: Sequence[Recording], path: str | Path | None = None) -> Any:
     """Measured vs modelled loops, one column per recording, and under each the residual over
     time on its own scale (the loops hide a 0.1 um misfit that the residual shows). Returns the
     figure when no path is given (tests check its layout)."""
@@ -39,12 +40,13 @@ def plot_loops(model: Any, recordings: Sequence[Recording], path: str | Path | N
     fig, axes = _figure(2, n, (3.6 * n + 1.4, 5.6))
     for k, rec in enumerate(recordings):
         ax, axr = axes[0, k], axes[1, k]
-        stress = rec.stress_MPa if getattr(model, "stress_range_MPa", None) is not None else None
-        pred = model.simulate(rec.time_s, rec.drive, stress, measured_um=rec.displacement_um)
+        measured = rec.column("displacement_um")
+        stress = rec.stress_MPa if model.stress_range_MPa is not None else None
+        pred = model.simulate(rec.time_s, rec.drive, stress, measured_um=measured)
         start = burn_in_end(rec.drive)
-        ax.plot(rec.drive[start:], rec.displacement_um[start:], lw=1.0, color="0.3", label="measured")
+        ax.plot(rec.drive[start:], measured[start:], lw=1.0, color="0.3", label="measured")
         ax.plot(rec.drive[start:], pred[start:], lw=1.0, color="tab:red", ls="--", label="model")
-        err = np.sqrt(np.mean((pred[start:] - rec.displacement_um[start:]) ** 2))
+        err = np.sqrt(np.mean((pred[start:] - measured[start:]) ** 2))
         # the same number, rounded the same way, as identify's table
         title = rec.name if rec.stress_MPa is None else f"{np.median(rec.stress_MPa):.4g} MPa"
         ax.set_title(f"{title}  (RMS {err:.3f} um)", fontsize=9)
@@ -52,7 +54,7 @@ def plot_loops(model: Any, recordings: Sequence[Recording], path: str | Path | N
         ax.set_xlabel(f"{rec.drive_name.rsplit('_', 1)[0]} ({unit})")
         ax.set_ylabel("displacement (um)")
         ax.grid(alpha=0.3)
-        axr.plot(rec.time_s, rec.displacement_um - pred, lw=0.7, color="tab:red")
+        axr.plot(rec.time_s, measured - pred, lw=0.7, color="tab:red")
         axr.axvspan(rec.time_s[0], rec.time_s[start], color="0.85", alpha=0.7)
         axr.set_xlabel("time (s)")
         axr.set_ylabel("measured - model (um)")

@@ -77,6 +77,13 @@ class Recording:
     def displacement_um(self) -> np.ndarray | None:
         return self.columns.get(DISPLACEMENT)
 
+    def column(self, name: str) -> np.ndarray:
+        """A column the caller cannot do without (`read_recording(require=...)` checked it);
+        RecordingError naming the file if it is missing after all."""
+        if name not in self.columns:
+            raise RecordingError(f"{self.source}: no {name} column")
+        return self.columns[name]
+
     @property
     def stress_MPa(self) -> np.ndarray | None:
         return self.columns.get(STRESS)

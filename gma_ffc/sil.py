@@ -12,12 +12,16 @@ import hashlib
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 import yaml
 
 from .recordings import Recording
+
+if TYPE_CHECKING:
+    from .model import SDPIModel
+    from .protocols import Model
 
 PAPER_STRESSES_MPA = (-11.3, -15.2, -19.1, -24.0)
 
@@ -41,7 +45,7 @@ def identification_recordings(stresses_MPa: Sequence[float] = PAPER_STRESSES_MPA
     return out
 
 
-def fit_sdpi_and_mpi(recordings: Sequence[Recording], mpi_stress_MPa: float = -11.3) -> tuple[Any, Any]:
+def fit_sdpi_and_mpi(recordings: Sequence[Recording], mpi_stress_MPa: float = -11.3) -> tuple[SDPIModel, SDPIModel]:
     """SDPI from all recordings; MPI from the one nearest `mpi_stress_MPa` (the paper's -11.3 MPa)."""
     from .identify import SDPIIdentifier
 
@@ -61,7 +65,7 @@ def tracking_rms_um(rec: Recording, skip_s: float = 0.0) -> float:
     return float(np.sqrt(np.mean(err * err)))
 
 
-def cached_sdpi_and_mpi(cache_dir: str | Path, plant_cfg: Any = None) -> tuple[Any, Any]:
+def cached_sdpi_and_mpi(cache_dir: str | Path, plant_cfg: Any = None) -> tuple[Model, Model]:
     """`fit_sdpi_and_mpi(identification_recordings(plant_cfg))`, saved as model files in
     `cache_dir`, keyed by the source of the plant and the identifier and by the plant config, so
     parallel test workers fit only once."""

@@ -57,7 +57,7 @@ def _both(*fns: Callable[[PlantConfig], None]) -> Callable[[PlantConfig], None]:
 def cases() -> list[Case]:
     out: list[Case] = []
     seed = 100
-    grades = {
+    grades: dict[str, list[tuple[str, dict[str, Any]]]] = {
         "rate_dependence": [("eddy", {"enabled": True, "time_constant_ms": v}) for v in (0.6, 1.5, 4.0)],
         "time_delay": [("delay", {"enabled": True, "delay_ms": v}) for v in (0.5, 1.5, 4.0)],
         "mechanical_dynamics": [("dynamics", {"enabled": True, "damping_ratio": v}) for v in (0.3, 0.12, 0.04)],

@@ -146,6 +146,10 @@ def test_stress_outside_model_range_is_clamped_and_reported(models, tmp_path):
     assert s["state"] == "stopped" and s["stress_clamped_ticks"] > 400
     assert "stress_out_of_model_range" in s["faults"]
     assert "clamped" in s["fault_messages"]["stress_out_of_model_range"]
+    # never silent (issue 10): a status flag and a telemetry column too, not only a fault message
+    assert s["outside_model"]["stress_ticks"] == s["stress_clamped_ticks"]
+    outside = read_recording(cfg.telemetry["path"]).columns["outside_model"].astype(int)
+    assert np.count_nonzero(outside & 2) >= s["stress_clamped_ticks"]
 
 
 def test_stress_outside_model_range_can_fault_with_a_ramp(models, tmp_path):

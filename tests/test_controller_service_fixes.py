@@ -78,6 +78,30 @@ def test_a_second_controller_on_the_same_telemetry_file_is_refused_naming_the_fi
     assert b"\0" not in (tmp_path / "tel.csv").read_bytes()
 
 
+def test_a_controller_in_another_process_is_refused_naming_its_pid(tmp_path):
+    """As on the rig: the second writer is another process (`gma-ffc start` with another runtime
+    directory). A child holds the telemetry file as a running controller does; the controller
+    started here is refused, names the child's pid, and writes nothing into the file."""
+    tel = tmp_path / "tel.csv"
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys; from gma_ffc.control.telemetry import Telemetry\n"
+         "t = Telemetry(sys.argv[1], ['time_s', 'x'], {}, capacity=64); t.start()\n"
+         "print('holding', flush=True); sys.stdin.readline(); t.close()", str(tel)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "holding"
+        before = tel.read_bytes() if tel.exists() else b""
+        status = Controller(cfg_for(tmp_path, clock="simulated")).run(duration_s=0.1)
+        assert not status["ok"]
+        assert any(f"another controller (pid {holder.pid})" in m for m in status["fault_messages"].values()), \
+            status["fault_messages"]
+        assert (tel.read_bytes() if tel.exists() else b"") == before
+    finally:
+        holder.communicate("\n", timeout=60)
+    assert holder.returncode == 0
+
+
 def test_duplicate_config_keys_are_refused_naming_the_key_and_both_lines(tmp_path):
     (tmp_path / "cfg.yaml").write_text(f"rate_hz: 100\nmodel: {MODEL}\nrate_hz: 200\n")
     with pytest.raises(ConfigError, match="'rate_hz' appears twice, on lines 1 and 3"):

@@ -55,6 +55,7 @@ def _mutate(tmp_path: Path, model: SDPIModel, change) -> Path:
     (lambda d: d["deadzone"]["weight_coeffs"].__setitem__(2, [-1.0, 0.0, 0.0]), "Proposition 3.1"),
     (lambda d: d["play"]["weights"].__setitem__(0, float("nan")), "finite"),
     (lambda d: d.update(stress_range_MPa=[-10.0, -20.0]), "low < high"),
+    (lambda d: d.update(drive_range=[0.0, 1.5, 3.0]), "drive range must be two values"),
 ])
 def test_inconsistent_files_are_refused_with_the_reason(tmp_path: Path, model: SDPIModel, change, message) -> None:
     path = _mutate(tmp_path, model, change)

@@ -9,6 +9,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import InputError
+from ..protocols import Model
 from ..recordings import Recording, read_recording
 
 
@@ -28,21 +29,21 @@ def add_group_option(p: argparse.ArgumentParser) -> None:
                    help="for .tdms and .h5 recordings: the group holding the channels (needed when there are several)")
 
 
-def stress_for(model: Any, rec: Recording, override: float | None) -> np.ndarray | float | None:
+def stress_for(model: Model, rec: Recording, override: float | None) -> np.ndarray | float | None:
     """The stress to run `model` at for `rec`: --stress wins, else the recording's column."""
     if override is not None:
         return float(override)
     if rec.stress_MPa is not None:
         return rec.stress_MPa
-    if getattr(model, "stress_range_MPa", None) is not None:
+    if model.stress_range_MPa is not None:
         lo, hi = model.stress_range_MPa
         raise InputError(f"{rec.source}: no stress_MPa column, and this {model.kind} model depends on stress "
                          f"(identified on {lo:.3g}..{hi:.3g} MPa); add the column or pass --stress MPA")
     return None
 
 
-def check_drive_name(model: Any, rec: Recording) -> None:
-    name = getattr(model, "drive_name", "current_A")
+def check_drive_name(model: Model, rec: Recording) -> None:
+    name = model.drive_name
     if rec.drive_name != name:
         raise InputError(f"{rec.source}: drive column is {rec.drive_name} but the model was identified on {name}")
 

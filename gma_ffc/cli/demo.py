@@ -16,11 +16,16 @@ import math
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
 from ..errors import FaultError, InputError
+
+if TYPE_CHECKING:
+    from ..model import SDPIModel
+    from ..protocols import Model
+    from ..recordings import Recording
 
 IDENTIFICATION_STRESSES_MPA = (-11.3, -15.2, -19.1, -24.0)   # the paper's four
 MPI_STRESS_MPA = -11.3                                        # the paper's MPI: unloaded rod only
@@ -126,13 +131,13 @@ def _record(folder: Path, seed: int) -> list[Path]:
     return write_recordings("identification", folder, seed=seed, stresses=IDENTIFICATION_STRESSES_MPA)
 
 
-def _identify(recordings: Sequence[Any]) -> tuple[Any, Any]:
+def _identify(recordings: Sequence[Recording]) -> tuple[SDPIModel, SDPIModel]:
     """SDPI from every stress; MPI from the -11.3 MPa run with its stress column dropped."""
     from ..identify import SDPIIdentifier
     from ..recordings import Recording
 
     sdpi = SDPIIdentifier(n_play=10, n_deadzone=7).fit(list(recordings)).model_
-    base = min(recordings, key=lambda r: abs(float(np.median(r.stress_MPa)) - MPI_STRESS_MPA))
+    base = min(recordings, key=lambda r: abs(float(np.median(r.column("stress_MPa"))) - MPI_STRESS_MPA))
     no_stress = Recording({k: v for k, v in base.columns.items() if k != "stress_MPa"},
                           dict(base.metadata), base.source)
     mpi = SDPIIdentifier(n_play=10, n_deadzone=7).fit([no_stress]).model_
@@ -180,9 +185,9 @@ def _track(out: Path, name: str, stress: float, seed: int) -> TrackingResult:
     tel_rel = Path("telemetry") / f"track_{tag}.csv"
     rec = read_recording(out / tel_rel, require=("time_s", "drive", "displacement_um", "reference_um"))
     keep = (rec.time_s >= rec.time_s[0] + settle_s) & (rec.time_s <= rec.time_s[0] + track_s)
-    err = desired_um(rec.time_s[keep] - rec.time_s[0]) - rec.displacement_um[keep]
+    err = desired_um(rec.time_s[keep] - rec.time_s[0]) - rec.column("displacement_um")[keep]
     return TrackingResult(stress, name, float(np.sqrt(np.mean(err * err))), float(np.max(np.abs(err))),
-                          float(np.median(rec.stress_MPa)), int(summary["ticks"]), str(tel_rel),
+                          float(np.median(rec.column("stress_MPa"))), int(summary["ticks"]), str(tel_rel),
                           str(cfg_path.relative_to(out)))
 
 
@@ -251,7 +256,7 @@ def _write_results(path: Path, results: Sequence[TrackingResult]) -> None:
         fh.write("\n")
 
 
-def _plot_fit(model: Any, recordings: Sequence[Any], path: Path) -> None:
+def _plot_fit(model: Model, recordings: Sequence[Recording], path: Path) -> None:
     from ..plots import plot_loops
 
     plot_loops(model, recordings, path)
@@ -278,9 +283,10 @@ def _plot_tracking(runs: Sequence[TrackingResult], path: Path) -> None:
         label = run.model.upper().replace("+LEARNING", " + learning")
         if i == 0:
             top.plot(t_axis, ref, color="0.2", lw=1.2, ls="--", label="reference")
-        top.plot(t_axis, rec.displacement_um[keep], color=colours[run.model], lw=1.0,
+        measured = rec.column("displacement_um")
+        top.plot(t_axis, measured[keep], color=colours[run.model], lw=1.0,
                  label=f"{label} feedforward")
-        bottom.plot(t_axis, ref - rec.displacement_um[keep], color=colours[run.model], lw=1.0,
+        bottom.plot(t_axis, ref - measured[keep], color=colours[run.model], lw=1.0,
                     label=f"{label}: RMS {run.rms_um:.3f} um")
     stress = runs[0].stress_MPa if runs else float("nan")
     top.set_title(f"Tracking a {SINE['frequency_hz']:g} Hz sine at {stress:g} MPa (simulated rig)", fontsize=11)

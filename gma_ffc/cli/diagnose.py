@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._common import add_group_option, add_initial_state_option
+from ._common import add_group_option, add_initial_state_option, check_drive_name
 
 HELP = """\
 Compare a model with recordings, locate where they differ (time windows, frequency bands, drive
@@ -62,10 +62,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.model} is already an extended model; diagnose its base sdpi/mpi model instead")
     recs = [read_recording(p, require=("time_s", "drive", "displacement_um"), group=args.group)
             for p in args.recordings]
-    name = getattr(model, "drive_name", "current_A")
     for rec in recs:
-        if rec.drive_name != name:
-            raise InputError(f"{rec.source}: drive column is {rec.drive_name} but the model was identified on {name}")
+        check_drive_name(model, rec)
     with Progress("diagnose") as prog:
         dg = diagnose(model, recs, max_effects=args.max_effects, progress=lambda msg: prog.advance(note=msg),
                       initial_state=args.initial_state)

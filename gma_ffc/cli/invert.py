@@ -8,6 +8,7 @@ import sys
 import numpy as np
 
 from ..errors import InputError
+from ..model import SDPIModel
 from ..modelio import load_model
 from ..recordings import Recording, read_recording, write_recording
 from ..atomic import refuse_overwrite
@@ -56,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     stress = stress_for(model, rec, args.stress)
     if args.initial_drive is not None:
         kwargs, how = {"initial_drive": args.initial_drive}, f"relaxed at drive {args.initial_drive:g}"
-    elif getattr(model, "kind", "") in ("sdpi", "mpi"):
+    elif isinstance(model, SDPIModel):          # sdpi and mpi: the inverse's own start is explained
         kwargs = {"initial_state": args.initial_state}
         how = (model.invert_initial_state(rec.columns["reference_um"], None if stress is None else
                                           float(np.ravel(stress)[0]))[1]
@@ -76,13 +77,13 @@ def run(args: argparse.Namespace) -> int:
                             f"last at t = {rec.time_s[where[-1]]:.6g} s: the actuator will not follow the "
                             "reference there")
         drive = np.clip(drive, lo, hi)
-    name = getattr(model, "drive_name", "current_A")
+    name = model.drive_name
     cols = {"time_s": rec.time_s, name: drive, "reference_um": rec.columns["reference_um"]}
     if stress is not None:
         cols["stress_MPa"] = np.broadcast_to(np.asarray(stress, float), rec.time_s.shape)
     meta = {"source": f"gma-ffc invert --model {args.model}", "input": rec.name, "model_kind": model.kind}
     write_recording(args.output, Recording(cols, meta, args.output))
-    lo, hi = getattr(model, "drive_range", (-np.inf, np.inf))
+    lo, hi = model.drive_range
     outside = int(np.count_nonzero((drive < lo - 1e-9) | (drive > hi + 1e-9)))
     if outside:
         print(f"warning: the drive leaves the identified range {lo:.4g}..{hi:.4g} at {outside} of "

@@ -26,9 +26,11 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from ..drivers import Driver, DriverError, Inputs, driver_class
-from ..drivers.base import CURRENT, DISPLACEMENT, FORCE, STRESS
+from ..drivers import Driver, DriverError, DriverProtocol, Inputs, driver_class
+from ..drivers.base import CURRENT, DISPLACEMENT, FORCE, INSTANCE_MEMBERS, STRESS, missing_members
 from ..errors import ConfigError, GmaError
+from ..model import InverseStepper as SDPIInverseStepper
+from ..protocols import InverseStepper, Model
 from . import safety
 from .law import FeedforwardController
 from .learning import RepetitiveLearner, model_gain_table, reference_period_s
@@ -73,7 +75,7 @@ class Controller:
     the config. `run` returns a summary dict; `summary["ok"]` is False when it ended on a fault.
     """
 
-    def __init__(self, cfg: ControllerConfig, *, model: Any = None, driver: Driver | None = None,
+    def __init__(self, cfg: ControllerConfig, *, model: Model | None = None, driver: DriverProtocol | None = None,
                  clock: Any = None) -> None:
         self.cfg = cfg
         self.period_s = cfg.period_s
@@ -81,15 +83,18 @@ class Controller:
             from ..modelio import load_model
 
             model = load_model(cfg.model)
-        self.model = model
+        self.model: Model = model
         if clock is None:
             # Spin at most half a period: a loop that never sleeps at SCHED_FIFO would hit the
             # kernel's RT throttling (50 ms stalls per second) and starve everything else.
             clock = SimulatedClock() if cfg.clock == "simulated" else \
                 MonotonicClock(min(cfg.scheduler["spin_us"] * 1e-6, 0.5 * self.period_s))
         self.clock = clock
-        self.driver = driver if driver is not None else \
+        self.driver: DriverProtocol = driver if driver is not None else \
             driver_class(cfg.driver["kind"])(cfg.driver, self.period_s)
+        if not isinstance(self.driver, Driver) and missing_members(self.driver, INSTANCE_MEMBERS):
+            raise ConfigError(f"driver '{cfg.driver['kind']}' lacks the driver contract's "
+                              f"{', '.join(missing_members(self.driver, INSTANCE_MEMBERS))}")
         want = FORCE if cfg.stress["source"] == "force" else STRESS
         if self.driver.channels and want not in self.driver.channels:
             raise ConfigError(f"config key 'stress.source' is {cfg.stress['source']!r} but driver "
@@ -97,14 +102,14 @@ class Controller:
                               f"{', '.join(self.driver.channels)})")
         # The command uses the reference `lead` ahead (configured latency + the model's delay
         # preview); telemetry records the reference for *now*, so tracking error is y(t) - r(t).
-        self.reference: Reference = build_reference(cfg.reference, getattr(self.model, "preview_s", 0.0))
+        self.reference: Reference = build_reference(cfg.reference, model.preview_s)
         self.reference_now: Reference = build_reference({**cfg.reference, "lead_s": 0.0})
         lim = cfg.limits
         self.safe_A = lim["safe_current_A"]
         self.limiter = safety.Limiter(lim["current_min_A"], lim["current_max_A"], lim["slew_A_per_s"],
                                       self.period_s, self.safe_A)
         self.monitor = self._make_monitor(cfg)
-        self.stepper = model.inverse_stepper(self.period_s, initial_drive=self.safe_A)
+        self.stepper: InverseStepper = model.inverse_stepper(self.period_s, initial_drive=self.safe_A)
         self.initial_state = start_stepper(self.stepper, model, self.safe_A)
         self.learner = make_learner(cfg, model, self.reference)
         self._set_stress_range(model)
@@ -146,13 +151,13 @@ class Controller:
         return FeedforwardController(self.reference, self.stepper, self.learner, (self.drive_lo, self.drive_hi),
                                      self.limits_beyond)
 
-    def _set_drive_range(self, model: Any) -> None:
-        lo, hi = getattr(model, "drive_range", (-math.inf, math.inf))
+    def _set_drive_range(self, model: Model) -> None:
+        lo, hi = model.drive_range
         pad = 0.01 * (hi - lo) if math.isfinite(hi - lo) else 0.0    # rounding at the identified extremes
         self.drive_lo, self.drive_hi = float(lo) - pad, float(hi) + pad
 
-    def _set_stress_range(self, model: Any) -> None:
-        rng = getattr(model, "stress_range_MPa", None)
+    def _set_stress_range(self, model: Model) -> None:
+        rng = model.stress_range_MPa
         self.stress_lo, self.stress_hi = (float(rng[0]), float(rng[1])) if rng is not None else (-math.inf, math.inf)
         self.stress_policy_fault = self.cfg.stress["out_of_range"] == "fault"
         self._set_drive_range(model)
@@ -163,7 +168,7 @@ class Controller:
         if self._stop_reason is None:
             self._stop_reason = reason
 
-    def reload(self, new_cfg: ControllerConfig, model: Any = None) -> None:
+    def reload(self, new_cfg: ControllerConfig, model: Model | None = None) -> None:
         """Swap model, reference, limits and sensor settings at the next tick, bumplessly.
 
         Everything is built and validated here, in the caller's thread; on any error the old
@@ -178,9 +183,9 @@ class Controller:
             from ..modelio import load_model
 
             model = load_model(new_cfg.model)
-        reference = (build_reference(new_cfg.reference, getattr(model, "preview_s", 0.0)),
+        reference = (build_reference(new_cfg.reference, model.preview_s),
                      build_reference({**new_cfg.reference, "lead_s": 0.0}))
-        rng = getattr(model, "stress_range_MPa", None)
+        rng = model.stress_range_MPa
         _warm_up(model, self.period_s, *(rng if rng is not None else (-11.3, -11.3)))
         last = self.limiter.last
         stepper = model.inverse_stepper(self.period_s, initial_drive=last)
@@ -265,7 +270,7 @@ class Controller:
         return cols
 
     def _open_driver(self, stop_event: threading.Event) -> bool:
-        """Open, retrying with backoff when the policy says reconnect; False when it gave up."""
+        """Open (configure), retrying with backoff when the policy says reconnect; False when it gave up."""
         try:
             self.driver.open()
             return True
@@ -290,6 +295,7 @@ class Controller:
                 return False
             try:
                 self.driver.reconnect()
+                self.driver.activate()         # safe() may have switched the output off
             except DriverError as exc:
                 self.driver.last_error = str(exc)
                 delay = min(delay * 2.0, comms["backoff_max_s"])
@@ -334,7 +340,7 @@ class Controller:
                 {"source": "gma-ffc controller", "start_unix_s": self.started_unix_s,
                  "sample_rate_hz": self.cfg.rate_hz, "driver": self.cfg.driver["kind"],
                  "command_lead_s": self.reference.lead_s,
-                 "model_kind": getattr(self.model, "kind", "?"), "config": self.cfg.source,
+                 "model_kind": self.model.kind, "config": self.cfg.source,
                  "current_A_is": "measured (commanded where a reading is missing)"
                  if CURRENT in self.driver.channels else "commanded"},
                 capacity=int(tcfg["buffer_s"] * self.cfg.rate_hz), flush_interval_s=tcfg["flush_interval_s"],
@@ -346,6 +352,7 @@ class Controller:
                 watchdog = threading.Thread(target=self._watchdog, args=(wd_stop,), name="gma-ffc-watchdog",
                                             daemon=True)
                 watchdog.start()
+            self.driver.activate()        # output on just before the first command, never by a write
             with _realtime(self):
                 self._loop(stop_event, duration_s)
         except GmaError as exc:
@@ -360,10 +367,16 @@ class Controller:
         return self._summary()
 
     def _finish(self, opened: bool, watchdog: threading.Thread | None, wd_stop: threading.Event) -> dict[str, Any]:
-        """Safe current first, then stop the watchdog, flush telemetry, close the driver."""
+        """Safe current and output off (deactivate) first, then stop the watchdog, flush telemetry
+        and close the driver."""
         wd_stop.set()
         if opened and not self._at_safe:
             self._write_safe()
+        if opened:
+            try:
+                self.driver.deactivate()
+            except Exception as exc:   # after the safe current: the output may still be on, say so
+                self._raise_fault("deactivate_failed", f"output not switched off: {type(exc).__name__}: {exc}")
         if watchdog is not None:
             watchdog.join(timeout=2.0)
         self._save_learned()
@@ -622,7 +635,7 @@ class Controller:
             "reconnects": self.reconnects,
             "exit_reason": self.exit_reason,
             "started_unix_s": self.started_unix_s,
-            "model_kind": getattr(self.model, "kind", None),
+            "model_kind": self.model.kind,
             "initial_state": self.initial_state,
             "learning": {"enabled": False} if self.learner is None else self.learner.status(),
             "driver": self.driver.health(),
@@ -670,19 +683,19 @@ def _realtime(ctrl: Controller) -> Iterator[None]:
         sys.setswitchinterval(old_interval)
 
 
-def _warm_up(model: Any, dt: float, lo: float, hi: float) -> None:
+def _warm_up(model: Model, dt: float, lo: float, hi: float) -> None:
     """Call a throwaway stepper once so JIT compilation / cache loading happens before tick 1."""
     mid = 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else -11.3
     model.inverse_stepper(dt, initial_drive=0.0).step(0.0, mid)
 
 
-def start_stepper(stepper: Any, model: Any, safe_A: float) -> str:
+def start_stepper(stepper: InverseStepper, model: Model, safe_A: float) -> str:
     """Put the inverse stepper in the shared default start (`gma_ffc.initial_state`): the loop
     starts at the safe current and its drive first moves towards the middle of the identified
     range, so the plays start consistent with that first monotone stretch. Returns how."""
-    if getattr(model, "kind", None) not in ("sdpi", "mpi"):
+    if not isinstance(stepper, SDPIInverseStepper):       # only the SDPI/MPI stepper takes a play state
         stepper.reset(safe_A)
-        return f"relaxed at the safe current ({safe_A:g}), the {getattr(model, 'kind', '?')} model's own start"
+        return f"relaxed at the safe current ({safe_A:g}), the {model.kind} model's own start"
     lo, hi = model.drive_range
     target = 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else safe_A + 1.0
     start = model.resolve_initial_state(np.array([safe_A, target if target != safe_A else safe_A + 1.0]))
@@ -690,7 +703,7 @@ def start_stepper(stepper: Any, model: Any, safe_A: float) -> str:
     return f"{start.how.split(';')[0]}, from the safe current {safe_A:g}"
 
 
-def make_learner(cfg: ControllerConfig, model: Any, reference: Reference) -> RepetitiveLearner | None:
+def make_learner(cfg: ControllerConfig, model: Model, reference: Reference) -> RepetitiveLearner | None:
     """The repetitive learner the config asks for (None when learning is off), with the saved
     correction of an earlier run when `learning.file` holds one learned for this model."""
     lc = cfg.learning
@@ -707,7 +720,7 @@ def make_learner(cfg: ControllerConfig, model: Any, reference: Reference) -> Rep
     return learner
 
 
-def model_fingerprint(model: Any) -> str:
+def model_fingerprint(model: Model) -> str:
     """A short hash of the model's data: a learned correction belongs to the model it was learned through."""
     import hashlib
     import json

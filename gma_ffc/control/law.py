@@ -9,7 +9,12 @@ calls `update` once per tick. Tests run it alone against the batch inverse.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..protocols import InverseStepper
+    from .learning import RepetitiveLearner
+    from .reference import Reference
 
 BEYOND_POLICIES = ("warn", "clamp", "fault")
 
@@ -25,7 +30,7 @@ class FeedforwardController:
 
     __slots__ = ("reference", "stepper", "learner", "lo", "hi", "policy", "beyond", "raw", "correction")
 
-    def __init__(self, reference: Any, stepper: Any, learner: Any = None,
+    def __init__(self, reference: Reference, stepper: InverseStepper, learner: RepetitiveLearner | None = None,
                  drive_range: tuple[float, float] = (-math.inf, math.inf), policy: str = "warn") -> None:
         if policy not in BEYOND_POLICIES:
             raise ValueError(f"policy must be one of {BEYOND_POLICIES}, got {policy!r}")

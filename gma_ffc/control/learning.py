@@ -28,12 +28,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
 import numpy as np
 from numba import njit
 
 from ..errors import ConfigError
+
+if TYPE_CHECKING:
+    from ..protocols import Model
 
 TREND = 64                 # per-period RMS values kept for the status
 
@@ -359,15 +362,14 @@ class RepetitiveLearner:
         self.last_event = f"loaded {source} ({d.get('learned_periods', '?')} periods learned)"
 
 
-def model_gain_table(model: Any, n: int = 33) -> Any:
+def model_gain_table(model: Model, n: int = 33) -> Callable[[float], float] | None:
     """Plant gain against stress from the model: the stroke of a full sweep of its drive range.
 
     Returns a function stress -> gain (interpolated in a table built once here, so the
     per-period call is cheap); None for a stress-independent model.
     """
-    rng = getattr(model, "stress_range_MPa", None)
-    drive = getattr(model, "drive_range", None)
-    if rng is None or drive is None or not all(math.isfinite(v) for v in drive):
+    rng, drive = model.stress_range_MPa, model.drive_range
+    if rng is None or not all(math.isfinite(v) for v in drive):
         return None
     lo, hi = float(rng[0]), float(rng[1])
     stresses = np.linspace(lo, hi, n)

@@ -1,9 +1,15 @@
 """The driver interface: what the controller needs from the hardware, and nothing more.
 
-Lifecycle: ``open()``, then per tick ``read(inputs)`` and ``write(current_A)``, then
-``safe(current_A)`` and ``close()``. Comms failures raise `DriverError`; the controller, not the
-driver, decides what is safe. ``read`` fills a preallocated `Inputs` record, so the hot path
-allocates no containers.
+Lifecycle, as ros2_control's hardware interface: ``open()`` (configure: connect), ``activate()``
+(switch the amplifier's output on, before the first command), then per tick ``read(inputs)`` and
+``write(current_A)``, then ``safe(current_A)``, ``deactivate()`` (output off) and ``close()``
+(cleanup). A write never switches the output on by itself. Comms failures raise `DriverError`;
+the controller, not the driver, decides what is safe. ``read`` fills a preallocated `Inputs`
+record, so the hot path allocates no containers.
+
+`DriverProtocol` is the contract as a type: everything the controller and config validation use.
+The `Driver` base class satisfies it (the shipped drivers subclass it and inherit its safe-write
+retry, reconnect and health report); a lab's plugin may instead implement every member itself.
 """
 
 from __future__ import annotations
@@ -11,7 +17,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 from ..errors import FaultError
 
@@ -51,6 +57,52 @@ class Inputs:
         self.displacement_um = NAN
 
 
+@runtime_checkable
+class DriverProtocol(Protocol):
+    """What the controller needs from a driver object, whether or not it subclasses `Driver`."""
+
+    kind: str
+    simulated_clock_ok: bool         # True only for a device simulated in-process (clock: simulated)
+    channels: tuple[str, ...]        # which of CHANNELS `read` fills, set by `open()` at the latest
+    last_written_A: float
+    errors: int
+    last_error: str                  # the controller sets it too, from a failed reconnect
+
+    def __init__(self, cfg: dict[str, Any], period_s: float) -> None: ...
+
+    @classmethod
+    def validate_config(cls, section: dict[str, Any], prefix: str, base_dir: Path | None) -> dict[str, Any]: ...
+
+    def open(self) -> None: ...
+
+    def read(self, inputs: Inputs) -> None: ...
+
+    def write(self, current_A: float) -> None: ...
+
+    def activate(self) -> None: ...
+
+    def safe(self, current_A: float) -> None: ...
+
+    def deactivate(self) -> None: ...
+
+    def close(self) -> None: ...
+
+    def reconnect(self) -> None: ...
+
+    def health(self) -> dict[str, Any]: ...
+
+
+# Members a driver class must define itself, and those a constructed driver must have besides.
+CLASS_MEMBERS = ("kind", "validate_config", "open", "activate", "read", "write", "safe", "deactivate", "close",
+                 "reconnect", "health")
+INSTANCE_MEMBERS = CLASS_MEMBERS + ("simulated_clock_ok", "channels", "last_written_A", "errors", "last_error")
+
+
+def missing_members(obj: object, names: tuple[str, ...] = CLASS_MEMBERS) -> list[str]:
+    """The contract's members `obj` (a driver class or instance) lacks, in contract order."""
+    return [n for n in names if not hasattr(obj, n)]
+
+
 class Driver(ABC):
     """Base class of every driver plugin.
 
@@ -82,9 +134,14 @@ class Driver(ABC):
     def read(self, inputs: Inputs) -> None:
         """Fill `inputs` with this tick's measurements (NaN for what is missing)."""
 
+    def activate(self) -> None:
+        """Switch the amplifier's output on; called after `open()` (and after each reconnect)
+        before the first command. The default does nothing: a device without an output switch
+        is always on."""
+
     @abstractmethod
     def write(self, current_A: float) -> None:
-        """Command the amplifier's current."""
+        """Command the amplifier's current (the output stays as `activate`/`safe` left it)."""
 
     def safe(self, current_A: float) -> None:
         """Put the amplifier at its safe current; after a failure, reconnect once and try again,
@@ -103,6 +160,10 @@ class Driver(ABC):
         """One attempt at the safe current. The default writes it; drivers with an output-enable
         switch the output off too, and drivers without acknowledgements read it back."""
         self.write(current_A)
+
+    def deactivate(self) -> None:
+        """Switch the output off at the end of a run, after the safe current was written. The
+        default does nothing (no output switch)."""
 
     @abstractmethod
     def close(self) -> None:

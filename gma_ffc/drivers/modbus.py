@@ -6,7 +6,7 @@ and unit ids may differ per channel inside a map. The controller's signals are f
 name across all devices:
 
     current_setpoint_A   required, writable (holding register)
-    output_enable        optional coil: switched on with the first command, off by `safe()`
+    output_enable        optional coil: switched on by `activate()`, off by `safe()` and `deactivate()`
     force_N | stress_MPa the load cell (one of them is required)
     current_A, displacement_um   optional measurements
 
@@ -231,8 +231,16 @@ class ModbusDriver(Driver):
             self._call(dev, f"write setpoint {ch.address}", client.write_registers if client else None,
                        ch.address, words, device_id=ch.unit_id)
         self.last_written_A = current_A
-        if not self.enabled and self._enable is not None:
-            self._set_enable(True)
+
+    def activate(self) -> None:
+        """Output enable on (when the map has one), before the first command."""
+        self._set_enable(True)
+
+    def deactivate(self) -> None:
+        """Output enable off (when the map has one) at the end of a run, unless `safe()` already
+        switched it off (`disable_on_safe`)."""
+        if self.enabled:
+            self._set_enable(False)
 
     def _set_enable(self, on: bool) -> None:
         if self._enable is None:
@@ -251,12 +259,7 @@ class ModbusDriver(Driver):
 
     def _safe_once(self, current_A: float) -> None:
         """Setpoint to the safe current, then output off (when configured and present)."""
-        was_enabled = self.enabled
-        self.enabled = True          # do not switch the output on from inside safe()
-        try:
-            self.write(current_A)
-        finally:
-            self.enabled = was_enabled
+        self.write(current_A)
         if self._enable is not None and self.cfg["disable_on_safe"]:
             self._set_enable(False)
 

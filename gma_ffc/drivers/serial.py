@@ -166,9 +166,18 @@ class SerialDriver(Driver):
             raise self._fail(f"refusing to send a non-finite current {current_A!r}", "comms")
         self._send(self.cfg["write"].format(current_A=current_A).encode() + self.eol)
         self.last_written_A = current_A
-        if not self.enabled and self.cfg["enable"]:
+
+    def activate(self) -> None:
+        """The configured enable command (e.g. OUTP ON), before the first command."""
+        if self.cfg["enable"]:
             self._send(self.cfg["enable"].encode() + self.eol)
-            self.enabled = True
+        self.enabled = True
+
+    def deactivate(self) -> None:
+        """The configured disable command at the end of a run, unless `safe()` already sent it."""
+        if self.enabled and self.cfg["disable"]:
+            self._send(self.cfg["disable"].encode() + self.eol)
+        self.enabled = False
 
     def _safe_once(self, current_A: float) -> None:
         """Write, switch off, and read the setpoint back: a serial write has no acknowledgement,

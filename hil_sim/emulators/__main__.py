@@ -99,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
         rig.set_load_mass(args.load_mass)
     for fault in faults:
         rig.faults.set(fault)
-    if args.kind == "serial":
+    device: SerialAmplifierEmulator | ModbusEmulator
+    if register_map is None:
         device = SerialAmplifierEmulator(rig, seed=args.seed)
     else:
         device = ModbusEmulator(rig, register_map, transport="tcp" if args.kind == "modbus-tcp" else "rtu",

@@ -38,7 +38,7 @@ def _rtu_frame(unit: int, function: int, address: int, count: int, words: list[i
     """An RTU request (FC4 read or FC16 write) and the length of its reply."""
     body = bytes([unit, function]) + address.to_bytes(2, "big") + count.to_bytes(2, "big")
     if function == 16:
-        body += bytes([2 * count]) + b"".join(w.to_bytes(2, "big") for w in words)
+        body += bytes([2 * count]) + b"".join(w.to_bytes(2, "big") for w in words or ())
         return body + _crc16(body), 8
     return body + _crc16(body), 5 + 2 * count
 
@@ -90,28 +90,29 @@ def main(argv: list[str] | None = None) -> int:
         return cycle
 
     with ModbusEmulator(rig, m, transport="tcp") as emu:
-        client = ModbusTcpClient(emu.address[0], port=emu.address[1], timeout=2, retries=0)
-        client.connect()
-        print(_summary("modbus tcp", _time(modbus_cycle(client), args.n), baseline_s))
-        client.close()
+        host, port_no = emu.host_port
+        tcp = ModbusTcpClient(host, port=port_no, timeout=2, retries=0)
+        tcp.connect()
+        print(_summary("modbus tcp", _time(modbus_cycle(tcp), args.n), baseline_s))
+        tcp.close()
     with ModbusEmulator(rig, m, transport="rtu") as emu:
-        client = ModbusSerialClient(emu.address, baudrate=115200, timeout=2, retries=0)
-        client.connect()
-        print(_summary("modbus rtu (pty)", _time(modbus_cycle(client), args.n), baseline_s))
-        client.close()
+        rtu = ModbusSerialClient(emu.serial_path, baudrate=115200, timeout=2, retries=0)
+        rtu.connect()
+        print(_summary("modbus rtu (pty)", _time(modbus_cycle(rtu), args.n), baseline_s))
+        rtu.close()
         # The same frames by hand with pyserial: what the emulator itself costs, without pymodbus'
         # sync serial client (which waits for inter-frame silence in 1 ms sleeps).
         frames = [_rtu_frame(sp.unit_id, 16, sp.address, sp.count, sp.encode(0.5))]
         frames += [_rtu_frame(b.unit_id, 4, b.address, b.count) for b in plan]
-        with serial.Serial(emu.address, 115200, timeout=2) as port:
+        with serial.Serial(emu.serial_path, 115200, timeout=2) as port:
             def raw_cycle(i: int) -> None:
                 for frame, reply_len in frames:
                     port.write(frame)
                     if len(port.read(reply_len)) != reply_len:
                         raise RuntimeError("short RTU reply")
             print(_summary("modbus rtu raw pyserial", _time(raw_cycle, args.n), baseline_s))
-    with SerialAmplifierEmulator(rig) as emu:
-        port = serial.Serial(emu.path, 115200, timeout=2)
+    with SerialAmplifierEmulator(rig) as amp:
+        port = serial.Serial(amp.path, 115200, timeout=2)
 
         def scpi_cycle(i: int) -> None:
             port.write(f"CURR {0.5 + 0.001 * (i % 100):.4f}\n".encode())

@@ -53,8 +53,11 @@ class ControlServer:
 
     def __init__(self, rig: EmulatedRig, path: str | None = None) -> None:
         self.rig = rig
-        self._own_dir = None if path else tempfile.mkdtemp(prefix="gma-hil-ctl-")
-        self.path = path or os.path.join(self._own_dir, "control.sock")
+        self._own_dir: str | None = None
+        if not path:
+            self._own_dir = tempfile.mkdtemp(prefix="gma-hil-ctl-")
+            path = os.path.join(self._own_dir, "control.sock")
+        self.path = path
         self._sock: socket.socket | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -73,14 +76,14 @@ class ControlServer:
             raise InputError(f"--control {self.path}: cannot listen there ({exc.strerror or exc})") from None
         sock.settimeout(0.1)
         self._sock = sock
-        self._thread = threading.Thread(target=self._run, name="emulator-control", daemon=True)
+        self._thread = threading.Thread(target=self._run, args=(sock,), name="emulator-control", daemon=True)
         self._thread.start()
         return self.path
 
-    def _run(self) -> None:
+    def _run(self, sock: socket.socket) -> None:
         while not self._stop.is_set():
             try:
-                conn, _ = self._sock.accept()
+                conn, _ = sock.accept()
             except (socket.timeout, OSError):
                 continue
             with conn:

@@ -49,6 +49,15 @@ class Fault:
     def key(self) -> tuple[str, str | None]:
         return (self.kind, self.channel)
 
+    @property
+    def number(self) -> float:
+        """`value` for the kinds that carry one (delay, exception, out_of_range; `parse_fault` always
+        sets it); FaultSpecError for a fault built by hand without it, rather than a TypeError
+        inside a protocol thread."""
+        if self.value is None:
+            raise FaultSpecError(f"fault '{self}' needs a value")
+        return self.value
+
     def __str__(self) -> str:
         text = self.kind
         if self.channel:

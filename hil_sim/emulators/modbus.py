@@ -16,7 +16,7 @@ import math
 import random
 import socket
 import threading
-from typing import Sequence
+from typing import Sequence, cast
 
 from pymodbus.constants import ExcCodes
 from pymodbus.datastore import ModbusServerContext
@@ -114,7 +114,7 @@ class RigContext(ModbusServerContext):
             raise NoSuchIdException(f"unit {device_id}")
         fault = self.rig.faults.get("exception")
         if fault is not None:
-            return ExcCodes(int(fault.value))
+            return ExcCodes(int(fault.number))
         return None
 
     async def async_getValues(self, device_id: int, func_code: int, address: int, count: int = 1):
@@ -195,11 +195,15 @@ class FaultyRequestHandler(ServerRequestHandler):
 
 
 class _TcpServer(ModbusTcpServer):
+    emulator: ModbusEmulator
+
     def callback_new_connection(self):
         return FaultyRequestHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
 
 
 class _RtuServer(ModbusSerialServer):
+    emulator: ModbusEmulator
+
     def callback_new_connection(self):
         return FaultyRequestHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
 
@@ -242,7 +246,7 @@ class ModbusEmulator:
         self._server_pty: PtyPort | None = None
         self._client_pty: PtyPort | None = None
         self._relay: PtyRelay | None = None
-        self._server = None
+        self._server: _TcpServer | _RtuServer | None = None
         self.address: tuple[str, int] | str | None = None
         rig.faults.add_listener(self._on_fault)
 
@@ -272,6 +276,20 @@ class ModbusEmulator:
     @property
     def path(self) -> str | None:
         return self._client_pty.path if self._client_pty else None
+
+    @property
+    def host_port(self) -> tuple[str, int]:
+        """(host, port) of a started TCP emulator, for a client to connect to."""
+        if not isinstance(self.address, tuple):
+            raise FaultError(f"modbus {self.transport} emulator has no TCP address (address {self.address!r})")
+        return self.address
+
+    @property
+    def serial_path(self) -> str:
+        """The pty path of a started RTU emulator, for a client to open."""
+        if self.path is None:
+            raise FaultError(f"modbus {self.transport} emulator has no serial port (address {self.address!r})")
+        return self.path
 
     def start(self, timeout_s: float = 10.0):
         """Start serving; returns (host, port) for TCP or the pty path for RTU."""
@@ -305,19 +323,25 @@ class ModbusEmulator:
     async def _serve(self) -> None:
         self._loop = asyncio.get_running_loop()
         self._stop_event = asyncio.Event()
+        server: _TcpServer | _RtuServer
         if self.transport == "tcp":
             _check_bindable(self.host, self.port)  # pymodbus only logs why it could not listen
             server = _TcpServer(self.context, address=(self.host, self.port))
         else:
+            if self._server_pty is None or self._client_pty is None:
+                raise FaultError("modbus rtu emulator: the pseudo-terminals were not created (start() makes them)")
             server = _RtuServer(self.context, port=self._server_pty.slave_name, baudrate=self.baudrate,
                                 ignore_missing_devices=True, reconnect_delay=0.5)
         server.emulator = self
         self._server = server
         await server.serve_forever(background=True)
-        if self.transport == "tcp":
-            self.address = server.transport.sockets[0].getsockname()[:2]
-            self.port = self.address[1]
-        else:
+        if isinstance(server, _TcpServer):
+            # pymodbus types `transport` as BaseTransport; a listening server's is the asyncio.Server
+            # its create_server returned.
+            host, port = cast(asyncio.Server, server.transport).sockets[0].getsockname()[:2]
+            self.address = (str(host), int(port))
+            self.port = int(port)
+        elif self._client_pty is not None:
             self.address = self._client_pty.path
         self._ready.set()
         try:

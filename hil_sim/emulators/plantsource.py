@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import sys
 from os import PathLike
+from pathlib import Path
 
 from gma_ffc.errors import ConfigError
 
@@ -53,7 +54,7 @@ def make_plant(config_path: str | PathLike | None = None, seed: int = 0, *, allo
             ) from None
         print("note: hil_sim.plant not available; using the emulators' stand-in plant", file=sys.stderr)
         return StandInPlant()
-    cfg = plant_module.PlantConfig.from_yaml(config_path) if config_path else plant_module.PlantConfig()
+    cfg = plant_module.PlantConfig.from_yaml(Path(config_path)) if config_path else plant_module.PlantConfig()
     plant = plant_module.GMAPlant(cfg, seed=seed)
     plant.step(0.0, 1e-3)  # JIT-compile (or load the cache) now, not inside the first request
     plant.reset()

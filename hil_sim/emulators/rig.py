@@ -164,7 +164,7 @@ class EmulatedRig:
                 return math.nan
             fault = self.faults.get("out_of_range", channel)
             if fault is not None:
-                return float(fault.value)
+                return fault.number
             if channel in self._stuck:
                 return self._stuck[channel]
             return value

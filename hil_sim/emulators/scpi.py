@@ -168,20 +168,20 @@ class SerialAmplifierEmulator:
 
     def start(self, timeout_s: float = 5.0) -> str:
         """Start answering; returns the path to open with pyserial."""
-        if self._thread is not None:
+        if self._thread is not None and self.path is not None:
             return self.path
         try:
-            self._port = PtyPort("ttyGMA-amp")
+            port = PtyPort("ttyGMA-amp")
         except OSError as exc:
             raise FaultError(f"serial amplifier emulator: cannot create a pseudo-terminal: {exc.strerror or exc}") from None
-        self.path = self._port.path
+        self._port, self.path = port, port.path
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="scpi-amplifier", daemon=True)
+        self._thread = threading.Thread(target=self._run, args=(port,), name="scpi-amplifier", daemon=True)
         self._thread.start()
         if not self._ready.wait(timeout_s):
             self.stop()
             raise FaultError("serial amplifier emulator failed to start")
-        return self.path
+        return port.path
 
     def stop(self, timeout_s: float = 5.0) -> None:
         self._stop.set()
@@ -198,8 +198,7 @@ class SerialAmplifierEmulator:
     def __exit__(self, *exc) -> None:
         self.stop()
 
-    def _run(self) -> None:
-        port = self._port
+    def _run(self, port: PtyPort) -> None:
         buffer = b""
         self._ready.set()
         while not self._stop.is_set():
@@ -234,7 +233,7 @@ class SerialAmplifierEmulator:
             return
         delay = faults.get("delay")
         if delay is not None:
-            deadline = time.monotonic() + delay.value
+            deadline = time.monotonic() + delay.number
             while not self._stop.is_set() and time.monotonic() < deadline:
                 self._stop.wait(min(0.02, max(0.0, deadline - time.monotonic())))
         if faults.has("garbage"):
