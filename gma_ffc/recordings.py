@@ -11,9 +11,10 @@ from __future__ import annotations
 import io
 import math
 import re
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 import yaml
@@ -193,15 +194,16 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
     if len(set(names)) != len(names):
         dup = next(n for n in names if names.count(n) > 1)
         raise RecordingError(f"{source}, line {header_line}: column '{dup}' appears twice")
-    data = _parse_rows_fast(path, header_idx, names, delimiter, decimal)
-    if data is None:      # Arrow could not: the careful parser finds the line and says what is wrong
+    columns = _parse_rows_fast(path, header_idx, names, delimiter, decimal)
+    if columns is None:      # Arrow could not: the careful parser finds the line and says what is wrong
         try:
             text = path.read_text(encoding="utf-8-sig")
         except (OSError, UnicodeDecodeError) as exc:
             raise RecordingError(f"{source}: cannot read ({exc})") from None
         body = text.splitlines()[header_idx + 1:]
         data = _parse_rows(body, len(names), source, header_line, delimiter, decimal)
-    rec = Recording({n: data[:, k] for k, n in enumerate(names)}, _parse_metadata(meta_lines, source), source)
+        columns = {n: data[:, k] for k, n in enumerate(names)}
+    rec = Recording(columns, _parse_metadata(meta_lines, source), source)
     return validate(rec, require, header_line)
 
 
@@ -213,9 +215,11 @@ def _dialect(header: str, first_row: str) -> tuple[str, str]:
 
 
 def _parse_rows_fast(path: Path, header_idx: int, names: list[str], delimiter: str,
-                     decimal: str) -> np.ndarray | None:
-    """The rows as a float array via pyarrow.csv, or None if anything is not plainly numeric
-    (empty cells, words, ragged rows, comment lines among the rows): the slow path explains."""
+                     decimal: str) -> dict[str, np.ndarray] | None:
+    """The columns as float arrays via pyarrow.csv, or None if anything is not plainly numeric
+    (empty cells, words, ragged rows, comment lines among the rows): the slow path explains.
+    Each column is copied once, out of Arrow's chunks into one contiguous array (no row-major
+    stack in between: `Recording` would copy every strided column out of it again)."""
     import pyarrow as pa
     from pyarrow import csv as pacsv
 
@@ -231,7 +235,12 @@ def _parse_rows_fast(path: Path, header_idx: int, names: list[str], delimiter: s
         return None
     if table.num_rows == 0 or any(col.null_count for col in table.columns):
         return None
-    return np.column_stack([table.column(n).to_numpy() for n in names]).astype(float, copy=False)
+    columns = {}
+    for n in names:
+        col = table.column(n)
+        arr = col.to_numpy()              # one chunk: a read-only view of Arrow's buffer; several: a copy
+        columns[n] = arr.copy() if col.num_chunks == 1 or not arr.flags.writeable else arr
+    return columns
 
 
 def _parse_rows(body: list[str], ncols: int, source: str, header_line: int, delimiter: str = ",",
@@ -424,15 +433,47 @@ def write_recording(path: str | Path, rec: Recording) -> None:
             scipy.io.savemat(fh, {**{k: v for k, v in rec.columns.items()},
                                   **{k: v for k, v in rec.metadata.items() if isinstance(v, (int, float, str))}})
         return
+    with atomic_write(p, "wb") as fh:
+        fh.write((_format_meta(rec.metadata) + ",".join(names) + "\n").encode("utf-8"))
+        if names and len(rec):
+            for block in _csv_blocks(rec, names):
+                fh.write(block)
+
+
+_WRITE_BLOCK_ROWS = 131_072
+
+
+def _csv_blocks(rec: Recording, names: list[str]) -> Iterator[memoryview]:
+    """The rows as CSV text, block after block, in order. Formatting the numbers is the work (the
+    shortest repr of every double); Arrow does it without the GIL, so blocks are formatted on all
+    cores and written as they come, with at most two per core held in memory."""
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
     import pyarrow as pa
     from pyarrow import csv as pacsv
 
-    table = pa.table({n: rec.columns[n] for n in names}) if names else None
-    with atomic_write(p, "wb") as fh:
-        fh.write((_format_meta(rec.metadata) + ",".join(names) + "\n").encode("utf-8"))
-        if table is not None and table.num_rows:
-            pacsv.write_csv(table, fh, write_options=pacsv.WriteOptions(include_header=False,
-                                                                        quoting_style="none"))
+    table = pa.table({n: rec.columns[n] for n in names})
+    options = pacsv.WriteOptions(include_header=False, quoting_style="none")
+
+    def render(start: int) -> memoryview:
+        sink = pa.BufferOutputStream()
+        pacsv.write_csv(table.slice(start, _WRITE_BLOCK_ROWS), sink, write_options=options)
+        return memoryview(sink.getvalue())
+
+    starts = range(0, table.num_rows, _WRITE_BLOCK_ROWS)
+    workers = min(os.cpu_count() or 1, len(starts), 8)
+    if workers == 1:
+        yield from (render(s) for s in starts)
+        return
+    with ThreadPoolExecutor(workers) as pool:
+        pending: deque[Any] = deque()
+        for s in starts:
+            pending.append(pool.submit(render, s))
+            if len(pending) >= 2 * workers:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
 
 
 def finite_or_none(value: float) -> float | None:
