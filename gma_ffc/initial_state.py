@@ -180,11 +180,16 @@ def _fit_state(model: Any, x: np.ndarray, stress: Any, y: np.ndarray, guess: np.
     offset = oc[0] + s * (oc[1] + s * oc[2])
     r_s = model.deadzone_thresholds
     w_h = model.play_weights
+    # the one-sided dead-zones (4) as one clamp: max(d, 0) where r > 0, min(d, 0) where r < 0,
+    # d where r = 0 (the same numbers as three np.where branches, in two passes instead of six)
+    dz_lo = np.where(r_s > 0, 0.0, -np.inf)
+    dz_hi = np.where(r_s < 0, 0.0, np.inf)
 
     def output(z: np.ndarray) -> np.ndarray:          # z: (k, m) -> y: (k, m)
         d = z[..., None] - r_s
-        dz = np.where(r_s > 0, np.maximum(d, 0.0), np.where(r_s < 0, np.minimum(d, 0.0), d))
-        return offset + np.einsum("kmj,mj->km", dz, ws)
+        np.maximum(d, dz_lo, out=d)
+        np.minimum(d, dz_hi, out=d)
+        return offset + np.einsum("kmj,mj->km", d, ws)
 
     def cost(p: np.ndarray) -> float:
         return float(np.sum((output(np.sum(w_h * np.clip(p, A, B), axis=1)[None, :])[0] - ys) ** 2))
