@@ -25,8 +25,6 @@ from typing import Any
 
 import numpy as np
 
-from . import operators as ops
-
 KINDS = ("relaxed", "estimate", "drive")
 DEFAULT = "estimate"
 
@@ -157,6 +155,8 @@ def _fit_state(model: Any, x: np.ndarray, stress: Any, y: np.ndarray, guess: np.
     The window runs to the settled index plus a margin (at least 64 samples); NaN readings are
     ignored. Returns None when the fit does not beat the guess.
     """
+    from . import operators as ops      # numba: not needed to parse --initial-state
+
     n = len(x)
     end = min(n, max(64, settled + max(16, settled // 4)))
     v = np.ascontiguousarray(x[:end] - model.input_offset)
