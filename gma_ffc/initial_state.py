@@ -25,8 +25,6 @@ from typing import Any
 
 import numpy as np
 
-from . import operators as ops
-
 KINDS = ("relaxed", "estimate", "drive")
 DEFAULT = "estimate"
 
@@ -157,6 +155,8 @@ def _fit_state(model: Any, x: np.ndarray, stress: Any, y: np.ndarray, guess: np.
     The window runs to the settled index plus a margin (at least 64 samples); NaN readings are
     ignored. Returns None when the fit does not beat the guess.
     """
+    from . import operators as ops      # numba: not needed to parse --initial-state
+
     n = len(x)
     end = min(n, max(64, settled + max(16, settled // 4)))
     v = np.ascontiguousarray(x[:end] - model.input_offset)
@@ -180,14 +180,19 @@ def _fit_state(model: Any, x: np.ndarray, stress: Any, y: np.ndarray, guess: np.
     offset = oc[0] + s * (oc[1] + s * oc[2])
     r_s = model.deadzone_thresholds
     w_h = model.play_weights
+    # the one-sided dead-zones (4) as one clamp: max(d, 0) where r > 0, min(d, 0) where r < 0,
+    # d where r = 0 (the same numbers as three np.where branches, in two passes instead of six)
+    dz_lo = np.where(r_s > 0, 0.0, -np.inf)
+    dz_hi = np.where(r_s < 0, 0.0, np.inf)
 
     def output(z: np.ndarray) -> np.ndarray:          # z: (k, m) -> y: (k, m)
         d = z[..., None] - r_s
-        dz = np.where(r_s > 0, np.maximum(d, 0.0), np.where(r_s < 0, np.minimum(d, 0.0), d))
-        return offset + np.einsum("kmj,mj->km", dz, ws)
+        np.maximum(d, dz_lo, out=d)
+        np.minimum(d, dz_hi, out=d)
+        return offset + np.einsum("kmj,mj->km", d, ws)
 
     def cost(p: np.ndarray) -> float:
-        return float(np.sum((output(np.sum(w_h * np.clip(p, A, B), axis=1)[None, :])[0] - ys) ** 2))
+        return float(((output((w_h * _clip(p, A, B)).sum(axis=1)[None, :])[0] - ys) ** 2).sum())
 
     guess = np.clip(guess, lo, hi)
     guess_cost = cost(guess)
@@ -211,6 +216,11 @@ def _fit_state(model: Any, x: np.ndarray, stress: Any, y: np.ndarray, guess: np.
     return p, end
 
 
+def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """np.clip without its Python-level wrapper (thousands of calls per fit): the same numbers."""
+    return np.minimum(np.maximum(x, lo), hi)
+
+
 def _history_states(v0: float, r: np.ndarray, a_grid: np.ndarray,
                     b_grid: np.ndarray) -> list[tuple[float, float, np.ndarray]]:
     """(a, b, play states) after a drive history ...-> v0+a -> v0-b -> v0 or ...-> v0-a -> v0+b
@@ -232,12 +242,12 @@ def _descend(p: np.ndarray, best_cost: float, lo: np.ndarray, hi: np.ndarray, w_
     p = p.copy()
 
     def contrib(i: int, q: np.ndarray) -> np.ndarray:   # (k,) values of play i -> (k, m)
-        return w_h[i] * np.clip(q[:, None], A[:, i], B[:, i])
+        return w_h[i] * _clip(q[:, None], A[:, i], B[:, i])
 
     def cost_of(z_rest: np.ndarray, i: int, cands: np.ndarray) -> np.ndarray:
-        return np.sum((output(z_rest[None, :] + contrib(i, cands)) - ys) ** 2, axis=1)
+        return ((output(z_rest[None, :] + contrib(i, cands)) - ys) ** 2).sum(axis=1)
 
-    z = np.sum(w_h * np.clip(p, A, B), axis=1)
+    z = (w_h * _clip(p, A, B)).sum(axis=1)
     for _ in range(4):
         before = best_cost
         for i in range(n_play):
@@ -275,7 +285,7 @@ def _descend(p: np.ndarray, best_cost: float, lo: np.ndarray, hi: np.ndarray, w_
 
     def resid(q: np.ndarray) -> np.ndarray:
         pp = lo + q * span
-        return output(np.sum(w_h * np.clip(pp, A, B), axis=1)[None, :])[0] - ys
+        return output((w_h * _clip(pp, A, B)).sum(axis=1)[None, :])[0] - ys
 
     sol = least_squares(resid, np.clip((p - lo) / span, 0.0, 1.0), bounds=(0.0, 1.0), xtol=1e-14,
                         ftol=1e-14, gtol=1e-14, max_nfev=100 * n_play)

@@ -1,16 +1,26 @@
 #!/usr/bin/env python3
 """Recording I/O at lab scale: read, simulate and write 1,000,000 rows, the Arrow-based reader and
-writer against the previous numpy/Python-level ones, in the same process on the same file.
+writer against the previous numpy/Python-level ones, in the same process on the same file; then
+the whole `gma-ffc simulate` command as a user runs it (a fresh process: interpreter, imports,
+numba, read, initial state, simulate, write).
 
-    python scripts/bench_io.py [--rows 1000000]
+    python scripts/bench_io.py [--rows 1000000] [--runs 7] [--baseline-src DIR]
 
-Prints seconds per stage, best of --repeat runs, and new/old ratios; also times the whole
-`gma-ffc simulate` command (a fresh process, as a user runs it).
+Prints seconds per stage, best of --repeat runs, and new/old ratios. The whole command is timed
+cold (numba's cache empty: every kernel compiled, as on the first run after an install) and warm
+(the median of --runs), with the default initial state (estimate: fitted to the measured
+displacement) and with --initial-state relaxed, wall clock and CPU (user + sys, all threads).
+--baseline-src runs the same commands on another checkout of the package (PYTHONPATH=DIR, e.g. a
+`git worktree` of an older commit) interleaved with these, so both see the same machine load.
+The load average is printed: on a shared machine the wall clock is only as good as it.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -50,10 +60,46 @@ def best(fn, repeat: int) -> float:
     return min(times)
 
 
+def whole_process(cmd: list[str], env: dict[str, str]) -> tuple[float, float]:
+    """(wall, CPU user+sys) seconds of one fresh process running `cmd`."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, capture_output=True, env=env)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def bench_command(src: Path, out: Path, runs: int, baseline: Path | None) -> None:
+    """The whole `gma-ffc simulate` on `src`: cold, then the median of `runs` warm runs."""
+    model = str(ROOT / "config" / "models" / "sim_sdpi.yaml")
+    trees = {"this": ROOT} | ({"baseline": baseline} if baseline else {})
+    print(f"\n`gma-ffc simulate --model sim_sdpi.yaml {src.name} -o out.csv` as a fresh process "
+          f"({os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at start)")
+    print(f"{'code':<10}{'initial state':<15}{'cold wall':>10}{'warm wall':>10}{'(min)':>8}{'warm CPU':>10}")
+    for flags in ([], ["--initial-state", "relaxed"]):
+        for name, tree in trees.items():
+            with tempfile.TemporaryDirectory() as cache:
+                # an empty numba cache of its own: the first run compiles, later runs load
+                env = dict(os.environ, PYTHONPATH=str(tree), NUMBA_CACHE_DIR=cache)
+                cmd = [sys.executable, "-m", "gma_ffc.cli", "simulate", "--model", model, str(src), "-o", str(out),
+                       *flags]
+                cold, _ = whole_process(cmd, env)
+                warm = [whole_process(cmd, env) for _ in range(runs)]
+            walls = [w for w, _ in warm]
+            cpu = statistics.median(c for _, c in warm)
+            print(f"{name:<10}{(flags[-1] if flags else 'estimate'):<15}{cold:>10.2f}{statistics.median(walls):>10.2f}"
+                  f"{min(walls):>8.2f}{cpu:>10.2f}")
+    print(f"(load average {os.getloadavg()[0]:.1f} at the end)")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--rows", type=int, default=1_000_000)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--runs", type=int, default=7, help="warm runs of the whole command (median)")
+    ap.add_argument("--baseline-src", type=Path, metavar="DIR",
+                    help="another checkout of the package to time the same command on (e.g. a git worktree)")
     args = ap.parse_args()
     model = load_model(ROOT / "config" / "models" / "sim_sdpi.yaml")
     n = args.rows
@@ -81,10 +127,7 @@ def main() -> int:
         total_old = sum(a for a, _ in rows.values())
         total_new = sum(b for _, b in rows.values())
         print(f"{'read+simulate+write':<24}{total_old:>10.3f}{total_new:>10.3f}{total_new / total_old:>9.2f}")
-        gma = [sys.executable, "-m", "gma_ffc.cli", "simulate", "--model",
-               str(ROOT / "config" / "models" / "sim_sdpi.yaml"), str(src), "-o", str(out), "--initial-state", "relaxed"]
-        whole = best(lambda: subprocess.run(gma, check=True, capture_output=True), 2)
-        print(f"\n`gma-ffc simulate` on {n:,} rows, whole process (import, read, simulate, write): {whole:.2f} s")
+        bench_command(src, out, args.runs, args.baseline_src.resolve() if args.baseline_src else None)
     return 0
 
 

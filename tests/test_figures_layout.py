@@ -3,6 +3,7 @@ no overlapping text, no legend on the data, both axes labelled with a unit (issu
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from figure_layout import layout_problems
@@ -33,6 +34,61 @@ def test_the_checker_sees_what_a_reader_sees():
     assert any("overlaps" in p for p in problems)
     assert any("legend covers data" in p for p in problems)
     assert any("no y axis label" in p for p in problems) and any("has no unit" in p for p in problems)
+
+
+def test_the_checker_sees_data_between_points_bars_and_neighbours():
+    """What it once let through (each made by breaking a report plot on purpose): a legend on a
+    two-point line, a legend on bars, a legend pushed out of its panel onto the next one, a label
+    whose brackets hold a word rather than a unit."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    def problems_of(draw):
+        fig = plt.figure(figsize=(8, 3))             # no layout engine: it would move a panel away
+        draw(fig)
+        try:
+            return layout_problems(fig)
+        finally:
+            plt.close(fig)
+
+    def step(fig):                    # a step: no sample near the legend, the line runs under it
+        ax = fig.subplots()
+        ax.plot([0, 1, 1, 2], [0, 0, 1, 1], label="measured")
+        ax.plot([0, 2], [0.5, 0.5], label="between")
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("displacement (um)")
+        ax.legend(loc="center")
+    assert any("legend covers data of 'between'" in p or "legend covers data of 'measured'" in p
+               for p in problems_of(step))
+
+    def bars(fig):
+        ax = fig.subplots()
+        ax.barh(["creep", "thermal_drift", "time_delay"], [1.0, 1.0, 1.0], label="held-out RMS")
+        ax.axvline(0.2, ls=":", label="noise floor")
+        ax.set_xlabel("held-out RMS (um)")
+        ax.set_ylabel("candidate effect")
+        ax.legend(loc="center")
+    found = problems_of(bars)
+    assert any("legend covers data" in p for p in found)
+    assert not any("has no unit" in p for p in found)           # names on an axis need no unit
+
+    def neighbour(fig):
+        left, right = fig.subplots(1, 2)
+        for ax in (left, right):
+            ax.plot(np.linspace(0, 1, 50), np.linspace(0, 1, 50) ** 2, label="model")
+            ax.set_xlabel("drive current (A)")
+            ax.set_ylabel("displacement (um)")
+        left.legend(loc="center", bbox_to_anchor=(1.75, 0.5))
+    assert any("legend covers data of panel 1" in p for p in problems_of(neighbour))
+
+    def fake_unit(fig):
+        ax = fig.subplots()
+        ax.plot([0, 1], [0, 1])
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("residual (fitted)")
+    assert any("y label 'residual (fitted)' has no unit" in p for p in problems_of(fake_unit))
 
 
 def test_identify_plot(bench):

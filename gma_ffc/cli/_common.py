@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import argparse
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence, TypeVar
 
 import numpy as np
 
 from ..errors import InputError
 from ..protocols import Model
 from ..recordings import Recording, read_recording
+
+T = TypeVar("T")
 
 
 def existing_output_dir_parent(path: str) -> Path:
@@ -67,3 +70,38 @@ def _initial_state(text: str) -> Any:
 def add_stress_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--stress", type=float, metavar="MPA",
                    help="constant stress in MPa (compression negative) for recordings without stress_MPa")
+
+
+def read_while(work: Callable[[], T], path: str, require: Sequence[str],
+               group: str | None = None) -> tuple[T, Recording]:
+    """`work()` here (loading the model, `warm_up`), the recording read meanwhile in another thread.
+
+    Arrow parses without holding the GIL, so on a large recording the read and the model's start-up
+    (importing numba, loading its compiled kernels) overlap instead of adding up. A model error
+    still comes first, as if the two ran one after the other; a recording error comes after.
+    """
+    with ThreadPoolExecutor(1, thread_name_prefix="read") as pool:
+        reading = pool.submit(read_recording, path, require=require, group=group)
+        result = work()
+        return result, reading.result()
+
+
+def warm_up(model: Any, initial_state: Any) -> None:
+    """Run `model` once on three samples of made-up data: numba loads the kernels the real run
+    calls from its cache (about a quarter second on first use), and the initial-state fit's
+    optimiser is imported when the state will be estimated. Only ever called next to a read (see
+    `read_while`), where that time is otherwise spent waiting. Nothing here decides anything:
+    an error is left for the real run to meet and report."""
+    span = getattr(model, "stress_range_MPa", None)
+    stress = None if span is None else 0.5 * (span[0] + span[1])
+    t = np.array([0.0, 1e-3, 2e-3])
+    drive = np.zeros(3)
+    try:
+        if getattr(initial_state, "kind", None) == "estimate":
+            import scipy.optimize  # noqa: F401  (the joint polish of gma_ffc.initial_state)
+
+            model.simulate(t, drive, stress, initial_state="estimate", measured_um=np.zeros(3))
+        else:
+            model.simulate(t, drive, stress, initial_state="relaxed")
+    except Exception:       # noqa: BLE001 - a warm-up never reports; the real call will
+        pass

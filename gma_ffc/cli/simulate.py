@@ -4,14 +4,15 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 import numpy as np
 
-from ..model import rms
 from ..modelio import load_model
 from ..recordings import Recording, write_recording
 from ..atomic import refuse_overwrite
-from ._common import add_group_option, add_initial_state_option, add_stress_option, check_drive_name, stress_for
+from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_drive_name, read_while,
+                      stress_for, warm_up)
 
 HELP = """\
 Run a model (any kind: sdpi, mpi, or an extended model from `gma-ffc diagnose`) on the drive and
@@ -45,11 +46,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..recordings import read_recording
-
     refuse_overwrite(args.output, [args.recording, args.model])
-    model = load_model(args.model)
-    rec = read_recording(args.recording, require=("time_s", "drive"), group=args.group)
+
+    def prepare() -> Any:      # numba is imported here (by the model), beside the read, not at --help
+        model = load_model(args.model)
+        warm_up(model, args.initial_state)
+        return model
+
+    model, rec = read_while(prepare, args.recording, require=("time_s", "drive"), group=args.group)
+    from ..model import rms
     check_drive_name(model, rec)
     stress = stress_for(model, rec, args.stress)
     measured = rec.displacement_um

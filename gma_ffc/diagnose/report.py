@@ -48,6 +48,17 @@ def _drive_label(d: Any) -> str:
     return "drive voltage (V)" if d.extra.get("drive_symbol") == "V" else "drive current (A)"
 
 
+def _unchanged(dg: Diagnosis) -> bool:
+    """Nothing was accepted: the extended model predicts what the base model does. Drawn as two
+    lines, the base would hide under the extended one while the legend still names both."""
+    return all(yb.shape == yf.shape and np.allclose(yb, yf, rtol=0.0, atol=1e-9)
+               for yb, yf in zip(dg.base_predictions, dg.final_predictions))
+
+
+def _rms(a: np.ndarray) -> float:
+    return float(np.sqrt(np.nanmean(np.square(a)))) if a.size else float("nan")
+
+
 def _legend_outside(ax: Any) -> None:
     """Legends beside the panel, never on the data."""
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, frameon=False)
@@ -57,12 +68,15 @@ def plot_residuals(dg: Diagnosis, render: Any = None) -> Any:
     plt = _plt()
     n = len(dg.data)
     fig, axes = plt.subplots(n, 1, figsize=(10, 2.5 * n + 0.4), squeeze=False, constrained_layout=True)
+    same = _unchanged(dg)
     for ax, d, loc, yb, yn, yf in zip(axes[:, 0], dg.data, dg.located, dg.base_predictions,
                                      dg.null_predictions, dg.final_predictions):
         sl = _thin(d.t.size)
-        ax.plot(d.t[sl], (d.y - yb)[sl], lw=0.6, color="0.6", label="base model")
+        if not same:
+            ax.plot(d.t[sl], (d.y - yb)[sl], lw=0.6, color="0.6", label="base model")
         ax.plot(d.t[sl], (d.y - yn)[sl], lw=0.7, color="tab:orange", label="recalibrated")
-        ax.plot(d.t[sl], (d.y - yf)[sl], lw=0.7, color="tab:blue", label="extended")
+        ax.plot(d.t[sl], (d.y - yf)[sl], lw=0.7, color="tab:blue",
+                label="base model (= extended: nothing accepted)" if same else "extended")
         ax.axvspan(*loc.window_s, color="tab:red", alpha=0.12, label="largest residual")
         if d.settled > 0:
             ax.axvspan(d.t[0], d.t[min(d.settled, d.t.size - 1)], color="0.85", alpha=0.6,
@@ -92,20 +106,27 @@ def plot_overlays(dg: Diagnosis, render: Any = None) -> Any:
     n = len(dg.data)
     fig, axes = plt.subplots(n, 2, figsize=(12, 2.7 * n + 0.4), squeeze=False, constrained_layout=True,
                              gridspec_kw={"width_ratios": [1.2, 1.0]})
+    same = _unchanged(dg)
     for (ax, axr), d, loc, yb, yf in zip(axes, dg.data, dg.located, dg.base_predictions, dg.final_predictions):
         w = _window(d, loc)
         a, b = w.start, w.stop
         ax.plot(d.t[a:b], d.y[a:b], lw=1.2, color="k", label="measured")
-        ax.plot(d.t[a:b], yb[a:b], lw=0.9, color="0.55", ls="--", label="base model")
-        ax.plot(d.t[a:b], yf[a:b], lw=0.9, color="tab:blue", label="extended model")
+        if not same:
+            ax.plot(d.t[a:b], yb[a:b], lw=0.9, color="0.55", ls="--", label="base model")
+        ax.plot(d.t[a:b], yf[a:b], lw=0.9, color="tab:blue",
+                label="base model (= extended)" if same else "extended model")
         ax.set_title(f"{d.name}: where the residual is largest", fontsize=9)
         ax.set_ylabel("displacement (um)")
         ax.set_xlabel("time (s)")
         _legend_outside(ax)
         axr.axhline(0.0, color="0.8", lw=0.8)
-        axr.plot(d.t[a:b], (d.y - yb)[a:b], lw=0.9, color="0.55", label="measured - base")
-        axr.plot(d.t[a:b], (d.y - yf)[a:b], lw=0.9, color="tab:blue", label="measured - extended")
-        axr.set_title("residuals, own scale", fontsize=9)
+        # the RMS in the legend: beside a residual ten times larger, the smaller one reads as a flat line
+        if not same:
+            axr.plot(d.t[a:b], (d.y - yb)[a:b], lw=0.9, color="0.55",
+                     label=f"measured - base (RMS {_rms((d.y - yb)[a:b]):.3g} um)")
+        axr.plot(d.t[a:b], (d.y - yf)[a:b], lw=0.9, color="tab:blue",
+                 label=f"measured - {'model' if same else 'extended'} (RMS {_rms((d.y - yf)[a:b]):.3g} um)")
+        axr.set_title("residual, own scale" if same else "residuals, own scale", fontsize=9)
         axr.set_ylabel("residual (um)")
         axr.set_xlabel("time (s)")
         _legend_outside(axr)
@@ -119,11 +140,13 @@ def plot_loops(dg: Diagnosis, render: Any = None) -> Any:
     rows = (n + cols - 1) // cols
     fig, axes = plt.subplots(rows, cols, figsize=(6 * cols, 3.4 * rows + 0.4), squeeze=False,
                              constrained_layout=True)
+    same = _unchanged(dg)
     for ax, d, loc, yb, yf in zip(axes.flat, dg.data, dg.located, dg.base_predictions, dg.final_predictions):
         w = _window(d, loc)
         ax.plot(d.u[w], d.y[w], lw=1.2, color="k", label="measured")
-        ax.plot(d.u[w], yb[w], lw=0.9, ls="--", color="0.55", label="base")
-        ax.plot(d.u[w], yf[w], lw=0.9, color="tab:blue", label="extended")
+        if not same:
+            ax.plot(d.u[w], yb[w], lw=0.9, ls="--", color="0.55", label="base")
+        ax.plot(d.u[w], yf[w], lw=0.9, color="tab:blue", label="base (= extended)" if same else "extended")
         ax.set_title(f"{d.name}, t = {d.t[w.start]:.4g}-{d.t[w.stop - 1]:.4g} s", fontsize=9)
         ax.set_xlabel(_drive_label(d))
         ax.set_ylabel("displacement (um)")
@@ -164,8 +187,11 @@ HEADLINES = {   # outcome -> (headline, colour, one sentence a reader takes away
 
 
 def render_html(dg: Diagnosis, doc: dict) -> str:
+    overlay = ("Where the residual is largest: measured and model (nothing was accepted, so there is no "
+               "'after'), and the residual" if _unchanged(dg) else
+               "Before and after: measured, base and extended model, and their residuals")
     imgs = [("Residual over time, where it was found", plot_residuals(dg)),
-            ("Before and after: measured, base and extended model, and their residuals", plot_overlays(dg)),
+            (overlay, plot_overlays(dg)),
             ("Loops where the residual is largest: displacement against drive", plot_loops(dg))]
     if any(math.isfinite(c.cv_mse) for c in dg.candidates):      # no empty chart when nothing was tried
         imgs.append(("Candidates: held-out RMS", plot_candidates(dg)))
