@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from gma_ffc.diagnose.data import RecData, noise_floor, stress_levels
 from gma_ffc.diagnose.locate import locate
@@ -43,6 +44,11 @@ def test_stress_levels_counts_dwell_levels_not_transitions():
     assert len(stress_levels([_rec(t, np.zeros_like(t), s)])) == 3
     two = np.where(t < 15, -12.0, -18.0)
     assert len(stress_levels([_rec(t, np.zeros_like(t), two)])) == 2
+    # a long run at one stress beside a load-change recording: each of the latter's levels is a few
+    # per cent of all samples, but most of its own recording (issue 9: "dwell at only 1 level")
+    long_t = np.arange(240000) / 1000.0
+    long_run = _rec(long_t, np.zeros_like(long_t), np.full(long_t.size, -11.3))
+    assert stress_levels([long_run, _rec(t, np.zeros_like(t), s)]) == pytest.approx([-23.0, -18.0, -12.0], abs=0.1)
 
 
 def test_reversals_are_counted_on_smooth_drives_and_on_steps():

@@ -93,16 +93,19 @@ def stress_span(data: Sequence[RecData]) -> float:
 
 
 def stress_levels(data: Sequence[RecData], gap_MPa: float = 1.0, min_share: float = 0.05) -> list[float]:
-    """Distinct stress levels the recordings dwell at (>= gap apart, each >= min_share of the samples)."""
-    s = np.sort(np.concatenate([d.s for d in data]))
-    if s.size == 0:
-        return []
-    # split the sorted stresses where they jump by more than a fifth of the gap
-    cuts = np.flatnonzero(np.diff(s) > 0.2 * gap_MPa) + 1
-    groups = [g for g in np.split(s, cuts) if g.size >= min_share * s.size]
+    """Distinct stress levels the recordings dwell at (>= gap apart), each held for >= min_share of
+    the samples of some recording: a load-change recording's levels count beside a long run at one
+    stress (pooled, each of its levels was a few per cent of all samples and none was seen)."""
+    medians: list[float] = []
+    for d in data:
+        s = np.sort(d.s)
+        if s.size == 0:
+            continue
+        # split the sorted stresses where they jump by more than a fifth of the gap
+        cuts = np.flatnonzero(np.diff(s) > 0.2 * gap_MPa) + 1
+        medians += [float(np.median(g)) for g in np.split(s, cuts) if g.size >= min_share * s.size]
     levels: list[float] = []
-    for g in groups:
-        m = float(np.median(g))
+    for m in sorted(medians):
         if not levels or m - levels[-1] >= gap_MPa:
             levels.append(m)
     return levels
