@@ -6,8 +6,14 @@ Signal path (each effect optional but the static map; see `gma_ffc.effects` for 
           -> core SDPI/MPI   (rate-independent hysteresis)                        = y_c
           -> sum effects     static map offset + (gain + stress_gain ds) y_c + quadratic (y_c - center)^2
                              + play_correction, + stress_play / stress_width, + saturation, + creep
-          -> filter effects  (dynamics: mass-spring-damper, resonance moving with the load)
+          -> filter effects  (dynamics, form rod_load: the load on the rod's stiffness driven by this
+                             free stroke, its resonance moving with the load's static stress; files
+                             without 'form' keep the older mass-spring-damper output filter)
           -> after effects   (thermal: Joule heating offset, cools at zero current)
+
+Stress transform: an effect may supply the stress the model sees (`seen_stress`, called before
+the core; the rod_load dynamics give the load's static stress, the load-cell stress with its
+inertial force low-passed out), so the core, the static map and every later stage see it.
 
 Inverse (``invert`` and ``inverse_stepper``), stage by stage backwards: the after effects are
 subtracted from the reference, the filter undone by its exact inverse, the sum effects (each
@@ -150,6 +156,7 @@ class ExtendedModel:
         if not np.all(np.isfinite(u)):
             raise ModelError("drive contains NaN or infinite values")
         u3 = self.core_input(t, u, initial_drive)
+        stress_MPa = self.seen_stress(t, stress_MPa)
         if initial_drive is None:
             yc = np.asarray(self.base.simulate(t, u3, stress_MPa, initial_state=initial_state,
                                                measured_um=measured_um), dtype=float)
@@ -157,9 +164,22 @@ class ExtendedModel:
             yc = np.asarray(self.base.simulate(t, u3, stress_MPa, initial_drive=float(initial_drive)), dtype=float)
         return self.output_from_core(t, u, u3, yc, stress_MPa, initial_drive)
 
+    def seen_stress(self, time_s: np.ndarray, stress_MPa: Any) -> Any:
+        """The stress the core and the output stages see: as given, unless an effect transforms it
+        (the rod_load dynamics: the load's static stress)."""
+        if not any(getattr(e, "transforms_stress", False) for e in self.chain):
+            return stress_MPa
+        t = np.asarray(time_s, dtype=float)
+        dt, _ = _time_steps(t)
+        for e in self.chain:
+            if getattr(e, "transforms_stress", False):
+                stress_MPa = e.seen_stress(stress_MPa, t, dt)
+        return stress_MPa
+
     def output_from_core(self, t: np.ndarray, drive: np.ndarray, u3: np.ndarray, yc: np.ndarray,
                          stress_MPa: Any, initial_drive: float | None = None) -> np.ndarray:
-        """Apply the output-side effects to the core's displacement."""
+        """Apply the output-side effects to the core's displacement (`stress_MPa` as the model sees
+        it: `seen_stress` of the recorded one)."""
         dt, _ = _time_steps(t)
         s = _stress_array(stress_MPa, t.size)
         sig = BatchSignals(t, dt, np.asarray(drive, dtype=float), u3, yc, s, s - self.static.stress_ref,
@@ -202,7 +222,7 @@ class ExtendedModel:
     # ----------------------------------------------------------------- files
     def to_dict(self) -> dict[str, Any]:
         blocks = {k: _plain(v) for k, v in self.blocks().items()}
-        inverted = {k: e.inverted[k] for e in self.chain for k in e.to_blocks()}
+        inverted = {k: e.inverted_text()[k] for e in self.chain for k in e.to_blocks()}
         return {"format": "gma-ffc-model", "version": 1, "kind": KIND, "effects": list(self.effects),
                 "inverted": inverted, "blocks": blocks, "base": self.base.to_dict()}
 
@@ -260,6 +280,9 @@ class _Stepper:
         self._filter: list[EffectState] = [states[id(e)] for e in model.stage("filter")]
         self._after: list[EffectState] = [states[id(e)] for e in model.stage("after")]
         self._all = list(states.values())
+        # stress transforms (the rod_load dynamics' static stress), applied before the clamp
+        self._seen: list[Any] = [states[id(e)] for e in model.chain if getattr(e, "transforms_stress", False)
+                                 and hasattr(states[id(e)], "seen_stress")]
 
     def _reset_states(self, u1: float) -> None:
         for st in self._all:
@@ -267,6 +290,8 @@ class _Stepper:
 
     def _stress(self, stress_MPa: float | None) -> None:
         x = self._x
+        for st in self._seen:
+            stress_MPa = st.seen_stress(stress_MPa)
         x.s = 0.0 if stress_MPa is None else _clamp(float(stress_MPa), self._range)
         x.ds = x.s - self._sref
 

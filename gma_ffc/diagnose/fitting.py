@@ -107,12 +107,22 @@ class Fitter:
         self.drive_lo, self.drive_hi = float(lo), float(hi)
         self.drive_span = max(self.drive_hi - self.drive_lo, 1e-12)
         self.stress_ref = mean_stress(self.data)
-        self.stress_top = max(float(d.s.max()) for d in self.data)
         self.stress_varies = model.stress_range_MPa is not None and stress_span(self.data) >= 1.0
         self.play_thresholds = np.array([0.1, 0.25, 0.45]) * self.drive_span
         # the effects as registered now, in signal-path order: input-side ones change the core input
         self.effects: list[type[Effect]] = [c for c in path_order() if c.candidate]
         self._inputs = [c for c in self.effects if c.stage == "input"]
+        # an effect that supplies the stress the model sees (the rod_load dynamics: the load's static
+        # stress, the load cell's inertial force filtered out); per recording raw (it sets the
+        # resonance) and clamped (the core's)
+        self._stress_fx = [c for c in self.effects if getattr(c, "transforms_stress", False)][:1]
+        rng = model.stress_range_MPa
+        self._static = {id(d): (self._stress_fx[0].fit_stress(d) if self._stress_fx else d.s) for d in self.data}
+        self._static_clamped = {id(d): np.ascontiguousarray(np.clip(self._static[id(d)], *rng))
+                                if rng is not None else d.s for d in self.data}
+        # the loads' static stress range: the resonance's reference (least compressive) and extent
+        self.stress_top = max(float(s.max()) for s in self._static.values())
+        self.stress_bottom = min(float(s.min()) for s in self._static.values())
         self._core_cache: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._yc0: float | None = None
         self._cache: dict[tuple, np.ndarray] = {}
@@ -134,8 +144,18 @@ class Fitter:
 
     # ------------------------------------------------------------------ the core
     def input_key(self, spec: Spec) -> tuple:
-        """What the core's input depends on: the spec's input-side effects."""
-        return tuple(spec.get(c.name) for c in self._inputs)
+        """What the core's run depends on: the spec's input-side effects, and whether a stress
+        transform is present (the core then sees the load's static stress)."""
+        return tuple(spec.get(c.name) for c in self._inputs) + tuple(c.name in spec for c in self._stress_fx)
+
+    def static_stress(self, d: RecData, clamped: bool = False) -> np.ndarray:
+        """The stress-transforming effect's stress of a recording (the load's static stress), raw
+        or clamped to the model's range (as recorded without such an effect)."""
+        return self._static_clamped[id(d)] if clamped else self._static[id(d)]
+
+    def stress(self, d: RecData, spec: Spec) -> np.ndarray:
+        """The stress the model under `spec` sees: as recorded (clamped), or the transformed one."""
+        return self._static_clamped[id(d)] if any(c.name in spec for c in self._stress_fx) else d.s
 
     def core(self, spec: Spec) -> list[tuple[np.ndarray, np.ndarray]]:
         """(core input u3, core output y_c) per recording for the spec's input-side effects."""
@@ -146,7 +166,7 @@ class Fitter:
         out = []
         for d in self.data:
             u3 = self.core_input(d, spec)
-            s = d.s if self.model.stress_range_MPa is not None else None
+            s = self.stress(d, spec) if self.model.stress_range_MPa is not None else None
             yc = np.asarray(self.model.simulate(d.t, u3, s, initial_state=d.start), dtype=float)
             out.append((u3, yc))
         if len(self._core_cache) > 64:
@@ -320,8 +340,8 @@ class SearchResult:
 
 
 def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, Any], Spec],
-           grid: Iterable[Any], refine: Callable[[Fitter, Any, int], Sequence[Any] | None] | None = None
-           ) -> SearchResult:
+           grid: Iterable[Any], refine: Callable[[Fitter, Any, int], Sequence[Any] | None] | None = None,
+           zoom_levels: int = ZOOM_LEVELS) -> SearchResult:
     """Grid (plus local refinement) over one block's parameters; per-fold choice by training error."""
     results: dict[Any, Score] = {}
 
@@ -333,7 +353,7 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
 
     run(grid)
     if refine is not None:
-        for level in range(1, ZOOM_LEVELS + 1):
+        for level in range(1, zoom_levels + 1):
             best_points = {min(results, key=lambda p: results[p].train_mse(0)),
                            min(results, key=lambda p: results[p].train_mse(1)),
                            min(results, key=lambda p: results[p].all_mse)}

@@ -33,7 +33,7 @@ from ..recordings import Recording
 from .checks import check_overlap, reversals
 from .data import N_BLOCKS, RecData, noise_floor, prepare
 from .explain import decider, drive_unit, explain, runner_up_note, validation_words
-from .fitting import Fitter, SearchResult, Spec, search
+from .fitting import ZOOM_LEVELS, Fitter, SearchResult, Spec, search
 from .locate import locate
 from .results import Candidate, Diagnosis
 
@@ -363,7 +363,7 @@ class _Run:
 
             partner = cls.joint_with
             if partner is None or partner not in base[2]:
-                return search(fitter, base, make, cls.grid(fitter), cls.refine)
+                return search(fitter, base, make, cls.grid(fitter), cls.refine, getattr(cls, "zoom_levels", ZOOM_LEVELS))
 
             # look-alikes trade off against each other: re-search the accepted one's value with the new one
             def make_joint(s: Spec, p: Any) -> Spec:

@@ -87,9 +87,17 @@ class FitData(Protocol):
     dt_min: float
     duration_max: float
     stress_ref: float
-    stress_top: float
+    stress_top: float              # the least compressive stress the model sees (the loads' static stress)
+    stress_bottom: float           # the most compressive one
     stress_varies: bool
     play_thresholds: np.ndarray
+
+    def stress(self, d: Any, spec: Any) -> np.ndarray:
+        """The stress the model under `spec` sees on a recording (clamped to the model's range)."""
+
+    def static_stress(self, d: Any, clamped: bool = False) -> np.ndarray:
+        """A recording's stress as a stress-transforming effect makes it (the load's static stress),
+        raw or clamped to the model's stress range (what the core sees)."""
 
     @property
     def yc_center(self) -> float: ...
@@ -154,6 +162,8 @@ class Effect(Protocol):
     slow: ClassVar[bool]                    # a slow effect (needs long recordings to separate)
     joint_with: ClassVar[str | None]        # a look-alike whose parameter is re-searched with this one
     deciders: ClassVar[Mapping[str, str]]   # per look-alike: the experiment that tells the two apart
+    transforms_stress: ClassVar[bool]       # True: it supplies the stress the core (and every stage) sees
+    zoom_levels: ClassVar[int]              # refinement levels of its parameter search
 
     # ---- model side
     @classmethod
@@ -162,9 +172,17 @@ class Effect(Protocol):
 
     def to_blocks(self) -> dict[str, dict[str, Any]]: ...
 
+    def inverted_text(self) -> Mapping[str, str]:
+        """`inverted` for this block (an effect with two forms words each its own way)."""
+
     @property
     def preview_s(self) -> float:
         """How far ahead an inverse must see the reference because of this effect (delays)."""
+
+    def seen_stress(self, stress_MPa: Any, t: np.ndarray, dt: np.ndarray) -> Any:
+        """The stress transform hook, batch: the stress the core and the later stages see (called
+        before the core; as given unless `transforms_stress`). Its stepper state then offers
+        `seen_stress(stress_MPa) -> float`, called on each sample's stress before the clamp."""
 
     def apply_input(self, u: np.ndarray, dt: np.ndarray, dt_med: float, u0: float) -> np.ndarray:
         """Input stage, batch: the drive after this effect."""
@@ -184,6 +202,10 @@ class Effect(Protocol):
     @classmethod
     def refine(cls, fitter: FitData, p: Any, level: int) -> Sequence[Any] | None:
         """Points around p at zoom level 1, 2, ... (None: the grid is all there is)."""
+
+    @classmethod
+    def fit_stress(cls, d: Any) -> np.ndarray:
+        """`transforms_stress` only: the transformed stress of a recording (unclamped)."""
 
     @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
@@ -234,11 +256,14 @@ class EffectBase:
     and writes it back as given."""
 
     keys: ClassVar[tuple[str, ...]]
+    inverted: ClassVar[Mapping[str, str]]
     physics_voltage: ClassVar[str | None] = None
     candidate: ClassVar[bool] = True
     slow: ClassVar[bool] = False
     joint_with: ClassVar[str | None] = None
     deciders: ClassVar[Mapping[str, str]] = {}
+    transforms_stress: ClassVar[bool] = False
+    zoom_levels: ClassVar[int] = 3
 
     def __init__(self, block: Mapping[str, Any]) -> None:
         self.block = dict(block)
@@ -251,9 +276,15 @@ class EffectBase:
     def to_blocks(self) -> dict[str, dict[str, Any]]:
         return {self.keys[0]: dict(self.block)}
 
+    def inverted_text(self) -> Mapping[str, str]:
+        return self.inverted
+
     @property
     def preview_s(self) -> float:
         return 0.0
+
+    def seen_stress(self, stress_MPa: Any, t: np.ndarray, dt: np.ndarray) -> Any:
+        return stress_MPa
 
     def apply_input(self, u: np.ndarray, dt: np.ndarray, dt_med: float, u0: float) -> np.ndarray:
         return u
@@ -280,6 +311,10 @@ class EffectBase:
     @classmethod
     def filter_input(cls, u: np.ndarray, d: Any, p: Any) -> np.ndarray:
         return u
+
+    @classmethod
+    def fit_stress(cls, d: Any) -> np.ndarray:
+        return np.asarray(d.s)
 
 
 def block_of(blocks: Mapping[str, Any], key: str) -> dict[str, Any] | None:

@@ -1,4 +1,12 @@
-"""Mechanical dynamics: rod and load mass on the rod's stiffness, a resonance that moves with the load."""
+"""Mechanical dynamics: rod and load mass on the rod's stiffness, a resonance that moves with the load.
+
+The block the diagnosis writes is the physical one (``form: rod_load``, see `rod_load`): the load
+on the rod's stiffness driven by the core's free stroke, discretised exactly, its resonance set by
+the load's *static* stress (the load-cell stress low-passed, as that reading carries the load's
+inertial force). The same static stress is what the core and the static map see: this effect is
+the model's stress transform (`seen_stress`, called before the core). Blocks without ``form``
+(files written before it) load as the older output filter and run as they did.
+"""
 
 from __future__ import annotations
 
@@ -7,8 +15,10 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
+from ..errors import ModelError
 from . import kernels as K
-from .base import BatchSignals, EffectBase, FitData, Regressors, StepSignals, geom_refine, positive
+from . import rod_load as RL
+from .base import BatchSignals, EffectBase, FitData, Regressors, StepSignals, positive
 
 MAX_ZETA = 0.5   # a resonance must peak; heavier damping is a lag/delay look-alike and is left to those
 
@@ -19,10 +29,16 @@ class Dynamics(EffectBase):
     stage: ClassVar[str] = "filter"
     position: ClassVar[int] = 70
     inverted: ClassVar[Mapping[str, str]] = {"dynamics": "exact inverse filter (3-tap FIR on the reference)"}
+    inverted_rod_load: ClassVar[Mapping[str, str]] = {
+        "dynamics": "exact state inverse of the load dynamics (the free stroke that puts the load at the reference)"}
     physics: ClassVar[str] = (
-        "rod and load mass on the rod's stiffness with damping: a second-order resonance whose frequency "
-        "falls as the load mass (and so the compressive stress) grows")
+        "rod and load mass on the rod's stiffness with damping, driven by the actuator's free stroke: a "
+        "second-order resonance whose frequency falls as the load mass (the static compressive stress the "
+        "load cell reads, its inertial force filtered out) grows")
     n_params: ClassVar[int] = 3
+    transforms_stress: ClassVar[bool] = True     # the model sees the load's static stress (rod_load)
+    # a sharp resonance needs its frequency, damping and load law to about a percent (steps halve per level)
+    zoom_levels: ClassVar[int] = 6
     deciders: ClassVar[Mapping[str, str]] = {
         "rate_dependence": "a resonance peaks and moves with load mass, a lag does not: drive near the fitted "
                            "resonance at two loads",
@@ -35,13 +51,34 @@ class Dynamics(EffectBase):
         self.zeta = positive(block, "zeta", "dynamics")
         self.beta = float(block.get("beta_per_MPa", 0.0))
         self.stress_ref = float(block.get("stress_ref_MPa", 0.0))
+        self.rod_load = RL.is_rod_load(block)      # False: the older output filter (files without 'form')
+        if self.rod_load and RL.check_block(block):
+            raise ModelError(f"extended model: {RL.check_block(block)}")
+
+    def inverted_text(self) -> Mapping[str, str]:
+        """Old files (the output filter) keep their words; the physical block has its own."""
+        return self.inverted_rod_load if self.rod_load else self.inverted
+
+    def seen_stress(self, stress_MPa: Any, t: np.ndarray, dt: np.ndarray) -> Any:
+        """The stress transform (called before the core): the load's static stress under rod_load
+        (without a reading, the reference load's), the stress as given for the older filter."""
+        if not self.rod_load:
+            return stress_MPa
+        s = np.full(t.size, self.stress_ref) if stress_MPa is None else np.asarray(stress_MPa, dtype=float)
+        if s.ndim == 0:
+            s = np.full(t.size, float(s))
+        if s.shape != t.shape:
+            raise ModelError(f"stress_MPa has {s.size} values but the drive has {t.size}")
+        return RL.static_stress(s, dt, float(self.block["stress_lowpass_hz"]))
 
     def apply(self, y: np.ndarray, sig: BatchSignals) -> np.ndarray:
+        if self.rod_load:
+            return RL.forward(y, sig.dt, sig.stress, self.block)
         return K.msd_filter(np.ascontiguousarray(y), sig.dt, sig.stress, 2 * math.pi * self.f_ref_hz, self.zeta,
                             self.beta, self.stress_ref, float(y[0]))
 
-    def state(self, dt: float, stress_ref: float, inverse: bool) -> "_DynamicsState":
-        return _DynamicsState(self, dt)
+    def state(self, dt: float, stress_ref: float, inverse: bool) -> "_DynamicsState | _RodLoadState":
+        return _RodLoadState(self, dt) if self.rod_load else _DynamicsState(self, dt)
 
     # ---- diagnosis
     @classmethod
@@ -65,24 +102,41 @@ class Dynamics(EffectBase):
             return (float(f_top), float(min(zeta, MAX_ZETA)),
                     float((rat ** -2 - 1.0) / span) if fitter.stress_varies else 0.0)
 
-        out = [point(fr * k, z, ratio) for k in geom_refine(1.0, 1.4, level)]
-        out += [point(fr, z * k, ratio) for k in geom_refine(1.0, 2.4, level)]
+        # steps halve per level (not a third): a sharp resonance's damping and load law are coupled to its
+        # frequency, and the grid's coarse frequency first pins the damping far from its value
+        def near(ratio_: float) -> list[float]:
+            step = 2.0 ** -level
+            return [ratio_ ** (e * step) for e in (-2.0, -1.0, 1.0, 2.0)]
+
+        out = [point(fr * k, z, ratio) for k in near(1.4)]
+        out += [point(fr, z * k, ratio) for k in near(2.4)]
+        # diagonal moves: frequency and damping trade off along a narrow valley near a sharp resonance
+        out += [point(fr * a, z * c, ratio) for a in near(1.4)[1:3] for c in near(2.4)[1:3]]
         if fitter.stress_varies:
-            out += [point(fr * math.sqrt(ratio / min(ratio * k, 1.0)), z, ratio * k)
-                    for k in geom_refine(1.0, 1.5, level)]
-            if level == 1 and b == 0.0:
-                # load-dependent resonance: keep the geometric-mean frequency, spread the ends apart
-                out += [point(fr / math.sqrt(r), z, r) for r in (0.8, 0.63, 0.5, 0.4, 0.3)]
+            out += [point(fr * math.sqrt(ratio / min(ratio * k, 1.0)), z, ratio * k) for k in near(1.5)]
+            out += [point(fr, z, ratio * k) for k in near(1.5)]       # the lightest load's resonance kept
+            if b == 0.0:
+                # load-dependent resonance: spread the ends apart keeping the geometric-mean frequency, or the
+                # frequency at either end (the fast drive that shows the resonance may sit at one load only)
+                out += [point(fr * k, z, r) for r in (0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3)
+                        for k in (1.0 / math.sqrt(r), 1.0, 1.0 / r)]
         return out
 
     @classmethod
+    def fit_stress(cls, d: Any) -> np.ndarray:
+        """The stress transform on a recording (the diagnosis' `RecData`): the load's static stress
+        from the stress as recorded (not clamped; the fitter clamps what the core sees)."""
+        return RL.static_stress(d.s if d.s_raw is None else d.s_raw, d.dt)
+
+    @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
-        """The resonance filters every regressor so far except the offset (the filter is linear)."""
+        """The load dynamics take every regressor so far (a term of the free stroke) except the offset
+        (the dynamics are linear, and a unity-gain system at rest leaves a constant alone)."""
         f, zeta, beta = p
         d = r.d
         idx = [j for j, name in enumerate(r.names) if name != "offset"]
-        filt = K.msd_filter_columns(np.column_stack([r.cols[j] for j in idx]), d.dt, d.s, 2 * math.pi * f,
-                                    zeta, beta, fitter.stress_top)
+        filt = RL.regressors(np.column_stack([r.cols[j] for j in idx]), d.dt, fitter.static_stress(d),
+                             f, zeta, beta, fitter.stress_top)
         for k, j in enumerate(idx):
             r.cols[j] = filt[:, k]
 
@@ -91,14 +145,14 @@ class Dynamics(EffectBase):
         f, z, b = p
         out = {"f_ref_hz": f, "zeta": z, "beta_per_MPa": b, "stress_ref_MPa": fitter.stress_top}
         if b > 0:
-            s_lo = min(float(d.s.min()) for d in fitter.data)
+            s_lo = min(float(fitter.static_stress(d, clamped=True).min()) for d in fitter.data)  # the static stress
             out["f_at_most_compressive_hz"] = f / math.sqrt(1 + b * (fitter.stress_top - s_lo))
         return out
 
     @classmethod
     def fitted_blocks(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, dict[str, Any]]:
         f, z, b = p
-        return {"dynamics": {"f_ref_hz": f, "zeta": z, "beta_per_MPa": b, "stress_ref_MPa": fitter.stress_top}}
+        return {"dynamics": RL.make_block(f, z, b, fitter.stress_top)}       # the load dynamics (rod_load)
 
     @staticmethod
     def describe(params: Mapping[str, float], unit: str) -> str:
@@ -109,7 +163,7 @@ class Dynamics(EffectBase):
 
 
 def _stress_extent(f: FitData) -> float:
-    return max(f.stress_top - min(float(d.s.min()) for d in f.data), 1e-9)
+    return max(f.stress_top - f.stress_bottom, 1e-9)      # the loads' static stresses (rod_load)
 
 
 class _DynamicsState:
@@ -147,6 +201,29 @@ class _DynamicsState:
         x.target = (target + a1 * self.v1 + a2 * self.v2) / kk
         self.v2 = self.v1
         self.v1 = target
+
+    def commit(self, x: StepSignals) -> None:
+        pass
+
+
+class _RodLoadState:
+    """The load dynamics stepped (`rod_load.RodLoadStepper`): the static stress first (`seen_stress`,
+    which also sets the resonance), then forward on the output, or its exact inverse on the reference."""
+
+    def __init__(self, m: Dynamics, dt: float) -> None:
+        self.rl = RL.RodLoadStepper(m.block, dt)
+
+    def reset(self, initial_drive: float) -> None:
+        self.rl.reset()
+
+    def seen_stress(self, stress_MPa: float | None) -> float:
+        return self.rl.static(stress_MPa)
+
+    def step(self, x: StepSignals) -> None:
+        x.y = self.rl.forward(x.y)
+
+    def inverse_step(self, x: StepSignals) -> None:
+        x.target = self.rl.inverse(x.target)
 
     def commit(self, x: StepSignals) -> None:
         pass

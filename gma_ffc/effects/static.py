@@ -85,7 +85,7 @@ class StaticMap(EffectBase):
         r.cols += [yc, (yc - fitter.yc_center) ** 2, np.ones_like(yc)]
         r.names += ["gain", "quadratic", "offset"]
         if fitter.stress_varies:
-            r.cols.append((r.d.s - fitter.stress_ref) * yc)
+            r.cols.append((fitter.stress(r.d, r.spec) - fitter.stress_ref) * yc)   # the stress the model sees
             r.names.append("stress_gain")
         plays = r.shared["plays"] = K.play_bank(u3, fitter.play_thresholds, float(u3[0]))
         for j in range(fitter.play_thresholds.size):

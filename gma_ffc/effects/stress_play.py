@@ -110,7 +110,7 @@ class StressPlay(EffectBase):
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
         # each play's weight may change linearly with stress (loop shape), and the core's loop may
         # widen with stress (its play thresholds - the coercive current - scaled by 1 + k (s - s_ref))
-        ds = r.d.s - fitter.stress_ref
+        ds = fitter.stress(r.d, r.spec) - fitter.stress_ref      # the stress the model sees
         plays = r.shared["plays"]
         for j in range(fitter.play_thresholds.size):
             r.cols.append(ds * (plays[:, j] - r.u3))
@@ -126,7 +126,7 @@ class StressPlay(EffectBase):
         def compute() -> np.ndarray:
             model = fitter.model
             wide = widened_core(model, eps)
-            s = d.s if model.stress_range_MPa is not None else None
+            s = fitter.stress(d, r.spec) if model.stress_range_MPa is not None else None
             return (np.asarray(wide.simulate(d.t, r.u3, s, initial_play_state=d.start.play_state), dtype=float)
                     - r.yc) / eps
 
