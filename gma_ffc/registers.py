@@ -150,7 +150,9 @@ class Channel:
         if self.byte_order == "little":
             chunks = [c[::-1] for c in chunks]
         (raw,) = struct.unpack(">" + TYPES[self.type][0], b"".join(chunks))
-        return float(raw) * self.scale + self.offset
+        value = float(raw) * self.scale
+        # no offset: leave the value alone, so a device's -0.0 reads back as -0.0 (adding 0.0 makes it +0.0)
+        return value + self.offset if self.offset else value
 
     @property
     def physical_range(self) -> tuple[float, float]:
