@@ -4,8 +4,9 @@ Each tick: read the load cell and scale it to stress (sigma = -F / A_rod), take 
 sample, step the inverse model, apply current and slew limits, write the command, and push a
 telemetry row. The hot path allocates no containers, does no I/O of its own besides the
 driver's, and logs nothing; faults are recorded in preallocated state and reported by
-`status()`. See `gma_ffc.control.safety` for which faults go to the safe current at once and
-which ramp there.
+`status()`. Faults go through one path that executes the fault table (`safety.FAULT_ACTIONS`,
+resolved from the config by `safety.fault_actions` at configure and reload time): how the output
+goes safe, what follows, whether learning freezes, and the state the run ends in.
 
 Every exit from `run` - normal end, stop request, fault, exception - writes the safe current
 through the driver BEFORE the driver and the telemetry file are closed.
@@ -40,6 +41,7 @@ from .scheduler import MonotonicClock, Scheduler, SimulatedClock, TickStats
 from .telemetry import Telemetry
 
 RUNNING, STOPPING = 0, 1      # the loop's own mode within State.RUNNING / State.STOPPING
+FLAGGED, RAMP, RESUME, EXIT = 0, 1, 2, 3    # what the loop does after `_execute` ran a fault's row
 
 
 class State(str, Enum):
@@ -56,7 +58,6 @@ class State(str, Enum):
     def __str__(self) -> str:
         return self.value
 FAULT_HISTORY = 200     # most recent faults kept for the status (bounded for long service lives)
-_WARNINGS = ("realtime_priority_refused",)
 _RESTART_KEYS = ("rate_hz", "clock", "driver", "telemetry", "scheduler")
 
 
@@ -160,6 +161,7 @@ class Controller:
         rng = model.stress_range_MPa
         self.stress_lo, self.stress_hi = (float(rng[0]), float(rng[1])) if rng is not None else (-math.inf, math.inf)
         self.stress_policy_fault = self.cfg.stress["out_of_range"] == "fault"
+        self.fault_table = safety.fault_actions(self.cfg)     # configure time, never per tick
         self._set_drive_range(model)
 
     # ---- requests from other threads -----------------------------------------------------
@@ -242,11 +244,11 @@ class Controller:
                 self.driver.safe(self.safe_A)
                 self.last_cmd_A = self.safe_A
                 self._at_safe = True
-                self._clear_fault("safe_write_failed")
+                self._clear_fault(safety.SAFE_WRITE_FAILED)
                 break
             except Exception as exc:  # the device may be gone; keep trying for a while
                 if time.monotonic() >= give_up:
-                    self._raise_fault("safe_write_failed",
+                    self._raise_fault(safety.SAFE_WRITE_FAILED,
                                       f"could not write the safe current: {type(exc).__name__}: {exc}")
                     break
             time.sleep(0.05)
@@ -275,9 +277,9 @@ class Controller:
             self.driver.open()
             return True
         except DriverError as exc:
-            self._raise_fault(safety.COMMS_ERROR if exc.reason != "timeout" else safety.COMMS_TIMEOUT,
-                              f"cannot open the driver: {exc}")
-            if self.cfg.comms["on_fault"] != "reconnect":
+            name = safety.COMMS_ERROR if exc.reason != "timeout" else safety.COMMS_TIMEOUT
+            self._raise_fault(name, f"cannot open the driver: {exc}")
+            if self.fault_table[name].then != "reconnect":
                 return False
             return self._reconnect(stop_event)
 
@@ -307,7 +309,7 @@ class Controller:
             self._clear_fault(safety.COMMS_ERROR)
             self._clear_fault(safety.COMMS_TIMEOUT)
             return True
-        self._raise_fault("reconnect_failed", f"gave up after {attempt} reconnect attempts")
+        self._raise_fault(safety.RECONNECT_FAILED, f"gave up after {attempt} reconnect attempts")
         return False
 
     def _wait(self, delay: float, stop_event: threading.Event) -> bool:
@@ -376,21 +378,19 @@ class Controller:
             try:
                 self.driver.deactivate()
             except Exception as exc:   # after the safe current: the output may still be on, say so
-                self._raise_fault("deactivate_failed", f"output not switched off: {type(exc).__name__}: {exc}")
+                self._raise_fault(safety.DEACTIVATE_FAILED, f"output not switched off: {type(exc).__name__}: {exc}")
         if watchdog is not None:
             watchdog.join(timeout=2.0)
         self._save_learned()
         if self.telemetry is not None:
             self.telemetry.close()
             if self.telemetry.error:
-                self._raise_fault("telemetry", self.telemetry.error)
+                self._raise_fault(safety.TELEMETRY, self.telemetry.error)
         try:
             self.driver.close()
         except Exception as exc:
-            self._raise_fault("close_failed", f"{type(exc).__name__}: {exc}")
-        hard = [f for f in self.active_faults if f not in _WARNINGS
-                and (f != safety.STRESS_RANGE or self.stress_policy_fault)
-                and (f != safety.DRIVE_RANGE or self.limits_beyond == "fault")]
+            self._raise_fault(safety.CLOSE_FAILED, f"{type(exc).__name__}: {exc}")
+        hard = [f for f in self.active_faults if self._exit_state(f) == "fault"]
         self.state = State.FAULT if hard else State.STOPPED
         return self._summary()
 
@@ -402,7 +402,7 @@ class Controller:
         try:
             save_learned(self.learner, path)
         except OSError as exc:
-            self._raise_fault("learning_save_failed", f"could not save the learned correction to {path}: {exc}")
+            self._raise_fault(safety.LEARNING_SAVE_FAILED, f"could not save the learned correction to {path}: {exc}")
 
     def _watchdog(self, stop: threading.Event) -> None:
         """Trip when the loop makes no progress for watchdog_s (a hung driver call, a stall)."""
@@ -448,10 +448,10 @@ class Controller:
             self._heartbeat = t_start
             t = deadline - t0
             if mode == RUNNING and (t >= end_t or stop_event.is_set() or self._stop_reason is not None):
-                mode = STOPPING
+                self._execute(safety.STOP, t, mode, stop_event,
+                              self._stop_reason or ("stop requested" if stop_event.is_set() else "duration reached"))
+                mode = STOPPING                # the STOP row ramps
                 stop_started = t
-                self.exit_reason = self._stop_reason or ("stop requested" if stop_event.is_set() else "duration reached")
-                self.state = State.STOPPING
             if self._pending is not None:
                 self._apply_pending()
             try:
@@ -470,11 +470,9 @@ class Controller:
                 if mode == RUNNING and stress == stress:
                     if stress < self.stress_lo or stress > self.stress_hi:
                         self._stress_out_of_range(stress)
-                        if self.stress_policy_fault:
+                        if self._execute(safety.STRESS_RANGE, t, mode, stop_event) == RAMP:
                             mode = STOPPING
                             stop_started = t
-                            self.exit_reason = self.active_faults[safety.STRESS_RANGE]
-                            self.state = State.STOPPING
                     elif self.stress_clamped_ticks and safety.STRESS_RANGE in self.active_faults:
                         self._clear_fault(safety.STRESS_RANGE)
                 if mode == RUNNING and stress == stress:
@@ -484,11 +482,9 @@ class Controller:
                     if self.law.beyond:
                         self._outside = 1
                         self._beyond_drive(self.law.raw)
-                        if self.limits_beyond == "fault":
+                        if self._execute(safety.DRIVE_RANGE, t, mode, stop_event) == RAMP:
                             mode = STOPPING
                             stop_started = t
-                            self.exit_reason = self.active_faults[safety.DRIVE_RANGE]
-                            self.state = State.STOPPING
                             u = self.safe_A
                     else:
                         self._outside = 0
@@ -509,42 +505,15 @@ class Controller:
                                         "command limited (ramp, slew or current limit)")
                     else:
                         learner.observe(t, ref_now, inputs.displacement_um, stress, True)
-            except _TickFault as fault:
+            except Exception as exc:   # the one fault path: the table says what happens
+                name, message, reason = _classify(exc)
                 if read_ok:   # a tick whose read failed has no data to log
                     self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
                                      disp_col, force_col, tel, safe=True)
-                self._raise_fault(fault.name, str(fault))
-                self._write_safe()
-                self.exit_reason = str(fault)
-                return
-            except DriverError as exc:
-                name = safety.COMMS_TIMEOUT if exc.reason == "timeout" else safety.COMMS_ERROR
-                if read_ok:   # a tick whose read failed has no data to log
-                    self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
-                                     disp_col, force_col, tel, safe=True)
-                self._raise_fault(name, str(exc))
-                # Fault handling is bounded (comms timeouts, safe_retry_s, the reconnect policy):
-                # the watchdog, which guards against a loop that hangs, pauses until the next tick.
-                self._heartbeat = math.nan
-                self._write_safe()
-                if self.learner is not None:
-                    self.learner.freeze(t, "comms fault: at the safe current, reconnecting")
-                if mode == RUNNING and self.cfg.comms["on_fault"] == "reconnect" and self._reconnect(stop_event):
-                    start_stepper(self.stepper, self.model, self.safe_A)
-                    self.monitor.bad_run = 0
-                    self.monitor.stale_run = 0
-                    self.state = State.RUNNING
+                self._raise_fault(name, message)
+                if self._execute(name, t, mode, stop_event, reason) == RESUME:
                     sched.next_deadline = clock.now()
                     continue
-                self.exit_reason = str(exc)
-                return
-            except Exception as exc:
-                if read_ok:   # a tick whose read failed has no data to log
-                    self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
-                                     disp_col, force_col, tel, safe=True)
-                self._raise_fault(safety.EXCEPTION, f"{type(exc).__name__}: {exc}")
-                self._write_safe()
-                self.exit_reason = f"exception in the tick: {type(exc).__name__}: {exc}"
                 return
             self.last_reference_um = ref_now
             self.last_cmd_A = cmd
@@ -556,11 +525,47 @@ class Controller:
             stats.missed = sched.missed
             if compute > watchdog_s:
                 self._raise_fault(safety.WATCHDOG, f"a tick took {compute:.3f} s (watchdog {watchdog_s:g} s)")
-                self._write_safe()
-                self.exit_reason = "watchdog"
-                return
+                if self._execute(safety.WATCHDOG, t, mode, stop_event, "watchdog") != RESUME:
+                    return
             if mode == STOPPING and (cmd == self.safe_A or t - stop_started >= self.cfg.limits["stop_ramp_max_s"]):
                 return
+
+    def _execute(self, name: str, t: float, mode: int, stop_event: threading.Event, reason: str | None = None) -> int:
+        """Execute the fault table's row for `name` (already raised, or a stop request); returns
+        FLAGGED (the tick goes on), RAMP (the loop heads for the safe current within the slew
+        limit), RESUME (reconnected: next tick) or EXIT. `reason` (default: the fault's message)
+        becomes the exit reason when the row stops the run. Only ever called on a fault."""
+        action = self.fault_table[name]
+        if action.output == "none":
+            return FLAGGED
+        if reason is None:
+            reason = self.active_faults.get(name, name)
+        if action.output == "ramp":      # the stopping ticks observe with ok=False: learning frozen
+            self.exit_reason = reason
+            self.state = State.STOPPING
+            return RAMP
+        # immediate. Fault handling is bounded (comms timeouts, safe_retry_s, the reconnect
+        # policy): the watchdog, which guards against a loop that hangs, pauses until the next tick.
+        self._heartbeat = math.nan
+        self._write_safe()
+        reconnect = action.then == "reconnect" and mode == RUNNING
+        if action.freeze_learning and self.learner is not None:
+            self.learner.freeze(t, f"{name}: at the safe current" + (", reconnecting" if reconnect else ""))
+        if reconnect and self._reconnect(stop_event):
+            start_stepper(self.stepper, self.model, self.safe_A)
+            self.monitor.bad_run = 0
+            self.monitor.stale_run = 0
+            self.state = State.RUNNING
+            return RESUME
+        self.exit_reason = reason
+        return EXIT
+
+    def _exit_state(self, name: str) -> str:
+        """The state a run ending with fault `name` active ends in (unknown names: fault)."""
+        action = self.fault_table.get(name)
+        if action is not None:
+            return action.exit_state
+        return "stopped" if name in safety.WARNINGS else "fault"
 
     def _record_row(self, row: np.ndarray, t: float, ref: float, cmd: float, inputs: Inputs, has_current: bool,
                     disp_col: int, force_col: int, tel: Telemetry, safe: bool = False) -> None:
@@ -671,7 +676,7 @@ def _realtime(ctrl: Controller) -> Iterator[None]:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
         except (OSError, AttributeError) as exc:
             old_policy = None
-            ctrl._raise_fault("realtime_priority_refused", f"SCHED_FIFO {prio} not permitted ({exc}); running "
+            ctrl._raise_fault(safety.REALTIME_REFUSED, f"SCHED_FIFO {prio} not permitted ({exc}); running "
                                                           f"with normal scheduling")
     try:
         yield
@@ -736,6 +741,16 @@ def save_learned(learner: RepetitiveLearner, path: str) -> None:
     with atomic_write(path) as fh:
         fh.write("# gma-ffc learned feedforward correction: loaded by `gma-ffc run --learned FILE`\n")
         yaml.safe_dump(learner.to_dict(), fh, sort_keys=False)
+
+
+def _classify(exc: Exception) -> tuple[str, str, str]:
+    """A tick's exception as (fault name, fault message, exit reason)."""
+    if isinstance(exc, _TickFault):
+        return exc.name, str(exc), str(exc)
+    if isinstance(exc, DriverError):
+        return (safety.COMMS_TIMEOUT if exc.reason == "timeout" else safety.COMMS_ERROR), str(exc), str(exc)
+    message = f"{type(exc).__name__}: {exc}"
+    return safety.EXCEPTION, message, f"exception in the tick: {message}"
 
 
 def ref_or_nan(ctrl: Controller) -> float:

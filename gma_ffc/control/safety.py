@@ -1,21 +1,29 @@
 """Safety: current and slew limits, sensor plausibility, and the fault vocabulary.
 
-Which faults go to the safe current at once and which ramp there within the slew limit:
+The fault vocabulary is a table of data, `FAULT_ACTIONS`: fault name -> `FaultAction`, which the
+loop runner (`controller.Controller`) executes on its one fault path. A row says
 
-* IMMEDIATE (the loop can no longer be trusted, or the device is not answering, so the safe
-  current is written in one step, ignoring the slew limit): comms timeout / comms error,
-  an exception anywhere in the tick, watchdog expiry, and a bad load-cell reading (NaN,
-  missing, absurd or stuck for the configured number of ticks) - the inverse model would be
-  fed a wrong stress.
-* RAMPED (the loop is healthy; the command goes to the safe current within the slew limit,
-  for at most `limits.stop_ramp_max_s`, then the safe current is written): a stop request
-  (signal, control socket), the end of `--duration`, and stress outside the model's range
-  when `stress.out_of_range: fault`.
+* `output` - how the output goes safe: "immediate" (the safe current written in one step,
+  ignoring the slew limit: the loop can no longer be trusted, or the device is not answering),
+  "ramp" (the loop is healthy: the command goes to the safe current within the slew limit, for
+  at most `limits.stop_ramp_max_s`, then the safe current is written) or "none" (keep running,
+  the fault is a flag in the status and telemetry);
+* `then` - what follows: "stop", "reconnect" (with backoff, per `comms`) or "continue";
+* `freeze_learning` - whether the repetitive learner learns nothing from the current period;
+* `exit_state` - the state the run ends in when this fault ends it: "fault" or "stopped".
+
+Three rows depend on the config (`stress.out_of_range`, `limits.beyond_model`, `comms.on_fault`);
+`fault_actions(cfg)` resolves them once, at configure (and reload) time, into the runner's table.
+`FAULT_ACTIONS` holds the defaults. `EXIT_FAULTS` are raised on the way out (after the safe
+current is written) and end the run in "fault"; `WARNINGS` never do.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any, Mapping
 
 # Fault names (status and telemetry metadata use these words).
 COMMS_TIMEOUT = "comms_timeout"
@@ -29,7 +37,74 @@ STRESS_RANGE = "stress_out_of_model_range"
 DRIVE_RANGE = "drive_out_of_model_range"   # the inverse asks for a drive the model was not identified on
 STOP = "stop_requested"
 
-IMMEDIATE = frozenset({COMMS_TIMEOUT, COMMS_ERROR, EXCEPTION, WATCHDOG, SENSOR_NAN, SENSOR_ABSURD, SENSOR_STALE})
+# Raised on the way out, at lifecycle edges, after the safe current was written (or tried).
+SAFE_WRITE_FAILED = "safe_write_failed"
+RECONNECT_FAILED = "reconnect_failed"
+DEACTIVATE_FAILED = "deactivate_failed"
+CLOSE_FAILED = "close_failed"
+TELEMETRY = "telemetry"
+LEARNING_SAVE_FAILED = "learning_save_failed"
+EXIT_FAULTS = frozenset({SAFE_WRITE_FAILED, RECONNECT_FAILED, DEACTIVATE_FAILED, CLOSE_FAILED, TELEMETRY,
+                         LEARNING_SAVE_FAILED})
+REALTIME_REFUSED = "realtime_priority_refused"
+WARNINGS = frozenset({REALTIME_REFUSED})      # reported, never a fault exit
+
+OUTPUTS = ("immediate", "ramp", "none")
+THENS = ("stop", "reconnect", "continue")
+EXIT_STATES = ("fault", "stopped")
+
+
+@dataclass(frozen=True)
+class FaultAction:
+    """What the runner does on a fault (see the module docstring)."""
+
+    output: str            # "immediate" | "ramp" | "none"
+    then: str              # "stop" | "reconnect" | "continue"
+    freeze_learning: bool
+    exit_state: str        # "fault" | "stopped"
+
+    def __post_init__(self) -> None:
+        ok = self.output in OUTPUTS and self.then in THENS and self.exit_state in EXIT_STATES and {
+            "immediate": self.then in ("stop", "reconnect"),
+            "ramp": self.then == "stop" and self.freeze_learning,   # stopping ticks teach nothing
+            "none": self.then == "continue"}[self.output]
+        if not ok:
+            raise ValueError(f"not a fault action: {self}")
+
+
+_IMMEDIATE_STOP = FaultAction("immediate", "stop", True, "fault")
+_RAMP_FAULT = FaultAction("ramp", "stop", True, "fault")
+_FLAG_ONLY = FaultAction("none", "continue", False, "stopped")
+_RECONNECT = FaultAction("immediate", "reconnect", True, "fault")
+
+FAULT_ACTIONS: Mapping[str, FaultAction] = MappingProxyType({
+    COMMS_TIMEOUT: _RECONNECT,                  # comms.on_fault: reconnect (stop: _IMMEDIATE_STOP)
+    COMMS_ERROR: _RECONNECT,
+    EXCEPTION: _IMMEDIATE_STOP,
+    WATCHDOG: _IMMEDIATE_STOP,
+    SENSOR_NAN: _IMMEDIATE_STOP,
+    SENSOR_ABSURD: _IMMEDIATE_STOP,
+    SENSOR_STALE: _IMMEDIATE_STOP,
+    STRESS_RANGE: _FLAG_ONLY,                   # stress.out_of_range: clamp (fault: _RAMP_FAULT)
+    DRIVE_RANGE: _FLAG_ONLY,                    # limits.beyond_model: warn | clamp (fault: _RAMP_FAULT)
+    STOP: FaultAction("ramp", "stop", True, "stopped"),   # a stop request, the end of --duration
+})
+
+# The config choice that selects each config-dependent row: (section, key) -> {choice: action}.
+CONFIGURED: Mapping[str, tuple[str, str, Mapping[str, FaultAction]]] = MappingProxyType({
+    COMMS_TIMEOUT: ("comms", "on_fault", {"reconnect": _RECONNECT, "stop": _IMMEDIATE_STOP}),
+    COMMS_ERROR: ("comms", "on_fault", {"reconnect": _RECONNECT, "stop": _IMMEDIATE_STOP}),
+    STRESS_RANGE: ("stress", "out_of_range", {"clamp": _FLAG_ONLY, "fault": _RAMP_FAULT}),
+    DRIVE_RANGE: ("limits", "beyond_model", {"warn": _FLAG_ONLY, "clamp": _FLAG_ONLY, "fault": _RAMP_FAULT}),
+})
+
+
+def fault_actions(cfg: Any) -> dict[str, FaultAction]:
+    """The runner's table for this config: `FAULT_ACTIONS` with the config-dependent rows resolved."""
+    table = dict(FAULT_ACTIONS)
+    for name, (section, key, choices) in CONFIGURED.items():
+        table[name] = choices[getattr(cfg, section)[key]]
+    return table
 
 
 class Limiter:
