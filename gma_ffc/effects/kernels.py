@@ -109,36 +109,6 @@ def msd_filter(x: np.ndarray, dt: np.ndarray, stress: np.ndarray, omega_ref: flo
 
 
 @njit(cache=True, nogil=True)
-def msd_filter_columns(X: np.ndarray, dt: np.ndarray, stress: np.ndarray, omega_ref: float, zeta: float,
-                       beta: float, stress_ref: float) -> np.ndarray:
-    """`msd_filter` applied to every column of X (each relaxed at its first value), one pass."""
-    n, m = X.shape
-    out = np.empty((n, m))
-    y1 = np.empty(m)
-    y2 = np.empty(m)
-    for j in range(m):
-        y1[j] = X[0, j]
-        y2[j] = X[0, j]
-    last_dt = -1.0
-    last_s = np.nan
-    a1 = 0.0
-    a2 = 0.0
-    kk = 1.0
-    for k in range(n):
-        if dt[k] != last_dt or (beta != 0.0 and stress[k] != last_s):
-            w = msd_omega(omega_ref, beta, stress[k], stress_ref)
-            a1, a2, kk = msd_coeffs(dt[k], w, zeta)
-            last_dt = dt[k]
-            last_s = stress[k]
-        for j in range(m):
-            y = kk * X[k, j] - a1 * y1[j] - a2 * y2[j]
-            out[k, j] = y
-            y2[j] = y1[j]
-            y1[j] = y
-    return out
-
-
-@njit(cache=True, nogil=True)
 def msd_inverse(y: np.ndarray, dt: np.ndarray, stress: np.ndarray, omega_ref: float, zeta: float,
                 beta: float, stress_ref: float, y0: float) -> np.ndarray:
     """Exact inverse of `msd_filter` (3-tap FIR)."""
