@@ -20,6 +20,13 @@ from ..schema import Field, key_name, validate_section
 from ..errors import ConfigError
 from .base import CURRENT, DISPLACEMENT, FORCE, STRESS, Driver, DriverError, Inputs
 
+try:      # pyserial flushes a POSIX port with termios, whose error is no OSError: a port that fails
+    import termios      # under a flush (EIO on a hung-up pty) is a comms fault, not an exception
+
+    _TERMIOS_ERRORS: tuple[type[BaseException], ...] = (termios.error,)
+except ImportError:     # not POSIX
+    _TERMIOS_ERRORS = ()
+
 QUERY_CHANNELS = (FORCE, STRESS, CURRENT, DISPLACEMENT)
 
 
@@ -128,7 +135,7 @@ class SerialDriver(Driver):
             self.ser.write(data)
         except serial.SerialTimeoutException:
             raise self._fail("write timed out", "timeout") from None
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, *_TERMIOS_ERRORS) as exc:
             raise self._fail(f"write failed ({exc})", "comms") from None
 
     def read(self, inputs: Inputs) -> None:
@@ -139,7 +146,7 @@ class SerialDriver(Driver):
             raise self._fail("not open", "comms")
         try:
             ser.reset_input_buffer()
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, *_TERMIOS_ERRORS) as exc:
             raise self._fail(f"port failed ({exc})", "comms") from None
         self._send(self._query_bytes)
         for name, query in self.queries:
@@ -151,7 +158,7 @@ class SerialDriver(Driver):
 
         try:
             line = self.ser.readline()
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, *_TERMIOS_ERRORS) as exc:
             raise self._fail(f"read failed ({exc})", "comms") from None
         if not line.endswith(self.eol[-1:]):
             raise self._fail(f"no reply to {query!r} within {self.cfg['timeout_s']:g} s", "timeout")
