@@ -183,8 +183,12 @@ def record(cfg: PlantConfig, t: np.ndarray, i: np.ndarray, mass: Any, name: str,
                       "displacement_um": out["displacement_um"]}, {}, name)
 
 
-def make_case(case: Case, scale: float = 1.0) -> tuple[Any, Recording]:
-    """The base model (from separate 3 Hz recordings) and the concealed diagnosis recording."""
+def make_case(case: Case, scale: float = 1.0, effect_free: bool = False) -> tuple[Any, Recording]:
+    """The base model (from separate 3 Hz recordings) and the concealed diagnosis recording.
+
+    `effect_free`: the same base model, drive, loads and noise, with the plant's switchable effects
+    off in the diagnosis recording: its twin without the missing physics, whose base-model error
+    is the floor an extended model can reach on the case (the model class's own error)."""
     rng = np.random.default_rng(case.seed)
     cfg = PlantConfig()
     case.configure(cfg)
@@ -205,6 +209,9 @@ def make_case(case: Case, scale: float = 1.0) -> tuple[Any, Recording]:
         d["drive_name"] = "voltage_V"
         model = type(model).from_dict(d)
     t, i, mass = diagnosis_drive(rng, case.drive_max, scale, case.loads)
+    if effect_free:
+        cfg = cfg.with_effects(["noise"])
+        cfg.magnetics.stress_dependent_width = False
     rec = _variant(record(cfg, t, i, mass, "recording.csv", case.seed), case)
     if case.start_s > 0:
         keep = rec.time_s >= rec.time_s[0] + case.start_s
