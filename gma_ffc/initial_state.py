@@ -144,14 +144,23 @@ def resolve(model: Any, drive: Any, stress_MPa: Any = None, spec: "str | Initial
                                                 f"(play states fitted until they settle)")
 
 
+RANDOM_HISTORIES = 4096      # random longer histories scored as starts (batches of numpy work)
+HISTORY_SEARCH_SEED = 8      # fixed: the estimate is a deterministic function of the data
+CLIMBS = 16                  # hill-climbs on the turning points of the best random histories
+STARTS = 4                   # best starts the local search descends from
+
+
 def _fit_state(model: Any, x: np.ndarray, stress: Any, y: np.ndarray, guess: np.ndarray,
                settled: int, max_points: int = 600) -> tuple[np.ndarray | None, int]:
     """Least squares for the play states over the samples where they matter.
 
     Each play's output is a clamp of its unknown initial value between two envelopes that depend
     on the drive alone (its outputs started from the bottom and the top of the admissible box),
-    so the output is a known function of one number per play. The fit runs coordinate-wise: for
-    each play a scan of its box then a golden-section polish, a few sweeps, from the rule's guess.
+    so the output is a known function of one number per play. The cost has many basins (flat
+    clamps, valleys where plays act together), so the starts are states real histories leave: the
+    rule's guess, the last two turning points on a zoomed grid, and hill-climbs over random histories
+    of three to six turning points. From the best few, a coordinate search (a scan of each play's
+    box, then a golden-section polish) and a joint bounded least-squares step with the exact Jacobian.
     The window runs to the settled index plus a margin (at least 64 samples); NaN readings are
     ignored. Returns None when the fit does not beat the guess.
     """
@@ -185,31 +194,45 @@ def _fit_state(model: Any, x: np.ndarray, stress: Any, y: np.ndarray, guess: np.
     dz_lo = np.where(r_s > 0, 0.0, -np.inf)
     dz_hi = np.where(r_s < 0, 0.0, np.inf)
 
-    def output(z: np.ndarray) -> np.ndarray:          # z: (k, m) -> y: (k, m)
+    def output(z: np.ndarray, rows: Any = slice(None)) -> np.ndarray:   # z: (k, m) -> y: (k, m)
         d = z[..., None] - r_s
         np.maximum(d, dz_lo, out=d)
         np.minimum(d, dz_hi, out=d)
-        return offset + np.einsum("kmj,mj->km", d, ws)
+        return offset[rows] + np.einsum("kmj,mj->km", d, ws[rows])
 
-    def cost(p: np.ndarray) -> float:
-        return float(((output((w_h * _clip(p, A, B)).sum(axis=1)[None, :])[0] - ys) ** 2).sum())
+    def slope(z: np.ndarray) -> np.ndarray:           # z: (m,) -> dy/dz: (m,), the active dead-zones' weights
+        d = z[:, None] - r_s
+        active = np.where(r_s > 0, d > 0, np.where(r_s < 0, d < 0, True))
+        return (ws * active).sum(axis=1)
+
+    def costs(states: np.ndarray, rows: Any = slice(None)) -> np.ndarray:   # (k, n_play) -> (k,)
+        out = []
+        for q in np.array_split(states, max(1, len(states) // 256)):
+            z = (w_h * _clip(q[:, None, :], A[rows], B[rows])).sum(axis=2)
+            out.append(((output(z, rows) - ys[rows]) ** 2).sum(axis=1))
+        return np.concatenate(out)
 
     guess = np.clip(guess, lo, hi)
-    guess_cost = cost(guess)
-    # Starts: the states real histories leave (the last two turning points before the recording,
-    # on a grid), so the search begins in the right basin rather than on a flat clamp.
+    guess_cost = float(costs(guess[None, :])[0])
+    # Starts: states real histories leave, so the search begins in the right basin rather than on a
+    # flat clamp: the last two turning points before the recording on a grid, zoomed in ...
     reach = 2.0 * float(r[-1])
     step = reach / 11
     grid = np.linspace(0.0, reach, 12)
     hist = _history_states(v[0], r, grid, grid)
-    for _level in range(3):                     # zoom in on the best last-two-turning-points pair
-        a0, b0 = min(hist, key=lambda h: cost(h[2]))[:2]
+    for _level in range(3):
+        a0, b0 = hist[int(np.argmin(costs(np.array([h[2] for h in hist]))))][:2]
         step /= 4
         near = np.arange(-4, 5) * step
         hist += _history_states(v[0], r, np.clip(a0 + near, 0.0, reach), np.clip(b0 + near, 0.0, reach))
-    cands = [(guess_cost, 0, guess)] + [(cost(h[2]), i + 1, h[2]) for i, h in enumerate(hist)]
-    starts = sorted(cands, key=lambda t: t[:2])[:2]
-    results = [_descend(q, c, lo, hi, w_h, A, B, output, ys, model.n_play) for c, _, q in starts]
+    # ... and longer histories, whose staircases two turning points cannot leave (a play above its
+    # neighbour after a smaller one moved down): a random search over three to six turning points
+    many = _history_search(v[0], r, reach, lambda q: costs(q, slice(None, None, 4)))
+    states = np.array([guess] + [h[2] for h in hist] + list(many))
+    ranked = np.argsort(costs(states), kind="stable")
+    starts = [states[k] for k in ranked[:STARTS]]
+    results = [_descend(q, float(costs(q[None, :])[0]), lo, hi, w_h, A, B, output, slope, ys, model.n_play)
+               for q in starts]
     best_cost, p = min(results, key=lambda t: t[0])
     if best_cost >= guess_cost:
         return None, end
@@ -236,8 +259,41 @@ def _history_states(v0: float, r: np.ndarray, a_grid: np.ndarray,
     return out
 
 
+def _turns_to_states(v0: float, r: np.ndarray, turns: np.ndarray, n_turns: np.ndarray) -> np.ndarray:
+    """(k, n_play) play states after drives through `turns` (the first n_turns of each row; relaxed
+    at the first) that end at v0."""
+    p = np.repeat(turns[:, :1], r.size, axis=1)
+    for j in range(1, turns.shape[1]):
+        moved = np.clip(p, turns[:, j:j + 1] - r, turns[:, j:j + 1] + r)
+        p = np.where((j < n_turns)[:, None], moved, p)
+    return np.clip(p, v0 - r, v0 + r)
+
+
+def _history_search(v0: float, r: np.ndarray, reach: float, cost: Any) -> np.ndarray:
+    """States after random drives of three to six turning points within the operators' reach,
+    then parallel hill-climbs on the turning points of the best few (each keeps its own lineage,
+    so the starts stay in different basins). A fixed generator: the estimate is a deterministic
+    function of the data. Returns the climbs' best states, best first."""
+    rng = np.random.default_rng(HISTORY_SEARCH_SEED)
+    turns = v0 + rng.uniform(-reach, reach, (RANDOM_HISTORIES, 6))
+    n_turns = rng.integers(3, 7, RANDOM_HISTORIES)
+    c = cost(_turns_to_states(v0, r, turns, n_turns))
+    best = np.argsort(c, kind="stable")[:CLIMBS]
+    turns, n_turns, c = turns[best], n_turns[best], c[best]
+    for level in range(4):
+        kids = np.repeat(turns, 16, axis=0) + rng.normal(0.0, 0.2 * reach / 3 ** level, (turns.shape[0] * 16, 6))
+        kc = cost(_turns_to_states(v0, r, kids, np.repeat(n_turns, 16))).reshape(-1, 16)
+        k = np.argmin(kc, axis=1)
+        better = kc[np.arange(k.size), k] < c
+        turns[better] = kids.reshape(-1, 16, 6)[np.flatnonzero(better), k[better]]
+        c = np.where(better, kc[np.arange(k.size), k], c)
+    order = np.argsort(c, kind="stable")[:STARTS]
+    return _turns_to_states(v0, r, turns[order], n_turns[order])
+
+
 def _descend(p: np.ndarray, best_cost: float, lo: np.ndarray, hi: np.ndarray, w_h: np.ndarray,
-             A: np.ndarray, B: np.ndarray, output: Any, ys: np.ndarray, n_play: int) -> tuple[float, np.ndarray]:
+             A: np.ndarray, B: np.ndarray, output: Any, slope: Any, ys: np.ndarray,
+             n_play: int) -> tuple[float, np.ndarray]:
     """Coordinate search (scan, then golden section) and a joint least-squares polish."""
     p = p.copy()
 
@@ -287,8 +343,14 @@ def _descend(p: np.ndarray, best_cost: float, lo: np.ndarray, hi: np.ndarray, w_
         pp = lo + q * span
         return output((w_h * _clip(pp, A, B)).sum(axis=1)[None, :])[0] - ys
 
-    sol = least_squares(resid, np.clip((p - lo) / span, 0.0, 1.0), bounds=(0.0, 1.0), xtol=1e-14,
-                        ftol=1e-14, gtol=1e-14, max_nfev=100 * n_play)
+    def jac(q: np.ndarray) -> np.ndarray:   # exact where defined: the model is piecewise linear in the states
+        pp = lo + q * span
+        inside = (pp > A) & (pp < B)
+        z = (w_h * _clip(pp, A, B)).sum(axis=1)
+        return slope(z)[:, None] * inside * (w_h * span)[None, :]
+
+    sol = least_squares(resid, np.clip((p - lo) / span, 0.0, 1.0), jac=jac, bounds=(0.0, 1.0), xtol=1e-14,
+                        ftol=1e-14, gtol=1e-14, max_nfev=20 * n_play)
     if 2 * sol.cost < best_cost:
         p, best_cost = lo + sol.x * span, float(2 * sol.cost)
     return best_cost, p
