@@ -186,15 +186,18 @@ def record(cfg: PlantConfig, t: np.ndarray, i: np.ndarray, mass: Any, name: str,
 def make_case(case: Case, scale: float = 1.0, effect_free: bool = False) -> tuple[Any, Recording]:
     """The base model (from separate 3 Hz recordings) and the concealed diagnosis recording.
 
-    `effect_free`: the same base model, drive, loads and noise, with the plant's switchable effects
-    off in the diagnosis recording: its twin without the missing physics, whose base-model error
-    is the floor an extended model can reach on the case (the model class's own error)."""
+    `effect_free`: the case's twin with the plant's switchable effects off in every recording (the
+    identification ones too) and the same drives, loads and noise: the base model's error on it is
+    the floor of the model class on this experiment, what an extended model can at best reach."""
     rng = np.random.default_rng(case.seed)
     cfg = PlantConfig()
     case.configure(cfg)
     cfg = cfg.with_effects(["noise"] + [e for e in ("eddy", "dynamics", "thermal", "creep", "delay")
                                         if getattr(cfg, e).enabled])
     cfg.magnetics = copy.deepcopy(cfg.magnetics)
+    if effect_free:
+        cfg = cfg.with_effects(["noise"])
+        cfg.magnetics.stress_dependent_width = False
     # base model: separate quasi-static 3 Hz recordings at four loads, same actuator
     ident_recs = []
     for k, m in enumerate((0.0, 15.0, 30.0, 50.0)):
@@ -209,9 +212,6 @@ def make_case(case: Case, scale: float = 1.0, effect_free: bool = False) -> tupl
         d["drive_name"] = "voltage_V"
         model = type(model).from_dict(d)
     t, i, mass = diagnosis_drive(rng, case.drive_max, scale, case.loads)
-    if effect_free:
-        cfg = cfg.with_effects(["noise"])
-        cfg.magnetics.stress_dependent_width = False
     rec = _variant(record(cfg, t, i, mass, "recording.csv", case.seed), case)
     if case.start_s > 0:
         keep = rec.time_s >= rec.time_s[0] + case.start_s

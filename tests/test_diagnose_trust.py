@@ -72,3 +72,30 @@ def test_every_outcome_is_in_the_json_and_the_headline(tmp_path):
     assert doc["outcome"] == "effects_named" and doc["verdict"] == ["time_delay"]
     page = (tmp_path / "report.html").read_text()
     assert "Missing physics found: time_delay" in page and "<details>" in page
+
+
+# ---- heating is monotone: a drift that turns round under a constant drive is not heating ---------
+
+def test_the_heating_step_response_turns_round_exactly_when_computed():
+    from gma_ffc.effects.thermal import reversal_time_s
+
+    assert reversal_time_s({"gain_um_per_A2": 1.0, "tau_s": 80.0}) is None                      # one part
+    same = {"gain_um_per_A2": 1.0, "tau_s": 80.0, "fast_gain_um_per_A2": 0.5, "fast_tau_s": 10.0}
+    assert reversal_time_s(same) is None
+    slow_leads = {"gain_um_per_A2": 0.77, "tau_s": 80.3, "fast_gain_um_per_A2": -0.066, "fast_tau_s": 10.0}
+    assert reversal_time_s(slow_leads) is None
+    opposed = {"gain_um_per_A2": -14.4, "tau_s": 238.5, "fast_gain_um_per_A2": 3.5, "fast_tau_s": 29.8}
+    t_star = reversal_time_s(opposed)
+    t = np.linspace(0.0, 200.0, 200_001)
+    response = -14.4 * (1 - np.exp(-t / 238.5)) + 3.5 * (1 - np.exp(-t / 29.8))
+    assert t_star == pytest.approx(t[np.argmax(response)], abs=1e-2)
+
+
+def test_an_eddy_current_leftover_is_not_called_heating():
+    """A strong eddy lag (4 ms) on a 42 s recording: the eddy model leaves a residual that a fast and a
+    slow heating part of opposite signs fitted (a band-pass); heating from rest never turns round."""
+    case = CASES["rate_dependence#3"]
+    model, rec = bench.make_case(case)
+    dg = diagnose(model, [rec])
+    assert dg.verdict == ["rate_dependence"], dg.explanation
+    assert dg.rms_after_um <= 0.5 * dg.rms_before_um

@@ -8,8 +8,8 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 
 from . import kernels as K
-from .base import (BatchSignals, EffectBase, FitData, Regressors, StepSignals, finite, geom_refine,
-                   grid_ratio, positive)
+from .base import (BatchSignals, EffectBase, FitData, Regressors, SignatureCheck, SignatureFailure, StepSignals,
+                   finite, geom_refine, grid_ratio, positive)
 
 THERMAL_FAST_RATIO = 0.125   # the fast heating part's time constant relative to the slow one (coil vs rod)
 MIN_FAST_HEAT_S = 10.0       # no thermal part is quicker than this (thermal mass); faster drift is creep-like
@@ -94,6 +94,24 @@ class Thermal(EffectBase):
             block.update(fast_gain_um_per_A2=coef["thermal_fast_gain"], fast_tau_s=p * THERMAL_FAST_RATIO)
         return {"thermal": block}
 
+    @classmethod
+    def signature(cls, check: SignatureCheck) -> SignatureFailure | None:
+        """Heating is monotone: under a constant drive the drift never turns round.
+
+        Temperatures in a passive thermal network heated from rest rise monotonically (its state
+        matrix is Metzler: the rates start non-negative and stay so), and one expansion mechanism
+        maps them to a drift of one direction. Two parts of opposite sign whose sum turns round
+        within the recording are a band-pass, not heating: the leftover of another effect.
+        """
+        reversal = reversal_time_s(check.params)
+        duration = check.fitter.duration_max
+        if reversal is None or reversal >= duration:
+            return None
+        return SignatureFailure(
+            f"its two heating parts have opposite signs and their sum turns round {reversal:.3g} s into a constant "
+            f"drive (the recording lasts {duration:.3g} s): heating from rest is monotone, so this drift is the "
+            "leftover of another effect")
+
     @staticmethod
     def describe(params: Mapping[str, float], unit: str) -> str:
         what = "heating" if unit == "A" else "a thermal drift (self-heating or ambient)"
@@ -103,6 +121,20 @@ class Thermal(EffectBase):
         if math.isfinite(fast):
             txt += f" and a faster part at {params['fast_tau_s']:.3g} s ({fast:+.3g} um per {unit}^2)"
         return txt
+
+
+def reversal_time_s(params: Mapping[str, float]) -> float | None:
+    """When the step response g (1 - exp(-t/tau)) + g_f (1 - exp(-t/tau_f)) turns round (its slope
+    changes sign), or None if it never does (one part, or both of one sign)."""
+    g, tau = params.get("gain_um_per_A2", math.nan), params.get("tau_s", math.nan)
+    gf, tf = params.get("fast_gain_um_per_A2", math.nan), params.get("fast_tau_s", math.nan)
+    if not all(math.isfinite(v) for v in (g, tau, gf, tf)) or g * gf >= 0 or tf >= tau:
+        return None
+    # slope g/tau e^(-t/tau) + g_f/tau_f e^(-t/tau_f) = 0; the fast part dominates at t = 0
+    ratio = abs(gf) * tau / (abs(g) * tf)
+    if ratio <= 1.0:
+        return None           # the slow part's slope dominates from the start: monotone
+    return math.log(ratio) / (1.0 / tf - 1.0 / tau)
 
 
 class _ThermalState:
