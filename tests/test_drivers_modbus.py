@@ -173,10 +173,14 @@ def test_rtu_timeout_reconnects_and_resumes_without_a_jump(models, bench_factory
                     limits={"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 20.0})
     ctrl = Controller(cfg, model=models[0])
     result = {}
-    th = threading.Thread(target=lambda: result.setdefault("s", ctrl.run(duration_s=2.5)))
+    th = threading.Thread(target=lambda: result.setdefault("s", ctrl.run(duration_s=3.5)))
     th.start()
     try:
         wait_ticks(ctrl, th, 80)
+        # go silent while it drives (the command follows a sine and rests at 0 A near its troughs)
+        end = time.monotonic() + 1.0
+        while not ctrl.last_cmd_A > 1.0 and th.is_alive() and time.monotonic() < end:
+            time.sleep(0.002)
         bench.rig.faults.set("silent")
         time.sleep(0.4)
         bench.rig.faults.clear()
