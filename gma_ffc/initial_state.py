@@ -220,19 +220,21 @@ def _fit_state(model: Any, x: np.ndarray, stress: Any, y: np.ndarray, guess: np.
     step = reach / 11
     grid = np.linspace(0.0, reach, 12)
     hist = _history_states(v[0], r, grid, grid)
+    hist_costs = costs(np.array([h[2] for h in hist]))
     for _level in range(3):
-        a0, b0 = hist[int(np.argmin(costs(np.array([h[2] for h in hist]))))][:2]
+        a0, b0 = hist[int(np.argmin(hist_costs))][:2]
         step /= 4
         near = np.arange(-4, 5) * step
-        hist += _history_states(v[0], r, np.clip(a0 + near, 0.0, reach), np.clip(b0 + near, 0.0, reach))
+        zoom = _history_states(v[0], r, np.clip(a0 + near, 0.0, reach), np.clip(b0 + near, 0.0, reach))
+        hist += zoom
+        hist_costs = np.r_[hist_costs, costs(np.array([h[2] for h in zoom]))]
     # ... and longer histories, whose staircases two turning points cannot leave (a play above its
     # neighbour after a smaller one moved down): a random search over three to six turning points
     many = _history_search(v[0], r, reach, lambda q: costs(q, slice(None, None, 4)))
     states = np.array([guess] + [h[2] for h in hist] + list(many))
-    ranked = np.argsort(costs(states), kind="stable")
-    starts = [states[k] for k in ranked[:STARTS]]
-    results = [_descend(q, float(costs(q[None, :])[0]), lo, hi, w_h, A, B, output, slope, ys, model.n_play)
-               for q in starts]
+    start_costs = np.r_[guess_cost, hist_costs, costs(many)]
+    results = [_descend(states[k], float(start_costs[k]), lo, hi, w_h, A, B, output, slope, ys, model.n_play)
+               for k in np.argsort(start_costs, kind="stable")[:STARTS]]
     best_cost, p = min(results, key=lambda t: t[0])
     if best_cost >= guess_cost:
         return None, end
