@@ -19,13 +19,9 @@ from gma_ffc.model import SDPIModel
 STRESS = (-24.0, -11.3)
 
 
-@st.composite
-def sdpi_models(draw: st.DrawFn) -> SDPIModel:
+def sdpi_from_rng(rng: np.random.Generator, n_h: int, l: int) -> SDPIModel:
     """Random SDPI satisfying Proposition 3.1 by construction: play weights w_0 > 0, w_i >= 0,
     and every piece's slope a convex quadratic in stress with a positive minimum."""
-    n_h = draw(st.integers(1, 12))
-    l = draw(st.integers(0, 4))
-    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
     r_h = np.r_[0.0, np.cumsum(rng.uniform(0.02, 0.4, n_h - 1))]
     w_h = np.r_[rng.uniform(0.2, 5.0), rng.uniform(0.0, 3.0, n_h - 1) * (rng.random(n_h - 1) < 0.8)]
     r_pos = np.cumsum(rng.uniform(0.2, 3.0, l))
@@ -39,21 +35,33 @@ def sdpi_models(draw: st.DrawFn) -> SDPIModel:
     slope_coeffs = np.vstack([vmin + curv * s_at**2, -2 * curv * s_at, curv])
     coeffs = slopes_to_weights(slope_coeffs)
     offset = [rng.uniform(-5, 30), rng.uniform(-0.5, 0.5), rng.uniform(-0.01, 0.01)]
-    model = SDPIModel(r_h, w_h, r_s, coeffs, output_coeffs=offset, input_offset=rng.uniform(-1, 2),
-                      stress_range_MPa=STRESS, drive_range=(-3.0, 4.0))
+    return SDPIModel(r_h, w_h, r_s, coeffs, output_coeffs=offset, input_offset=rng.uniform(-1, 2),
+                     stress_range_MPa=STRESS, drive_range=(-3.0, 4.0))
+
+
+def drive_from_rng(rng: np.random.Generator, n_turns: int) -> tuple[np.ndarray, np.ndarray]:
+    """A drive through n_turns random turning points (major and minor loops) and a stress path."""
+    turns = rng.uniform(-3.0, 4.0, n_turns)
+    pieces = [np.linspace(a, b, rng.integers(2, 40), endpoint=False) for a, b in zip(turns[:-1], turns[1:])]
+    x = np.concatenate(pieces + [turns[-1:]])
+    stress = np.clip(rng.uniform(*STRESS) + np.cumsum(rng.normal(0, 0.4, x.size)), *STRESS)
+    return x, stress
+
+
+@st.composite
+def sdpi_models(draw: st.DrawFn) -> SDPIModel:
+    n_h = draw(st.integers(1, 12))
+    l = draw(st.integers(0, 4))
+    model = sdpi_from_rng(np.random.default_rng(draw(st.integers(0, 2**32 - 1))), n_h, l)
     assert model.invertibility_violations() == []
     return model
 
 
 @st.composite
 def histories(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """A drive through random turning points (major and minor loops), a stress path, a prehistory."""
+    """A drive through random turning points, a stress path, a prehistory."""
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
-    n_turns = draw(st.integers(2, 25))
-    turns = rng.uniform(-3.0, 4.0, n_turns)
-    pieces = [np.linspace(a, b, rng.integers(2, 40), endpoint=False) for a, b in zip(turns[:-1], turns[1:])]
-    x = np.concatenate(pieces + [turns[-1:]])
-    stress = np.clip(rng.uniform(*STRESS) + np.cumsum(rng.normal(0, 0.4, x.size)), *STRESS)
+    x, stress = drive_from_rng(rng, draw(st.integers(2, 25)))
     prehistory = rng.uniform(-3.0, 4.0, rng.integers(1, 8)) if draw(st.booleans()) else None
     return x, stress, prehistory
 

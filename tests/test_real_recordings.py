@@ -14,12 +14,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gma_ffc.cli import main
-from gma_ffc.identify import SDPIIdentifier, slopes_to_weights
+from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.initial_state import InitialStateSpec, resolve, settled_index
-from gma_ffc.model import SDPIModel, rms
+from gma_ffc.model import rms
 from gma_ffc.modelio import save_model
 from gma_ffc.recordings import Recording, read_recording, write_recording
-from test_inverse import STRESS, histories, sdpi_models
+from test_inverse import drive_from_rng, histories, sdpi_from_rng, sdpi_models
 
 PIEZO = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "piezo_150V_1Hz" / "piezo_150V_1Hz.csv"
 needs_piezo = pytest.mark.skipif(not PIEZO.exists(), reason="the measured recording lives in shared/ beside the repo")
@@ -100,21 +100,8 @@ def random_case(base: int, k: int):
     """The random model, history and prehistory of a search over (base, k) seeds: the same
     distributions as the hypothesis strategies, with more plays (where the fit has more basins)."""
     rng = np.random.default_rng([base, k])
-    n_h, l = int(rng.integers(6, 13)), int(rng.integers(0, 5))
-    r_h = np.r_[0.0, np.cumsum(rng.uniform(0.02, 0.4, n_h - 1))]
-    w_h = np.r_[rng.uniform(0.2, 5.0), rng.uniform(0.0, 3.0, n_h - 1) * (rng.random(n_h - 1) < 0.8)]
-    r_pos = np.cumsum(rng.uniform(0.2, 3.0, l))
-    r_s = np.r_[-np.cumsum(rng.uniform(0.2, 3.0, l))[::-1], 0.0, r_pos]
-    m = 2 * l + 1
-    vmin, curv, s_at = rng.uniform(0.05, 3.0, m), rng.uniform(0.0, 0.01, m), rng.uniform(*STRESS, m)
-    coeffs = slopes_to_weights(np.vstack([vmin + curv * s_at**2, -2 * curv * s_at, curv]))
-    offset = [rng.uniform(-5, 30), rng.uniform(-0.5, 0.5), rng.uniform(-0.01, 0.01)]
-    model = SDPIModel(r_h, w_h, r_s, coeffs, output_coeffs=offset, input_offset=rng.uniform(-1, 2),
-                      stress_range_MPa=STRESS, drive_range=(-3.0, 4.0))
-    turns = rng.uniform(-3.0, 4.0, int(rng.integers(2, 26)))
-    x = np.concatenate([np.linspace(a, b, rng.integers(2, 40), endpoint=False)
-                        for a, b in zip(turns[:-1], turns[1:])] + [turns[-1:]])
-    stress = np.clip(rng.uniform(*STRESS) + np.cumsum(rng.normal(0, 0.4, x.size)), *STRESS)
+    model = sdpi_from_rng(rng, int(rng.integers(6, 13)), int(rng.integers(0, 5)))
+    x, stress = drive_from_rng(rng, int(rng.integers(2, 26)))
     return model, x, stress, rng.uniform(-3.0, 4.0, 6)
 
 
