@@ -133,14 +133,11 @@ def summarise(todo: list[Case]) -> bool:
     if effect_cases:
         ratio = np.array([r["after"] / r["before"] for r in effect_cases])
         print(f"held-out RMS after/before on effect cases: median {np.median(ratio):.2f}, worst {ratio.max():.2f}")
-        missed = [r for r in effect_cases if r["after"] > 0.5 * r["before"]]
-        for r in missed:
-            if not np.isfinite(r["floor"]):
-                print(f"  not halved: {r['case']}: {r['before']:.3f} -> {r['after']:.3f} um")
-                continue
-            print(f"  not halved: {r['case']}: {r['before']:.3f} -> {r['after']:.3f} um; the base model's error on "
-                  f"its effect-free twin (floor) is {r['floor']:.3f} um, so halving needed "
-                  f"{'less than the floor' if 0.5 * r['before'] < r['floor'] else 'more of the effect removed'}")
+        for r in (r for r in effect_cases if r not in halved):
+            floor = "" if not np.isfinite(r["floor"]) else (
+                f"; the base model's error on its effect-free twin (floor) is {r['floor']:.3f} um, so halving needed "
+                f"{'less than the floor' if 0.5 * r['before'] < r['floor'] else 'more of the effect removed'}")
+            print(f"  not halved: {r['case']}: {r['before']:.3f} -> {r['after']:.3f} um{floor}")
     total_s = sum(r["seconds"] for r in results)
     n = sum(r["samples"] for r in results)
     print(f"diagnosis time: {total_s:.1f} s for {n} samples ({total_s / max(len(results), 1):.1f} s per "
