@@ -3,9 +3,10 @@
 Signal path (each effect optional but the static map; see `gma_ffc.effects` for each one)::
 
     drive -> input effects   (eddy_lag: first-order lag of the field; delay: transport delay)
-          -> core SDPI/MPI   (rate-independent hysteresis)                        = y_c
+          -> core SDPI/MPI   (rate-independent hysteresis; loop_width scales its play
+                             thresholds with stress: an effect may reshape the core)     = y_c
           -> sum effects     static map offset + (gain + stress_gain ds) y_c + quadratic (y_c - center)^2
-                             + play_correction, + stress_play / stress_width, + saturation, + creep
+                             + play_correction, + stress_play (/ the older stress_width), + saturation, + creep
           -> filter effects  (dynamics, form rod_load: the load on the rod's stiffness driven by this
                              free stroke, its resonance moving with the load's static stress; files
                              without 'form' keep the older mass-spring-damper output filter)
@@ -99,6 +100,9 @@ class ExtendedModel:
             items.append(self.static)
         self.chain: list[Effect] = sorted(items, key=lambda e: e.position)
         self.effects = list(effects or [])
+        self.core: Any = base            # what runs between the input and sum stages
+        for e in self.chain:
+            self.core = e.wrap_core(self.core)
 
     # ----------------------------------------------------------------- contract properties
     @property
@@ -143,7 +147,7 @@ class ExtendedModel:
         """The core's initial state (`gma_ffc.initial_state`) for the drive as the core sees it."""
         t = np.arange(len(drive), dtype=float) if time_s is None else np.asarray(time_s, dtype=float)
         u3 = self.core_input(t, np.asarray(drive, dtype=float))
-        return self.base.resolve_initial_state(u3, stress_MPa, initial_state, measured_um, t)
+        return self.core.resolve_initial_state(u3, stress_MPa, initial_state, measured_um, t)
 
     def simulate(self, time_s: Any, drive: Any, stress_MPa: Any = None, initial_drive: float | None = None,
                  initial_state: Any = None, measured_um: Any = None) -> np.ndarray:
@@ -158,10 +162,10 @@ class ExtendedModel:
         u3 = self.core_input(t, u, initial_drive)
         stress_MPa = self.seen_stress(t, stress_MPa)
         if initial_drive is None:
-            yc = np.asarray(self.base.simulate(t, u3, stress_MPa, initial_state=initial_state,
+            yc = np.asarray(self.core.simulate(t, u3, stress_MPa, initial_state=initial_state,
                                                measured_um=measured_um), dtype=float)
         else:
-            yc = np.asarray(self.base.simulate(t, u3, stress_MPa, initial_drive=float(initial_drive)), dtype=float)
+            yc = np.asarray(self.core.simulate(t, u3, stress_MPa, initial_drive=float(initial_drive)), dtype=float)
         return self.output_from_core(t, u, u3, yc, stress_MPa, initial_drive)
 
     def seen_stress(self, time_s: np.ndarray, stress_MPa: Any) -> Any:
@@ -302,7 +306,7 @@ class ForwardStepper(_Stepper):
     def __init__(self, model: ExtendedModel, dt_s: float, initial_drive: float = 0.0) -> None:
         super().__init__(model, dt_s, inverse=False)
         self._outputs = [st for st in self._sum if st is not self._static] + self._filter + self._after
-        self._core = model.base.forward_stepper(self.dt, initial_drive=float(initial_drive))
+        self._core = model.core.forward_stepper(self.dt, initial_drive=float(initial_drive))
         self._reset_states(float(initial_drive))
 
     def reset(self, initial_drive: float = 0.0) -> None:
@@ -335,7 +339,7 @@ class InverseStepper(_Stepper):
         self._before_sum = self._after[::-1] + self._filter[::-1]
         self._input_back = self._input[::-1]
         self._solve = getattr(self._static, "solve")
-        self._core = model.base.inverse_stepper(self.dt, initial_drive=float(initial_drive))
+        self._core = model.core.inverse_stepper(self.dt, initial_drive=float(initial_drive))
         self._start(float(initial_drive))
 
     def _start(self, u1: float) -> None:

@@ -11,7 +11,7 @@ from gma_ffc.diagnose.engine import diagnose
 CASES = {c.name: c for c in bench.cases()}
 
 
-@pytest.mark.parametrize("name", ["null#1", "thermal_drift#3", "time_delay#2", "thermal+delay"])
+@pytest.mark.parametrize("name", ["null#1", "thermal_drift#3", "time_delay#2", "thermal+delay", "stress_dependent_play#3"])
 def test_benchmark_case(name):
     case = CASES[name]
     model, rec = bench.make_case(case, scale=0.5)

@@ -112,6 +112,7 @@ class Fitter:
         # the effects as registered now, in signal-path order: input-side ones change the core input
         self.effects: list[type[Effect]] = [c for c in path_order() if c.candidate]
         self._inputs = [c for c in self.effects if c.stage == "input"]
+        self._core_fx = [c for c in self.effects if c.shapes_core]     # effects that reshape the core
         # an effect that supplies the stress the model sees (the rod_load dynamics: the load's static
         # stress, the load cell's inertial force filtered out); per recording raw (it sets the
         # resonance) and clamped (the core's)
@@ -144,9 +145,11 @@ class Fitter:
 
     # ------------------------------------------------------------------ the core
     def input_key(self, spec: Spec) -> tuple:
-        """What the core's run depends on: the spec's input-side effects, and whether a stress
-        transform is present (the core then sees the load's static stress)."""
-        return tuple(spec.get(c.name) for c in self._inputs) + tuple(c.name in spec for c in self._stress_fx)
+        """What the core's run depends on: the spec's input-side effects, the parameters of those
+        that reshape the core, and whether a stress transform is present (the core then sees the
+        load's static stress)."""
+        return (tuple(spec.get(c.name) for c in self._inputs) + tuple(spec.get(c.name) for c in self._core_fx)
+                + tuple(c.name in spec for c in self._stress_fx))
 
     def static_stress(self, d: RecData, clamped: bool = False) -> np.ndarray:
         """The stress-transforming effect's stress of a recording (the load's static stress), raw
@@ -164,10 +167,14 @@ class Fitter:
         if hit is not None:
             return hit
         out = []
+        core = self.model
+        for c in self._core_fx:
+            if c.name in spec:
+                core = c.fit_core(self, core, spec[c.name])
         for d in self.data:
             u3 = self.core_input(d, spec)
             s = self.stress(d, spec) if self.model.stress_range_MPa is not None else None
-            yc = np.asarray(self.model.simulate(d.t, u3, s, initial_state=d.start), dtype=float)
+            yc = np.asarray(core.simulate(d.t, u3, s, initial_state=d.start), dtype=float)
             out.append((u3, yc))
         if len(self._core_cache) > 64:
             self._core_cache.clear()

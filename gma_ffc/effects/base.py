@@ -163,6 +163,7 @@ class Effect(Protocol):
     joint_with: ClassVar[str | None]        # a look-alike whose parameter is re-searched with this one
     deciders: ClassVar[Mapping[str, str]]   # per look-alike: the experiment that tells the two apart
     transforms_stress: ClassVar[bool]       # True: it supplies the stress the core (and every stage) sees
+    shapes_core: ClassVar[bool]             # True: its parameter changes the core itself (`fit_core`)
     zoom_levels: ClassVar[int]              # refinement levels of its parameter search
 
     # ---- model side
@@ -178,6 +179,10 @@ class Effect(Protocol):
     @property
     def preview_s(self) -> float:
         """How far ahead an inverse must see the reference because of this effect (delays)."""
+
+    def wrap_core(self, core: Any) -> Any:
+        """The core the model runs with this effect (the given one, unless the effect reshapes it):
+        an object with the core's simulate, forward_stepper and inverse_stepper."""
 
     def seen_stress(self, stress_MPa: Any, t: np.ndarray, dt: np.ndarray) -> Any:
         """The stress transform hook, batch: the stress the core and the later stages see (called
@@ -206,6 +211,10 @@ class Effect(Protocol):
     @classmethod
     def fit_stress(cls, d: Any) -> np.ndarray:
         """`transforms_stress` only: the transformed stress of a recording (unclamped)."""
+
+    @classmethod
+    def fit_core(cls, fitter: FitData, core: Any, p: Any) -> Any:
+        """`shapes_core` only: the core the diagnosis runs for parameter p."""
 
     @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
@@ -263,6 +272,7 @@ class EffectBase:
     joint_with: ClassVar[str | None] = None
     deciders: ClassVar[Mapping[str, str]] = {}
     transforms_stress: ClassVar[bool] = False
+    shapes_core: ClassVar[bool] = False
     zoom_levels: ClassVar[int] = 3
 
     def __init__(self, block: Mapping[str, Any]) -> None:
@@ -282,6 +292,9 @@ class EffectBase:
     @property
     def preview_s(self) -> float:
         return 0.0
+
+    def wrap_core(self, core: Any) -> Any:
+        return core
 
     def seen_stress(self, stress_MPa: Any, t: np.ndarray, dt: np.ndarray) -> Any:
         return stress_MPa
@@ -315,6 +328,10 @@ class EffectBase:
     @classmethod
     def fit_stress(cls, d: Any) -> np.ndarray:
         return np.asarray(d.s)
+
+    @classmethod
+    def fit_core(cls, fitter: FitData, core: Any, p: Any) -> Any:
+        return core
 
 
 def block_of(blocks: Mapping[str, Any], key: str) -> dict[str, Any] | None:

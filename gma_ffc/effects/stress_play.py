@@ -1,4 +1,12 @@
-"""Play weights and loop width (coercive current) that change with stress, which the SDPI assumes they do not."""
+"""Play weights and loop width (coercive current) that change with stress, which the SDPI assumes they do not.
+
+Two blocks. `stress_play`: each play's weight changes linearly with stress (a sum-stage term).
+`loop_width`: the core's play thresholds, the loop's width in drive units, scale with stress,
+g(sigma) = 1 + kappa (sigma_w - sigma), as pinning grows with compression. That is a different
+core, not a term beside it: the core is run with the widened thresholds (`WidenedCore`, exactly
+inverted by the widened kernels of `gma_ffc.operators`). Files written before it carry the older
+`stress_width` block (a chord linearisation of the widening in its size), which still loads and runs.
+"""
 
 from __future__ import annotations
 
@@ -8,40 +16,139 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
+from .. import operators as ops
 from ..errors import ModelError
 from .base import (BatchSignals, EffectBase, FitData, PlayBankState, Regressors, SignatureCheck, SignatureFailure,
-                   StepSignals, block_of, finite, play_sum, play_weights)
+                   StepSignals, block_of, finite, geom_refine, play_sum, play_weights)
 
-# relative play-threshold steps at which the core's loop widening is linearised (a chord, not only the
-# tangent: a loop that widens by tens of percent across the loads is not linear in the scale)
-WIDTH_STEPS = (-0.3, 0.1, 0.3, 1.0)
+# the loop-width search: relative width changes per MPa of 1 % to 30 %, either sign (a few % per MPa
+# is what pinning in Terfenol-D does; past 30 % per MPa the width would halve or double within 2-3 MPa)
+WIDTH_GRID = (-0.3, -0.1, -0.03, -0.01, 0.01, 0.03, 0.1, 0.3)
+WIDTH_RATIO = 10.0 ** 0.5            # the grid's spacing, for the local refinement
 
 
 def widened_core(base: Any, eps: float) -> Any:
-    """The core with every play threshold (loop width, coercive current) scaled by 1 + eps."""
+    """The core with every play threshold scaled by 1 + eps (the older `stress_width` block's chord)."""
     th = getattr(base, "play_thresholds", None)
     if th is None or not dataclasses.is_dataclass(base):
         raise ModelError("extended model: stress_width needs an SDPI/MPI core with play thresholds")
     return dataclasses.replace(base, play_thresholds=np.asarray(th, dtype=float) * (1.0 + eps))  # type: ignore[type-var]
 
 
+class WidenedCore:
+    """An SDPI core whose play thresholds are scaled by g(sigma) = max(1 + kappa (sigma_w - sigma), 0.05)
+    at each sample's (clamped) stress: the loop widens by kappa per MPa of extra compression.
+
+    It runs where the plain core runs (batch, steppers, inverse) and starts from the plain core's
+    initial state (the state estimate ignores the widening, which changes the play states' bounds,
+    not their meaning)."""
+
+    def __init__(self, base: Any, kappa: float, sigma_w: float) -> None:
+        if getattr(base, "stress_range_MPa", None) is None or not hasattr(base, "_packed"):
+            raise ModelError("extended model: loop_width needs an SDPI core (a model with stress terms)")
+        self.base = base
+        self.kappa = float(kappa)
+        self.sigma_w = float(sigma_w)
+
+    @property
+    def stress_range_MPa(self) -> Any:
+        return self.base.stress_range_MPa
+
+    @property
+    def drive_range(self) -> Any:
+        return self.base.drive_range
+
+    @property
+    def output_sign(self) -> int:
+        return int(self.base.output_sign)
+
+    def state(self, initial_drive: float, play_state: Any = None) -> np.ndarray:
+        """Kernel state: the plain core's forward state, plus the widened inverse's scratch."""
+        b = self.base
+        st = np.zeros(ops.widened_state_size(b.n_play, b.n_deadzone))
+        st[: ops.state_size(b.n_play, b.n_deadzone)] = b.forward_state(initial_drive, play_state)
+        return st
+
+    def resolve_initial_state(self, drive: Any, stress_MPa: Any = None, initial_state: Any = None,
+                              measured_um: Any = None, time_s: Any = None) -> Any:
+        return self.base.resolve_initial_state(drive, stress_MPa, initial_state, measured_um, time_s)
+
+    def simulate(self, time_s: Any, drive: Any, stress_MPa: Any = None, initial_drive: float | None = None,
+                 initial_play_state: Any = None, initial_state: Any = None, measured_um: Any = None) -> np.ndarray:
+        """As `SDPIModel.simulate`, with the widened thresholds."""
+        x = np.ascontiguousarray(drive, dtype=float)
+        if x.ndim != 1 or x.size == 0 or not np.all(np.isfinite(x)):
+            raise ModelError("drive must be a non-empty 1-D array of finite values")
+        s = self.base._stress_array(stress_MPa, x.size)
+        if initial_play_state is None and initial_drive is None:
+            initial_play_state = self.resolve_initial_state(x, s, initial_state, measured_um, time_s).play_state
+        st = self.state(float(x[0]) if initial_drive is None else float(initial_drive), initial_play_state)
+        out = np.empty_like(x)
+        ops.forward_batch_widened(x, s, self.kappa, self.sigma_w, self.base._packed, st, out)
+        if self.base.output_sign < 0:
+            np.negative(out, out=out)
+        return out
+
+    def forward_stepper(self, dt_s: float = 0.0, initial_drive: float = 0.0) -> "WidenedForwardStepper":
+        return WidenedForwardStepper(self, initial_drive)
+
+    def inverse_stepper(self, dt_s: float = 0.0, initial_drive: float = 0.0) -> "WidenedInverseStepper":
+        return WidenedInverseStepper(self, initial_drive)
+
+
+class WidenedForwardStepper:
+    """One sample in, one displacement out; nothing allocated per step."""
+
+    __slots__ = ("_core", "_p", "_k", "_sw", "_sign", "_state")
+
+    def __init__(self, core: WidenedCore, initial_drive: float = 0.0) -> None:
+        self._core = core
+        self._p = core.base._packed
+        self._k, self._sw = core.kappa, core.sigma_w
+        self._sign = float(core.base.output_sign)
+        self._state = core.state(initial_drive)
+
+    def reset(self, initial_drive: float = 0.0, play_state: Any = None) -> None:
+        self._state[:] = self._core.state(initial_drive, play_state)
+
+    def step(self, drive: float, stress_MPa: float = 0.0) -> float:
+        return self._sign * ops.forward_step_widened(drive, stress_MPa, self._k, self._sw, self._p, self._state)
+
+
+class WidenedInverseStepper(WidenedForwardStepper):
+    """One reference sample in, one drive out: the exact inverse of `WidenedForwardStepper`."""
+
+    __slots__ = ()
+
+    def step(self, reference_um: float, stress_MPa: float = 0.0) -> float:
+        return ops.inverse_step_widened(self._sign * reference_um, stress_MPa, self._k, self._sw, self._p,
+                                        self._state)
+
+
 class StressPlay(EffectBase):
     name: ClassVar[str] = "stress_dependent_play"
-    keys: ClassVar[tuple[str, ...]] = ("stress_play", "stress_width")
+    keys: ClassVar[tuple[str, ...]] = ("stress_play", "loop_width", "stress_width")
     stage: ClassVar[str] = "sum"
     position: ClassVar[int] = 40
     inverted: ClassVar[Mapping[str, str]] = {
         "stress_play": "using the play states of the previous sample",
+        "loop_width": "exactly: the widened core's own inverse (each sample's piecewise-linear play sum solved)",
         "stress_width": "using the widened core's output at the previous sample's core input"}
     physics: ClassVar[str] = (
         "the play-operator weights and the loop width (the play thresholds, the 'coercive current') change "
         "with stress, which the SDPI assumes they do not")
     n_params: ClassVar[int] = 5
+    shapes_core: ClassVar[bool] = True
 
     def __init__(self, base: Any, stress_play: Mapping[str, Any] | None = None,
-                 stress_width: Mapping[str, Any] | None = None) -> None:
+                 stress_width: Mapping[str, Any] | None = None, loop_width: Mapping[str, Any] | None = None) -> None:
         self.stress_play = None if stress_play is None else dict(stress_play)
         self.stress_width = None if stress_width is None else dict(stress_width)
+        self.loop_width = None if loop_width is None else dict(loop_width)
+        if loop_width is not None:
+            self.kappa = finite(loop_width, "kappa_per_MPa", "loop_width")
+            self.sigma_w = finite(loop_width, "stress_ref_MPa", "loop_width")
+            WidenedCore(base, self.kappa, self.sigma_w)        # refuses a core without stress terms
         self.thresholds: np.ndarray
         self.coefficients: np.ndarray
         self.thresholds, self.coefficients = (np.zeros(0), np.zeros(0)) if stress_play is None else \
@@ -57,16 +164,22 @@ class StressPlay(EffectBase):
 
     @classmethod
     def from_blocks(cls, blocks: Mapping[str, Any], base: Any) -> "StressPlay | None":
-        sp, sw = block_of(blocks, "stress_play"), block_of(blocks, "stress_width")
-        return None if sp is None and sw is None else cls(base, sp, sw)
+        sp, sw, lw = (block_of(blocks, k) for k in ("stress_play", "stress_width", "loop_width"))
+        return None if sp is None and sw is None and lw is None else cls(base, sp, sw, lw)
 
     def to_blocks(self) -> dict[str, dict[str, Any]]:
         out = {}
-        if self.stress_play is not None:
-            out["stress_play"] = dict(self.stress_play)
-        if self.stress_width is not None:
-            out["stress_width"] = dict(self.stress_width)
+        for key, block in (("stress_play", self.stress_play), ("loop_width", self.loop_width),
+                           ("stress_width", self.stress_width)):
+            if block is not None:
+                out[key] = dict(block)
         return out
+
+    def inverted_text(self) -> Mapping[str, str]:
+        return {k: self.inverted[k] for k in self.to_blocks()}
+
+    def wrap_core(self, core: Any) -> Any:
+        return core if self.loop_width is None else WidenedCore(core, self.kappa, self.sigma_w)
 
     def apply(self, y: np.ndarray, sig: BatchSignals) -> np.ndarray:
         if self.thresholds.size:
@@ -104,51 +217,40 @@ class StressPlay(EffectBase):
 
     @classmethod
     def grid(cls, fitter: FitData) -> list[float]:
-        return list(WIDTH_STEPS)
+        return list(WIDTH_GRID)
+
+    @classmethod
+    def refine(cls, fitter: FitData, p: Any, level: int) -> list[float]:
+        return geom_refine(float(p), WIDTH_RATIO, level)
+
+    @classmethod
+    def fit_core(cls, fitter: FitData, core: Any, p: Any) -> WidenedCore:
+        """The core the diagnosis runs for loop-width change p (per MPa, about the data's mean stress)."""
+        return WidenedCore(core, float(p), fitter.stress_ref)
 
     @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
-        # each play's weight may change linearly with stress (loop shape), and the core's loop may
-        # widen with stress (its play thresholds - the coercive current - scaled by 1 + k (s - s_ref))
+        # each play's weight may change linearly with stress (loop shape); the loop's width is in
+        # the core the spec runs (fit_core)
         ds = fitter.stress(r.d, r.spec) - fitter.stress_ref      # the stress the model sees
         plays = r.shared["plays"]
         for j in range(fitter.play_thresholds.size):
             r.cols.append(ds * (plays[:, j] - r.u3))
             r.names.append(f"stress_play_{j}")
-        r.cols.append(ds * cls._width_derivative(fitter, r, float(p)))
-        r.names.append("stress_width")
-
-    @staticmethod
-    def _width_derivative(fitter: FitData, r: Regressors, eps: float) -> np.ndarray:
-        """(y_c with play thresholds x (1 + eps) - y_c) / eps: how the core's output moves as its loop widens."""
-        d = r.d
-
-        def compute() -> np.ndarray:
-            model = fitter.model
-            wide = widened_core(model, eps)
-            s = fitter.stress(d, r.spec) if model.stress_range_MPa is not None else None
-            return (np.asarray(wide.simulate(d.t, r.u3, s, initial_play_state=d.start.play_state), dtype=float)
-                    - r.yc) / eps
-
-        return fitter.cached(("stress_width", id(d), r.input_key, eps), compute)
 
     @classmethod
     def fitted_params(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, float]:
         out = {f"coef_{j}_um_per_A_MPa": coef.get(f"stress_play_{j}", math.nan)
                for j in range(fitter.play_thresholds.size)}
-        out["loop_width_change_per_MPa"] = coef.get("stress_width", math.nan)
-        out["width_chord_step"] = float(p)
+        out["loop_width_change_per_MPa"] = float(p)
         return out
 
     @classmethod
     def fitted_blocks(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, dict[str, Any]]:
-        out: dict[str, dict[str, Any]] = {
-            "stress_play": {"thresholds": [float(v) for v in fitter.play_thresholds],
-                            "coefficients_per_MPa": [coef[f"stress_play_{j}"]
-                                                     for j in range(fitter.play_thresholds.size)]}}
-        if "stress_width" in coef:
-            out["stress_width"] = {"coef_per_MPa": coef["stress_width"], "eps": float(p)}
-        return out
+        return {"stress_play": {"thresholds": [float(v) for v in fitter.play_thresholds],
+                                "coefficients_per_MPa": [coef[f"stress_play_{j}"]
+                                                         for j in range(fitter.play_thresholds.size)]},
+                "loop_width": {"kappa_per_MPa": float(p), "stress_ref_MPa": float(fitter.stress_ref)}}
 
     @classmethod
     def signature(cls, check: SignatureCheck) -> SignatureFailure | None:
@@ -170,8 +272,8 @@ class StressPlay(EffectBase):
         k = params.get("loop_width_change_per_MPa", math.nan)
         if not math.isfinite(k):
             return "play weights (loop width) that change with stress"
-        return (f"play weights and a loop width (coercive current) that change with stress: the width grows by "
-                f"{-k * 100:.2g} % per MPa of extra compression")
+        return (f"play weights and a loop width (coercive current) that change with stress: the width "
+                f"{'grows' if k > 0 else 'shrinks'} by {abs(k) * 100:.2g} % per MPa of extra compression")
 
 
 class _StressPlayState:
