@@ -260,6 +260,19 @@ class SDPIModel:
         `initial_drive` if given (the model's stepper convention), else the `initial_state`
         rule (`gma_ffc.initial_state`; default "estimate", which uses `measured_um` if given).
         """
+        x, s, state = self.batch_start(time_s, drive, stress_MPa, initial_drive, initial_play_state,
+                                       initial_state, measured_um)
+        out = np.empty_like(x)
+        ops.forward_batch(x, s, self._packed, state, out)
+        if self.output_sign < 0:
+            np.negative(out, out=out)
+        return out
+
+    def batch_start(self, time_s: Any, drive: Any, stress_MPa: Any = None, initial_drive: float | None = None,
+                    initial_play_state: Any = None, initial_state: Any = None,
+                    measured_um: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A batch run's checked drive, clamped stress and starting kernel state (see `simulate`);
+        also what a core built on this one (the widened core of loop_width) starts from."""
         x = np.ascontiguousarray(drive, dtype=float)
         if x.ndim != 1 or x.size == 0 or not np.all(np.isfinite(x)):
             raise ModelError("drive must be a non-empty 1-D array of finite values")
@@ -267,12 +280,7 @@ class SDPIModel:
         if initial_play_state is None and initial_drive is None:
             initial_play_state = self.resolve_initial_state(x, s if self.stress_range_MPa else None,
                                                             initial_state, measured_um, time_s).play_state
-        state = self.forward_state(x[0] if initial_drive is None else initial_drive, initial_play_state)
-        out = np.empty_like(x)
-        ops.forward_batch(x, s, self._packed, state, out)
-        if self.output_sign < 0:
-            np.negative(out, out=out)
-        return out
+        return x, s, self.forward_state(x[0] if initial_drive is None else initial_drive, initial_play_state)
 
     def _core_output_inverse(self, y: float, stress: float) -> float:
         """z with D_sigma(z) + c(sigma) = y: the dead-zone superposition's inverse at one stress."""

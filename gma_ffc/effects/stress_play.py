@@ -64,9 +64,11 @@ class WidenedCore:
 
     def state(self, initial_drive: float, play_state: Any = None) -> np.ndarray:
         """Kernel state: the plain core's forward state, plus the widened inverse's scratch."""
-        b = self.base
-        st = np.zeros(ops.widened_state_size(b.n_play, b.n_deadzone))
-        st[: ops.state_size(b.n_play, b.n_deadzone)] = b.forward_state(initial_drive, play_state)
+        return self._widen_state(self.base.forward_state(initial_drive, play_state))
+
+    def _widen_state(self, plain: np.ndarray) -> np.ndarray:
+        st = np.zeros(ops.widened_state_size(self.base.n_play, self.base.n_deadzone))
+        st[: plain.size] = plain
         return st
 
     def resolve_initial_state(self, drive: Any, stress_MPa: Any = None, initial_state: Any = None,
@@ -75,16 +77,11 @@ class WidenedCore:
 
     def simulate(self, time_s: Any, drive: Any, stress_MPa: Any = None, initial_drive: float | None = None,
                  initial_play_state: Any = None, initial_state: Any = None, measured_um: Any = None) -> np.ndarray:
-        """As `SDPIModel.simulate`, with the widened thresholds."""
-        x = np.ascontiguousarray(drive, dtype=float)
-        if x.ndim != 1 or x.size == 0 or not np.all(np.isfinite(x)):
-            raise ModelError("drive must be a non-empty 1-D array of finite values")
-        s = self.base._stress_array(stress_MPa, x.size)
-        if initial_play_state is None and initial_drive is None:
-            initial_play_state = self.resolve_initial_state(x, s, initial_state, measured_um, time_s).play_state
-        st = self.state(float(x[0]) if initial_drive is None else float(initial_drive), initial_play_state)
+        """As `SDPIModel.simulate` (the same checks and start), with the widened thresholds."""
+        x, s, plain = self.base.batch_start(time_s, drive, stress_MPa, initial_drive, initial_play_state,
+                                            initial_state, measured_um)
         out = np.empty_like(x)
-        ops.forward_batch_widened(x, s, self.kappa, self.sigma_w, self.base._packed, st, out)
+        ops.forward_batch_widened(x, s, self.kappa, self.sigma_w, self.base._packed, self._widen_state(plain), out)
         if self.base.output_sign < 0:
             np.negative(out, out=out)
         return out
