@@ -136,3 +136,16 @@ def test_a_loop_width_needs_a_core_with_stress() -> None:
                     stress_range_MPa=None, drive_range=(0.0, 2.0))
     with pytest.raises(ModelError, match="loop_width needs an SDPI core"):
         ExtendedModel(mpi, {"loop_width": {"kappa_per_MPa": 0.05, "stress_ref_MPa": -15.0}})
+
+
+def test_the_width_search_includes_no_widening_and_stays_in_its_physical_range() -> None:
+    from gma_ffc.effects.stress_play import WIDTH_GRID, StressPlay
+
+    assert 0.0 in WIDTH_GRID                     # play weights' stress slopes alone must be choosable
+    top = max(abs(v) for v in WIDTH_GRID)
+    for p in WIDTH_GRID:
+        for level in (1, 2, 3):
+            points = StressPlay.refine(None, p, level)   # type: ignore[arg-type]
+            assert all(abs(v) <= top for v in points)
+            if 0 < abs(p) < top:                 # inside the range the refinement does look around p
+                assert any(v > p for v in points) and any(v < p for v in points)

@@ -23,7 +23,7 @@ from .base import (BatchSignals, EffectBase, FitData, PlayBankState, Regressors,
 
 # the loop-width search: relative width changes per MPa of 1 % to 30 %, either sign (a few % per MPa
 # is what pinning in Terfenol-D does; past 30 % per MPa the width would halve or double within 2-3 MPa)
-WIDTH_GRID = (-0.3, -0.1, -0.03, -0.01, 0.01, 0.03, 0.1, 0.3)
+WIDTH_GRID = (-0.3, -0.1, -0.03, -0.01, 0.0, 0.01, 0.03, 0.1, 0.3)
 WIDTH_RATIO = 10.0 ** 0.5            # the grid's spacing, for the local refinement
 
 
@@ -218,7 +218,10 @@ class StressPlay(EffectBase):
 
     @classmethod
     def refine(cls, fitter: FitData, p: Any, level: int) -> list[float]:
-        return geom_refine(float(p), WIDTH_RATIO, level)
+        """Around p, within the grid's range: a width law beyond 30 % per MPa is not the physics
+        searched for (the refinement of an edge point would otherwise leave it)."""
+        top = max(abs(v) for v in WIDTH_GRID)
+        return [v for v in geom_refine(float(p), WIDTH_RATIO, level) if abs(v) <= top]
 
     @classmethod
     def fit_core(cls, fitter: FitData, core: Any, p: Any) -> WidenedCore:
