@@ -94,6 +94,22 @@ def cases() -> list[Case]:
     return out
 
 
+def sdp_variant_cases() -> list[Case]:
+    """Stress-dependent play beyond the development set's three plain cases: six more, seeds and
+    magnitudes fixed when the set was made (2026-11-23), on the variants users bring (plain,
+    voltage-labelled, falling, cut mid-cycle). A development set (it was looked at), kept apart
+    because the three plain cases alone overstated how well this effect is found and removed."""
+    out = []
+    for k, (v, variant) in enumerate(((0.12, "plain"), (0.2, "voltage"), (0.28, "falling"), (0.33, "cut"),
+                                      (0.25, "voltage"), (0.16, "plain"))):
+        out.append(Case(f"sdp_variant#{k + 1}", ("stress_dependent_play",),
+                        _set(magnetics={"stress_dependent_width": True, "width_change_per_MPa": v}),
+                        f"magnetics width_change_per_MPa {v} ({variant})", 7001 + k, loads=3,
+                        voltage=variant == "voltage", falling=variant == "falling",
+                        start_s=0.7 if variant == "cut" else 0.0))
+    return out
+
+
 HOLDOUT_SEED = 20261122   # fixed before the set was first run; never changed to move a result
 
 
