@@ -5,7 +5,8 @@
    the numba kernel vs a straightforward numpy loop (Python over time, numpy over operators),
    both timed in this run; the figure is the ratio.
 2. One stateful inverse step as the control loop calls it: median and p99 in microseconds,
-   with the same step written as a numpy loop for scale.
+   with the same step written as a numpy loop for scale; then an extended model's (as diagnose
+   writes one), as a ratio to it.
 3. `identify` on seven 10,000-sample recordings from the independent hil_sim plant, end to end
    through the CLI entry point (reading CSVs, fitting, writing the model).
 
@@ -64,7 +65,7 @@ def bench_batch(model: SDPIModel, n: int, n_base: int) -> None:
     best = np.inf
     for _ in range(3):
         t0 = time.perf_counter()
-        y = model.simulate(t, x, sigma)
+        y = model.simulate(t, x, sigma, initial_drive=float(x[0]))   # the baseline starts relaxed there too
         best = min(best, time.perf_counter() - t0)
     t0 = time.perf_counter()
     y_base = numpy_loop_forward(model, x[:n_base], sigma[:n_base])
@@ -78,20 +79,26 @@ def bench_batch(model: SDPIModel, n: int, n_base: int) -> None:
     print(f"  speed-up          {per_base / per_kernel:9.0f} x   (target >= 30 x)")
 
 
-def bench_step(model: SDPIModel, n: int = 200_000) -> None:
+def _step_times(step, ref: np.ndarray, sig: np.ndarray) -> np.ndarray:
+    """Nanoseconds per call of step(ref[k], sig[k]) after a 1000-call warm-up."""
+    for k in range(1000):
+        step(ref[k], sig[k])
+    times = np.empty(ref.size)
+    clock = time.perf_counter_ns
+    for k in range(ref.size):
+        t0 = clock()
+        step(ref[k], sig[k])
+        times[k] = clock() - t0
+    return times
+
+
+def bench_step(model: SDPIModel, n: int = 200_000) -> np.ndarray:
     lo, hi = model.stress_range_MPa
     stepper = model.inverse_stepper(1e-3, initial_drive=0.0)
     ref = 20 + 15 * np.sin(np.linspace(0, 200 * np.pi, n))
     sig = np.linspace(lo, hi, n)
-    for k in range(1000):
-        stepper.step(ref[k], sig[k])
-    times = np.empty(n)
+    times = _step_times(stepper.step, ref, sig)
     clock = time.perf_counter_ns
-    step = stepper.step
-    for k in range(n):
-        t0 = clock()
-        step(ref[k], sig[k])
-        times[k] = clock() - t0
     overhead = np.empty(10_000)
     for k in range(overhead.size):
         t0 = clock()
@@ -100,6 +107,36 @@ def bench_step(model: SDPIModel, n: int = 200_000) -> None:
     print(f"inverse step (control loop form), {n:,} calls:")
     print(f"  median {med:.2f} us, p99 {np.percentile(times, 99) / 1e3:.2f} us, "
           f"max {times.max() / 1e3:.1f} us (timer overhead {np.median(overhead) / 1e3:.2f} us)   (target median <= 5 us)")
+    return times
+
+
+def bench_extended_step(model: SDPIModel, core_times: np.ndarray, n: int = 50_000) -> None:
+    """An extended model as diagnose writes one (recalibration with play corrections, stress plays,
+    saturation, creep): its inverse solves each sample's core input (a few core-inverse tries), so
+    its step is quoted as a ratio to the plain core's, timed above in this process."""
+    from gma_ffc.extended import ExtendedModel
+
+    lo, hi = model.stress_range_MPa
+    d_lo, d_hi = model.drive_range
+    th = [0.05 * (d_hi - d_lo) * k for k in (1, 2, 4)]
+    ext = ExtendedModel(model, {
+        "static": {"offset_um": 0.2, "gain": 1.02, "stress_gain_per_MPa": 0.002, "quadratic_per_um": 1e-4,
+                   "center_um": 20.0, "stress_ref_MPa": 0.5 * (lo + hi)},
+        "play_correction": {"thresholds": th, "coefficients": [0.3, -0.5, 0.2]},
+        "stress_play": {"thresholds": th[:2], "coefficients_per_MPa": [0.02, -0.01]},
+        "saturation": {"lo": d_lo, "hi": d_hi, "lin_lo": 0.0, "quad_lo": 0.0, "lin_hi": -0.5, "quad_hi": -0.2},
+        "creep": {"gain": 0.02, "tau_s": 0.5}})
+    ref = 20 + 15 * np.sin(np.linspace(0, 50 * np.pi, n))
+    sig = np.linspace(lo, hi, n)
+    stepper = ext.inverse_stepper(1e-3, initial_drive=d_lo)
+    times = _step_times(stepper.step, ref, sig)
+    drive = ext.invert(np.arange(n) * 1e-3, ref, sig)
+    err = ext.simulate(np.arange(n) * 1e-3, drive, sig, initial_drive=d_lo) - ref
+    ratio = np.median(times) / np.median(core_times)
+    print(f"extended-model inverse step (5 effect blocks, core input solved each sample), {n:,} calls:")
+    print(f"  median {np.median(times) / 1e3:.2f} us ({ratio:.1f}x the plain core's), p99 "
+          f"{np.percentile(times, 99) / 1e3:.2f} us, max {times.max() / 1e3:.1f} us; "
+          f"round trip max error {np.max(np.abs(err)):.2g} um")
 
 
 def bench_identify(n_rec: int = 7, n_samples: int = 10_000) -> None:
@@ -140,7 +177,8 @@ def main() -> None:
     args = ap.parse_args()
     model = reference_model()
     bench_batch(model, args.samples, args.baseline_samples or args.samples)
-    bench_step(model)
+    core_times = bench_step(model)
+    bench_extended_step(model, core_times)
     bench_identify()
 
 
