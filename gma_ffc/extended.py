@@ -18,11 +18,16 @@ inertial force low-passed out), so the core, the static map and every later stag
 
 Inverse (``invert`` and ``inverse_stepper``), stage by stage backwards: the after effects are
 subtracted from the reference, the filter undone by its exact inverse, the sum effects (each
-linear in this sample's y_c, or known from the previous sample) folded into the static map's
-quadratic and solved in closed form, the core by its own inverse, the input effects by their
-inverse filters. A delay cannot be undone causally: batch ``invert`` previews the known
-reference by ``preview_s``; the inverse stepper expects the caller to feed
-``reference(t + preview_s)``.
+linear in this sample's y_c) folded into the static map's quadratic and solved in closed form,
+the core by its own inverse, the input effects by their inverse filters. Sum terms that also
+depend on this sample's core input (the plays of play_correction and stress_play, saturation)
+make that a scalar equation in the core input u: u = core_inverse(y_c(u)). It is solved each
+sample by the secant method from the previous sample's input, kept inside a bracket once one is
+found (Illinois): the terms are piecewise linear in u, so three or four tries are usually exact. (Evaluating
+them at the previous sample's input instead, as before, is a fixed-point iteration run once per
+sample: where a term's slope exceeds the core's, it oscillates at the sample rate.) A delay
+cannot be undone causally: batch ``invert`` previews the known reference by ``preview_s``; the
+inverse stepper expects the caller to feed ``reference(t + preview_s)``.
 
 The file form (`to_dict`, version 1) keeps one mapping per block under ``blocks``; each effect
 class reads and writes its own keys.
@@ -41,6 +46,8 @@ from .effects.static import StaticMap
 from .errors import ModelError
 
 KIND = "extended"
+SOLVE_TOL = 1e-12          # the inverse's core-input solve: converged within this fraction of the drive range
+SOLVE_MAX_TRIES = 30       # then the best input found is taken (a flat or non-invertible stretch); bounds the tick
 
 
 def _stress_array(stress: Any, n: int) -> np.ndarray:
@@ -340,6 +347,15 @@ class InverseStepper(_Stepper):
         self._input_back = self._input[::-1]
         self._solve = getattr(self._static, "solve")
         self._core = model.core.inverse_stepper(self.dt, initial_drive=float(initial_drive))
+        # the core input is solved for when a sum term reads it (see the module docstring)
+        self._reading = [st for st in self._sum if getattr(st, "reads_input", False)]
+        self._fixed = [st for st in self._sum if not getattr(st, "reads_input", False)]
+        # a core without `peek` (a plugin's) keeps the older scheme: those terms at the previous input
+        self._implicit = bool(self._reading) and hasattr(self._core, "peek")
+        self._const_fixed = self._lin_fixed = 0.0
+        lo, hi = model.drive_range
+        self._tol = SOLVE_TOL * max(abs(hi - lo), 1e-12)
+        self._yc_try = 0.0
         self._start(float(initial_drive))
 
     def _start(self, u1: float) -> None:
@@ -357,11 +373,12 @@ class InverseStepper(_Stepper):
         x.target = float(reference_um)
         for st in self._before_sum:
             st.inverse_step(x)
-        x.const = 0.0
-        x.lin = 0.0
-        for st in self._sum:
-            st.inverse_step(x)
-        x.yc = self._solve(x)
+        if self._implicit:
+            self._solve_input(x)
+        else:
+            x.u3_at = x.u3_prev
+            x.drive_at = x.drive_prev
+            x.yc = self._core_output(x)
         u3 = float(self._core.step(x.yc, x.s))
         x.u3 = u3
         for st in self._sum:
@@ -371,3 +388,75 @@ class InverseStepper(_Stepper):
         x.u3_prev = u3
         x.drive_prev = x.u3
         return float(x.u3)
+
+    def _core_output(self, x: StepSignals) -> float:
+        """The core output y_c the sum stage needs for x.target, its terms taken at x.u3_at / x.drive_at."""
+        x.const = 0.0
+        x.lin = 0.0
+        for st in self._sum:
+            st.inverse_step(x)
+        return float(self._solve(x))
+
+    def _miss(self, x: StepSignals, u: float) -> float:
+        """core_inverse(y_c(u)) - u: zero at this sample's core input (y_c(u) kept in _yc_try)."""
+        x.u3_at = u
+        x.drive_at = u if not self._input else x.drive_prev    # the drive is the core input without input effects
+        x.const = self._const_fixed
+        x.lin = self._lin_fixed
+        for st in self._reading:
+            st.inverse_step(x)
+        yc = float(self._solve(x))
+        self._yc_try = yc
+        return float(self._core.peek(yc, x.s)) - u
+
+    def _solve_input(self, x: StepSignals) -> None:
+        """Root of _miss (strictly decreasing when the model is strictly increasing in its drive):
+        secant steps from the previous sample's input until the root is bracketed, then the Illinois
+        variant of regula falsi, which keeps the bracket and converges superlinearly even where the
+        core's inverse is steep. Sets x.yc to the y_c of the best input found; allocates nothing."""
+        tol = self._tol
+        x.const = 0.0
+        x.lin = 0.0
+        for st in self._fixed:            # the terms that do not depend on the input: once per sample
+            st.inverse_step(x)
+        self._const_fixed, self._lin_fixed = x.const, x.lin
+        u0 = x.u3_prev
+        h0 = self._miss(x, u0)
+        best_h, best_yc = abs(h0), self._yc_try
+        u1 = u0 + h0                      # the core inverse's own answer at the previous input
+        tries = 0
+        bracketed = False
+        while best_h > tol and tries < SOLVE_MAX_TRIES:
+            tries += 1
+            h1 = self._miss(x, u1)
+            if abs(h1) < best_h:
+                best_h, best_yc = abs(h1), self._yc_try
+            if best_h <= tol:
+                break
+            if h0 * h1 < 0.0:
+                bracketed = True
+                break
+            u2 = u1 + h1 if h1 == h0 else u1 - h1 * (u1 - u0) / (h1 - h0)
+            if u2 != u2:                  # NaN: nothing better to be found
+                break
+            u0, h0, u1 = u1, h1, u2
+        if bracketed:                     # between u0 and u1 (h0, h1 of opposite signs)
+            a, fa, b, fb = u0, h0, u1, h1
+            p, fp = a, fa                 # the iterate before b (for the secant through the last two)
+            while tries < SOLVE_MAX_TRIES and abs(b - a) > tol:
+                tries += 1
+                c = b - fb * (b - p) / (fb - fp) if fb != fp else math.nan
+                if not (min(a, b) < c < max(a, b)):      # NaN-safe: regula falsi on the bracket instead
+                    c = b - fb * (b - a) / (fb - fa)
+                p, fp = b, fb
+                fc = self._miss(x, c)
+                if abs(fc) < best_h:
+                    best_h, best_yc = abs(fc), self._yc_try
+                    if best_h <= tol:
+                        break
+                if fc * fb < 0.0:         # the root lies between b and c: b becomes the far end
+                    a, fa = b, fb
+                else:                     # the far end kept twice in a row: halve its weight (Illinois)
+                    fa *= 0.5
+                b, fb = c, fc
+        x.yc = best_yc

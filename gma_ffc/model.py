@@ -455,6 +455,10 @@ class ForwardStepper:
     def step(self, drive: float, stress_MPa: float = 0.0) -> float:
         return self._sign * ops.forward_step(drive, stress_MPa, self._p, self._state)
 
+    def peek(self, drive: float, stress_MPa: float = 0.0) -> float:
+        """What `step` would return, without moving the state."""
+        return self._sign * ops.forward_peek(drive, stress_MPa, self._p, self._state)
+
 
 class InverseStepper:
     """One reference sample in, one drive out (analytic inverse); state kept, no allocation."""
@@ -473,6 +477,11 @@ class InverseStepper:
 
     def step(self, reference_um: float, stress_MPa: float = 0.0) -> float:
         return ops.inverse_step(self._sign * reference_um, stress_MPa, self._p, self._state)
+
+    def peek(self, reference_um: float, stress_MPa: float = 0.0) -> float:
+        """What `step` would return, without moving the state (an extended model's inverse solves
+        for each sample's drive by trying several)."""
+        return ops.inverse_peek(self._sign * reference_um, stress_MPa, self._p, self._state)
 
 
 def rms(a: Sequence[float] | np.ndarray) -> float:

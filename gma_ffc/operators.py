@@ -95,9 +95,9 @@ def _deadzones_inverse(y_ref: float, s: float, p: np.ndarray, state: np.ndarray,
     return z
 
 
-@njit(cache=True, nogil=True)
-def forward_step(x: float, sigma: float, p: np.ndarray, state: np.ndarray) -> float:
-    """One sample of the SDPI forward model; updates the play states in `state`."""
+@njit(cache=True, nogil=True, inline="always")
+def _forward(x: float, sigma: float, g: float, p: np.ndarray, state: np.ndarray, commit: bool) -> float:
+    """The forward model with play thresholds scaled by g; the play states move only if `commit`."""
     n_h = int(p[0])
     n_s = int(p[1])
     s = _clamp(sigma, p[3], p[4])
@@ -105,15 +105,27 @@ def forward_step(x: float, sigma: float, p: np.ndarray, state: np.ndarray) -> fl
     v = x - p[2]
     z = 0.0
     for i in range(n_h):
-        q = play(v, p[HEADER + i], state[i])
-        state[i] = q
+        q = play(v, g * p[HEADER + i], state[i])
+        if commit:
+            state[i] = q
         z += p[o_wh + i] * q
     return _deadzones_out(z, s, p, n_h, n_s)
 
 
 @njit(cache=True, nogil=True)
-def inverse_step(y_ref: float, sigma: float, p: np.ndarray, state: np.ndarray) -> float:
-    """One sample of the analytic inverse (17): inverse dead-zones at this stress, then inverse PI."""
+def forward_step(x: float, sigma: float, p: np.ndarray, state: np.ndarray) -> float:
+    """One sample of the SDPI forward model; updates the play states in `state`."""
+    return _forward(x, sigma, 1.0, p, state, True)
+
+
+@njit(cache=True, nogil=True)
+def forward_peek(x: float, sigma: float, p: np.ndarray, state: np.ndarray) -> float:
+    """What forward_step would return, the play states left as they are."""
+    return _forward(x, sigma, 1.0, p, state, False)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _inverse(y_ref: float, sigma: float, p: np.ndarray, state: np.ndarray, commit: bool) -> float:
     n_h = int(p[0])
     n_s = int(p[1])
     s = _clamp(sigma, p[3], p[4])
@@ -123,9 +135,22 @@ def inverse_step(y_ref: float, sigma: float, p: np.ndarray, state: np.ndarray) -
     x = 0.0
     for i in range(n_h):
         q = play(z, p[o_rhi + i], state[i])
-        state[i] = q
+        if commit:
+            state[i] = q
         x += p[o_whi + i] * q
     return x + p[2]
+
+
+@njit(cache=True, nogil=True)
+def inverse_step(y_ref: float, sigma: float, p: np.ndarray, state: np.ndarray) -> float:
+    """One sample of the analytic inverse (17): inverse dead-zones at this stress, then inverse PI."""
+    return _inverse(y_ref, sigma, p, state, True)
+
+
+@njit(cache=True, nogil=True)
+def inverse_peek(y_ref: float, sigma: float, p: np.ndarray, state: np.ndarray) -> float:
+    """What inverse_step would return, the play states left as they are (only scratch is written)."""
+    return _inverse(y_ref, sigma, p, state, False)
 
 
 # ---- the core with a loop width that follows stress (the stress_dependent_play effect's loop_width)
@@ -156,18 +181,7 @@ def widened_state_size(n_h: int, n_s: int) -> int:
 def forward_step_widened(x: float, sigma: float, kappa: float, sigma_w: float, p: np.ndarray,
                          state: np.ndarray) -> float:
     """forward_step with every play threshold scaled by width_factor at this sample's stress."""
-    n_h = int(p[0])
-    n_s = int(p[1])
-    s = _clamp(sigma, p[3], p[4])
-    g = width_factor(s, kappa, sigma_w)
-    o_wh = HEADER + n_h
-    v = x - p[2]
-    z = 0.0
-    for i in range(n_h):
-        q = play(v, g * p[HEADER + i], state[i])
-        state[i] = q
-        z += p[o_wh + i] * q
-    return _deadzones_out(z, s, p, n_h, n_s)
+    return _forward(x, sigma, width_factor(_clamp(sigma, p[3], p[4]), kappa, sigma_w), p, state, True)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -183,6 +197,19 @@ def _widened_sum(v: float, g: float, p: np.ndarray, state: np.ndarray, n_h: int)
 def inverse_step_widened(y_ref: float, sigma: float, kappa: float, sigma_w: float, p: np.ndarray,
                          state: np.ndarray) -> float:
     """The drive x with forward_step_widened(x) = y_ref from this state (exact), and the step taken."""
+    return _inverse_widened(y_ref, sigma, kappa, sigma_w, p, state, True)
+
+
+@njit(cache=True, nogil=True)
+def inverse_peek_widened(y_ref: float, sigma: float, kappa: float, sigma_w: float, p: np.ndarray,
+                         state: np.ndarray) -> float:
+    """What inverse_step_widened would return, the play states left as they are (only scratch is written)."""
+    return _inverse_widened(y_ref, sigma, kappa, sigma_w, p, state, False)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _inverse_widened(y_ref: float, sigma: float, kappa: float, sigma_w: float, p: np.ndarray,
+                     state: np.ndarray, commit: bool) -> float:
     n_h = int(p[0])
     n_s = int(p[1])
     s = _clamp(sigma, p[3], p[4])
@@ -219,9 +246,10 @@ def inverse_step_widened(y_ref: float, sigma: float, kappa: float, sigma_w: floa
             if (lo <= z <= hi) or (hi <= z <= lo):
                 v = kinks[a] if hi == lo else kinks[a] + (z - lo) * (kinks[a + 1] - kinks[a]) / (hi - lo)
                 break
-    for i in range(n_h):
-        r = g * p[HEADER + i]
-        state[i] = max(v - r, min(v + r, state[i]))
+    if commit:
+        for i in range(n_h):
+            r = g * p[HEADER + i]
+            state[i] = max(v - r, min(v + r, state[i]))
     return v + p[2]
 
 

@@ -79,10 +79,10 @@ def test_forward_stepper_equals_batch(base):
 
 
 def test_invert_then_simulate_recovers_the_reference(base):
-    # every block but the play terms (inverted with one sample of lag) is inverted exactly (the
-    # loop width included: the widened core has its own exact inverse)
-    blocks = {k: v for k, v in _all_blocks(base).blocks().items() if v and k not in ("play_correction", "stress_play", "stress_width")}
-    m = ExtendedModel(base, blocks)
+    # every block is inverted exactly (the loop width by the widened core's own inverse, the play
+    # terms and saturation solved with the core's inverse each sample) but the delay, by preview,
+    # and the heating, from the previous sample's drive
+    m = _all_blocks(base)
     t = np.arange(3000) / FS
     ref = 8.0 + 6.0 * np.sin(2 * np.pi * 2 * t) ** 2
     s = np.full(t.size, -15.0)

@@ -32,10 +32,24 @@ def test_a_version_1_file_loads_and_behaves_as_before(fixture):
     f = m.forward_stepper(float(t[1] - t[0]), initial_drive=float(u[0]))
     np.testing.assert_allclose([f.step(float(a), float(b)) for a, b in zip(u, s)], fixture["forward_stepper"],
                                rtol=1e-9, atol=1e-9)
-    np.testing.assert_allclose(m.invert(t, np.asarray(fixture["simulate_from_rest"]), s), fixture["invert"],
-                               rtol=1e-9, atol=1e-9)
+    # invert is not bit-for-bit the old one: the play and saturation terms the old inverse took at
+    # the previous sample's input are now solved for this sample's (tests/test_extended_inverse.py).
+    # It must reproduce the reference at least as well as the old inverse did.
+    ref = np.asarray(fixture["simulate_from_rest"])
+    x0 = m.drive_range[0]
+    skip = int(round(m.preview_s / float(t[1] - t[0]))) + 5     # the delay's preview runs off both ends
+
+    def round_trip_rms(drive: np.ndarray) -> float:
+        e = (m.simulate(t, drive, s, initial_drive=x0) - ref)[skip:-skip]
+        return float(np.sqrt(np.mean(e ** 2)))
+
+    old, new = round_trip_rms(np.asarray(fixture["invert"])), round_trip_rms(m.invert(t, ref, s))
+    assert new <= old * 1.001 + 1e-12, f"round trip {new:.3g} um, the old inverse's {old:.3g} um"
 
 
 def test_a_version_1_file_is_written_back_the_same(fixture):
     d = model_from_dict(fixture["model"]).to_dict()
-    assert d == fixture["model"]
+    old = fixture["model"]
+    # 'inverted' describes how this code inverts each block, so it follows the code, block for block
+    assert set(d["inverted"]) == set(old["inverted"])
+    assert {k: v for k, v in d.items() if k != "inverted"} == {k: v for k, v in old.items() if k != "inverted"}

@@ -37,12 +37,14 @@ class StepSignals:
     """One sample's signals, shared by the stepper states of a model (allocated once per stepper,
     so a step allocates nothing: states read and write these floats in place)."""
 
-    __slots__ = ("u1", "u3", "s", "ds", "yc", "y", "target", "const", "lin", "u3_prev", "drive_prev")
+    __slots__ = ("u1", "u3", "s", "ds", "yc", "y", "target", "const", "lin", "u3_prev", "drive_prev", "u3_at",
+                 "drive_at")
 
     def __init__(self) -> None:
         self.u1 = self.u3 = self.s = self.ds = self.yc = self.y = 0.0   # drive, core input, stress, s - s_ref
         self.target = self.const = self.lin = 0.0     # inverse: reference left to explain; sum terms c + l * yc
         self.u3_prev = self.drive_prev = 0.0          # inverse: the previous sample's core input and drive
+        self.u3_at = self.drive_at = 0.0              # inverse: the core input and drive this sample is tried at
 
 
 @dataclass
@@ -70,7 +72,12 @@ class EffectState(Protocol):
 
     def inverse_step(self, x: StepSignals) -> None:
         """Inverse: input stage maps x.u3 back towards the drive; filter and after stages update
-        x.target; sum stage adds its term's constant and yc-coefficient to x.const and x.lin."""
+        x.target; sum stage adds its term's constant and yc-coefficient to x.const and x.lin.
+
+        A sum-stage term that depends on this sample's core input or drive (not only on y_c) reads
+        them from x.u3_at and x.drive_at without moving its state, and its state class sets
+        ``reads_input = True``: the inverse then calls it at several trial inputs and solves for
+        the one the core's inverse returns (exact, not lagged by a sample)."""
 
     def commit(self, x: StepSignals) -> None:
         """Inverse, sum stage: update the state once x.yc and x.u3 of this sample are known."""

@@ -17,7 +17,8 @@ class Saturation(EffectBase):
     keys: ClassVar[tuple[str, ...]] = ("saturation",)
     stage: ClassVar[str] = "sum"
     position: ClassVar[int] = 50
-    inverted: ClassVar[Mapping[str, str]] = {"saturation": "correction from the drive of the previous sample"}
+    inverted: ClassVar[Mapping[str, str]] = {"saturation": "exactly, solved with the core's inverse (from the previous "
+                                                           "sample's drive when an eddy lag or delay is inverted after it)"}
     physics: ClassVar[str] = (
         "the drive goes beyond the range the model was identified on, where the material's curve bends "
         "(towards saturation, or steeper first) while the model extrapolates straight on")
@@ -136,6 +137,8 @@ class Saturation(EffectBase):
 
 
 class _SaturationState:
+    reads_input = True
+
     def __init__(self, m: Saturation) -> None:
         self.m = m
 
@@ -146,7 +149,7 @@ class _SaturationState:
         x.y += self.m.term(x.u1)
 
     def inverse_step(self, x: StepSignals) -> None:
-        x.const += self.m.term(x.drive_prev)
+        x.const += self.m.term(x.drive_at)
 
     def commit(self, x: StepSignals) -> None:
         pass

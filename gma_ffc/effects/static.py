@@ -28,7 +28,8 @@ class StaticMap(EffectBase):
     stage: ClassVar[str] = "sum"
     position: ClassVar[int] = 30
     inverted: ClassVar[Mapping[str, str]] = {"static": "closed form (quadratic root)",
-                                             "play_correction": "using the play states of the previous sample"}
+                                             "play_correction": "exactly: solved together with the core's inverse for "
+                                                                "each sample's core input"}
     physics: ClassVar[str] = "gain, offset, curvature, stress gain and loop width of the core, recalibrated"
     candidate: ClassVar[bool] = False
     n_params: ClassVar[int] = 0
@@ -117,6 +118,7 @@ class _StaticState:
         self.offset, self.gain, self.sgain = st["offset_um"], st["gain"], st["stress_gain_per_MPa"]
         self.q, self.c0 = st["quadratic_per_um"], st["center_um"]
         self.plays = PlayBankState(m.thresholds, m.coefficients) if m.thresholds.size else None
+        self.reads_input = self.plays is not None
 
     def reset(self, initial_drive: float) -> None:
         if self.plays is not None:
@@ -131,7 +133,7 @@ class _StaticState:
 
     def inverse_step(self, x: StepSignals) -> None:
         if self.plays is not None:
-            x.const += self.plays.peek(x.u3_prev)
+            x.const += self.plays.peek(x.u3_at)
 
     def solve(self, x: StepSignals) -> float:
         """The core output for which static map + the other sum terms (x.const + x.lin yc) = x.target."""

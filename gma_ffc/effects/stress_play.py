@@ -121,6 +121,11 @@ class WidenedInverseStepper(WidenedForwardStepper):
         return ops.inverse_step_widened(self._sign * reference_um, stress_MPa, self._k, self._sw, self._p,
                                         self._state)
 
+    def peek(self, reference_um: float, stress_MPa: float = 0.0) -> float:
+        """What `step` would return, without moving the state."""
+        return ops.inverse_peek_widened(self._sign * reference_um, stress_MPa, self._k, self._sw, self._p,
+                                        self._state)
+
 
 class StressPlay(EffectBase):
     name: ClassVar[str] = "stress_dependent_play"
@@ -128,9 +133,9 @@ class StressPlay(EffectBase):
     stage: ClassVar[str] = "sum"
     position: ClassVar[int] = 40
     inverted: ClassVar[Mapping[str, str]] = {
-        "stress_play": "using the play states of the previous sample",
+        "stress_play": "exactly: solved together with the core's inverse for each sample's core input",
         "loop_width": "exactly: the widened core's own inverse (each sample's piecewise-linear play sum solved)",
-        "stress_width": "using the widened core's output at the previous sample's core input"}
+        "stress_width": "exactly: the widened core's output solved together with the core's inverse"}
     physics: ClassVar[str] = (
         "the play-operator weights and the loop width (the play thresholds, the 'coercive current') change "
         "with stress, which the SDPI assumes they do not")
@@ -282,7 +287,7 @@ class _StressPlayState:
         self.dt = dt
         self.plays = PlayBankState(m.thresholds, m.coefficients) if m.thresholds.size else None
         self.wide: Any = None
-        self.width_prev = 0.0          # inverse: (y_c,wide - y_c) / eps at the previous sample
+        self.reads_input = self.plays is not None or m.wide is not None
 
     def reset(self, initial_drive: float) -> None:
         u1 = float(initial_drive)
@@ -293,7 +298,6 @@ class _StressPlayState:
                 self.wide = self.m.wide.forward_stepper(self.dt, initial_drive=u1)
             else:
                 self.wide.reset(u1)
-        self.width_prev = 0.0
 
     def step(self, x: StepSignals) -> None:
         if self.plays is not None:
@@ -303,12 +307,14 @@ class _StressPlayState:
 
     def inverse_step(self, x: StepSignals) -> None:
         if self.plays is not None:
-            x.const += x.ds * self.plays.peek(x.u3_prev)
-        if self.wide is not None:
-            x.const += self.m.k * x.ds * self.width_prev
+            x.const += x.ds * self.plays.peek(x.u3_at)
+        if self.wide is not None:        # k ds (y_c,wide - y_c) / eps: its y_c part is linear in this sample's y_c
+            c = self.m.k * x.ds / self.m.eps
+            x.const += c * float(self.wide.peek(x.u3_at, x.s))
+            x.lin -= c
 
     def commit(self, x: StepSignals) -> None:
         if self.wide is not None:
-            self.width_prev = (float(self.wide.step(x.u3, x.s)) - x.yc) / self.m.eps
+            self.wide.step(x.u3, x.s)
         if self.plays is not None:
             self.plays.advance(x.u3)
