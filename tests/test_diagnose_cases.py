@@ -29,6 +29,13 @@ def test_benchmark_case(name):
         # or described as unexplained, never called physics
         assert dg.verdict == [] and dg.outcome in ("within_noise", "unexplained"), dg.explanation
         assert "no effect" in dg.explanation.lower() or "within the noise" in dg.explanation
+        if dg.outcome == "unexplained":
+            # with the model's own identification error for scale, and the experiment that tells the
+            # core's error from missing physics, rather than a bare "outside its class"
+            lo, hi = (min(model.provenance["fit_rms_um"].values()), max(model.provenance["fit_rms_um"].values()))
+            assert f"missed its own identification recordings by {lo:.3g}" in dg.explanation
+            assert f"{dg.rms_after_um / hi:.1f}x the largest of those" in dg.explanation
+            assert "identify the core again from a second recording" in dg.explanation
     # the extended model reproduces the selected fit
     pred = dg.extended.simulate(rec.time_s, rec.drive, rec.stress_MPa, initial_state=dg.data[0].start)
     assert abs(((pred - dg.final_predictions[0]) ** 2).mean()) ** 0.5 < 1e-6 + 1e-3 * dg.rms_after_um

@@ -55,9 +55,19 @@ def residual_words(worst: Located) -> str:
             f"({worst.where}); it correlates with {follows}.")
 
 
+def identification_rms(model: Any) -> tuple[float, float] | None:
+    """The least and largest RMS the model left on its own identification recordings (from the
+    model file's provenance), or None: the scale of the core's own error on the data it was fitted to."""
+    fit = (getattr(model, "provenance", None) or {}).get("fit_rms_um")
+    if not isinstance(fit, dict):
+        return None
+    vals = [float(v) for v in fit.values() if isinstance(v, (int, float)) and math.isfinite(v) and v > 0]
+    return (min(vals), max(vals)) if vals else None
+
+
 def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[Located], rms_before: float,
             rms_null: float, rms_after: float, noise: float, too_little: bool, runner_note: str,
-            outcome: str, unit: str, noise_factor: float) -> str:
+            outcome: str, unit: str, noise_factor: float, fit_rms_um: tuple[float, float] | None = None) -> str:
     worst = max(located, key=lambda loc: loc.residual_rms_recalibrated_um)
     parts = [f"The base model misses the recordings by {rms_before:.4g} um RMS; a static recalibration "
              f"(gain/offset/curvature/loop width) leaves {rms_null:.4g} um on held-out data, against a noise floor of "
@@ -83,9 +93,17 @@ def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[
             if tried:
                 b = tried[0]
                 parts.append(f"No effect in the vocabulary explains the rest: the best, {b.effect}, "
-                             f"reaches {math.sqrt(b.cv_mse):.4g} um held-out, short of the margin required. The "
-                             "model is outside its class here or the physics is not in the vocabulary "
-                             "(re-identify the core on data like these, or model it yourself).")
+                             f"reaches {math.sqrt(b.cv_mse):.4g} um held-out, short of the margin required.")
+            if fit_rms_um is not None:
+                lo, hi = fit_rms_um
+                parts.append(f"For scale, the model missed its own identification recordings by "
+                             f"{lo:.3g}{'' if hi <= 1.005 * lo else f'-{hi:.3g}'} um RMS; the held-out residual here is "
+                             f"{rms_after / hi:.1f}x the largest of those.")
+            parts.append("What is left is the core's own error on a drive unlike its identification data (steps, "
+                         "minor loops, other frequencies), the model used outside its class, or physics not in the "
+                         "vocabulary. To decide: identify the core again from a second recording with this drive "
+                         "content (gma-ffc identify) and diagnose these recordings with it; what survives that is "
+                         "not the core's, and is yours to model.")
             parts.append(residual_words(worst))
         return " ".join(parts)
     named = [candidates[v] for v in verdict]

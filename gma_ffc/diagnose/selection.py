@@ -32,7 +32,7 @@ from ..extended import ExtendedModel
 from ..recordings import Recording
 from .checks import check_overlap, reversals
 from .data import N_BLOCKS, RecData, noise_floor, prepare
-from .explain import decider, drive_unit, explain, runner_up_note, validation_words
+from .explain import decider, drive_unit, explain, identification_rms, runner_up_note, validation_words
 from .fitting import ZOOM_LEVELS, Fitter, SearchResult, Spec, search
 from .locate import locate
 from .results import Candidate, Diagnosis
@@ -515,7 +515,7 @@ class _Run:
                                  f"um against {old_rms:.4g} um), so it replaced {old_name}.")
         explanation = explain(verdict, self.candidates, self.located, self.rms_before, math.sqrt(self.null_cv),
                               math.sqrt(self.cur_cv), self.noise, self.too_little, self.runner_note.strip(), outcome,
-                              drive_unit(self.model), sel.noise_factor)
+                              drive_unit(self.model), sel.noise_factor, identification_rms(self.model))
         validation = validation_words(self.fitter, self.null_cv, sel.min_mse_ratio, sel.min_loglik_gain)
         ordered = sorted(self.candidates.values(), key=lambda c: (not c.accepted, not c.testable,
                                                                  c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
