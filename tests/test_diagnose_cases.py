@@ -35,7 +35,7 @@ def test_benchmark_case(name):
             lo, hi = (min(model.provenance["fit_rms_um"].values()), max(model.provenance["fit_rms_um"].values()))
             assert f"missed its own identification recordings by {lo:.3g}" in dg.explanation
             assert f"{dg.rms_after_um / hi:.1f}x the largest of those" in dg.explanation
-            assert "identify the core again from a second recording" in dg.explanation
+            assert "Identifying the core again with a second recording like these" in dg.explanation
     # the extended model reproduces the selected fit
     pred = dg.extended.simulate(rec.time_s, rec.drive, rec.stress_MPa, initial_state=dg.data[0].start)
     assert abs(((pred - dg.final_predictions[0]) ** 2).mean()) ** 0.5 < 1e-6 + 1e-3 * dg.rms_after_um

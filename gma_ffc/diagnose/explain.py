@@ -99,11 +99,12 @@ def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[
                 parts.append(f"For scale, the model missed its own identification recordings by "
                              f"{lo:.3g}{'' if hi <= 1.005 * lo else f'-{hi:.3g}'} um RMS; the held-out residual here is "
                              f"{rms_after / hi:.1f}x the largest of those.")
-            parts.append("What is left is the core's own error on a drive unlike its identification data (steps, "
-                         "minor loops, other frequencies), the model used outside its class, or physics not in the "
-                         "vocabulary. To decide: identify the core again from a second recording with this drive "
-                         "content (gma-ffc identify) and diagnose these recordings with it; what survives that is "
-                         "not the core's, and is yours to model.")
+            parts.append("What is left is the core's error on a drive unlike its identification data (steps, minor "
+                         "loops, other frequencies), the limit of its class (behaviour its operators cannot represent, "
+                         "such as these minor loops or a drive range it was not made for), or physics not in the "
+                         "vocabulary. Identifying the core again with a second recording like these among its data "
+                         "(gma-ffc identify) and diagnosing these with it removes the first; what stays is one of "
+                         "the other two, which these recordings cannot tell apart.")
             parts.append(residual_words(worst))
         return " ".join(parts)
     named = [candidates[v] for v in verdict]

@@ -179,10 +179,10 @@ HEADLINES = {   # outcome -> (headline, colour, one sentence a reader takes away
     "effects_named": ("Missing physics found", "#1565c0", "Effects the model leaves out were found, modelled and shown "
                                                           "to help on data the fit did not see."),
     "unexplained": ("Unexplained residual", "#c62828", "The residual is well above the noise and nothing in the "
-                                                       "vocabulary explains it: the core's own error on a drive unlike "
-                                                       "its identification data, the model outside its class, or "
-                                                       "physics not in the vocabulary (the explanation says how to "
-                                                       "tell)."),
+                                                       "vocabulary explains it: the core's error on a drive unlike "
+                                                       "its identification data, the limit of its class, or physics "
+                                                       "not in the vocabulary (the explanation says what would narrow "
+                                                       "it down)."),
     "inconclusive": ("Inconclusive", "#ef6c00", "The data cannot decide: see 'What cannot be concluded' for the "
                                                 "recording that would."),
 }
