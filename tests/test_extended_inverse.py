@@ -41,12 +41,17 @@ def _sum_terms(rng: np.random.Generator, core: SDPIModel, strength: float) -> di
     }
 
 
-@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(core=sdpi_models(), seed=st.integers(0, 2**32 - 1), strength=st.floats(0.0, 20.0))
-def test_inverse_after_forward_returns_the_drive_whatever_the_play_terms_slope(core, seed, strength) -> None:
+def _model_and_drive(core: SDPIModel, seed: int, strength: float) -> tuple[ExtendedModel, np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     m = ExtendedModel(core, _sum_terms(rng, core, strength))
     x, stress = drive_from_rng(rng, int(rng.integers(2, 20)))
+    return m, x, stress
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(core=sdpi_models(), seed=st.integers(0, 2**32 - 1), strength=st.floats(0.0, 20.0))
+def test_inverse_after_forward_returns_the_drive_whatever_the_play_terms_slope(core, seed, strength) -> None:
+    m, x, stress = _model_and_drive(core, seed, strength)
     fwd = m.forward_stepper(DT, initial_drive=float(x[0]))
     y = np.array([fwd.step(float(a), float(s)) for a, s in zip(x, stress)])
     inv = m.inverse_stepper(DT, initial_drive=float(x[0]))
@@ -57,9 +62,7 @@ def test_inverse_after_forward_returns_the_drive_whatever_the_play_terms_slope(c
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(core=sdpi_models(), seed=st.integers(0, 2**32 - 1), strength=st.floats(0.0, 20.0))
 def test_forward_after_inverse_returns_the_reference(core, seed, strength) -> None:
-    rng = np.random.default_rng(seed)
-    m = ExtendedModel(core, _sum_terms(rng, core, strength))
-    x, stress = drive_from_rng(rng, int(rng.integers(2, 20)))
+    m, x, stress = _model_and_drive(core, seed, strength)
     t = np.arange(x.size) * DT
     ref = m.simulate(t, x, stress, initial_drive=float(x[0]))         # a reference the model can reach
     smooth = ref[0] + np.cumsum(np.r_[0.0, np.diff(ref)] * 0.7)       # and a different one, also inside
