@@ -1,0 +1,101 @@
+#!/usr/bin/env python
+"""Does the extended model that `diagnose` writes track better than its base in the control loop?
+
+For each concealed hil_sim case of the diagnosis benchmark: the base SDPI and the case's
+diagnosis recording (`gma_ffc.sil_cases.make_case`), `diagnose` on it, then the real controller
+(sim driver, simulated clock) tracking a 3 Hz sine on the case's own plant, once with the base
+model and once with the extended model as feedforward, through a load change at half time. The
+plant is hil_sim's physical GMA with the case's effect, not the model (no inverse crime); the
+sine and the load change are not the drive the diagnosis saw.
+
+Prints, per case, the verdict and the tracking RMS over the periods after the first two (the
+start-up transient): base, extended, and their ratio. Usage:
+
+    python scripts/bench_extended_tracking.py                   # the development cases, nulls included
+    python scripts/bench_extended_tracking.py --set holdout     # the never-tuned set, quoted apart
+    python scripts/bench_extended_tracking.py --only creep,stress_dependent_play
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from gma_ffc.diagnose.engine import diagnose  # noqa: E402
+from gma_ffc.modelio import save_model  # noqa: E402
+from gma_ffc.sil import run_tracking  # noqa: E402
+from gma_ffc.sil_cases import Case, cases, holdout_cases, make_case  # noqa: E402
+from hil_sim.plant import PlantConfig  # noqa: E402
+
+FREQ_HZ = 3.0
+SKIP_PERIODS = 2
+
+
+def plant_of(case: Case) -> dict:
+    """The case's plant as a hil_sim plant file (the same effects the diagnosis recording had)."""
+    cfg = PlantConfig()
+    case.configure(cfg)
+    cfg = cfg.with_effects(["noise"] + [e for e in ("eddy", "dynamics", "thermal", "creep", "delay")
+                                        if getattr(cfg, e).enabled])
+    return cfg.to_dict()
+
+
+def run_case(case: Case, periods: int, folder: Path) -> dict:
+    model, rec = make_case(case)
+    dg = diagnose(model, [rec])
+    base_path, ext_path = folder / f"{case.seed}_base.yaml", folder / f"{case.seed}_extended.yaml"
+    save_model(model, base_path)
+    save_model(dg.extended, ext_path)
+    y = rec.displacement_um * (1.0 if model.output_sign > 0 else -1.0)
+    lo, hi = np.percentile(y, [10, 90])
+    duration = periods / FREQ_HZ
+    sched = ((0.0, 5.0), (0.5 * duration, 40.0))
+    kw = dict(plant_effects=plant_of(case), load_schedule=sched, amplitude_um=0.4 * (hi - lo),
+              offset_um=0.5 * (hi + lo), seed=case.seed)
+    out = {"case": case.name, "truth": case.truth, "verdict": tuple(dg.verdict), "outcome": dg.outcome}
+    for label, path in (("base", base_path), ("extended", ext_path)):
+        run = run_tracking(path, FREQ_HZ, periods, **kw)
+        out[label] = float(np.sqrt(np.mean(run.period_rms_um[SKIP_PERIODS:] ** 2)))
+        out[f"{label}_faults"] = run.status.get("faults") if isinstance(run.status, dict) else None
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--set", choices=("tuned", "holdout"), default="tuned")
+    ap.add_argument("--only", default="", help="comma-separated case-name prefixes")
+    ap.add_argument("--periods", type=int, default=24, help="periods of the 3 Hz sine per run")
+    args = ap.parse_args(argv)
+    todo = cases() if args.set == "tuned" else holdout_cases()
+    if args.only:
+        prefixes = [p.strip() for p in args.only.split(",") if p.strip()]
+        todo = [c for c in todo if any(c.name.removeprefix("holdout:").startswith(p) for p in prefixes)]
+    if not todo:
+        print("no case matches --only", file=sys.stderr)
+        return 2
+    print(f"{'case':<34}{'verdict':<40}{'base um':>9}{'ext um':>9}{'ext/base':>9}")
+    rows = []
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, case in enumerate(todo, 1):
+            r = run_case(case, args.periods, Path(tmp))
+            rows.append(r)
+            print(f"{r['case']:<34}{','.join(r['verdict']) or r['outcome']:<40}{r['base']:>9.3f}{r['extended']:>9.3f}"
+                  f"{r['extended'] / r['base']:>9.2f}   [{k}/{len(todo)}, {time.perf_counter() - t0:.0f} s]", flush=True)
+    ratios = np.array([r["extended"] / r["base"] for r in rows])
+    print(f"\n{len(rows)} cases: extended/base tracking RMS median {np.median(ratios):.2f}, "
+          f"worst {ratios.max():.2f}; better in {int(np.sum(ratios < 1))}, worse by more than 5 % in "
+          f"{int(np.sum(ratios > 1.05))}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
