@@ -199,6 +199,14 @@ def record(cfg: PlantConfig, t: np.ndarray, i: np.ndarray, mass: Any, name: str,
                       "displacement_um": out["displacement_um"]}, {}, name)
 
 
+def case_plant(case: Case) -> PlantConfig:
+    """The case's actuator: hil_sim's defaults with the case's settings, noise and the effects it enables."""
+    cfg = PlantConfig()
+    case.configure(cfg)
+    return cfg.with_effects(["noise"] + [e for e in ("eddy", "dynamics", "thermal", "creep", "delay")
+                                         if getattr(cfg, e).enabled])
+
+
 def make_case(case: Case, scale: float = 1.0, effect_free: bool = False) -> tuple[Any, Recording]:
     """The base model (from separate 3 Hz recordings) and the concealed diagnosis recording.
 
@@ -206,10 +214,7 @@ def make_case(case: Case, scale: float = 1.0, effect_free: bool = False) -> tupl
     identification ones too) and the same drives, loads and noise: the base model's error on it is
     the floor of the model class on this experiment, what an extended model can at best reach."""
     rng = np.random.default_rng(case.seed)
-    cfg = PlantConfig()
-    case.configure(cfg)
-    cfg = cfg.with_effects(["noise"] + [e for e in ("eddy", "dynamics", "thermal", "creep", "delay")
-                                        if getattr(cfg, e).enabled])
+    cfg = case_plant(case)
     cfg.magnetics = copy.deepcopy(cfg.magnetics)
     if effect_free:
         cfg = cfg.with_effects(["noise"])
