@@ -16,6 +16,7 @@ class Saturation(EffectBase):
     name: ClassVar[str] = "saturation"
     keys: ClassVar[tuple[str, ...]] = ("saturation",)
     stage: ClassVar[str] = "sum"
+    follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 50
     inverted: ClassVar[Mapping[str, str]] = {"saturation": "exactly, solved with the core's inverse (from the previous "
                                                            "sample's drive when an eddy lag or delay is inverted after it)"}
@@ -63,11 +64,15 @@ class Saturation(EffectBase):
 
     @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
+        """A side's terms where some recording goes beyond the range there (the same columns for
+        every recording, so their rows stack)."""
         u = r.d.u
-        above = np.maximum(u - fitter.drive_hi, 0.0)
-        below = np.maximum(fitter.drive_lo - u, 0.0)
-        for side, h in (("hi", above), ("lo", below)):
-            if np.any(h > 0.02 * fitter.drive_span):
+        margin = 0.02 * fitter.drive_span
+        for side, h, beyond in (("hi", np.maximum(u - fitter.drive_hi, 0.0),
+                                 any(float(d.u.max()) > fitter.drive_hi + margin for d in fitter.data)),
+                                ("lo", np.maximum(fitter.drive_lo - u, 0.0),
+                                 any(float(d.u.min()) < fitter.drive_lo - margin for d in fitter.data))):
+            if beyond:
                 r.cols += [h, h * h]
                 r.names += [f"sat_lin_{side}", f"sat_quad_{side}"]
 
