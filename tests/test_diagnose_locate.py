@@ -53,7 +53,7 @@ def test_stress_levels_counts_dwell_levels_not_transitions():
 
 def test_reversals_are_counted_on_smooth_drives_and_on_steps():
     """Smooth loops count their turning points (a counter that only saw jumps once returned 0 here)."""
-    from gma_ffc.diagnose.checks import reversals as _reversals
+    from gma_ffc.drive import reversals as _reversals
 
     t = np.linspace(0.0, 3.0, 6000)
     assert _reversals(1.0 - np.cos(2 * np.pi * t)) == 5          # starts at a minimum: 3 maxima, 2 inner minima

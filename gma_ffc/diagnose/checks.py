@@ -11,37 +11,6 @@ from ..errors import InputError
 from ..recordings import Recording
 
 
-def reversals(u: np.ndarray) -> int:
-    """Turning points of the drive by more than 10 % of its span (hysteresis-style counting)."""
-    span = float(np.ptp(u))
-    if span <= 0:
-        return 0
-    thr = 0.1 * span
-    count, direction = 0, 0
-    hi = lo = extreme = float(u[0])
-    for v in u[:: max(1, u.size // 20000)]:
-        if direction == 0:
-            # no direction yet: track both extremes until the drive has moved away from one of them
-            hi, lo = max(hi, v), min(lo, v)
-            if hi - v > thr:
-                direction, extreme = -1, v
-            elif v - lo > thr:
-                direction, extreme = 1, v
-        elif direction > 0:
-            if v > extreme:
-                extreme = v
-            elif extreme - v > thr:
-                count += 1
-                direction, extreme = -1, v
-        else:
-            if v < extreme:
-                extreme = v
-            elif v - extreme > thr:
-                count += 1
-                direction, extreme = 1, v
-    return count
-
-
 def check_overlap(model: Any, recordings: Sequence[Recording]) -> None:
     lo, hi = model.drive_range
     srange = model.stress_range_MPa

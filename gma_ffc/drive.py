@@ -1,0 +1,47 @@
+"""What a drive history looks like: its turning points and the loop rate they imply. Pure maths."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def reversals(u: np.ndarray) -> int:
+    """Turning points of the drive by more than 10 % of its span (hysteresis-style counting)."""
+    span = float(np.ptp(u))
+    if span <= 0:
+        return 0
+    thr = 0.1 * span
+    count, direction = 0, 0
+    hi = lo = extreme = float(u[0])
+    for v in u[:: max(1, u.size // 20000)]:
+        if direction == 0:
+            # no direction yet: track both extremes until the drive has moved away from one of them
+            hi, lo = max(hi, v), min(lo, v)
+            if hi - v > thr:
+                direction, extreme = -1, v
+            elif v - lo > thr:
+                direction, extreme = 1, v
+        elif direction > 0:
+            if v > extreme:
+                extreme = v
+            elif extreme - v > thr:
+                count += 1
+                direction, extreme = -1, v
+        else:
+            if v < extreme:
+                extreme = v
+            elif v - extreme > thr:
+                count += 1
+                direction, extreme = 1, v
+    return count
+
+
+def loop_frequency_hz(time_s: np.ndarray, u: np.ndarray) -> float:
+    """Full drive loops per second (turning points / 2 / duration; nan without a loop): the rate a
+    recording sweeps its hysteresis loops at, whatever the drive's shape."""
+    t = np.asarray(time_s, dtype=float)
+    n = reversals(np.asarray(u, dtype=float))
+    duration = float(t[-1] - t[0]) if t.size > 1 else 0.0
+    if n < 2 or duration <= 0:
+        return float("nan")
+    return (n + 1) / (2.0 * duration)
