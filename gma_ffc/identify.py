@@ -34,6 +34,7 @@ import numpy as np
 from scipy import optimize
 
 from . import operators as ops
+from .drive import loop_frequency_hz
 from .errors import InputError
 from .initial_state import first_direction, resolve
 from .inverse import deadzone_inverse
@@ -304,6 +305,15 @@ class SDPIIdentifier:
                              "stress, or fit fewer dead-zones (--deadzones 5)")
         self.report_ = [self._score(d) for d in data]
         self.model_.provenance["fit_rms_um"] = {f.name: round(f.rms_um, 6) for f in self.report_}
+        # where the model is known to be right: the loop rate and the stresses it was fitted at
+        # (diagnose keeps an extended model close to the base there, `gma_ffc.diagnose.anchor`)
+        rates = [loop_frequency_hz(r.time_s, r.drive) for r in recordings]
+        rates = [f for f in rates if np.isfinite(f)]
+        if rates:
+            self.model_.provenance["drive_frequency_hz"] = float(f"{float(np.median(rates)):.4g}")
+        if stress_dependent:
+            self.model_.provenance["fit_stress_MPa"] = {f.name: round(float(f.stress_MPa), 4)
+                                                        for f in self.report_ if f.stress_MPa is not None}
         del notes_before
 
     def _orientation(self, data: list[_Data]) -> float:
