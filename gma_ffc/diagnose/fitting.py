@@ -97,10 +97,9 @@ class Score:
 class Fitter:
     """Builds regressors for specs over the prepared recordings (with caches) and solves them."""
 
-    def __init__(self, model: Any, data: Sequence[RecData], anchor: Sequence[RecData] = ()) -> None:
+    def __init__(self, model: Any, data: Sequence[RecData]) -> None:
         self.model = model
         self.data = list(data)
-        self.anchor = list(anchor)     # train-only pseudo-recordings (`anchor.py`), never scored
         lo, hi = model.drive_range
         u_all = np.concatenate([d.u for d in self.data])
         if not (math.isfinite(lo) and math.isfinite(hi)):
@@ -119,14 +118,12 @@ class Fitter:
         # resonance) and clamped (the core's)
         self._stress_fx = [c for c in self.effects if getattr(c, "transforms_stress", False)][:1]
         rng = model.stress_range_MPa
-        self._static = {id(d): (self._stress_fx[0].fit_stress(d) if self._stress_fx else d.s)
-                        for d in self.data + self.anchor}
+        self._static = {id(d): (self._stress_fx[0].fit_stress(d) if self._stress_fx else d.s) for d in self.data}
         self._static_clamped = {id(d): np.ascontiguousarray(np.clip(self._static[id(d)], *rng))
-                                if rng is not None else d.s for d in self.data + self.anchor}
-        self._anchor_cache: dict[Spec, np.ndarray] = {}
+                                if rng is not None else d.s for d in self.data}
         # the loads' static stress range: the resonance's reference (least compressive) and extent
-        self.stress_top = max(float(self._static[id(d)].max()) for d in self.data)
-        self.stress_bottom = min(float(self._static[id(d)].min()) for d in self.data)
+        self.stress_top = max(float(s.max()) for s in self._static.values())
+        self.stress_bottom = min(float(s.min()) for s in self._static.values())
         self._core_cache: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._yc0: float | None = None
         self._cache: dict[tuple, np.ndarray] = {}
@@ -145,17 +142,6 @@ class Fitter:
                                         [r[rb] for r, (_, rb) in zip(rates, self._rows_ab)])
         self.evaluations = 0
         self.delta: float | None = None   # Huber scale of the loss (None: plain least squares)
-        # the anchor (off until `use_anchor`) weighs as much as one recording in the all-data fit, and as
-        # much relative to the training rows in each fold's fit (half the data rows, half the weight)
-        # (a loop's own factor, `anchor_weight` in its extra, scales its rows: inverse variance)
-        n_anchor = sum(d.rows.size for d in self.anchor)
-        self.anchor_unit = (self.y_rows.size / len(self.data) / n_anchor) if n_anchor else 0.0
-        self.anchor_weight = 0.0
-        # each loop with its own free offset (mean removed): the sensor's zero and the slow states of the
-        # identification runs are not this recording's
-        self.y_anchor = np.concatenate([_demeaned(d.y[d.rows]) for d in self.anchor]) if n_anchor else np.zeros(0)
-        self.anchor_rows_weight = (np.concatenate([np.full(d.rows.size, float(d.extra.get("anchor_weight", 1.0)))
-                                                   for d in self.anchor]) if n_anchor else np.zeros(0))
 
     # ------------------------------------------------------------------ the core
     def input_key(self, spec: Spec) -> tuple:
@@ -180,23 +166,19 @@ class Fitter:
         hit = self._core_cache.get(key)
         if hit is not None:
             return hit
-        out = self._run_core(spec, self.data)
-        if len(self._core_cache) > 64:
-            self._core_cache.clear()
-        self._core_cache[key] = out
-        return out
-
-    def _run_core(self, spec: Spec, data: Sequence[RecData]) -> list[tuple[np.ndarray, np.ndarray]]:
+        out = []
         core = self.model
         for c in self._core_fx:
             if c.name in spec:
                 core = c.fit_core(self, core, spec[c.name])
-        out = []
-        for d in data:
+        for d in self.data:
             u3 = self.core_input(d, spec)
             s = self.stress(d, spec) if self.model.stress_range_MPa is not None else None
             yc = np.asarray(core.simulate(d.t, u3, s, initial_state=d.start), dtype=float)
             out.append((u3, yc))
+        if len(self._core_cache) > 64:
+            self._core_cache.clear()
+        self._core_cache[key] = out
         return out
 
     def core_input(self, d: RecData, spec: Spec) -> np.ndarray:
@@ -228,20 +210,14 @@ class Fitter:
         return self._yc0
 
     # ------------------------------------------------------------------ regressors
-    def columns(self, d: RecData, u3: np.ndarray, yc: np.ndarray, spec: Spec,
-                steady: bool = False) -> tuple[list[np.ndarray], list[str]]:
+    def columns(self, d: RecData, u3: np.ndarray, yc: np.ndarray, spec: Spec) -> tuple[list[np.ndarray], list[str]]:
         """Full-length regressors of one recording (before row selection): the static map's, then
-        each effect's in signal-path order (a filter effect transforms those before it). `steady`
-        (the anchor's loops): effects that do not follow the drive loop (heating, creep, pickup) stay
-        at their reference state: the base absorbed whatever state its loops were recorded in."""
+        each effect's in signal-path order (a filter effect transforms those before it)."""
         r = Regressors(d, u3, yc, self.input_key(spec), spec, [], [], {})
         StaticMap.columns(self, r, None)
         for c in self.effects:
             if c.stage != "input" and c.name in spec:
-                first = len(r.cols)
                 c.columns(self, r, spec[c.name])
-                if steady and not c.follows_drive:   # a disturbance or slow state: at its reference there
-                    r.cols[first:] = [np.zeros_like(col) for col in r.cols[first:]]
         return r.cols, r.names
 
     def design(self, spec: Spec) -> tuple[np.ndarray, list[str]]:
@@ -253,31 +229,6 @@ class Fitter:
             part_a.append(np.column_stack([c[ra] for c in cols]))
             part_b.append(np.column_stack([c[rb] for c in cols]))
         return np.vstack(part_a + part_b), names
-
-    def use_anchor(self, on: bool = True) -> None:
-        """Include the anchor (`anchor.py`) in every fit from now on, as much as one recording."""
-        self.anchor_weight = self.anchor_unit if on else 0.0
-
-    def anchor_design(self, spec: Spec) -> np.ndarray:
-        """Regressors at the anchor's rows (unweighted)."""
-        hit = self._anchor_cache.get(spec)
-        if hit is not None:
-            return hit
-        runs = self._run_core(spec, self.anchor)
-        out = np.vstack([_demeaned(np.column_stack(self.columns(d, u3, yc, spec, steady=True)[0])[d.rows])
-                         for d, (u3, yc) in zip(self.anchor, runs)])
-        if len(self._anchor_cache) > 64:
-            self._anchor_cache.clear()
-        self._anchor_cache[spec] = out
-        return out
-
-    def anchor_deviation(self, spec: Spec, coef: np.ndarray) -> list[float]:
-        """Per anchor loop, the RMS by which the model (spec, coefficients) departs from it."""
-        if not self.anchor:
-            return []
-        r = self.y_anchor - self.anchor_design(spec) @ coef
-        edges = np.cumsum([0] + [d.rows.size for d in self.anchor])
-        return [float(np.sqrt(np.mean(r[a:b] ** 2))) for a, b in zip(edges[:-1], edges[1:])]
 
     def predict_full(self, spec: Spec, coef: np.ndarray) -> list[np.ndarray]:
         """Full-rate prediction per recording for a spec and its linear coefficients."""
@@ -317,23 +268,8 @@ class Fitter:
                 w = np.where(a <= self.delta, 1.0, self.delta / np.maximum(a, 1e-300))
         return c / scale
 
-    def _fit(self, X: np.ndarray, y: np.ndarray, spec: Spec, weight: float) -> tuple[np.ndarray, float, int]:
-        """Coefficients on data rows (X, y) plus the anchor at `weight` per row; the training loss
-        (data rows' loss plus the anchor's weighted squared error) and its row count."""
-        if not self.anchor or weight <= 0:
-            c = self._solve(X, y)
-            r = y - X @ c
-            return c, self.loss(r), int(r.size)
-        sw = np.sqrt(weight * self.anchor_rows_weight)
-        Xa = self.anchor_design(spec)
-        c = self._solve(np.vstack([X, sw[:, None] * Xa]), np.concatenate([y, sw * self.y_anchor]))
-        r = y - X @ c
-        ra = sw * (self.y_anchor - Xa @ c)
-        return c, self.loss(r) + float(ra @ ra), int(r.size)
-
     def score(self, specs: tuple[Spec, Spec, Spec], want_coef: bool = False) -> Score:
-        """Fit fold A's spec on A, fold B's on B (each tested on the other), and the all-data spec;
-        every fit includes the anchor, no test does."""
+        """Fit fold A's spec on A, fold B's on B (each tested on the other), and the all-data spec."""
         self.evaluations += 1
         y = self.y_rows
         designs: dict[Spec, np.ndarray] = {}
@@ -351,17 +287,19 @@ class Fitter:
             X = X_for(specs[f])
             tr = slice(0, na) if f == 0 else slice(na, None)
             te = slice(na, None) if f == 0 else slice(0, na)
-            c, loss_tr, n_tr = self._fit(X[tr], y[tr], specs[f], 0.5 * self.anchor_weight)
+            c = self._solve(X[tr], y[tr])
+            r_tr = y[tr] - X[tr] @ c
             r_te = y[te] - X[te] @ c
-            sse_train.append(loss_tr)
+            sse_train.append(self.loss(r_tr))
             sse_test.append(self.loss(r_te))
             sq_test.append(float(r_te @ r_te))
-            n_train.append(n_tr)
+            n_train.append(int(r_tr.size))
             n_test.append(int(r_te.size))
         X = X_for(specs[2])
-        c_all, loss_all, n_all = self._fit(X, y, specs[2], self.anchor_weight)
+        c_all = self._solve(X, y)
+        r = y - X @ c_all
         return Score(tuple(sse_train), tuple(sse_test), tuple(n_train), tuple(n_test),  # type: ignore[arg-type]
-                     loss_all, n_all, c_all if want_coef else None, names, tuple(sq_test))  # type: ignore[arg-type]
+                     self.loss(r), int(y.size), c_all if want_coef else None, names, tuple(sq_test))  # type: ignore[arg-type]
 
     @property
     def rows_ab(self) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -386,13 +324,9 @@ class Fitter:
             X, _ = self.design(specs[f])
             tr = slice(0, na) if f == 0 else slice(na, None)
             te = slice(na, None) if f == 0 else slice(0, na)
-            c = self._fit(X[tr], y[tr], specs[f], 0.5 * self.anchor_weight)[0]
+            c = self._solve(X[tr], y[tr])
             out[te] = y[te] - X[te] @ c
         return out
-
-
-def _demeaned(a: np.ndarray) -> np.ndarray:
-    return a - a.mean(axis=0)
 
 
 # ---------------------------------------------------------------------- searching one block

@@ -30,9 +30,7 @@ from ..effects.static import StaticMap
 from ..errors import InputError
 from ..extended import ExtendedModel
 from ..recordings import Recording
-from ..drive import reversals
-from .checks import check_overlap
-from .anchor import anchor_data, anchor_words
+from .checks import check_overlap, reversals
 from .data import N_BLOCKS, RecData, noise_floor, prepare
 from .explain import decider, drive_unit, explain, identification_rms, runner_up_note, validation_words
 from .fitting import ZOOM_LEVELS, Fitter, SearchResult, Spec, search
@@ -196,7 +194,6 @@ class _Run:
         self.ambiguous_pairs: list[tuple[str, str]] = []
         self.swapped: list[tuple[str, str, float, float]] = []
         self.outside_class = ""
-        self.base_kept = False
 
     # ------------------------------------------------------------------ step 1: pre-checks
     def precheck(self) -> None:
@@ -206,8 +203,7 @@ class _Run:
             raise InputError("give at least one recording to compare with the model")
         check_overlap(self.model, recordings)
         self.data = data = prepare(recordings, self.model, sel.initial_state)
-        self.fitter = Fitter(self.model, data, anchor_data(self.model, min(d.dt_med for d in data)))
-        self.fitter.use_anchor()
+        self.fitter = Fitter(self.model, data)
         self.n_samples = sum(d.t.size - d.settled for d in data)   # samples scored: after the initial state settles
         n_rev = sum(reversals(d.u[d.settled:]) for d in data if d.settled < d.t.size)
         for d in data:
@@ -466,13 +462,11 @@ class _Run:
                 self.cannot.append(f"the static recalibration was left out of the extended model: on held-out "
                                    f"blocks it is worse than the base model on {', '.join(worse)}")
                 self._keep_base()
-        if self.outside_class and not self.too_little:
-            # the residual is dominated by drive the model's class cannot follow: whatever else fits it, a
-            # recalibration too, is fitted to that, so nothing is named and nothing is written over the base
-            # until the core is identified over the drive range used
-            if self.accepted:
-                self.cannot.append(f"{', '.join(self.accepted)} would be fitted to the part of the residual the "
-                                   "model's class cannot follow, so nothing is named")
+        if self.outside_class and self.accepted and not self.too_little:
+            # the residual is dominated by drive the model's class cannot follow: whatever else fits it is
+            # fitted to that, so nothing is named until the core is identified over the drive range used
+            self.cannot.append(f"{', '.join(self.accepted)} would be fitted to the part of the residual the model's "
+                               "class cannot follow, so nothing is named")
             self._name_nothing()
             self._keep_base()
         if self.outside_class:
@@ -484,7 +478,6 @@ class _Run:
         self.accepted, self.ambiguous_pairs = [], []
 
     def _keep_base(self) -> None:
-        self.base_kept = True
         self.ext = ExtendedModel(self.model, {}, [])
         self.final_pred = list(self.base_pred)
         self.cur_cv = self.rms_before ** 2
@@ -524,8 +517,6 @@ class _Run:
                               math.sqrt(self.cur_cv), self.noise, self.too_little, self.runner_note.strip(), outcome,
                               drive_unit(self.model), sel.noise_factor, identification_rms(self.model))
         validation = validation_words(self.fitter, self.null_cv, sel.min_mse_ratio, sel.min_loglik_gain)
-        validation += anchor_words(self.model, [] if self.base_kept else
-                                   self.fitter.anchor_deviation(self.final.specs[2], self.final.coef_all))
         ordered = sorted(self.candidates.values(), key=lambda c: (not c.accepted, not c.testable,
                                                                  c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
         return Diagnosis(outcome, verdict, explanation, self.located, ordered, self.rms_before,

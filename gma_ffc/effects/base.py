@@ -167,9 +167,6 @@ class Effect(Protocol):
     candidate: ClassVar[bool]               # False: always present, never selected (the static map)
     n_params: ClassVar[int]                 # parameters the block adds (nonlinear + gains): the penalty
     slow: ClassVar[bool]                    # a slow effect (needs long recordings to separate)
-    follows_drive: ClassVar[bool]           # True: a function of the drive loop, pinned by the base's own
-                                            # identification loops (`diagnose.anchor`); False: a disturbance
-                                            # or slow state, held at its reference on those loops
     joint_with: ClassVar[str | None]        # a look-alike whose parameter is re-searched with this one
     deciders: ClassVar[Mapping[str, str]]   # per look-alike: the experiment that tells the two apart
     transforms_stress: ClassVar[bool]       # True: it supplies the stress the core (and every stage) sees
@@ -279,7 +276,6 @@ class EffectBase:
     physics_voltage: ClassVar[str | None] = None
     candidate: ClassVar[bool] = True
     slow: ClassVar[bool] = False
-    follows_drive: ClassVar[bool] = False
     joint_with: ClassVar[str | None] = None
     deciders: ClassVar[Mapping[str, str]] = {}
     transforms_stress: ClassVar[bool] = False

@@ -27,7 +27,6 @@ class Dynamics(EffectBase):
     name: ClassVar[str] = "mechanical_dynamics"
     keys: ClassVar[tuple[str, ...]] = ("dynamics",)
     stage: ClassVar[str] = "filter"
-    follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 70
     inverted: ClassVar[Mapping[str, str]] = {"dynamics": "exact inverse filter (3-tap FIR on the reference)"}
     inverted_rod_load: ClassVar[Mapping[str, str]] = {

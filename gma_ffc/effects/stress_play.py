@@ -131,7 +131,6 @@ class StressPlay(EffectBase):
     name: ClassVar[str] = "stress_dependent_play"
     keys: ClassVar[tuple[str, ...]] = ("stress_play", "loop_width", "stress_width")
     stage: ClassVar[str] = "sum"
-    follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 40
     inverted: ClassVar[Mapping[str, str]] = {
         "stress_play": "exactly: solved together with the core's inverse for each sample's core input",
