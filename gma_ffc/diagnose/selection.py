@@ -30,7 +30,8 @@ from ..effects.static import StaticMap
 from ..errors import InputError
 from ..extended import ExtendedModel
 from ..recordings import Recording
-from .checks import check_overlap, reversals
+from ..drive import reversals
+from .checks import check_overlap
 from .data import N_BLOCKS, RecData, noise_floor, prepare
 from .explain import decider, drive_unit, explain, identification_rms, runner_up_note, validation_words
 from .fitting import ZOOM_LEVELS, Fitter, SearchResult, Spec, search
