@@ -109,3 +109,15 @@ def test_a_recalibration_that_helps_one_recording_and_hurts_another_is_left_out(
     y = dg.extended.simulate(other.time_s, other.drive, other.stress_MPa, measured_um=other.displacement_um)
     base = model.simulate(other.time_s, other.drive, other.stress_MPa, measured_um=other.displacement_um)
     assert np.allclose(y, base)
+
+
+def test_saturation_terms_are_the_same_columns_for_every_recording():
+    """One recording beyond the identified drive range and one inside it: the saturation regressors
+    must stack (they used to differ in number, and the fit crashed)."""
+    case = CASES["saturation#1"]
+    model, beyond = bench.make_case(case, scale=0.5)
+    t = np.arange(int(8 * bench.FS)) / bench.FS
+    i = 0.75 * (1 - np.cos(2 * np.pi * 4 * t))                    # inside the 0..1.5 A identified
+    inside = bench.record(bench.case_plant(case), t, i, 20.0, "inside.csv", 5)
+    dg = diagnose(model, [beyond, inside])
+    assert "saturation" in dg.verdict, dg.explanation
