@@ -41,7 +41,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .effects import by_block_key
-from .effects.base import BatchSignals, Effect, EffectState, StepSignals
+from .effects.base import BatchSignals, Effect, EffectState, PlayStart, StepSignals
 from .effects.static import StaticMap
 from .errors import ModelError
 
@@ -169,11 +169,15 @@ class ExtendedModel:
         u3 = self.core_input(t, u, initial_drive)
         stress_MPa = self.seen_stress(t, stress_MPa)
         if initial_drive is None:
-            yc = np.asarray(self.core.simulate(t, u3, stress_MPa, initial_state=initial_state,
-                                               measured_um=measured_um), dtype=float)
+            # resolved here, once, so the output side's plays can start from the same history
+            plays = self.core.resolve_initial_state(u3, stress_MPa if self.stress_range_MPa else None, initial_state,
+                                                    measured_um, t).play_state
+            yc = np.asarray(self.core.simulate(t, u3, stress_MPa, initial_play_state=plays), dtype=float)
+            start = PlayStart.of_core(self.core, float(u3[0]), plays)
         else:
             yc = np.asarray(self.core.simulate(t, u3, stress_MPa, initial_drive=float(initial_drive)), dtype=float)
-        return self.output_from_core(t, u, u3, yc, stress_MPa, initial_drive)
+            start = PlayStart.of_core_rule(self.core, float(initial_drive))
+        return self.output_from_core(t, u, u3, yc, stress_MPa, initial_drive, start)
 
     def seen_stress(self, time_s: np.ndarray, stress_MPa: Any) -> Any:
         """The stress the core and the output stages see: as given, unless an effect transforms it
@@ -188,13 +192,14 @@ class ExtendedModel:
         return stress_MPa
 
     def output_from_core(self, t: np.ndarray, drive: np.ndarray, u3: np.ndarray, yc: np.ndarray,
-                         stress_MPa: Any, initial_drive: float | None = None) -> np.ndarray:
+                         stress_MPa: Any, initial_drive: float | None = None,
+                         play_start: PlayStart | None = None) -> np.ndarray:
         """Apply the output-side effects to the core's displacement (`stress_MPa` as the model sees
-        it: `seen_stress` of the recorded one)."""
+        it: `seen_stress` of the recorded one; `play_start`: where the core's plays started)."""
         dt, _ = _time_steps(t)
         s = _stress_array(stress_MPa, t.size)
         sig = BatchSignals(t, dt, np.asarray(drive, dtype=float), u3, yc, s, s - self.static.stress_ref,
-                           stress_MPa, initial_drive)
+                           stress_MPa, initial_drive, play_start)
         y = self.static.apply(np.zeros_like(yc), sig)
         for e in self.chain:
             if e.stage != "input" and e is not self.static:
@@ -298,6 +303,10 @@ class _Stepper:
     def _reset_states(self, u1: float) -> None:
         for st in self._all:
             st.reset(u1)
+        start = PlayStart.of_core_rule(self.m.core, u1)     # as the core's stepper starts
+        for st in self._all:
+            if hasattr(st, "start_plays"):
+                st.start_plays(u1, start)
 
     def _stress(self, stress_MPa: float | None) -> None:
         x = self._x
@@ -443,11 +452,14 @@ class InverseStepper(_Stepper):
         if bracketed:                     # between u0 and u1 (h0, h1 of opposite signs)
             a, fa, b, fb = u0, h0, u1, h1
             p, fp = a, fa                 # the iterate before b (for the secant through the last two)
+            width, stalled = abs(b - a), 0
             while tries < SOLVE_MAX_TRIES and abs(b - a) > tol:
                 tries += 1
                 c = b - fb * (b - p) / (fb - fp) if fb != fp else math.nan
                 if not (min(a, b) < c < max(a, b)):      # NaN-safe: regula falsi on the bracket instead
                     c = b - fb * (b - a) / (fb - fa)
+                if stalled >= 2:          # the bracket has not halved in two steps (a kink, a steep stretch):
+                    c = 0.5 * (a + b)     # bisect, so it shrinks at least geometrically
                 p, fp = b, fb
                 fc = self._miss(x, c)
                 if abs(fc) < best_h:
@@ -459,4 +471,8 @@ class InverseStepper(_Stepper):
                 else:                     # the far end kept twice in a row: halve its weight (Illinois)
                     fa *= 0.5
                 b, fb = c, fc
+                if abs(b - a) <= 0.5 * width:
+                    width, stalled = abs(b - a), 0
+                else:
+                    stalled += 1
         x.yc = best_yc

@@ -305,8 +305,8 @@ class SDPIIdentifier:
                              "stress, or fit fewer dead-zones (--deadzones 5)")
         self.report_ = [self._score(d) for d in data]
         self.model_.provenance["fit_rms_um"] = {f.name: round(f.rms_um, 6) for f in self.report_}
-        # where the model is known to be right: the loop rate and the stresses it was fitted at (for a
-        # reader of the file; diagnose does not use them yet: its anchor is on branch anchor-proto)
+        # where the model is known to be right: the loop rate and the stresses it was fitted at
+        # (diagnose keeps an extended model close to the base there, `gma_ffc.diagnose.anchor`)
         rates = [loop_frequency_hz(r.time_s, r.drive) for r in recordings]
         rates = [f for f in rates if np.isfinite(f)]
         if rates:

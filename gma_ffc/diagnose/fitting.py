@@ -97,9 +97,10 @@ class Score:
 class Fitter:
     """Builds regressors for specs over the prepared recordings (with caches) and solves them."""
 
-    def __init__(self, model: Any, data: Sequence[RecData]) -> None:
+    def __init__(self, model: Any, data: Sequence[RecData], anchor: Sequence[RecData] = ()) -> None:
         self.model = model
         self.data = list(data)
+        self.anchor = list(anchor)     # train-only pseudo-recordings (`anchor.py`), never scored
         lo, hi = model.drive_range
         u_all = np.concatenate([d.u for d in self.data])
         if not (math.isfinite(lo) and math.isfinite(hi)):
@@ -118,12 +119,14 @@ class Fitter:
         # resonance) and clamped (the core's)
         self._stress_fx = [c for c in self.effects if getattr(c, "transforms_stress", False)][:1]
         rng = model.stress_range_MPa
-        self._static = {id(d): (self._stress_fx[0].fit_stress(d) if self._stress_fx else d.s) for d in self.data}
+        self._static = {id(d): (self._stress_fx[0].fit_stress(d) if self._stress_fx else d.s)
+                        for d in self.data + self.anchor}
         self._static_clamped = {id(d): np.ascontiguousarray(np.clip(self._static[id(d)], *rng))
-                                if rng is not None else d.s for d in self.data}
+                                if rng is not None else d.s for d in self.data + self.anchor}
+        self._anchor_cache: dict[Spec, np.ndarray] = {}
         # the loads' static stress range: the resonance's reference (least compressive) and extent
-        self.stress_top = max(float(s.max()) for s in self._static.values())
-        self.stress_bottom = min(float(s.min()) for s in self._static.values())
+        self.stress_top = max(float(self._static[id(d)].max()) for d in self.data)
+        self.stress_bottom = min(float(self._static[id(d)].min()) for d in self.data)
         self._core_cache: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._yc0: float | None = None
         self._cache: dict[tuple, np.ndarray] = {}
@@ -142,6 +145,14 @@ class Fitter:
                                         [r[rb] for r, (_, rb) in zip(rates, self._rows_ab)])
         self.evaluations = 0
         self.delta: float | None = None   # Huber scale of the loss (None: plain least squares)
+        # the anchor (off until `use_anchor`): a constraint, not data. Each loop has its own free offset
+        # and scale, projected out: the sensor's zero and gain, the slow states and the rod's
+        # calibration on the day of identification are not this recording's, and a static
+        # recalibration is the diagnosis data's to learn. What is held is the shape of the base's
+        # loops (the base's own output projects to zero), to within its identification error there.
+        self._anchor_free = [_affine_basis(d.y[d.rows]) for d in self.anchor]
+        self.anchor_on = False
+        self._anchor_tol = np.full(len(self.anchor), math.nan)
 
     # ------------------------------------------------------------------ the core
     def input_key(self, spec: Spec) -> tuple:
@@ -166,19 +177,23 @@ class Fitter:
         hit = self._core_cache.get(key)
         if hit is not None:
             return hit
-        out = []
+        out = self._run_core(spec, self.data)
+        if len(self._core_cache) > 64:
+            self._core_cache.clear()
+        self._core_cache[key] = out
+        return out
+
+    def _run_core(self, spec: Spec, data: Sequence[RecData]) -> list[tuple[np.ndarray, np.ndarray]]:
         core = self.model
         for c in self._core_fx:
             if c.name in spec:
                 core = c.fit_core(self, core, spec[c.name])
-        for d in self.data:
+        out = []
+        for d in data:
             u3 = self.core_input(d, spec)
             s = self.stress(d, spec) if self.model.stress_range_MPa is not None else None
             yc = np.asarray(core.simulate(d.t, u3, s, initial_state=d.start), dtype=float)
             out.append((u3, yc))
-        if len(self._core_cache) > 64:
-            self._core_cache.clear()
-        self._core_cache[key] = out
         return out
 
     def core_input(self, d: RecData, spec: Spec) -> np.ndarray:
@@ -210,14 +225,20 @@ class Fitter:
         return self._yc0
 
     # ------------------------------------------------------------------ regressors
-    def columns(self, d: RecData, u3: np.ndarray, yc: np.ndarray, spec: Spec) -> tuple[list[np.ndarray], list[str]]:
+    def columns(self, d: RecData, u3: np.ndarray, yc: np.ndarray, spec: Spec,
+                steady: bool = False) -> tuple[list[np.ndarray], list[str]]:
         """Full-length regressors of one recording (before row selection): the static map's, then
-        each effect's in signal-path order (a filter effect transforms those before it)."""
+        each effect's in signal-path order (a filter effect transforms those before it). `steady`
+        (the anchor's loops): effects that do not follow the drive loop (heating, creep, pickup) stay
+        at their reference state: the base absorbed whatever state its loops were recorded in."""
         r = Regressors(d, u3, yc, self.input_key(spec), spec, [], [], {})
         StaticMap.columns(self, r, None)
         for c in self.effects:
             if c.stage != "input" and c.name in spec:
+                first = len(r.cols)
                 c.columns(self, r, spec[c.name])
+                if steady and not c.follows_drive:   # a disturbance or slow state: at its reference there
+                    r.cols[first:] = [np.zeros_like(col) for col in r.cols[first:]]
         return r.cols, r.names
 
     def design(self, spec: Spec) -> tuple[np.ndarray, list[str]]:
@@ -229,6 +250,44 @@ class Fitter:
             part_a.append(np.column_stack([c[ra] for c in cols]))
             part_b.append(np.column_stack([c[rb] for c in cols]))
         return np.vstack(part_a + part_b), names
+
+    def use_anchor(self, on: bool = True, fallback_tolerance_um: float = math.nan) -> None:
+        """Hold every fit from now on within the base's identification error on its own loops
+        (`anchor.py`); a loop without a recorded error gets `fallback_tolerance_um` (e.g. the
+        data's noise floor: the base is not known better than a measurement)."""
+        tol = np.array([float(d.extra.get("anchor_tolerance_um", math.nan)) for d in self.anchor])
+        tol[~(tol > 0)] = fallback_tolerance_um
+        self._anchor_tol = tol
+        self.anchor_on = bool(on and self.anchor and np.all(tol > 0))
+
+    def anchor_design(self, spec: Spec) -> np.ndarray:
+        """Regressors at the anchor's rows, each loop's offset and base output projected out."""
+        hit = self._anchor_cache.get(spec)
+        if hit is not None:
+            return hit
+        runs = self._run_core(spec, self.anchor)
+        out = np.vstack([_projected(q, np.column_stack(self.columns(d, u3, yc, spec, steady=True)[0])[d.rows])
+                         for q, d, (u3, yc) in zip(self._anchor_free, self.anchor, runs)])
+        if len(self._anchor_cache) > 64:
+            self._anchor_cache.clear()
+        self._anchor_cache[spec] = out
+        return out
+
+    def _anchor_grams(self, spec: Spec) -> list[np.ndarray]:
+        """Per anchor loop, the quadratic form c' A_k c = (its RMS departure / its tolerance)^2."""
+        Xa = self.anchor_design(spec)
+        edges = np.cumsum([0] + [d.rows.size for d in self.anchor])
+        return [Xa[a:b].T @ Xa[a:b] / ((b - a) * t * t)
+                for a, b, t in zip(edges[:-1], edges[1:], self._anchor_tol)]
+
+    def anchor_deviation(self, spec: Spec, coef: np.ndarray) -> list[float]:
+        """Per anchor loop, the RMS by which the model (spec, coefficients) departs from the base's
+        loop, offset and scale aside."""
+        if not self.anchor:
+            return []
+        r = self.anchor_design(spec) @ coef
+        edges = np.cumsum([0] + [d.rows.size for d in self.anchor])
+        return [float(np.sqrt(np.mean(r[a:b] ** 2))) for a, b in zip(edges[:-1], edges[1:])]
 
     def predict_full(self, spec: Spec, coef: np.ndarray) -> list[np.ndarray]:
         """Full-rate prediction per recording for a spec and its linear coefficients."""
@@ -247,29 +306,64 @@ class Fitter:
         d = self.delta
         return float(np.sum(np.where(a <= d, a * a, 2 * d * a - d * d)))
 
-    def _solve(self, X: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Least squares; with a Huber scale, two reweighting passes so a few bursts (a load change
-        the core cannot follow) do not steer the fit."""
+    def _solve(self, X: np.ndarray, y: np.ndarray, penalty: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Least squares (plus c' penalty c); with a Huber scale, two reweighting passes so a few
+        bursts (a load change the core cannot follow) do not steer the fit. Returns the coefficients
+        and the last pass's scaled normal equations (G, b, column scale) for cheap re-solves."""
         scale = np.sqrt(np.mean(X * X, axis=0))
         scale[scale == 0] = 1.0
         Xs = X / scale
+        P = np.zeros((X.shape[1], X.shape[1])) if penalty is None else penalty / np.outer(scale, scale)
         w = None
         c = np.zeros(X.shape[1])
+        G, b = P, np.zeros(X.shape[1])
         for _ in range(1 if self.delta is None else 3):
             Xw = Xs if w is None else Xs * w[:, None]
             G = Xw.T @ Xs
             G[np.diag_indices_from(G)] += 1e-10 * max(float(np.trace(G)), 1.0) / G.shape[0]
-            try:
-                c = np.linalg.solve(G, Xw.T @ y)
-            except np.linalg.LinAlgError:
-                c = np.linalg.lstsq(Xs, y, rcond=None)[0]
+            b = Xw.T @ y
+            c = _solve_normal(G + P, b, Xs, y)
             if self.delta is not None:
                 a = np.abs(y - Xs @ c)
                 w = np.where(a <= self.delta, 1.0, self.delta / np.maximum(a, 1e-300))
-        return c / scale
+        return c / scale, G, b, scale
+
+    def _fit(self, X: np.ndarray, y: np.ndarray, spec: Spec) -> tuple[np.ndarray, float, int]:
+        """Coefficients on data rows (X, y), held near the base on the anchor's loops; the training
+        loss on the data rows and their count.
+
+        The discrepancy principle, per loop: the least anchor weight (each loop's scaled by its
+        1/tolerance^2) that brings every loop within its tolerance, beyond the departure the spec
+        cannot avoid at any recalibration of gain 1 (a resonance's lag on the 3 Hz loops, say,
+        which the base absorbed into its loops and no static term undoes: it is added to the
+        tolerance in quadrature), so an effect is never distorted into the data fit to chase it."""
+        c, G, b, scale = self._solve(X, y)
+        if self.anchor_on:
+            grams = self._anchor_grams(spec)
+            S = np.outer(scale, scale)
+            scaled = [A / S for A in grams]
+            total = np.sum(scaled, axis=0)
+            lam0 = float(np.trace(G)) / max(float(np.trace(total)), 1e-300)
+            least = _least_departure(np.sum(grams, axis=0))
+            allowed = [1.0 + float(least @ A @ least) for A in grams]
+
+            def worst(cs: np.ndarray) -> float:
+                return max(float(cs @ A @ cs) / a for A, a in zip(scaled, allowed))
+
+            if worst(c * scale) > 1.0:
+                lo, hi = -8.0, 8.0          # the departures fall as the weight grows; bisect on its log
+                for _ in range(40):
+                    mid = 0.5 * (lo + hi)
+                    cs = _solve_normal(G + lam0 * 10.0 ** mid * total, b, None, None)
+                    lo, hi = (mid, hi) if worst(cs) > 1.0 else (lo, mid)
+                c = self._solve(X, y, lam0 * 10.0 ** hi * np.sum(grams, axis=0))[0]
+        r = y - X @ c
+        return c, self.loss(r), int(r.size)
 
     def score(self, specs: tuple[Spec, Spec, Spec], want_coef: bool = False) -> Score:
-        """Fit fold A's spec on A, fold B's on B (each tested on the other), and the all-data spec."""
+        """Fit fold A's spec on A, fold B's on B (each tested on the other), and the all-data spec;
+        every fit is held by the anchor, no test sees it."""
         self.evaluations += 1
         y = self.y_rows
         designs: dict[Spec, np.ndarray] = {}
@@ -287,19 +381,17 @@ class Fitter:
             X = X_for(specs[f])
             tr = slice(0, na) if f == 0 else slice(na, None)
             te = slice(na, None) if f == 0 else slice(0, na)
-            c = self._solve(X[tr], y[tr])
-            r_tr = y[tr] - X[tr] @ c
+            c, loss_tr, n_tr = self._fit(X[tr], y[tr], specs[f])
             r_te = y[te] - X[te] @ c
-            sse_train.append(self.loss(r_tr))
+            sse_train.append(loss_tr)
             sse_test.append(self.loss(r_te))
             sq_test.append(float(r_te @ r_te))
-            n_train.append(int(r_tr.size))
+            n_train.append(n_tr)
             n_test.append(int(r_te.size))
         X = X_for(specs[2])
-        c_all = self._solve(X, y)
-        r = y - X @ c_all
+        c_all, loss_all, n_all = self._fit(X, y, specs[2])
         return Score(tuple(sse_train), tuple(sse_test), tuple(n_train), tuple(n_test),  # type: ignore[arg-type]
-                     self.loss(r), int(y.size), c_all if want_coef else None, names, tuple(sq_test))  # type: ignore[arg-type]
+                     loss_all, n_all, c_all if want_coef else None, names, tuple(sq_test))  # type: ignore[arg-type]
 
     @property
     def rows_ab(self) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -324,9 +416,68 @@ class Fitter:
             X, _ = self.design(specs[f])
             tr = slice(0, na) if f == 0 else slice(na, None)
             te = slice(na, None) if f == 0 else slice(0, na)
-            c = self._solve(X[tr], y[tr])
+            c = self._fit(X[tr], y[tr], specs[f])[0]
             out[te] = y[te] - X[te] @ c
         return out
+
+
+POLISH_EVALS = 25     # per free coordinate: Nelder-Mead from the zoom's best point
+POLISH_STEP = 0.03    # its first simplex: 3 % moves (the zoom's last steps are 0.5-1.5 %)
+
+
+def _polish(fitter: Fitter, results: dict[Any, Score], run: Callable[[Iterable[Any]], None],
+            polish: Callable[[Fitter, Any], tuple[int, Callable[[np.ndarray], Any]] | None]) -> None:
+    """Nelder-Mead on the all-data training error from the best point so far; every point it
+    visits joins `results`, so the folds choose among them too."""
+    from scipy.optimize import minimize
+
+    best = min(results, key=lambda p: results[p].all_mse)
+    space = polish(fitter, best)
+    if space is None:
+        return
+    n, at = space
+
+    def cost(x: np.ndarray) -> float:
+        p = at(x)
+        run([p])
+        return results[p].all_mse
+
+    f0 = results[best].all_mse
+    simplex = np.vstack([np.zeros(n), POLISH_STEP * np.eye(n)])
+    minimize(cost, np.zeros(n), method="Nelder-Mead",
+             options={"initial_simplex": simplex, "maxfev": POLISH_EVALS * n, "xatol": 1e-3,
+                      "fatol": 1e-3 * max(f0, 1e-300)})
+
+
+def _affine_basis(y: np.ndarray) -> np.ndarray:
+    """Orthonormal basis of {constant, y}: an anchor loop's free offset and scale."""
+    q, _ = np.linalg.qr(np.column_stack([np.ones(y.size), y]))
+    return q
+
+
+def _least_departure(T: np.ndarray) -> np.ndarray:
+    """The coefficients of least anchor departure c'Tc at gain 1 (the static map's first column,
+    the core's output, held: a model may not escape the anchor by shrinking to nothing)."""
+    c = np.zeros(T.shape[0])
+    c[0] = 1.0
+    if T.shape[0] > 1:
+        c[1:] = -np.linalg.lstsq(T[1:, 1:], T[1:, 0], rcond=None)[0]
+    return c
+
+
+def _solve_normal(G: np.ndarray, b: np.ndarray, Xs: np.ndarray | None, y: np.ndarray | None) -> np.ndarray:
+    """Solve G c = b; if G is singular, least squares on the rows (when given) or on G."""
+    try:
+        return np.linalg.solve(G, b)
+    except np.linalg.LinAlgError:
+        if Xs is not None and y is not None:
+            return np.linalg.lstsq(Xs, y, rcond=None)[0]
+        return np.linalg.lstsq(G, b, rcond=None)[0]
+
+
+def _projected(q: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """`a` (a vector or the columns of a matrix) with its components along the basis `q` removed."""
+    return a - q @ (q.T @ a)
 
 
 # ---------------------------------------------------------------------- searching one block
@@ -348,8 +499,11 @@ class SearchResult:
 
 def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, Any], Spec],
            grid: Iterable[Any], refine: Callable[[Fitter, Any, int], Sequence[Any] | None] | None = None,
-           zoom_levels: int = ZOOM_LEVELS) -> SearchResult:
-    """Grid (plus local refinement) over one block's parameters; per-fold choice by training error."""
+           zoom_levels: int = ZOOM_LEVELS,
+           polish: Callable[[Fitter, Any], tuple[int, Callable[[np.ndarray], Any]] | None] | None = None
+           ) -> SearchResult:
+    """Grid (plus local refinement, then an optional continuous polish) over one block's
+    parameters; per-fold choice by training error."""
     results: dict[Any, Score] = {}
 
     def run(points: Iterable[Any]) -> None:
@@ -366,6 +520,8 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
                            min(results, key=lambda p: results[p].all_mse)}
             for bp in best_points:
                 run(refine(fitter, bp, level) or [])
+    if polish is not None:
+        _polish(fitter, results, run, polish)
     pa = min(results, key=lambda p: results[p].train_mse(0))
     pb = min(results, key=lambda p: results[p].train_mse(1))
     pall = min(results, key=lambda p: results[p].all_mse)

@@ -32,6 +32,7 @@ from ..extended import ExtendedModel
 from ..recordings import Recording
 from ..drive import reversals
 from .checks import check_overlap
+from .anchor import anchor_data, anchor_words
 from .data import N_BLOCKS, RecData, noise_floor, prepare
 from .explain import decider, drive_unit, explain, identification_rms, runner_up_note, validation_words
 from .fitting import ZOOM_LEVELS, Fitter, SearchResult, Spec, search
@@ -195,6 +196,7 @@ class _Run:
         self.ambiguous_pairs: list[tuple[str, str]] = []
         self.swapped: list[tuple[str, str, float, float]] = []
         self.outside_class = ""
+        self.base_kept = False
 
     # ------------------------------------------------------------------ step 1: pre-checks
     def precheck(self) -> None:
@@ -204,7 +206,7 @@ class _Run:
             raise InputError("give at least one recording to compare with the model")
         check_overlap(self.model, recordings)
         self.data = data = prepare(recordings, self.model, sel.initial_state)
-        self.fitter = Fitter(self.model, data)
+        self.fitter = Fitter(self.model, data, anchor_data(self.model, min(d.dt_med for d in data)))
         self.n_samples = sum(d.t.size - d.settled for d in data)   # samples scored: after the initial state settles
         n_rev = sum(reversals(d.u[d.settled:]) for d in data if d.settled < d.t.size)
         for d in data:
@@ -226,6 +228,7 @@ class _Run:
                 self.cannot.append(f"{d.name}: {d.clamped_fraction:.0%} of the samples are at stresses outside the "
                                    "model's range; they were compared at the nearest stress of the range")
         self.noise = float(np.median([noise_floor(d.y) for d in data]))
+        self.fitter.use_anchor(fallback_tolerance_um=self.noise)
 
     # ------------------------------------------------------------------ step 2: the null model
     def null_model(self) -> None:
@@ -364,7 +367,8 @@ class _Run:
 
             partner = cls.joint_with
             if partner is None or partner not in base[2]:
-                return search(fitter, base, make, cls.grid(fitter), cls.refine, getattr(cls, "zoom_levels", ZOOM_LEVELS))
+                return search(fitter, base, make, cls.grid(fitter), cls.refine, getattr(cls, "zoom_levels", ZOOM_LEVELS),
+                              cls.polish)
 
             # look-alikes trade off against each other: re-search the accepted one's value with the new one
             def make_joint(s: Spec, p: Any) -> Spec:
@@ -463,11 +467,13 @@ class _Run:
                 self.cannot.append(f"the static recalibration was left out of the extended model: on held-out "
                                    f"blocks it is worse than the base model on {', '.join(worse)}")
                 self._keep_base()
-        if self.outside_class and self.accepted and not self.too_little:
-            # the residual is dominated by drive the model's class cannot follow: whatever else fits it is
-            # fitted to that, so nothing is named until the core is identified over the drive range used
-            self.cannot.append(f"{', '.join(self.accepted)} would be fitted to the part of the residual the model's "
-                               "class cannot follow, so nothing is named")
+        if self.outside_class and not self.too_little:
+            # the residual is dominated by drive the model's class cannot follow: whatever else fits it, a
+            # recalibration too, is fitted to that, so nothing is named and nothing is written over the base
+            # until the core is identified over the drive range used
+            if self.accepted:
+                self.cannot.append(f"{', '.join(self.accepted)} would be fitted to the part of the residual the "
+                                   "model's class cannot follow, so nothing is named")
             self._name_nothing()
             self._keep_base()
         if self.outside_class:
@@ -479,6 +485,7 @@ class _Run:
         self.accepted, self.ambiguous_pairs = [], []
 
     def _keep_base(self) -> None:
+        self.base_kept = True
         self.ext = ExtendedModel(self.model, {}, [])
         self.final_pred = list(self.base_pred)
         self.cur_cv = self.rms_before ** 2
@@ -518,6 +525,9 @@ class _Run:
                               math.sqrt(self.cur_cv), self.noise, self.too_little, self.runner_note.strip(), outcome,
                               drive_unit(self.model), sel.noise_factor, identification_rms(self.model))
         validation = validation_words(self.fitter, self.null_cv, sel.min_mse_ratio, sel.min_loglik_gain)
+        if self.fitter.anchor_on:
+            validation += anchor_words(self.model, [] if self.base_kept else
+                                       self.fitter.anchor_deviation(self.final.specs[2], self.final.coef_all))
         ordered = sorted(self.candidates.values(), key=lambda c: (not c.accepted, not c.testable,
                                                                  c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
         return Diagnosis(outcome, verdict, explanation, self.located, ordered, self.rms_before,

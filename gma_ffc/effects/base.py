@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, ClassVar, Iterable, Mapping, Protocol, Sequence
+from typing import Any, Callable, ClassVar, Iterable, Mapping, Protocol, Sequence
 
 import numpy as np
 
@@ -60,6 +60,46 @@ class BatchSignals:
     ds: np.ndarray                 # stress - the static map's reference stress
     stress_arg: Any                # stress as the caller gave it (None, scalar or array), for core re-runs
     initial_drive: float | None    # at rest at this drive before the first sample, if given
+    play_start: "PlayStart | None" = None    # the core's plays at the first sample (None: relaxed)
+
+
+@dataclass(frozen=True)
+class PlayStart:
+    """The core's plays at the first sample, as each one's offset from the input against its
+    threshold. Other plays on the same input (a recalibration's, stress play's) start from the
+    same history rather than relaxed: a minor loop never sweeps a wide play, so an arbitrary
+    start would stay in the output for the whole run."""
+
+    thresholds: np.ndarray     # the core's (drive units, ascending)
+    offsets: np.ndarray        # play output minus input at the first sample, per core threshold
+
+    @classmethod
+    def of_core(cls, core: Any, first_input: float, play_state: Any) -> "PlayStart | None":
+        """From a core's play state (its own coordinates) at input `first_input` (None: a core
+        without plays)."""
+        sdpi = getattr(core, "base", core)
+        r = getattr(sdpi, "play_thresholds", None)
+        if r is None or play_state is None:
+            return None
+        v0 = float(first_input) - float(getattr(sdpi, "input_offset", 0.0))
+        return cls(np.asarray(r, dtype=float), np.asarray(play_state, dtype=float) - v0)
+
+    @classmethod
+    def of_core_rule(cls, core: Any, first_input: float) -> "PlayStart | None":
+        """The start a core's stepper takes at rest at `first_input` (its `initial_state` field)."""
+        sdpi = getattr(core, "base", core)
+        r = getattr(sdpi, "play_thresholds", None)
+        if r is None:
+            return None
+        r = np.asarray(r, dtype=float)
+        return cls(r, r.copy() if getattr(sdpi, "initial_state", "relaxed") == "descending" else np.zeros_like(r))
+
+    def outputs(self, thresholds: np.ndarray, first_input: float) -> np.ndarray:
+        """Initial outputs of plays with `thresholds` at `first_input` (beyond the core's widest
+        play, its offset is held)."""
+        th = np.asarray(thresholds, dtype=float)
+        d = np.interp(th, self.thresholds, self.offsets)
+        return float(first_input) + np.clip(d, -th, th)
 
 
 class EffectState(Protocol):
@@ -167,6 +207,9 @@ class Effect(Protocol):
     candidate: ClassVar[bool]               # False: always present, never selected (the static map)
     n_params: ClassVar[int]                 # parameters the block adds (nonlinear + gains): the penalty
     slow: ClassVar[bool]                    # a slow effect (needs long recordings to separate)
+    follows_drive: ClassVar[bool]           # True: a function of the drive loop, pinned by the base's own
+                                            # identification loops (`diagnose.anchor`); False: a disturbance
+                                            # or slow state, held at its reference on those loops
     joint_with: ClassVar[str | None]        # a look-alike whose parameter is re-searched with this one
     deciders: ClassVar[Mapping[str, str]]   # per look-alike: the experiment that tells the two apart
     transforms_stress: ClassVar[bool]       # True: it supplies the stress the core (and every stage) sees
@@ -214,6 +257,12 @@ class Effect(Protocol):
     @classmethod
     def refine(cls, fitter: FitData, p: Any, level: int) -> Sequence[Any] | None:
         """Points around p at zoom level 1, 2, ... (None: the grid is all there is)."""
+
+    @classmethod
+    def polish(cls, fitter: FitData, p: Any) -> tuple[int, Callable[[np.ndarray], Any]] | None:
+        """After the zoom, for a parameter it leaves too coarse (a sharp resonance): the number of
+        free coordinates and a map from log-moves about p (zeros: p itself) to parameter points,
+        for a continuous local search (None: the zoom is all there is)."""
 
     @classmethod
     def fit_stress(cls, d: Any) -> np.ndarray:
@@ -276,6 +325,7 @@ class EffectBase:
     physics_voltage: ClassVar[str | None] = None
     candidate: ClassVar[bool] = True
     slow: ClassVar[bool] = False
+    follows_drive: ClassVar[bool] = False
     joint_with: ClassVar[str | None] = None
     deciders: ClassVar[Mapping[str, str]] = {}
     transforms_stress: ClassVar[bool] = False
@@ -318,6 +368,10 @@ class EffectBase:
 
     @classmethod
     def refine(cls, fitter: FitData, p: Any, level: int) -> Sequence[Any] | None:
+        return None
+
+    @classmethod
+    def polish(cls, fitter: FitData, p: Any) -> tuple[int, Callable[[np.ndarray], Any]] | None:
         return None
 
     @classmethod
@@ -379,10 +433,12 @@ def play_weights(block: Mapping[str, Any], key: str, name: str) -> tuple[np.ndar
 
 
 def play_sum(sig: BatchSignals, thresholds: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
-    """sum_j c_j (H_rj[u3] - u3) over a batch, the plays relaxed at the run's start."""
+    """sum_j c_j (H_rj[u3] - u3) over a batch, the plays starting as the core's (`PlayStart`;
+    relaxed at the run's start without one)."""
     u3 = sig.u3
-    p0 = float(u3[0]) if sig.initial_drive is None else float(sig.initial_drive)
-    return np.asarray((K.play_bank(u3, thresholds, p0) - u3[:, None]) @ coefficients)
+    u0 = float(u3[0]) if sig.initial_drive is None else float(sig.initial_drive)
+    p0 = np.full(thresholds.size, u0) if sig.play_start is None else sig.play_start.outputs(thresholds, u0)
+    return np.asarray((K.play_bank_from(u3, thresholds, p0) - u3[:, None]) @ coefficients)
 
 
 class PlayBankState:
@@ -393,9 +449,14 @@ class PlayBankState:
         self.c = [float(v) for v in coefficients]
         self.p = [0.0] * len(self.th)
 
-    def reset(self, u: float) -> None:
-        for j in range(len(self.p)):
-            self.p[j] = u
+    def reset(self, u: float, start: "PlayStart | None" = None) -> None:
+        """Relaxed at u, or as the core's plays start (`PlayStart`)."""
+        if start is None:
+            for j in range(len(self.p)):
+                self.p[j] = u
+        else:
+            for j, p in enumerate(start.outputs(np.asarray(self.th), u)):
+                self.p[j] = float(p)
 
     def advance(self, u: float) -> float:
         """Move the plays to input u and return sum_j c_j (p_j - u)."""

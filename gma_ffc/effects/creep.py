@@ -18,6 +18,7 @@ class Creep(EffectBase):
     name: ClassVar[str] = "creep"
     keys: ClassVar[tuple[str, ...]] = ("creep",)
     stage: ClassVar[str] = "sum"
+    follows_drive: ClassVar[bool] = True    # lag(y_c) - y_c: at a loop's rate, a loss of gain the base absorbed
     position: ClassVar[int] = 60
     inverted: ClassVar[Mapping[str, str]] = {"creep": "exact (closed form with the static map)"}
     physics: ClassVar[str] = "slow relaxation of the displacement after the drive changes, in the direction of the last change"

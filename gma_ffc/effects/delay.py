@@ -16,6 +16,7 @@ class Delay(EffectBase):
     name: ClassVar[str] = "time_delay"
     keys: ClassVar[tuple[str, ...]] = ("delay",)
     stage: ClassVar[str] = "input"
+    follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 20
     inverted: ClassVar[Mapping[str, str]] = {
         "delay": "by preview of the known reference (batch invert); inverse_stepper expects reference(t + preview_s)"}

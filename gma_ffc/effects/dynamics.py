@@ -11,7 +11,7 @@ the model's stress transform (`seen_stress`, called before the core). Blocks wit
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping
 
 import numpy as np
 
@@ -27,6 +27,7 @@ class Dynamics(EffectBase):
     name: ClassVar[str] = "mechanical_dynamics"
     keys: ClassVar[tuple[str, ...]] = ("dynamics",)
     stage: ClassVar[str] = "filter"
+    follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 70
     inverted: ClassVar[Mapping[str, str]] = {"dynamics": "exact inverse filter (3-tap FIR on the reference)"}
     inverted_rod_load: ClassVar[Mapping[str, str]] = {
@@ -94,13 +95,10 @@ class Dynamics(EffectBase):
     def refine(cls, fitter: FitData, p: Any, level: int) -> list[tuple[float, float, float]]:
         """Zoom on (resonance at the lightest load, damping, frequency ratio heaviest/lightest load)."""
         fr, z, b = p
-        span = _stress_extent(fitter)
-        ratio = 1.0 / math.sqrt(1.0 + b * span)          # f(most compressive) / f(least compressive)
+        ratio = _load_ratio(fitter, b)          # f(most compressive) / f(least compressive)
 
         def point(f_top: float, zeta: float, rat: float) -> tuple[float, float, float]:
-            rat = min(max(rat, 0.15), 1.0)
-            return (float(f_top), float(min(zeta, MAX_ZETA)),
-                    float((rat ** -2 - 1.0) / span) if fitter.stress_varies else 0.0)
+            return _point(fitter, f_top, zeta, rat)
 
         # steps halve per level (not a third): a sharp resonance's damping and load law are coupled to its
         # frequency, and the grid's coarse frequency first pins the damping far from its value
@@ -121,6 +119,20 @@ class Dynamics(EffectBase):
                 out += [point(fr * k, z, r) for r in (0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3)
                         for k in (1.0 / math.sqrt(r), 1.0, 1.0 / r)]
         return out
+
+    @classmethod
+    def polish(cls, fitter: FitData, p: Any) -> tuple[int, Callable[[np.ndarray], Any]]:
+        """The zoom leaves the damping of a sharp resonance a few percent off, and its residual
+        ringing is then several times the noise: a local search over log(frequency), log(damping)
+        and, when the load varies, log(frequency ratio) finishes the job."""
+        fr, z, b = p
+        ratio = _load_ratio(fitter, b)
+
+        def at(x: np.ndarray) -> tuple[float, float, float]:
+            k = np.exp(np.clip(x, -0.7, 0.7))
+            return _point(fitter, fr * k[0], z * k[1], ratio * k[2] if k.size > 2 else ratio)
+
+        return (3 if fitter.stress_varies else 2), at
 
     @classmethod
     def fit_stress(cls, d: Any) -> np.ndarray:
@@ -160,6 +172,19 @@ class Dynamics(EffectBase):
         if "f_at_most_compressive_hz" in params:
             txt += f" that moves down to {params['f_at_most_compressive_hz']:.4g} Hz at the most compressive load"
         return txt
+
+
+def _load_ratio(fitter: FitData, beta: float) -> float:
+    """f(most compressive) / f(least compressive) of a resonance law with `beta`."""
+    return 1.0 / math.sqrt(1.0 + beta * _stress_extent(fitter))
+
+
+def _point(fitter: FitData, f_top: float, zeta: float, ratio: float) -> tuple[float, float, float]:
+    """The parameter point (resonance at the least compressive load, damping, beta) of a frequency,
+    a damping (at most MAX_ZETA) and a heaviest/lightest frequency ratio (0.15..1)."""
+    ratio = min(max(ratio, 0.15), 1.0)
+    return (float(f_top), float(min(zeta, MAX_ZETA)),
+            float((ratio ** -2 - 1.0) / _stress_extent(fitter)) if fitter.stress_varies else 0.0)
 
 
 def _stress_extent(f: FitData) -> float:

@@ -14,6 +14,7 @@ class EddyLag(EffectBase):
     name: ClassVar[str] = "rate_dependence"
     keys: ClassVar[tuple[str, ...]] = ("eddy_lag",)
     stage: ClassVar[str] = "input"
+    follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 10
     inverted: ClassVar[Mapping[str, str]] = {"eddy_lag": "exact inverse filter"}
     physics: ClassVar[str] = (

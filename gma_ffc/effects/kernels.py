@@ -125,15 +125,18 @@ def msd_inverse(y: np.ndarray, dt: np.ndarray, stress: np.ndarray, omega_ref: fl
     return out
 
 
-@njit(cache=True, nogil=True)
 def play_bank(x: np.ndarray, thresholds: np.ndarray, x0: float) -> np.ndarray:
     """Outputs of play operators H_r[x] (one column per threshold), relaxed at x0."""
+    return play_bank_from(x, thresholds, np.full(thresholds.shape[0], float(x0)))
+
+
+@njit(cache=True, nogil=True)
+def play_bank_from(x: np.ndarray, thresholds: np.ndarray, p0: np.ndarray) -> np.ndarray:
+    """Outputs of play operators H_r[x] (one column per threshold), each starting at p0[j]."""
     n = x.shape[0]
     m = thresholds.shape[0]
     out = np.empty((n, m))
-    state = np.empty(m)
-    for j in range(m):
-        state[j] = x0
+    state = p0.copy()
     for k in range(n):
         for j in range(m):
             r = thresholds[j]

@@ -16,6 +16,7 @@ class Saturation(EffectBase):
     name: ClassVar[str] = "saturation"
     keys: ClassVar[tuple[str, ...]] = ("saturation",)
     stage: ClassVar[str] = "sum"
+    follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 50
     inverted: ClassVar[Mapping[str, str]] = {"saturation": "exactly, solved with the core's inverse (from the previous "
                                                            "sample's drive when an eddy lag or delay is inverted after it)"}

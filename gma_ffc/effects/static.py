@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import ModelError
 from . import kernels as K
-from .base import (BatchSignals, EffectBase, FitData, PlayBankState, Regressors, StepSignals, block_of, play_sum,
+from .base import (BatchSignals, EffectBase, FitData, PlayBankState, PlayStart, Regressors, StepSignals, block_of, play_sum,
                    play_weights)
 
 STATIC_DEFAULTS = {"offset_um": 0.0, "gain": 1.0, "stress_gain_per_MPa": 0.0,
@@ -88,7 +88,11 @@ class StaticMap(EffectBase):
         if fitter.stress_varies:
             r.cols.append((fitter.stress(r.d, r.spec) - fitter.stress_ref) * yc)   # the stress the model sees
             r.names.append("stress_gain")
-        plays = r.shared["plays"] = K.play_bank(u3, fitter.play_thresholds, float(u3[0]))
+        # the plays start from the history the core's run starts from (as every run of the model does)
+        start = PlayStart.of_core(fitter.model, float(u3[0]), getattr(r.d.start, "play_state", None))
+        p0 = (np.full(fitter.play_thresholds.size, float(u3[0])) if start is None
+              else start.outputs(fitter.play_thresholds, float(u3[0])))
+        plays = r.shared["plays"] = K.play_bank_from(u3, fitter.play_thresholds, p0)
         for j in range(fitter.play_thresholds.size):
             r.cols.append(plays[:, j] - u3)
             r.names.append(f"play_{j}")
@@ -119,6 +123,11 @@ class _StaticState:
         self.q, self.c0 = st["quadratic_per_um"], st["center_um"]
         self.plays = PlayBankState(m.thresholds, m.coefficients) if m.thresholds.size else None
         self.reads_input = self.plays is not None
+
+    def start_plays(self, initial_drive: float, start: PlayStart | None) -> None:
+        """After `reset`: the plays start as the core's do (the stepper calls this)."""
+        if self.plays is not None:
+            self.plays.reset(float(initial_drive), start)
 
     def reset(self, initial_drive: float) -> None:
         if self.plays is not None:

@@ -18,7 +18,7 @@ import numpy as np
 
 from .. import operators as ops
 from ..errors import ModelError
-from .base import (BatchSignals, EffectBase, FitData, PlayBankState, Regressors, SignatureCheck, SignatureFailure,
+from .base import (BatchSignals, EffectBase, FitData, PlayBankState, PlayStart, Regressors, SignatureCheck, SignatureFailure,
                    StepSignals, block_of, finite, geom_refine, play_sum, play_weights)
 
 # the loop-width search: relative width changes per MPa of 1 % to 30 %, either sign (a few % per MPa
@@ -131,6 +131,7 @@ class StressPlay(EffectBase):
     name: ClassVar[str] = "stress_dependent_play"
     keys: ClassVar[tuple[str, ...]] = ("stress_play", "loop_width", "stress_width")
     stage: ClassVar[str] = "sum"
+    follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 40
     inverted: ClassVar[Mapping[str, str]] = {
         "stress_play": "exactly: solved together with the core's inverse for each sample's core input",
@@ -288,6 +289,11 @@ class _StressPlayState:
         self.plays = PlayBankState(m.thresholds, m.coefficients) if m.thresholds.size else None
         self.wide: Any = None
         self.reads_input = self.plays is not None or m.wide is not None
+
+    def start_plays(self, initial_drive: float, start: PlayStart | None) -> None:
+        """After `reset`: the plays start as the core's do (the stepper calls this)."""
+        if self.plays is not None:
+            self.plays.reset(float(initial_drive), start)
 
     def reset(self, initial_drive: float) -> None:
         u1 = float(initial_drive)
