@@ -88,15 +88,3 @@ def test_an_extended_model_keeps_the_loops_its_base_was_identified_on():
         ratios.append(float(np.sqrt(np.mean(r ** 2))) / a.extra["anchor_tolerance_um"])
     assert float(np.sqrt(np.mean(np.square(ratios)))) <= 1.1       # without the anchor: 1.45
     assert "identification error there" in dg.validation and "departs from them by" in dg.validation
-
-
-def test_saturation_terms_are_the_same_columns_for_every_recording():
-    """One recording beyond the identified drive range and one inside it: the saturation regressors
-    must stack (they used to differ in number, and the fit crashed)."""
-    case = CASES["saturation#1"]
-    model, beyond = bench.make_case(case, scale=0.5)
-    t = np.arange(int(8 * bench.FS)) / bench.FS
-    i = 0.75 * (1 - np.cos(2 * np.pi * 4 * t))                    # inside the 0..1.5 A identified
-    inside = bench.record(bench.case_plant(case), t, i, 20.0, "inside.csv", 5)
-    dg = diagnose(model, [beyond, inside])
-    assert "saturation" in dg.verdict, dg.explanation
