@@ -47,7 +47,7 @@ from .errors import ModelError
 
 KIND = "extended"
 SOLVE_TOL = 1e-12          # the inverse's core-input solve: converged within this fraction of the drive range
-SOLVE_MAX_TRIES = 30       # then the best input found is taken (a flat or non-invertible stretch); bounds the tick
+SOLVE_MAX_TRIES = 60       # then the best input found is taken (a flat or non-invertible stretch); bounds the tick
 
 
 def _stress_array(stress: Any, n: int) -> np.ndarray:
@@ -452,14 +452,11 @@ class InverseStepper(_Stepper):
         if bracketed:                     # between u0 and u1 (h0, h1 of opposite signs)
             a, fa, b, fb = u0, h0, u1, h1
             p, fp = a, fa                 # the iterate before b (for the secant through the last two)
-            width, stalled = abs(b - a), 0
             while tries < SOLVE_MAX_TRIES and abs(b - a) > tol:
                 tries += 1
                 c = b - fb * (b - p) / (fb - fp) if fb != fp else math.nan
                 if not (min(a, b) < c < max(a, b)):      # NaN-safe: regula falsi on the bracket instead
                     c = b - fb * (b - a) / (fb - fa)
-                if stalled >= 2:          # the bracket has not halved in two steps (a kink, a steep stretch):
-                    c = 0.5 * (a + b)     # bisect, so it shrinks at least geometrically
                 p, fp = b, fb
                 fc = self._miss(x, c)
                 if abs(fc) < best_h:
@@ -471,8 +468,4 @@ class InverseStepper(_Stepper):
                 else:                     # the far end kept twice in a row: halve its weight (Illinois)
                     fa *= 0.5
                 b, fb = c, fc
-                if abs(b - a) <= 0.5 * width:
-                    width, stalled = abs(b - a), 0
-                else:
-                    stalled += 1
         x.yc = best_yc
