@@ -21,7 +21,7 @@ import numpy as np
 from ..recordings import Recording
 from .data import RecData, prepare
 
-ANCHOR_PERIODS = 3          # full-range loops per stress: the first settles the initial state
+ANCHOR_PERIODS = 2          # full-range loops per stress: the first settles the initial state, the second is held
 MAX_SAMPLES = 4000          # per stress: a slow identification drive is sampled more coarsely
 MAX_LOOPS = 8               # stresses at most (evenly chosen among the identification recordings')
 DEFAULT_ID_HZ = 3.0         # without a record: the seed paper's identification drive, a 3 Hz sinusoid

@@ -124,6 +124,7 @@ class Fitter:
         self._static_clamped = {id(d): np.ascontiguousarray(np.clip(self._static[id(d)], *rng))
                                 if rng is not None else d.s for d in self.data + self.anchor}
         self._anchor_cache: dict[Spec, np.ndarray] = {}
+        self._gram_cache: dict[Spec, tuple[list[np.ndarray], list[float]]] = {}
         # the loads' static stress range: the resonance's reference (least compressive) and extent
         self.stress_top = max(float(self._static[id(d)].max()) for d in self.data)
         self.stress_bottom = min(float(self._static[id(d)].min()) for d in self.data)
@@ -273,12 +274,22 @@ class Fitter:
         self._anchor_cache[spec] = out
         return out
 
-    def _anchor_grams(self, spec: Spec) -> list[np.ndarray]:
-        """Per anchor loop, the quadratic form c' A_k c = (its RMS departure / its tolerance)^2."""
+    def _anchor_grams(self, spec: Spec) -> tuple[list[np.ndarray], list[float]]:
+        """Per anchor loop, the quadratic form c' A_k c = (its RMS departure / its tolerance)^2, and
+        what each loop may reach: 1 plus the least departure at gain 1 (`_fit`); cached per spec."""
+        hit = self._gram_cache.get(spec)
+        if hit is not None:
+            return hit
         Xa = self.anchor_design(spec)
         edges = np.cumsum([0] + [d.rows.size for d in self.anchor])
-        return [Xa[a:b].T @ Xa[a:b] / ((b - a) * t * t)
-                for a, b, t in zip(edges[:-1], edges[1:], self._anchor_tol)]
+        grams = [Xa[a:b].T @ Xa[a:b] / ((b - a) * t * t)
+                 for a, b, t in zip(edges[:-1], edges[1:], self._anchor_tol)]
+        least = _least_departure(np.sum(grams, axis=0))
+        out = (grams, [1.0 + float(least @ A @ least) for A in grams])
+        if len(self._gram_cache) > 64:
+            self._gram_cache.clear()
+        self._gram_cache[spec] = out
+        return out
 
     def anchor_deviation(self, spec: Spec, coef: np.ndarray) -> list[float]:
         """Per anchor loop, the RMS by which the model (spec, coefficients) departs from the base's
@@ -340,24 +351,26 @@ class Fitter:
         tolerance in quadrature), so an effect is never distorted into the data fit to chase it."""
         c, G, b, scale = self._solve(X, y)
         if self.anchor_on:
-            grams = self._anchor_grams(spec)
+            grams, allowed = self._anchor_grams(spec)
             S = np.outer(scale, scale)
             scaled = [A / S for A in grams]
-            total = np.sum(scaled, axis=0)
-            lam0 = float(np.trace(G)) / max(float(np.trace(total)), 1e-300)
-            least = _least_departure(np.sum(grams, axis=0))
-            allowed = [1.0 + float(least @ A @ least) for A in grams]
 
             def worst(cs: np.ndarray) -> float:
                 return max(float(cs @ A @ cs) / a for A, a in zip(scaled, allowed))
 
             if worst(c * scale) > 1.0:
+                total = np.sum(scaled, axis=0)
+                lam0 = float(np.trace(G)) / max(float(np.trace(total)), 1e-300)
                 lo, hi = -8.0, 8.0          # the departures fall as the weight grows; bisect on its log
-                for _ in range(40):
+                best = _solve_normal(G + lam0 * 1e8 * total, b, None, None)
+                for _ in range(ANCHOR_BISECTIONS):
                     mid = 0.5 * (lo + hi)
                     cs = _solve_normal(G + lam0 * 10.0 ** mid * total, b, None, None)
-                    lo, hi = (mid, hi) if worst(cs) > 1.0 else (lo, mid)
-                c = self._solve(X, y, lam0 * 10.0 ** hi * np.sum(grams, axis=0))[0]
+                    if worst(cs) > 1.0:
+                        lo = mid
+                    else:
+                        hi, best = mid, cs
+                c = best / scale            # the unconstrained fit's robust weights kept
         r = y - X @ c
         return c, self.loss(r), int(r.size)
 
@@ -421,17 +434,24 @@ class Fitter:
         return out
 
 
-POLISH_EVALS = 25     # per free coordinate: Nelder-Mead from the zoom's best point
+ANCHOR_BISECTIONS = 16   # on the log of the anchor weight over 16 decades: 2.4e-4 of a decade
+POLISH_EVALS = 15     # per free coordinate: Nelder-Mead from the zoom's best point
 POLISH_STEP = 0.03    # its first simplex: 3 % moves (the zoom's last steps are 0.5-1.5 %)
 
 
-def _polish(fitter: Fitter, results: dict[Any, Score], run: Callable[[Iterable[Any]], None],
+def _polish(fitter: Fitter, base: tuple[Spec, Spec, Spec], results: dict[Any, Score],
+            run: Callable[[Iterable[Any]], None],
             polish: Callable[[Fitter, Any], tuple[int, Callable[[np.ndarray], Any]] | None]) -> None:
     """Nelder-Mead on the all-data training error from the best point so far; every point it
-    visits joins `results`, so the folds choose among them too."""
+    visits joins `results`, so the folds choose among them too. Only for an effect whose best point
+    already beats the spec without it on held-out blocks: polishing one that explains nothing
+    would cost the evaluations and change no verdict."""
     from scipy.optimize import minimize
 
     best = min(results, key=lambda p: results[p].all_mse)
+    without = fitter.score(base)
+    if sum(results[best].sq_test) >= sum(without.sq_test):
+        return
     space = polish(fitter, best)
     if space is None:
         return
@@ -521,7 +541,7 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
             for bp in best_points:
                 run(refine(fitter, bp, level) or [])
     if polish is not None:
-        _polish(fitter, results, run, polish)
+        _polish(fitter, base, results, run, polish)
     pa = min(results, key=lambda p: results[p].train_mse(0))
     pb = min(results, key=lambda p: results[p].train_mse(1))
     pall = min(results, key=lambda p: results[p].all_mse)
