@@ -56,14 +56,12 @@ def identification_loops(model: Any) -> list[tuple[float, float]]:
     prov = getattr(model, "provenance", None)
     fit_rms, stresses = (_mapping(prov, "fit_rms_um"), _mapping(prov, "fit_stress_MPa"))
     srange = model.stress_range_MPa
-    out: list[tuple[float, float]] = []
-    if srange is None:
-        vals = [_number(v) for v in fit_rms.values()]
-        vals = [v for v in vals if v > 0]
-        return [(0.0, float(np.sqrt(np.mean(np.square(vals)))) if vals else float("nan"))]
-    lo, hi = float(srange[0]), float(srange[1])
     recorded = [v for v in (_number(x) for x in fit_rms.values()) if v > 0]
     overall = float(np.sqrt(np.mean(np.square(recorded)))) if recorded else float("nan")
+    if srange is None:
+        return [(0.0, overall)]
+    lo, hi = float(srange[0]), float(srange[1])
+    out: list[tuple[float, float]] = []
     for name, s in stresses.items():
         s, e = _number(s), _number(fit_rms.get(name))
         if np.isfinite(s):

@@ -152,6 +152,8 @@ class Fitter:
         # recalibration is the diagnosis data's to learn. What is held is the shape of the base's
         # loops (the base's own output projects to zero), to within its identification error there.
         self._anchor_free = [_affine_basis(d.y[d.rows]) for d in self.anchor]
+        edges = np.cumsum([0] + [d.rows.size for d in self.anchor])
+        self._anchor_slices = [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]   # per loop, in its rows
         self.anchor_on = False
         self._anchor_tol = np.full(len(self.anchor), math.nan)
 
@@ -281,9 +283,7 @@ class Fitter:
         if hit is not None:
             return hit
         Xa = self.anchor_design(spec)
-        edges = np.cumsum([0] + [d.rows.size for d in self.anchor])
-        grams = [Xa[a:b].T @ Xa[a:b] / ((b - a) * t * t)
-                 for a, b, t in zip(edges[:-1], edges[1:], self._anchor_tol)]
+        grams = [Xa[k].T @ Xa[k] / ((k.stop - k.start) * t * t) for k, t in zip(self._anchor_slices, self._anchor_tol)]
         least = _least_departure(np.sum(grams, axis=0))
         out = (grams, [1.0 + float(least @ A @ least) for A in grams])
         if len(self._gram_cache) > 64:
@@ -297,8 +297,7 @@ class Fitter:
         if not self.anchor:
             return []
         r = self.anchor_design(spec) @ coef
-        edges = np.cumsum([0] + [d.rows.size for d in self.anchor])
-        return [float(np.sqrt(np.mean(r[a:b] ** 2))) for a, b in zip(edges[:-1], edges[1:])]
+        return [float(np.sqrt(np.mean(r[k] ** 2))) for k in self._anchor_slices]
 
     def predict_full(self, spec: Spec, coef: np.ndarray) -> list[np.ndarray]:
         """Full-rate prediction per recording for a spec and its linear coefficients."""
@@ -449,11 +448,8 @@ def _polish(fitter: Fitter, base: tuple[Spec, Spec, Spec], results: dict[Any, Sc
     from scipy.optimize import minimize
 
     best = min(results, key=lambda p: results[p].all_mse)
-    without = fitter.score(base)
-    if sum(results[best].sq_test) >= sum(without.sq_test):
-        return
     space = polish(fitter, best)
-    if space is None:
+    if space is None or sum(results[best].sq_test) >= sum(fitter.score(base).sq_test):
         return
     n, at = space
 

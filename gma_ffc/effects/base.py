@@ -102,6 +102,12 @@ class PlayStart:
         return float(first_input) + np.clip(d, -th, th)
 
 
+def first_play_outputs(start: PlayStart | None, thresholds: np.ndarray, first_input: float) -> np.ndarray:
+    """Where plays of `thresholds` start at `first_input`: as the core's (`start`), else relaxed."""
+    th = np.asarray(thresholds, dtype=float)
+    return np.full(th.size, float(first_input)) if start is None else start.outputs(th, first_input)
+
+
 class EffectState(Protocol):
     """An effect's state in a forward or inverse stepper (built once per sample period)."""
 
@@ -437,7 +443,7 @@ def play_sum(sig: BatchSignals, thresholds: np.ndarray, coefficients: np.ndarray
     relaxed at the run's start without one)."""
     u3 = sig.u3
     u0 = float(u3[0]) if sig.initial_drive is None else float(sig.initial_drive)
-    p0 = np.full(thresholds.size, u0) if sig.play_start is None else sig.play_start.outputs(thresholds, u0)
+    p0 = first_play_outputs(sig.play_start, thresholds, u0)
     return np.asarray((K.play_bank_from(u3, thresholds, p0) - u3[:, None]) @ coefficients)
 
 
@@ -451,12 +457,8 @@ class PlayBankState:
 
     def reset(self, u: float, start: "PlayStart | None" = None) -> None:
         """Relaxed at u, or as the core's plays start (`PlayStart`)."""
-        if start is None:
-            for j in range(len(self.p)):
-                self.p[j] = u
-        else:
-            for j, p in enumerate(start.outputs(np.asarray(self.th), u)):
-                self.p[j] = float(p)
+        for j, p in enumerate(first_play_outputs(start, np.asarray(self.th), u)):
+            self.p[j] = float(p)
 
     def advance(self, u: float) -> float:
         """Move the plays to input u and return sum_j c_j (p_j - u)."""
@@ -473,6 +475,17 @@ class PlayBankState:
         for j in range(len(self.p)):
             acc += self.c[j] * (min(max(self.p[j], u - self.th[j]), u + self.th[j]) - u)
         return acc
+
+
+class OwnPlays:
+    """A stepper state with play operators of its own (`plays`): the stepper calls `start_plays`
+    after `reset`, so they start as the core's do."""
+
+    plays: PlayBankState | None
+
+    def start_plays(self, initial_drive: float, start: PlayStart | None) -> None:
+        if self.plays is not None:
+            self.plays.reset(float(initial_drive), start)
 
 
 def geom_refine(p: float, ratio: float, level: int = 1) -> list[float]:

@@ -15,8 +15,8 @@ import numpy as np
 
 from ..errors import ModelError
 from . import kernels as K
-from .base import (BatchSignals, EffectBase, FitData, PlayBankState, PlayStart, Regressors, StepSignals, block_of, play_sum,
-                   play_weights)
+from .base import (BatchSignals, EffectBase, FitData, OwnPlays, PlayBankState, PlayStart, Regressors, StepSignals,
+                   block_of, first_play_outputs, play_sum, play_weights)
 
 STATIC_DEFAULTS = {"offset_um": 0.0, "gain": 1.0, "stress_gain_per_MPa": 0.0,
                    "quadratic_per_um": 0.0, "center_um": 0.0, "stress_ref_MPa": 0.0}
@@ -90,8 +90,7 @@ class StaticMap(EffectBase):
             r.names.append("stress_gain")
         # the plays start from the history the core's run starts from (as every run of the model does)
         start = PlayStart.of_core(fitter.model, float(u3[0]), getattr(r.d.start, "play_state", None))
-        p0 = (np.full(fitter.play_thresholds.size, float(u3[0])) if start is None
-              else start.outputs(fitter.play_thresholds, float(u3[0])))
+        p0 = first_play_outputs(start, fitter.play_thresholds, float(u3[0]))
         plays = r.shared["plays"] = K.play_bank_from(u3, fitter.play_thresholds, p0)
         for j in range(fitter.play_thresholds.size):
             r.cols.append(plays[:, j] - u3)
@@ -116,18 +115,13 @@ class StaticMap(EffectBase):
         return "a static recalibration"
 
 
-class _StaticState:
+class _StaticState(OwnPlays):
     def __init__(self, m: StaticMap) -> None:
         st = m.static
         self.offset, self.gain, self.sgain = st["offset_um"], st["gain"], st["stress_gain_per_MPa"]
         self.q, self.c0 = st["quadratic_per_um"], st["center_um"]
         self.plays = PlayBankState(m.thresholds, m.coefficients) if m.thresholds.size else None
         self.reads_input = self.plays is not None
-
-    def start_plays(self, initial_drive: float, start: PlayStart | None) -> None:
-        """After `reset`: the plays start as the core's do (the stepper calls this)."""
-        if self.plays is not None:
-            self.plays.reset(float(initial_drive), start)
 
     def reset(self, initial_drive: float) -> None:
         if self.plays is not None:

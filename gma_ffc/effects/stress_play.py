@@ -18,8 +18,8 @@ import numpy as np
 
 from .. import operators as ops
 from ..errors import ModelError
-from .base import (BatchSignals, EffectBase, FitData, PlayBankState, PlayStart, Regressors, SignatureCheck, SignatureFailure,
-                   StepSignals, block_of, finite, geom_refine, play_sum, play_weights)
+from .base import (BatchSignals, EffectBase, FitData, OwnPlays, PlayBankState, Regressors, SignatureCheck,
+                   SignatureFailure, StepSignals, block_of, finite, geom_refine, play_sum, play_weights)
 
 # the loop-width search: relative width changes per MPa of 1 % to 30 %, either sign (a few % per MPa
 # is what pinning in Terfenol-D does; past 30 % per MPa the width would halve or double within 2-3 MPa)
@@ -282,18 +282,13 @@ class StressPlay(EffectBase):
                 f"{'grows' if k > 0 else 'shrinks'} by {abs(k) * 100:.2g} % per MPa of extra compression")
 
 
-class _StressPlayState:
+class _StressPlayState(OwnPlays):
     def __init__(self, m: StressPlay, dt: float) -> None:
         self.m = m
         self.dt = dt
         self.plays = PlayBankState(m.thresholds, m.coefficients) if m.thresholds.size else None
         self.wide: Any = None
         self.reads_input = self.plays is not None or m.wide is not None
-
-    def start_plays(self, initial_drive: float, start: PlayStart | None) -> None:
-        """After `reset`: the plays start as the core's do (the stepper calls this)."""
-        if self.plays is not None:
-            self.plays.reset(float(initial_drive), start)
 
     def reset(self, initial_drive: float) -> None:
         u1 = float(initial_drive)
