@@ -4,12 +4,12 @@ for sample, allocates nothing, and applies the drive-range policy."""
 from __future__ import annotations
 
 import math
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from allocation import worst_call_allocation
 from gma_ffc.control.law import FeedforwardController
 from gma_ffc.control.reference import Sine
 from gma_ffc.modelio import load_model
@@ -40,17 +40,7 @@ def test_update_allocates_nothing():
     law, _ = law_for(model, Sine(3.0, 12.0, 20.0))
     for k in range(200):
         law.update(k * 1e-3, -15.2)
-    tracemalloc.start()
-    try:
-        for k in range(200, 220):
-            law.update(k * 1e-3, -15.2)
-        worst = 0
-        for k in range(220, 420):
-            before = tracemalloc.get_traced_memory()[0]
-            law.update(k * 1e-3, -15.2)
-            worst = max(worst, tracemalloc.get_traced_memory()[0] - before)
-    finally:
-        tracemalloc.stop()
+    worst, _ = worst_call_allocation(lambda k: law.update((200 + k) * 1e-3, -15.2), 200)
     assert worst <= 0
 
 

@@ -8,7 +8,6 @@ filter, and the diagnosis recovers known parameters from data simulated with the
 from __future__ import annotations
 
 import math
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +15,7 @@ import pytest
 import scipy.linalg
 from hypothesis import given, settings, strategies as st
 
+from allocation import worst_call_allocation
 from gma_ffc.effects import rod_load as RL
 from gma_ffc.effects import rod_load_kernels as RK
 from gma_ffc.extended import ExtendedModel
@@ -137,20 +137,7 @@ def test_a_step_allocates_nothing(base, direction):
     stresses = [-15.0 - 2.0 * (k % 11) / 11.0 for k in range(200)]
     for v, s in zip(values, stresses):
         stepper.step(v, s)
-    tracemalloc.start()
-    try:
-        for v, s in zip(values[:20], stresses[:20]):
-            stepper.step(v, s)
-        worst = peak = 0
-        for v, s in zip(values, stresses):
-            before = tracemalloc.get_traced_memory()[0]
-            tracemalloc.reset_peak()
-            stepper.step(v, s)
-            now, top = tracemalloc.get_traced_memory()
-            worst = max(worst, now - before)
-            peak = max(peak, top - before)
-    finally:
-        tracemalloc.stop()
+    worst, peak = worst_call_allocation(lambda k: stepper.step(values[k % 200], stresses[k % 200]), 200)
     assert worst <= 0, f"{direction} step retained {worst} bytes"
     assert peak <= 256, f"{direction} step allocated up to {peak} bytes on the way"
 

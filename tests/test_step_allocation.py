@@ -3,11 +3,11 @@ with tracemalloc around single steps after a warm-up, for SDPI, MPI and the exte
 
 from __future__ import annotations
 
-import tracemalloc
 from pathlib import Path
 
 import pytest
 
+from allocation import worst_call_allocation
 from gma_ffc.modelio import load_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,29 +45,7 @@ def test_a_step_allocates_nothing(kind, direction):
         [10.0 + 10.0 * (k % 37) / 37.0 for k in range(200)]
     for v in values:                       # warm-up: JIT, lazily built buffers
         stepper.step(v, -15.0)
-
-    def measure() -> tuple[int, int]:
-        tracemalloc.start()
-        try:
-            for v in values[:20]:          # state floats allocated before tracing are replaced by traced ones
-                stepper.step(v, -15.0)
-            worst = peak = 0
-            for v in values:
-                before = tracemalloc.get_traced_memory()[0]
-                tracemalloc.reset_peak()
-                stepper.step(v, -15.0)
-                now, top = tracemalloc.get_traced_memory()
-                worst = max(worst, now - before)
-                peak = max(peak, top - before)
-        finally:
-            tracemalloc.stop()
-        return worst, peak
-
-    # tracemalloc counts every thread of the process, so a thread another test left behind can
-    # allocate during one pass; a step that allocates does so in every pass: the best of three
-    passes = [measure() for _ in range(3)]
-    worst = min(w for w, _ in passes)
-    peak = min(p for _, p in passes)
+    worst, peak = worst_call_allocation(lambda k: stepper.step(values[k % len(values)], -15.0), len(values))
     assert worst <= 0, f"{kind} {direction} step retained {worst} bytes"
     # Nothing transient beyond what calling compiled code costs: each numba dispatch boxes ~100 B
     # for an instant (the extended stepper makes two such calls per block chain). numpy scalar
