@@ -153,34 +153,19 @@ def inverse_peek(y_ref: float, sigma: float, p: np.ndarray, state: np.ndarray) -
     return _inverse(y_ref, sigma, p, state, False)
 
 
-# ---- the core whose play layer follows stress (the stress_dependent_play effect's loop_width and
-#      play_weight_change blocks)
+# ---- the core with a loop width that follows stress (the stress_dependent_play effect's loop_width)
 #
 # Every play threshold is scaled by g(sigma) = max(1 + kappa (sigma_w - sigma), WIDTH_MIN): the
-# coercive current grows by kappa per MPa of extra compression. Each play weight may change too,
-# w_i(sigma) = w_i max(1 + a_i (sigma_a - sigma), WIDTH_MIN): the SDPI's assumption that the play
-# weights do not depend on stress, relaxed. A play with a varying threshold stays a play
-# (y = max(x - g r, min(x + g r, y_prev))), so the model stays rate-independent; but once g has
-# shrunk, or the weights have moved, the play states no longer satisfy the inverse PI's consistency
-# conditions, and the analytic inverse (17) stops being exact. The shaped inverse therefore keeps
-# the FORWARD play states and solves sum_i w_i(sigma) H_i(v) = z for this sample's v exactly: the
-# sum is continuous and piecewise linear in v with its kinks at state_i -/+ g r_i, so sorting the
-# kinks and interpolating on the segment that brackets z is exact (the leftmost such v, should the
-# sum not be monotone).
-#
-# Shape vector: [kappa, sigma_w, sigma_a, a_0 .. a_{n_h - 1}]; without the a_i every weight is as
-# identified. Shaped state: [play states (n_h) | dead-zone scratch (3 n_s) | kinks (2 n_h) |
-# sums there (2 n_h) | this sample's weights (n_h)].
+# coercive current grows by kappa per MPa of extra compression. A play with a varying threshold
+# stays a play (y = max(x - g r, min(x + g r, y_prev))), so the model stays rate-independent; but
+# once g has shrunk, the play states no longer satisfy the inverse PI's consistency conditions,
+# and the analytic inverse (17) stops being exact. The widened inverse therefore keeps the FORWARD
+# play states and solves sum_i w_i H_i(v) = z for this sample's v exactly: the sum is continuous and
+# piecewise linear in v with its kinks at state_i -/+ g r_i, so sorting the kinks and interpolating
+# on the segment that brackets z is exact (the leftmost such v, should the sum not be monotone).
+# Widened state: [play states (n_h) | dead-zone scratch (3 n_s) | kinks (2 n_h) | sums there (2 n_h)].
 
 WIDTH_MIN = 0.05
-SHAPE_HEADER = 3
-
-
-def shape_vector(kappa: float, sigma_w: float, weight_change: np.ndarray | None = None,
-                 sigma_a: float = 0.0) -> np.ndarray:
-    """Pack a loop-width law and (optionally) each play weight's relative change per MPa."""
-    a = np.zeros(0) if weight_change is None else np.asarray(weight_change, dtype=float)
-    return np.ascontiguousarray(np.concatenate([[kappa, sigma_w, sigma_a], a]), dtype=np.float64)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -188,82 +173,49 @@ def width_factor(s: float, kappa: float, sigma_w: float) -> float:
     return max(1.0 + kappa * (sigma_w - s), WIDTH_MIN)
 
 
-def shaped_state_size(n_h: int, n_s: int) -> int:
-    return state_size(n_h, n_s) + 5 * n_h
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _shaped_weights(s: float, shape: np.ndarray, p: np.ndarray, state: np.ndarray, n_h: int, n_s: int) -> float:
-    """This sample's play weights into the state's scratch; returns their sum."""
-    o_w = n_h + 3 * n_s + 4 * n_h
-    total = 0.0
-    reweighted = shape.shape[0] > SHAPE_HEADER
-    for i in range(n_h):
-        w = p[HEADER + n_h + i]
-        if reweighted:
-            w *= max(1.0 + shape[SHAPE_HEADER + i] * (shape[2] - s), WIDTH_MIN)
-        state[o_w + i] = w
-        total += w
-    return total
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _forward_shaped(x: float, sigma: float, shape: np.ndarray, p: np.ndarray, state: np.ndarray,
-                    commit: bool) -> float:
-    n_h = int(p[0])
-    n_s = int(p[1])
-    s = _clamp(sigma, p[3], p[4])
-    g = width_factor(s, shape[0], shape[1])
-    _shaped_weights(s, shape, p, state, n_h, n_s)
-    o_w = n_h + 3 * n_s + 4 * n_h
-    v = x - p[2]
-    z = 0.0
-    for i in range(n_h):
-        q = play(v, g * p[HEADER + i], state[i])
-        if commit:
-            state[i] = q
-        z += state[o_w + i] * q
-    return _deadzones_out(z, s, p, n_h, n_s)
+def widened_state_size(n_h: int, n_s: int) -> int:
+    return state_size(n_h, n_s) + 4 * n_h
 
 
 @njit(cache=True, nogil=True)
-def forward_step_shaped(x: float, sigma: float, shape: np.ndarray, p: np.ndarray, state: np.ndarray) -> float:
-    """forward_step with the play thresholds and weights at this sample's stress."""
-    return _forward_shaped(x, sigma, shape, p, state, True)
+def forward_step_widened(x: float, sigma: float, kappa: float, sigma_w: float, p: np.ndarray,
+                         state: np.ndarray) -> float:
+    """forward_step with every play threshold scaled by width_factor at this sample's stress."""
+    return _forward(x, sigma, width_factor(_clamp(sigma, p[3], p[4]), kappa, sigma_w), p, state, True)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _shaped_sum(v: float, g: float, p: np.ndarray, state: np.ndarray, n_h: int, o_w: int) -> float:
+def _widened_sum(v: float, g: float, p: np.ndarray, state: np.ndarray, n_h: int) -> float:
     z = 0.0
     for i in range(n_h):
         r = g * p[HEADER + i]
-        z += state[o_w + i] * max(v - r, min(v + r, state[i]))
+        z += p[HEADER + n_h + i] * max(v - r, min(v + r, state[i]))
     return z
 
 
 @njit(cache=True, nogil=True)
-def inverse_step_shaped(y_ref: float, sigma: float, shape: np.ndarray, p: np.ndarray, state: np.ndarray) -> float:
-    """The drive x with forward_step_shaped(x) = y_ref from this state (exact), and the step taken."""
-    return _inverse_shaped(y_ref, sigma, shape, p, state, True)
+def inverse_step_widened(y_ref: float, sigma: float, kappa: float, sigma_w: float, p: np.ndarray,
+                         state: np.ndarray) -> float:
+    """The drive x with forward_step_widened(x) = y_ref from this state (exact), and the step taken."""
+    return _inverse_widened(y_ref, sigma, kappa, sigma_w, p, state, True)
 
 
 @njit(cache=True, nogil=True)
-def inverse_peek_shaped(y_ref: float, sigma: float, shape: np.ndarray, p: np.ndarray, state: np.ndarray) -> float:
-    """What inverse_step_shaped would return, the play states left as they are (only scratch is written)."""
-    return _inverse_shaped(y_ref, sigma, shape, p, state, False)
+def inverse_peek_widened(y_ref: float, sigma: float, kappa: float, sigma_w: float, p: np.ndarray,
+                         state: np.ndarray) -> float:
+    """What inverse_step_widened would return, the play states left as they are (only scratch is written)."""
+    return _inverse_widened(y_ref, sigma, kappa, sigma_w, p, state, False)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _inverse_shaped(y_ref: float, sigma: float, shape: np.ndarray, p: np.ndarray, state: np.ndarray,
-                    commit: bool) -> float:
+def _inverse_widened(y_ref: float, sigma: float, kappa: float, sigma_w: float, p: np.ndarray,
+                     state: np.ndarray, commit: bool) -> float:
     n_h = int(p[0])
     n_s = int(p[1])
     s = _clamp(sigma, p[3], p[4])
-    g = width_factor(s, shape[0], shape[1])
-    w_total = _shaped_weights(s, shape, p, state, n_h, n_s)
+    g = width_factor(s, kappa, sigma_w)
     z = _deadzones_inverse(y_ref, s, p, state, n_h, n_s)
     base = n_h + 3 * n_s
-    o_w = base + 4 * n_h
     kinks = state[base: base + 2 * n_h]
     sums = state[base + 2 * n_h: base + 4 * n_h]
     m = 2 * n_h
@@ -278,8 +230,11 @@ def _inverse_shaped(y_ref: float, sigma: float, shape: np.ndarray, p: np.ndarray
             kinks[b + 1] = kinks[b]
             b -= 1
         kinks[b + 1] = k
+    w_total = 0.0
+    for i in range(n_h):
+        w_total += p[HEADER + n_h + i]
     for a in range(m):
-        sums[a] = _shaped_sum(kinks[a], g, p, state, n_h, o_w)
+        sums[a] = _widened_sum(kinks[a], g, p, state, n_h)
     if z <= sums[0]:                          # below every kink all plays move: slope w_total
         v = kinks[0] + (z - sums[0]) / w_total
     elif z >= sums[m - 1]:
@@ -299,48 +254,17 @@ def _inverse_shaped(y_ref: float, sigma: float, shape: np.ndarray, p: np.ndarray
 
 
 @njit(cache=True, nogil=True)
-def forward_batch_shaped(x: np.ndarray, sigma: np.ndarray, shape: np.ndarray, p: np.ndarray,
-                         state: np.ndarray, out: np.ndarray) -> None:
+def forward_batch_widened(x: np.ndarray, sigma: np.ndarray, kappa: float, sigma_w: float, p: np.ndarray,
+                          state: np.ndarray, out: np.ndarray) -> None:
     for k in range(x.shape[0]):
-        out[k] = forward_step_shaped(x[k], sigma[k], shape, p, state)
+        out[k] = forward_step_widened(x[k], sigma[k], kappa, sigma_w, p, state)
 
 
 @njit(cache=True, nogil=True)
-def inverse_batch_shaped(y: np.ndarray, sigma: np.ndarray, shape: np.ndarray, p: np.ndarray,
-                         state: np.ndarray, out: np.ndarray) -> None:
+def inverse_batch_widened(y: np.ndarray, sigma: np.ndarray, kappa: float, sigma_w: float, p: np.ndarray,
+                          state: np.ndarray, out: np.ndarray) -> None:
     for k in range(y.shape[0]):
-        out[k] = inverse_step_shaped(y[k], sigma[k], shape, p, state)
-
-
-@njit(cache=True, nogil=True)
-def weight_sensitivities(x: np.ndarray, sigma: np.ndarray, shape: np.ndarray, p: np.ndarray, state: np.ndarray,
-                         plays: np.ndarray, slope: np.ndarray) -> None:
-    """Along a shaped run: each play's output H_i (into plays[k, i], in the core's centred drive)
-    and the dead-zones' slope d y / d z at that sample (into slope[k]). Their product is the
-    output's derivative in the weight w_i: what a fit of play weights that follow stress
-    regresses on (sign and stress factor applied by the caller)."""
-    n_h = int(p[0])
-    n_s = int(p[1])
-    o_rs = HEADER + 4 * n_h
-    o_c0 = o_rs + n_s
-    o_w = n_h + 3 * n_s + 4 * n_h
-    for k in range(x.shape[0]):
-        s = _clamp(sigma[k], p[3], p[4])
-        g = width_factor(s, shape[0], shape[1])
-        _shaped_weights(s, shape, p, state, n_h, n_s)
-        v = x[k] - p[2]
-        z = 0.0
-        for i in range(n_h):
-            q = play(v, g * p[HEADER + i], state[i])
-            state[i] = q
-            plays[k, i] = q
-            z += state[o_w + i] * q
-        d = 0.0
-        for j in range(n_s):
-            r = p[o_rs + j]
-            if (r > 0.0 and z > r) or (r < 0.0 and z < r) or r == 0.0:
-                d += p[o_c0 + j] + s * (p[o_c0 + n_s + j] + s * p[o_c0 + 2 * n_s + j])
-        slope[k] = d
+        out[k] = inverse_step_widened(y[k], sigma[k], kappa, sigma_w, p, state)
 
 
 @njit(cache=True, nogil=True)

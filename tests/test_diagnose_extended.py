@@ -50,7 +50,6 @@ def _all_blocks(base) -> ExtendedModel:
         "stress_play": {"thresholds": [0.2], "coefficients_per_MPa": [0.05]},
         "stress_width": {"coef_per_MPa": 0.04, "eps": 0.3},
         "loop_width": {"kappa_per_MPa": 0.03, "stress_ref_MPa": -16.0},
-        "play_weight_change": {"change_per_MPa": [0.02, -0.03, 0.05, 0.0, 0.1, -0.05], "stress_ref_MPa": -12.0},
         "saturation": {"lo": 0.0, "hi": 1.8, "lin_lo": 0.0, "quad_lo": 0.0, "lin_hi": -1.0, "quad_hi": -2.0},
         "creep": {"gain": 0.03, "tau_s": 0.2},
         "dynamics": {"f_ref_hz": 60.0, "zeta": 0.2, "beta_per_MPa": 0.05, "stress_ref_MPa": -12.0},
@@ -80,8 +79,8 @@ def test_forward_stepper_equals_batch(base):
 
 
 def test_invert_then_simulate_recovers_the_reference(base):
-    # every block is inverted exactly (the loop width and the play weights by the shaped core's own
-    # inverse, the play terms and saturation solved with the core's inverse each sample) but the delay, by preview,
+    # every block is inverted exactly (the loop width by the widened core's own inverse, the play
+    # terms and saturation solved with the core's inverse each sample) but the delay, by preview,
     # and the heating, from the previous sample's drive
     m = _all_blocks(base)
     t = np.arange(3000) / FS

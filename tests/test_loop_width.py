@@ -1,10 +1,8 @@
-"""The core whose play layer follows stress (`loop_width` and `play_weight_change`, the
-stress_dependent_play effect).
+"""The core whose loop width follows stress (`loop_width`, the stress_dependent_play effect).
 
-Its play thresholds and weights are changed every sample, so the analytic inverse (17) no longer
-applies once they have moved; the shaped inverse solves each sample's play sum instead. These
-properties hold on random valid SDPI models, drive histories, stress paths, width laws and
-weight changes.
+Its play thresholds are scaled every sample, so the analytic inverse (17) no longer applies once
+they have shrunk; the widened inverse solves each sample's play sum instead. These properties hold
+on random valid SDPI models, drive histories, stress paths and width laws.
 """
 
 from __future__ import annotations
@@ -14,24 +12,17 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gma_ffc.effects.stress_play import ShapedCore
+from gma_ffc.effects.stress_play import WidenedCore
 from gma_ffc.errors import ModelError
 from gma_ffc.extended import ExtendedModel
 from gma_ffc.model import SDPIModel
 from gma_ffc.modelio import load_model, save_model
 from test_inverse import STRESS, histories, sdpi_models
 
-# kappa per MPa, its reference stress, and (or not) each play weight's change per MPa with its reference
-widths = st.tuples(st.floats(-0.3, 0.3), st.floats(*STRESS),
-                   st.none() | st.lists(st.floats(-0.1, 0.1), min_size=12, max_size=12), st.floats(*STRESS))
+widths = st.tuples(st.floats(-0.3, 0.3), st.floats(*STRESS))      # kappa per MPa, reference stress
 
 
-def _shaped(model: SDPIModel, width: tuple) -> ShapedCore:
-    kappa, sigma_w, changes, sigma_a = width
-    return ShapedCore(model, kappa, sigma_w, None if changes is None else changes[: model.n_play], sigma_a)
-
-
-def _prehistory_state(core: ShapedCore, prehistory: np.ndarray | None) -> np.ndarray | None:
+def _prehistory_state(core: WidenedCore, prehistory: np.ndarray | None) -> np.ndarray | None:
     """Play states an earlier drive at another stress left behind (the widened plays' own)."""
     if prehistory is None:
         return None
@@ -45,7 +36,7 @@ def _prehistory_state(core: ShapedCore, prehistory: np.ndarray | None) -> np.nda
 @given(model=sdpi_models(), hist=histories(), width=widths)
 def test_widened_inverse_after_forward_returns_the_drive(model: SDPIModel, hist, width) -> None:
     x, stress, prehistory = hist
-    core = _shaped(model, width)
+    core = WidenedCore(model, *width)
     y0 = _prehistory_state(core, prehistory)
     y = core.simulate(None, x, stress, initial_drive=x[0], initial_play_state=y0)
     inv = core.inverse_stepper(initial_drive=x[0])
@@ -58,7 +49,7 @@ def test_widened_inverse_after_forward_returns_the_drive(model: SDPIModel, hist,
 @given(model=sdpi_models(), hist=histories(), width=widths)
 def test_widened_forward_after_inverse_returns_the_reference(model: SDPIModel, hist, width) -> None:
     x, stress, prehistory = hist
-    core = _shaped(model, width)
+    core = WidenedCore(model, *width)
     ref = 10.0 * x
     y0 = _prehistory_state(core, prehistory)
     inv = core.inverse_stepper(initial_drive=0.5)
@@ -72,12 +63,11 @@ def test_widened_forward_after_inverse_returns_the_reference(model: SDPIModel, h
 @given(model=sdpi_models(), hist=histories(), width=widths)
 def test_widened_steppers_equal_batch_and_no_widening_is_the_plain_core(model: SDPIModel, hist, width) -> None:
     x, stress, _ = hist
-    core = _shaped(model, width)
+    core = WidenedCore(model, *width)
     y = core.simulate(None, x, stress, initial_drive=1.0)
     fwd = core.forward_stepper(initial_drive=1.0)
     assert np.array_equal([fwd.step(a, s) for a, s in zip(x, stress)], y)
-    plain = ShapedCore(model, 0.0, width[1], np.zeros(model.n_play), width[3]).simulate(None, x, stress,
-                                                                                       initial_drive=1.0)
+    plain = WidenedCore(model, 0.0, width[1]).simulate(None, x, stress, initial_drive=1.0)
     assert np.array_equal(plain, model.simulate(None, x, stress, initial_drive=1.0))
 
 
@@ -96,7 +86,7 @@ def _width(u: np.ndarray, y: np.ndarray) -> float:
 
 def test_the_loop_widens_with_compression_by_kappa_per_MPa() -> None:
     model = _loop_model()
-    core = ShapedCore(model, 0.05, -15.0)          # 5 % wider per MPa of extra compression
+    core = WidenedCore(model, 0.05, -15.0)          # 5 % wider per MPa of extra compression
     u = 1.0 - np.cos(2 * np.pi * np.linspace(0, 2, 2001))
     w_ref = _width(u, core.simulate(None, u, -15.0, initial_drive=0.0))
     assert w_ref == pytest.approx(_width(u, model.simulate(None, u, -15.0, initial_drive=0.0)), rel=1e-12)
@@ -144,40 +134,8 @@ def test_a_damaged_loop_width_is_refused_with_the_key(block, words) -> None:
 def test_a_loop_width_needs_a_core_with_stress() -> None:
     mpi = SDPIModel(np.array([0.0, 0.2]), np.array([1.0, 0.5]), np.array([0.0]), np.array([[2.0], [0.0], [0.0]]),
                     stress_range_MPa=None, drive_range=(0.0, 2.0))
-    with pytest.raises(ModelError, match="loop_width and play_weight_change need an SDPI core"):
+    with pytest.raises(ModelError, match="loop_width needs an SDPI core"):
         ExtendedModel(mpi, {"loop_width": {"kappa_per_MPa": 0.05, "stress_ref_MPa": -15.0}})
-    with pytest.raises(ModelError, match="need an SDPI core"):
-        ExtendedModel(mpi, {"play_weight_change": {"change_per_MPa": [0.01, 0.02], "stress_ref_MPa": -15.0}})
-
-
-@pytest.mark.parametrize("block, words", [
-    ({"change_per_MPa": [0.01, 0.02], "stress_ref_MPa": -15.0}, "one change per core play"),
-    ({"change_per_MPa": [0.01, "x", 0.0], "stress_ref_MPa": -15.0}, r"change_per_MPa must be a list"),
-    ({"change_per_MPa": [0.01, float("nan"), 0.0], "stress_ref_MPa": -15.0}, r"finite"),
-    ({"change_per_MPa": [0.01, 0.0, 0.0]}, r"play_weight_change\.stress_ref_MPa"),
-])
-def test_a_damaged_play_weight_change_is_refused_with_what_to_fix(block, words) -> None:
-    d = ExtendedModel(_loop_model(), {}).to_dict()
-    d["blocks"]["play_weight_change"] = block
-    with pytest.raises(ModelError, match=words):
-        ExtendedModel.from_dict(d)
-
-
-def _slope(u: np.ndarray, y: np.ndarray) -> float:
-    """The loop's mean slope over the last cycle (displacement per drive)."""
-    k = np.arange(u.size // 2, u.size)
-    return float(np.polyfit(u[k], y[k], 1)[0])
-
-
-def test_play_weights_change_by_their_law_and_the_first_order_fit_regressor_is_the_derivative() -> None:
-    model = _loop_model()
-    u = 1.0 - np.cos(2 * np.pi * np.linspace(0, 2, 2001))
-    plain = model.simulate(None, u, -20.0, initial_drive=0.0)
-    # every weight 2 % larger per MPa of extra compression: 5 MPa beyond the reference, a loop 10 % taller
-    core = ShapedCore(model, 0.0, -15.0, np.full(3, 0.02), -15.0)
-    assert _slope(u, core.simulate(None, u, -20.0, initial_drive=0.0)) == pytest.approx(1.1 * _slope(u, plain), rel=1e-9)
-    assert np.array_equal(core.simulate(None, u, -15.0, initial_drive=0.0),
-                          model.simulate(None, u, -15.0, initial_drive=0.0))
 
 
 def test_the_width_search_includes_no_widening_and_stays_in_its_physical_range() -> None:
@@ -185,34 +143,9 @@ def test_the_width_search_includes_no_widening_and_stays_in_its_physical_range()
 
     assert 0.0 in WIDTH_GRID                     # play weights' stress slopes alone must be choosable
     top = max(abs(v) for v in WIDTH_GRID)
-    changes = (0.02, -0.01, 0.0)                 # the weight changes ride along unchanged
     for p in WIDTH_GRID:
         for level in (1, 2, 3):
-            points = StressPlay.refine(None, (p, *changes), level)   # type: ignore[arg-type]
-            assert all(abs(v[0]) <= top and v[1:] == changes for v in points)
+            points = StressPlay.refine(None, p, level)   # type: ignore[arg-type]
+            assert all(abs(v) <= top for v in points)
             if 0 < abs(p) < top:                 # inside the range the refinement does look around p
-                assert any(v[0] > p for v in points) and any(v[0] < p for v in points)
-
-
-@settings(max_examples=40, deadline=None)
-@given(model=sdpi_models(), hist=histories(), kappa=st.floats(-0.2, 0.2), play=st.integers(0, 11))
-def test_the_weight_regressor_is_the_outputs_derivative_in_that_weights_change(model: SDPIModel, hist, kappa,
-                                                                               play) -> None:
-    """What the diagnosis regresses on for play i (its first-order fit) is d y / d a_i, through the
-    dead-zones at every sample: (sigma_a - sigma) x slope x w_i H_i, against central differences."""
-    x, stress, _ = hist
-    i = play % model.n_play
-    plays, slope = ShapedCore(model, kappa, -15.0).weight_sensitivities(None, x, stress, "relaxed")
-    s = np.clip(stress, *model.stress_range_MPa)
-    h = 1e-7
-
-    def run(a_i: float) -> np.ndarray:
-        a = np.zeros(model.n_play)
-        a[i] = a_i
-        return ShapedCore(model, kappa, -15.0, a, -15.0).simulate(None, x, stress, initial_state="relaxed")
-
-    numeric = (run(h) - run(-h)) / (2 * h)
-    analytic = (-15.0 - s) * slope * model.play_weights[i] * plays[:, i]
-    scale = max(float(np.max(np.abs(analytic))), 1e-9)
-    near_kink = np.abs(numeric - analytic) > 1e-5 * scale
-    assert np.mean(near_kink) <= 0.02       # only where the play sum sits on a dead-zone threshold
+                assert any(v > p for v in points) and any(v < p for v in points)

@@ -254,33 +254,6 @@ class Fitter:
             part_b.append(np.column_stack([c[rb] for c in cols]))
         return np.vstack(part_a + part_b), names
 
-    def extra_coefficients(self, spec: Spec, extra: Callable[[RecData, np.ndarray], np.ndarray],
-                           damping: Sequence[float] = (0.0,)) -> tuple[list[np.ndarray], dict[str, float]]:
-        """Coefficients of extra regressors (`extra(recording, core input)`, full length, one column
-        each) fitted together with the spec's own on all rows, once per damping (a ridge on the
-        extra ones, as a fraction of their mean squared column, each scaled to unit RMS: a
-        Levenberg-Marquardt step's), and the spec's own undamped coefficients by name: what a
-        Gauss-Newton step of a parameter the spec holds fixed needs. The anchor does not hold
-        these fits: a step's point is scored, held, like any other."""
-        X, names = self.design(spec)
-        part_a, part_b = [], []
-        for d, (u3, _), (ra, rb) in zip(self.data, self.core(spec), self._rows_ab):
-            E = np.asarray(extra(d, u3), dtype=float).reshape(d.t.size, -1)
-            part_a.append(E[ra])
-            part_b.append(E[rb])
-        E = np.vstack(part_a + part_b)
-        n = X.shape[1]
-        c, G, b, scale = self._solve(np.hstack([X, E]), self.y_rows)
-        out = []
-        for mu in damping:
-            if mu <= 0:
-                out.append(c[n:])
-                continue
-            ridge = np.zeros(G.shape[0])
-            ridge[n:] = mu * float(np.mean(np.diag(G)[n:]))
-            out.append((_solve_normal(G + np.diag(ridge), b, None, None) / scale)[n:])
-        return out, dict(zip(names, (float(v) for v in c[:n])))
-
     def use_anchor(self, on: bool = True, fallback_tolerance_um: float = math.nan) -> None:
         """Hold every fit from now on within the base's identification error on its own loops
         (`anchor.py`); a loop without a recorded error gets `fallback_tolerance_um` (e.g. the
@@ -543,10 +516,10 @@ class SearchResult:
 def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, Any], Spec],
            grid: Iterable[Any], refine: Callable[[Fitter, Any, int], Sequence[Any] | None] | None = None,
            zoom_levels: int = ZOOM_LEVELS,
-           polish: Callable[[Fitter, Any], tuple[int, Callable[[np.ndarray], Any]] | None] | None = None,
-           step: Callable[[Fitter, Spec, Any], Sequence[Any] | None] | None = None) -> SearchResult:
-    """Grid (plus local refinement and Gauss-Newton steps, then an optional continuous polish) over
-    one block's parameters; per-fold choice by training error."""
+           polish: Callable[[Fitter, Any], tuple[int, Callable[[np.ndarray], Any]] | None] | None = None
+           ) -> SearchResult:
+    """Grid (plus local refinement, then an optional continuous polish) over one block's
+    parameters; per-fold choice by training error."""
     results: dict[Any, Score] = {}
 
     def run(points: Iterable[Any]) -> None:
@@ -563,8 +536,6 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
                            min(results, key=lambda p: results[p].all_mse)}
             for bp in best_points:
                 run(refine(fitter, bp, level) or [])
-                if step is not None:          # from the point's all-data fit (a parameter it moves by steps)
-                    run(step(fitter, make(base[2], bp), bp) or [])
     if polish is not None:
         _polish(fitter, base, results, run, polish)
     pa = min(results, key=lambda p: results[p].train_mse(0))

@@ -368,7 +368,7 @@ class _Run:
             partner = cls.joint_with
             if partner is None or partner not in base[2]:
                 return search(fitter, base, make, cls.grid(fitter), cls.refine, getattr(cls, "zoom_levels", ZOOM_LEVELS),
-                              cls.polish, cls.step)
+                              cls.polish)
 
             # look-alikes trade off against each other: re-search the accepted one's value with the new one
             def make_joint(s: Spec, p: Any) -> Spec:

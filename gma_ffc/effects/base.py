@@ -161,11 +161,6 @@ class FitData(Protocol):
     def stress_levels(self) -> list[float]:
         """Distinct stress levels the recordings dwell at."""
 
-    def extra_coefficients(self, spec: Any, extra: Callable[[Any, np.ndarray], np.ndarray],
-                           damping: Sequence[float] = (0.0,)) -> tuple[list[np.ndarray], dict[str, float]]:
-        """Extra regressors' coefficients fitted with the spec's own on all rows (once per ridge
-        damping), and the spec's own by name."""
-
 
 @dataclass
 class Regressors:
@@ -276,11 +271,6 @@ class Effect(Protocol):
         for a continuous local search (None: the zoom is all there is)."""
 
     @classmethod
-    def step(cls, fitter: FitData, spec: Any, p: Any) -> Sequence[Any] | None:
-        """Points a Gauss-Newton step from p proposes (for parameters that are too many to grid),
-        given the all-data spec holding p (None: the grid and its refinement are all there is)."""
-
-    @classmethod
     def fit_stress(cls, d: Any) -> np.ndarray:
         """`transforms_stress` only: the transformed stress of a recording (unclamped)."""
 
@@ -388,10 +378,6 @@ class EffectBase:
 
     @classmethod
     def polish(cls, fitter: FitData, p: Any) -> tuple[int, Callable[[np.ndarray], Any]] | None:
-        return None
-
-    @classmethod
-    def step(cls, fitter: FitData, spec: Any, p: Any) -> Sequence[Any] | None:
         return None
 
     @classmethod

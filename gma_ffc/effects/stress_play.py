@@ -1,18 +1,11 @@
 """Play weights and loop width (coercive current) that change with stress, which the SDPI assumes they do not.
 
-Three blocks. `loop_width`: the core's play thresholds, the loop's width in drive units, scale
-with stress, g(sigma) = 1 + kappa (sigma_w - sigma), as pinning grows with compression.
-`play_weight_change`: each of the core's own play weights changes with stress,
-w_i(sigma) = w_i (1 + a_i (sigma_a - sigma)), seen through the dead-zones as the SDPI sees them.
-Both make a different core, not a term beside it: the core is run with its play layer shaped
-(`ShapedCore`, exactly inverted by the shaped kernels of `gma_ffc.operators`). `stress_play`: plays
-on the recalibrated output whose weights change linearly with stress (a sum-stage term), for what
-the dead-zones' view does not cover. Files written before carry the older `stress_width` block (a
-chord linearisation of the widening in its size), which still loads and runs.
-
-The diagnosis fits the weight changes to first order (each one's regressor is the output's
-derivative in it, `ShapedCore.weight_sensitivities`) around the loop width searched on a grid,
-and writes the exact shaped core.
+Two blocks. `stress_play`: each play's weight changes linearly with stress (a sum-stage term).
+`loop_width`: the core's play thresholds, the loop's width in drive units, scale with stress,
+g(sigma) = 1 + kappa (sigma_w - sigma), as pinning grows with compression. That is a different
+core, not a term beside it: the core is run with the widened thresholds (`WidenedCore`, exactly
+inverted by the widened kernels of `gma_ffc.operators`). Files written before it carry the older
+`stress_width` block (a chord linearisation of the widening in its size), which still loads and runs.
 """
 
 from __future__ import annotations
@@ -28,14 +21,6 @@ from ..errors import ModelError
 from .base import (BatchSignals, EffectBase, FitData, OwnPlays, PlayBankState, Regressors, SignatureCheck,
                    SignatureFailure, StepSignals, block_of, finite, geom_refine, play_sum, play_weights)
 
-# at most this many free weight changes: bands of neighbouring core plays share one. Three (the loop's
-# narrow, middle and wide plays): on the development cases five bands fitted a little closer but each
-# band costs a nat of evidence, and with the few effective samples of a loop residual (~45) one
-# detection was lost to that penalty; two bands left a case unhalved that three halve
-WEIGHT_GROUPS = 3
-STEP_DAMPING = (0.01, 0.1, 1.0)   # Levenberg-Marquardt ridges: a decade apart, from near Gauss-Newton to near gradient
-WEIGHT_CHANGE_MAX = 0.3   # per MPa, either sign: as the width's (past it a weight would halve or double in 2-3 MPa)
-
 # the loop-width search: relative width changes per MPa of 1 % to 30 %, either sign (a few % per MPa
 # is what pinning in Terfenol-D does; past 30 % per MPa the width would halve or double within 2-3 MPa)
 WIDTH_GRID = (-0.3, -0.1, -0.03, -0.01, 0.0, 0.01, 0.03, 0.1, 0.3)
@@ -50,30 +35,20 @@ def widened_core(base: Any, eps: float) -> Any:
     return dataclasses.replace(base, play_thresholds=np.asarray(th, dtype=float) * (1.0 + eps))  # type: ignore[type-var]
 
 
-class ShapedCore:
-    """An SDPI core whose play layer follows stress: every play threshold scaled by
-    g(sigma) = max(1 + kappa (sigma_w - sigma), 0.05) (the loop widens by kappa per MPa of extra
-    compression) and, optionally, each play weight by max(1 + a_i (sigma_a - sigma), 0.05), both at
-    each sample's (clamped) stress.
+class WidenedCore:
+    """An SDPI core whose play thresholds are scaled by g(sigma) = max(1 + kappa (sigma_w - sigma), 0.05)
+    at each sample's (clamped) stress: the loop widens by kappa per MPa of extra compression.
 
     It runs where the plain core runs (batch, steppers, inverse) and starts from the plain core's
-    initial state (the state estimate ignores the shaping, which changes the play states' bounds
-    and weights, not their meaning)."""
+    initial state (the state estimate ignores the widening, which changes the play states' bounds,
+    not their meaning)."""
 
-    def __init__(self, base: Any, kappa: float, sigma_w: float, weight_change: Any = None,
-                 sigma_a: float | None = None) -> None:
+    def __init__(self, base: Any, kappa: float, sigma_w: float) -> None:
         if getattr(base, "stress_range_MPa", None) is None or not hasattr(base, "_packed"):
-            raise ModelError("extended model: loop_width and play_weight_change need an SDPI core "
-                             "(a model with stress terms)")
+            raise ModelError("extended model: loop_width needs an SDPI core (a model with stress terms)")
         self.base = base
         self.kappa = float(kappa)
         self.sigma_w = float(sigma_w)
-        self.sigma_a = self.sigma_w if sigma_a is None else float(sigma_a)
-        self.weight_change = None if weight_change is None else np.asarray(weight_change, dtype=float)
-        if self.weight_change is not None and self.weight_change.shape != (base.n_play,):
-            raise ModelError(f"extended model: play_weight_change needs one change per core play "
-                             f"({base.n_play}), got {self.weight_change.size}")
-        self.shape = ops.shape_vector(self.kappa, self.sigma_w, self.weight_change, self.sigma_a)
 
     @property
     def stress_range_MPa(self) -> Any:
@@ -88,11 +63,11 @@ class ShapedCore:
         return int(self.base.output_sign)
 
     def state(self, initial_drive: float, play_state: Any = None) -> np.ndarray:
-        """Kernel state: the plain core's forward state, plus the shaped inverse's scratch."""
-        return self._shaped_state(self.base.forward_state(initial_drive, play_state))
+        """Kernel state: the plain core's forward state, plus the widened inverse's scratch."""
+        return self._widen_state(self.base.forward_state(initial_drive, play_state))
 
-    def _shaped_state(self, plain: np.ndarray) -> np.ndarray:
-        st = np.zeros(ops.shaped_state_size(self.base.n_play, self.base.n_deadzone))
+    def _widen_state(self, plain: np.ndarray) -> np.ndarray:
+        st = np.zeros(ops.widened_state_size(self.base.n_play, self.base.n_deadzone))
         st[: plain.size] = plain
         return st
 
@@ -102,44 +77,31 @@ class ShapedCore:
 
     def simulate(self, time_s: Any, drive: Any, stress_MPa: Any = None, initial_drive: float | None = None,
                  initial_play_state: Any = None, initial_state: Any = None, measured_um: Any = None) -> np.ndarray:
-        """As `SDPIModel.simulate` (the same checks and start), with the shaped play layer."""
+        """As `SDPIModel.simulate` (the same checks and start), with the widened thresholds."""
         x, s, plain = self.base.batch_start(time_s, drive, stress_MPa, initial_drive, initial_play_state,
                                             initial_state, measured_um)
         out = np.empty_like(x)
-        ops.forward_batch_shaped(x, s, self.shape, self.base._packed, self._shaped_state(plain), out)
+        ops.forward_batch_widened(x, s, self.kappa, self.sigma_w, self.base._packed, self._widen_state(plain), out)
         if self.base.output_sign < 0:
             np.negative(out, out=out)
         return out
 
-    def weight_sensitivities(self, time_s: Any, drive: Any, stress_MPa: Any,
-                             initial_state: Any = None) -> tuple[np.ndarray, np.ndarray]:
-        """Along a run: the weighted play outputs (n x n_play) and the output's slope in the play sum
-        (sign included); per play, their product times (sigma_a - sigma) is the output's derivative in
-        that play's relative weight change per MPa."""
-        x, s, plain = self.base.batch_start(time_s, drive, stress_MPa, None, None, initial_state, None)
-        plays = np.empty((x.size, self.base.n_play))
-        slope = np.empty(x.size)
-        ops.weight_sensitivities(x, s, self.shape, self.base._packed, self._shaped_state(plain), plays, slope)
-        if self.base.output_sign < 0:
-            np.negative(slope, out=slope)
-        return plays, slope
+    def forward_stepper(self, dt_s: float = 0.0, initial_drive: float = 0.0) -> "WidenedForwardStepper":
+        return WidenedForwardStepper(self, initial_drive)
 
-    def forward_stepper(self, dt_s: float = 0.0, initial_drive: float = 0.0) -> "ShapedForwardStepper":
-        return ShapedForwardStepper(self, initial_drive)
-
-    def inverse_stepper(self, dt_s: float = 0.0, initial_drive: float = 0.0) -> "ShapedInverseStepper":
-        return ShapedInverseStepper(self, initial_drive)
+    def inverse_stepper(self, dt_s: float = 0.0, initial_drive: float = 0.0) -> "WidenedInverseStepper":
+        return WidenedInverseStepper(self, initial_drive)
 
 
-class ShapedForwardStepper:
+class WidenedForwardStepper:
     """One sample in, one displacement out; nothing allocated per step."""
 
-    __slots__ = ("_core", "_p", "_shape", "_sign", "_state")
+    __slots__ = ("_core", "_p", "_k", "_sw", "_sign", "_state")
 
-    def __init__(self, core: ShapedCore, initial_drive: float = 0.0) -> None:
+    def __init__(self, core: WidenedCore, initial_drive: float = 0.0) -> None:
         self._core = core
         self._p = core.base._packed
-        self._shape = core.shape
+        self._k, self._sw = core.kappa, core.sigma_w
         self._sign = float(core.base.output_sign)
         self._state = core.state(initial_drive)
 
@@ -147,77 +109,49 @@ class ShapedForwardStepper:
         self._state[:] = self._core.state(initial_drive, play_state)
 
     def step(self, drive: float, stress_MPa: float = 0.0) -> float:
-        return self._sign * ops.forward_step_shaped(drive, stress_MPa, self._shape, self._p, self._state)
+        return self._sign * ops.forward_step_widened(drive, stress_MPa, self._k, self._sw, self._p, self._state)
 
 
-class ShapedInverseStepper(ShapedForwardStepper):
-    """One reference sample in, one drive out: the exact inverse of `ShapedForwardStepper`."""
+class WidenedInverseStepper(WidenedForwardStepper):
+    """One reference sample in, one drive out: the exact inverse of `WidenedForwardStepper`."""
 
     __slots__ = ()
 
     def step(self, reference_um: float, stress_MPa: float = 0.0) -> float:
-        return ops.inverse_step_shaped(self._sign * reference_um, stress_MPa, self._shape, self._p, self._state)
+        return ops.inverse_step_widened(self._sign * reference_um, stress_MPa, self._k, self._sw, self._p,
+                                        self._state)
 
     def peek(self, reference_um: float, stress_MPa: float = 0.0) -> float:
         """What `step` would return, without moving the state."""
-        return ops.inverse_peek_shaped(self._sign * reference_um, stress_MPa, self._shape, self._p, self._state)
-
-
-def weight_groups(weights: np.ndarray) -> list[np.ndarray]:
-    """The core's plays in at most WEIGHT_GROUPS bands of neighbouring thresholds, one relative weight
-    change each; a play without weight (the identification's lower bound) has none to change."""
-    w = np.asarray(weights, dtype=float)
-    live = np.flatnonzero(w > 1e-6 * max(float(np.max(np.abs(w))), 1e-300))
-    if live.size == 0:
-        return []
-    return [g for g in np.array_split(live, min(live.size, WEIGHT_GROUPS)) if g.size]
+        return ops.inverse_peek_widened(self._sign * reference_um, stress_MPa, self._k, self._sw, self._p,
+                                        self._state)
 
 
 class StressPlay(EffectBase):
     name: ClassVar[str] = "stress_dependent_play"
-    keys: ClassVar[tuple[str, ...]] = ("stress_play", "loop_width", "play_weight_change", "stress_width")
+    keys: ClassVar[tuple[str, ...]] = ("stress_play", "loop_width", "stress_width")
     stage: ClassVar[str] = "sum"
     follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 40
     inverted: ClassVar[Mapping[str, str]] = {
         "stress_play": "exactly: solved together with the core's inverse for each sample's core input",
-        "loop_width": "exactly: the shaped core's own inverse (each sample's piecewise-linear play sum solved)",
-        "play_weight_change": "exactly: the shaped core's own inverse (each sample's piecewise-linear play sum "
-                              "solved)",
+        "loop_width": "exactly: the widened core's own inverse (each sample's piecewise-linear play sum solved)",
         "stress_width": "exactly: the widened core's output solved together with the core's inverse"}
     physics: ClassVar[str] = (
         "the play-operator weights and the loop width (the play thresholds, the 'coercive current') change "
         "with stress, which the SDPI assumes they do not")
-    n_params: ClassVar[int] = 1 + 3 + WEIGHT_GROUPS    # width, output plays, core weight changes (at most)
+    n_params: ClassVar[int] = 5
     shapes_core: ClassVar[bool] = True
 
     def __init__(self, base: Any, stress_play: Mapping[str, Any] | None = None,
-                 stress_width: Mapping[str, Any] | None = None, loop_width: Mapping[str, Any] | None = None,
-                 play_weight_change: Mapping[str, Any] | None = None) -> None:
+                 stress_width: Mapping[str, Any] | None = None, loop_width: Mapping[str, Any] | None = None) -> None:
         self.stress_play = None if stress_play is None else dict(stress_play)
         self.stress_width = None if stress_width is None else dict(stress_width)
         self.loop_width = None if loop_width is None else dict(loop_width)
-        self.play_weight_change = None if play_weight_change is None else dict(play_weight_change)
-        self.kappa, self.sigma_w = 0.0, 0.0
         if loop_width is not None:
             self.kappa = finite(loop_width, "kappa_per_MPa", "loop_width")
             self.sigma_w = finite(loop_width, "stress_ref_MPa", "loop_width")
-        self.weight_change: np.ndarray | None = None
-        self.sigma_a = self.sigma_w
-        if play_weight_change is not None:
-            self.sigma_a = finite(play_weight_change, "stress_ref_MPa", "play_weight_change")
-            try:
-                self.weight_change = np.asarray(play_weight_change.get("change_per_MPa"), dtype=float)
-            except (TypeError, ValueError):
-                raise ModelError("extended model: play_weight_change.change_per_MPa must be a list of numbers, "
-                                 "one per core play") from None
-            if self.weight_change.ndim != 1 or not np.all(np.isfinite(self.weight_change)):
-                raise ModelError("extended model: play_weight_change.change_per_MPa must be a list of finite "
-                                 "numbers, one per core play")
-            if loop_width is None:
-                self.sigma_w = self.sigma_a
-        if loop_width is not None or play_weight_change is not None:
-            self.wrap_core(base)                 # refuses a core without stress terms or a wrong play count
+            WidenedCore(base, self.kappa, self.sigma_w)        # refuses a core without stress terms
         self.thresholds: np.ndarray
         self.coefficients: np.ndarray
         self.thresholds, self.coefficients = (np.zeros(0), np.zeros(0)) if stress_play is None else \
@@ -233,14 +167,13 @@ class StressPlay(EffectBase):
 
     @classmethod
     def from_blocks(cls, blocks: Mapping[str, Any], base: Any) -> "StressPlay | None":
-        sp, sw, lw, pw = (block_of(blocks, k) for k in ("stress_play", "stress_width", "loop_width",
-                                                        "play_weight_change"))
-        return None if sp is None and sw is None and lw is None and pw is None else cls(base, sp, sw, lw, pw)
+        sp, sw, lw = (block_of(blocks, k) for k in ("stress_play", "stress_width", "loop_width"))
+        return None if sp is None and sw is None and lw is None else cls(base, sp, sw, lw)
 
     def to_blocks(self) -> dict[str, dict[str, Any]]:
         out = {}
         for key, block in (("stress_play", self.stress_play), ("loop_width", self.loop_width),
-                           ("play_weight_change", self.play_weight_change), ("stress_width", self.stress_width)):
+                           ("stress_width", self.stress_width)):
             if block is not None:
                 out[key] = dict(block)
         return out
@@ -249,9 +182,7 @@ class StressPlay(EffectBase):
         return {k: self.inverted[k] for k in self.to_blocks()}
 
     def wrap_core(self, core: Any) -> Any:
-        if self.loop_width is None and self.play_weight_change is None:
-            return core
-        return ShapedCore(core, self.kappa, self.sigma_w, self.weight_change, self.sigma_a)
+        return core if self.loop_width is None else WidenedCore(core, self.kappa, self.sigma_w)
 
     def apply(self, y: np.ndarray, sig: BatchSignals) -> np.ndarray:
         if self.thresholds.size:
@@ -287,72 +218,26 @@ class StressPlay(EffectBase):
                            "stress range")
         return True, ""
 
-    # The search's parameter: (kappa, a_1 .. a_G), the loop width's change and each band's relative
-    # weight change per MPa of extra compression, all about the data's mean stress. The width is
-    # searched on its grid; the weight changes start at zero and move by Gauss-Newton steps
-    # (`step`), every point scored as the exact shaped core, so what is scored is what is written.
     @classmethod
-    def grid(cls, fitter: FitData) -> list[tuple[float, ...]]:
-        zeros = (0.0,) * len(weight_groups(fitter.model.play_weights))
-        return [(k, *zeros) for k in WIDTH_GRID]
+    def grid(cls, fitter: FitData) -> list[float]:
+        return list(WIDTH_GRID)
 
     @classmethod
-    def refine(cls, fitter: FitData, p: Any, level: int) -> list[tuple[float, ...]]:
-        """Widths around p's, within the grid's range (a width law beyond 30 % per MPa is not the
-        physics searched for; the refinement of an edge point would otherwise leave it)."""
-        k, rest = float(p[0]), tuple(p[1:])
+    def refine(cls, fitter: FitData, p: Any, level: int) -> list[float]:
+        """Around p, within the grid's range: a width law beyond 30 % per MPa is not the physics
+        searched for (the refinement of an edge point would otherwise leave it)."""
         top = max(abs(v) for v in WIDTH_GRID)
-        return [(v, *rest) for v in geom_refine(k, WIDTH_RATIO, level) if abs(v) <= top]
+        return [v for v in geom_refine(float(p), WIDTH_RATIO, level) if abs(v) <= top]
 
     @classmethod
-    def step(cls, fitter: FitData, spec: Any, p: Any) -> list[tuple[float, ...]]:
-        """Levenberg-Marquardt steps of the weight changes from p: each band's derivative regressed
-        with the spec's own columns on all rows, damped three ways (the bands' derivatives are alike,
-        so the undamped step overshoots); each change kept within +-WEIGHT_CHANGE_MAX per MPa."""
-        if not weight_groups(fitter.model.play_weights):
-            return []
-        deltas, coef = fitter.extra_coefficients(spec, lambda d, u3: cls._derivatives(fitter, d, u3, spec, p),
-                                                 STEP_DAMPING)
-        gain = coef.get("gain", 1.0)
-        gain = gain if math.isfinite(gain) and abs(gain) > 1e-9 else 1.0
-        a = np.asarray(p[1:], dtype=float)
-        out = []
-        for delta in deltas:
-            moved = np.clip(a + delta / gain, -WEIGHT_CHANGE_MAX, WEIGHT_CHANGE_MAX)
-            if np.all(np.isfinite(moved)):
-                out.append((float(p[0]), *(float(v) for v in moved)))
-        return out
-
-    @classmethod
-    def _derivatives(cls, fitter: FitData, d: Any, u3: np.ndarray, spec: Any, p: Any) -> np.ndarray:
-        """Per band: d y_c / d a_band along the recording's run of the shaped core at p."""
-        model = fitter.model
-        core = cls.fit_core(fitter, model, p)
-        s = np.clip(fitter.stress(d, spec), *model.stress_range_MPa)
-        plays, slope = core.weight_sensitivities(d.t, u3, s, d.start)
-        lever = slope * (fitter.stress_ref - s)        # extra compression from the reference
-        wq = plays * model.play_weights
-        return np.column_stack([lever * wq[:, g].sum(axis=1) for g in weight_groups(model.play_weights)])
-
-    @classmethod
-    def _changes(cls, fitter: FitData, p: Any) -> np.ndarray:
-        """Per core play, its weight's relative change per MPa of extra compression (its band's)."""
-        out = np.zeros(fitter.model.n_play)
-        for g, idx in enumerate(weight_groups(fitter.model.play_weights)):
-            out[idx] = float(p[1 + g])
-        return out
-
-    @classmethod
-    def fit_core(cls, fitter: FitData, core: Any, p: Any) -> ShapedCore:
-        """The core the diagnosis runs for p = (loop-width change, band weight changes)."""
-        changes = cls._changes(fitter, p)
-        return ShapedCore(core, float(p[0]), fitter.stress_ref, changes if np.any(changes) else None,
-                          fitter.stress_ref)
+    def fit_core(cls, fitter: FitData, core: Any, p: Any) -> WidenedCore:
+        """The core the diagnosis runs for loop-width change p (per MPa, about the data's mean stress)."""
+        return WidenedCore(core, float(p), fitter.stress_ref)
 
     @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
-        # plays on the output whose weights change linearly with stress (the rest of the loop shape);
-        # the loop's width and the core's play weights are in the core the spec runs (fit_core)
+        # each play's weight may change linearly with stress (loop shape); the loop's width is in
+        # the core the spec runs (fit_core)
         ds = fitter.stress(r.d, r.spec) - fitter.stress_ref      # the stress the model sees
         plays = r.shared["plays"]
         for j in range(fitter.play_thresholds.size):
@@ -363,24 +248,15 @@ class StressPlay(EffectBase):
     def fitted_params(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, float]:
         out = {f"coef_{j}_um_per_A_MPa": coef.get(f"stress_play_{j}", math.nan)
                for j in range(fitter.play_thresholds.size)}
-        a = cls._changes(fitter, p)
-        out["play_weight_change_min_per_MPa"] = float(np.min(a))
-        out["play_weight_change_max_per_MPa"] = float(np.max(a))
-        out["loop_width_change_per_MPa"] = float(p[0])
+        out["loop_width_change_per_MPa"] = float(p)
         return out
 
     @classmethod
     def fitted_blocks(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, dict[str, Any]]:
-        plays = {"thresholds": [float(v) for v in fitter.play_thresholds],
-                 "coefficients_per_MPa": [coef[f"stress_play_{j}"] for j in range(fitter.play_thresholds.size)]}
-        out: dict[str, dict[str, Any]] = {
-            "stress_play": plays,
-            "loop_width": {"kappa_per_MPa": float(p[0]), "stress_ref_MPa": float(fitter.stress_ref)}}
-        changes = cls._changes(fitter, p)
-        if np.any(changes):
-            out["play_weight_change"] = {"change_per_MPa": [float(v) for v in changes],
-                                         "stress_ref_MPa": float(fitter.stress_ref)}
-        return out
+        return {"stress_play": {"thresholds": [float(v) for v in fitter.play_thresholds],
+                                "coefficients_per_MPa": [coef[f"stress_play_{j}"]
+                                                         for j in range(fitter.play_thresholds.size)]},
+                "loop_width": {"kappa_per_MPa": float(p), "stress_ref_MPa": float(fitter.stress_ref)}}
 
     @classmethod
     def signature(cls, check: SignatureCheck) -> SignatureFailure | None:
@@ -402,12 +278,8 @@ class StressPlay(EffectBase):
         k = params.get("loop_width_change_per_MPa", math.nan)
         if not math.isfinite(k):
             return "play weights (loop width) that change with stress"
-        lo = params.get("play_weight_change_min_per_MPa", math.nan)
-        hi = params.get("play_weight_change_max_per_MPa", math.nan)
-        weights = (f"; the play weights change by {lo * 100:+.2g} % to {hi * 100:+.2g} % per MPa"
-                   if math.isfinite(lo) and math.isfinite(hi) else "")
         return (f"play weights and a loop width (coercive current) that change with stress: the width "
-                f"{'grows' if k > 0 else 'shrinks'} by {abs(k) * 100:.2g} % per MPa of extra compression{weights}")
+                f"{'grows' if k > 0 else 'shrinks'} by {abs(k) * 100:.2g} % per MPa of extra compression")
 
 
 class _StressPlayState(OwnPlays):
