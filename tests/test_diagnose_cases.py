@@ -39,3 +39,14 @@ def test_benchmark_case(name):
     # the extended model reproduces the selected fit
     pred = dg.extended.simulate(rec.time_s, rec.drive, rec.stress_MPa, initial_state=dg.data[0].start)
     assert abs(((pred - dg.final_predictions[0]) ** 2).mean()) ** 0.5 < 1e-6 + 1e-3 * dg.rms_after_um
+
+
+def test_no_stress_dependent_play_on_a_null_case_at_three_loads():
+    """The benchmark's null cases dwell at two loads, where stress_dependent_play is not testable
+    at all; at three it is, and ordinary identification error must still not be called it."""
+    case = bench.Case("null at three loads", (), lambda cfg: None, "no missing physics", 9101, loads=3)
+    model, rec = bench.make_case(case, scale=0.5)
+    dg = diagnose(model, [rec])
+    play = next(c for c in dg.candidates if c.effect == "stress_dependent_play")
+    assert play.testable, play.reason            # the case does put the effect to the test
+    assert dg.verdict == [] and dg.outcome in ("within_noise", "unexplained"), dg.explanation
