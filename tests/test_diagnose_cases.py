@@ -36,6 +36,9 @@ def test_benchmark_case(name):
             assert f"missed its own identification recordings by {lo:.3g}" in dg.explanation
             assert f"{dg.rms_after_um / hi:.1f}x the largest of those" in dg.explanation
             assert "Identifying the core again with a second recording like these" in dg.explanation
+    if "identified again through" in dg.validation and "was not kept" not in dg.validation:
+        # an input-side effect was named and the core re-identified through it: that core is the one written
+        assert "reidentified" in dg.extended.base.provenance
     # the extended model reproduces the selected fit
     pred = dg.extended.simulate(rec.time_s, rec.drive, rec.stress_MPa, initial_state=dg.data[0].start)
     assert abs(((pred - dg.final_predictions[0]) ** 2).mean()) ** 0.5 < 1e-6 + 1e-3 * dg.rms_after_um

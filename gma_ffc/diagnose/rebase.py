@@ -1,0 +1,62 @@
+"""The core identified again through the named input-side effects, on the base's own loops.
+
+A base model identified on measured loops has absorbed into its hysteresis whatever the missing
+input-side effect (eddy lag, a delay) did to those loops: at the identification rate, its loops
+are the true core's seen through the effect. Putting the effect in front of that base undoes the
+lag twice, and the controller tracks worse at the very rate the base was best at. The remedy is
+the identification's own: fit the core to the base's loops (which the base reproduces to within
+its identification error) with the drive passed through the effect first, so that core and effect
+together give back the base there. Pure maths: no I/O.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import InputError, ModelError
+from ..identify import SDPIIdentifier
+from ..model import SDPIModel
+from ..recordings import Recording
+from .anchor import anchor_data
+
+
+def reidentify_through(model: Any, inputs: Sequence[Any], dt: float) -> SDPIModel | None:
+    """An SDPI/MPI core whose output through the input-side effects `inputs` (effect objects of an
+    extended model, in path order) reproduces `model` on its own identification loops; None when
+    the model is not one `gma-ffc identify` wrote (its settings and loops unknown) or the fit fails.
+    The new core keeps the base's drive range, name and provenance (its loops and errors: the truth
+    is known there to within those, not better), with a note of what it was identified through."""
+    prov = getattr(model, "provenance", None)
+    if not inputs or not isinstance(model, SDPIModel) or not isinstance(prov, dict) or "fit_stress_MPa" not in prov:
+        return None
+    loops = anchor_data(model, dt)
+    if not loops:
+        return None
+    recs = []
+    for d in loops:
+        u3 = d.u
+        for eff in inputs:
+            u3 = eff.apply_input(u3, d.dt, d.dt_med, float(u3[0]))
+        cols = {"time_s": d.t, model.drive_name: np.ascontiguousarray(u3), "displacement_um": d.y}
+        if model.stress_range_MPa is not None:
+            cols["stress_MPa"] = d.s
+        recs.append(Recording(cols, {}, d.name))
+    assert isinstance(prov, dict)
+    settings = prov.get("settings")
+    settings = settings if isinstance(settings, dict) else {}
+    ident = SDPIIdentifier(n_play=int(settings.get("n_play", 10)), n_deadzone=int(settings.get("n_deadzone", 7)),
+                           refine=bool(settings.get("refine", True)), initial_state=model.initial_state)
+    try:
+        core = ident.fit(recs).model_
+    except (InputError, ModelError, np.linalg.LinAlgError, ValueError):
+        return None
+    if (core.stress_range_MPa is None) != (model.stress_range_MPa is None) or core.output_sign != model.output_sign:
+        return None
+    note = {"identified_through": [k for eff in inputs for k in eff.to_blocks()],
+            "by": "gma-ffc diagnose, on the base's own identification loops"}
+    return dataclasses.replace(core, drive_range=model.drive_range, drive_name=model.drive_name,
+                               stress_range_MPa=model.stress_range_MPa,
+                               provenance={**prov, "reidentified": note})
