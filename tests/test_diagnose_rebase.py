@@ -24,7 +24,7 @@ def base():
 @pytest.mark.parametrize("block", [{"delay": {"delay_s": 0.0015}}, {"eddy_lag": {"tau_s": 0.002}}])
 def test_core_and_effect_give_back_the_base_on_its_own_loops(base, block) -> None:
     inputs = [e for e in ExtendedModel(base, block).chain if e.stage == "input"]
-    core = reidentify_through(base, inputs, 1 / bench.FS)
+    core = reidentify_through(base, inputs, anchor_data(base, 1 / bench.FS))
     assert core is not None
     assert core.drive_range == base.drive_range and core.stress_range_MPa == base.stress_range_MPa
     assert core.provenance["reidentified"]["identified_through"] == list(block)
@@ -42,5 +42,5 @@ def test_core_and_effect_give_back_the_base_on_its_own_loops(base, block) -> Non
 def test_a_model_without_its_identification_record_is_left_as_it_is(base) -> None:
     bare = type(base).from_dict({**base.to_dict(), "provenance": {}})
     inputs = [e for e in ExtendedModel(bare, {"delay": {"delay_s": 0.001}}).chain if e.stage == "input"]
-    assert reidentify_through(bare, inputs, 1 / bench.FS) is None
-    assert reidentify_through(base, [], 1 / bench.FS) is None
+    assert reidentify_through(bare, inputs, anchor_data(bare, 1 / bench.FS)) is None
+    assert reidentify_through(base, [], anchor_data(base, 1 / bench.FS)) is None

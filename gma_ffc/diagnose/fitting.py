@@ -93,6 +93,20 @@ class Score:
     def all_mse(self) -> float:
         return self.sse_all / max(self.n_all, 1)
 
+    @property
+    def n_held_out(self) -> int:
+        return self.n_test[0] + self.n_test[1]
+
+    @property
+    def held_out_loss(self) -> float:
+        """Both folds' test loss per held-out sample (one spec scored on both folds)."""
+        return (self.sse_test[0] + self.sse_test[1]) / max(self.n_held_out, 1)
+
+    @property
+    def held_out_mse(self) -> float:
+        """Both folds' plain squared test error per held-out sample."""
+        return (self.sq_test[0] + self.sq_test[1]) / max(self.n_held_out, 1)
+
 
 class Fitter:
     """Builds regressors for specs over the prepared recordings (with caches) and solves them."""

@@ -20,21 +20,19 @@ from ..errors import InputError, ModelError
 from ..identify import SDPIIdentifier
 from ..model import SDPIModel
 from ..recordings import Recording
-from .anchor import anchor_data
+from .data import RecData
 
 
-def reidentify_through(model: Any, inputs: Sequence[Any], dt: float) -> SDPIModel | None:
+def reidentify_through(model: Any, inputs: Sequence[Any], loops: Sequence[RecData]) -> SDPIModel | None:
     """An SDPI/MPI core whose output through the input-side effects `inputs` (effect objects of an
-    extended model, in path order) reproduces `model` on its own identification loops; None when
-    the model is not one `gma-ffc identify` wrote (its settings and loops unknown) or the fit fails.
-    The new core keeps the base's drive range, name and provenance (its loops and errors: the truth
-    is known there to within those, not better), with a note of what it was identified through."""
-    prov = getattr(model, "provenance", None)
-    if not inputs or not isinstance(model, SDPIModel) or not isinstance(prov, dict) or "fit_stress_MPa" not in prov:
+    extended model, in path order) reproduces `model` on its own identification loops `loops` (the
+    anchor's, `anchor.anchor_data`: the base's output on them); None when the model is not one
+    `gma-ffc identify` wrote (its settings and loops unknown) or the fit fails. The new core keeps
+    the base's drive range, name and provenance (its loops and errors: the truth is known there to
+    within those, not better), with a note of what it was identified through."""
+    if not inputs or not loops or not isinstance(model, SDPIModel) or "fit_stress_MPa" not in model.provenance:
         return None
-    loops = anchor_data(model, dt)
-    if not loops:
-        return None
+    prov = model.provenance
     recs = []
     for d in loops:
         u3 = d.u
@@ -44,7 +42,6 @@ def reidentify_through(model: Any, inputs: Sequence[Any], dt: float) -> SDPIMode
         if model.stress_range_MPa is not None:
             cols["stress_MPa"] = d.s
         recs.append(Recording(cols, {}, d.name))
-    assert isinstance(prov, dict)
     settings = prov.get("settings")
     settings = settings if isinstance(settings, dict) else {}
     ident = SDPIIdentifier(n_play=int(settings.get("n_play", 10)), n_deadzone=int(settings.get("n_deadzone", 7)),

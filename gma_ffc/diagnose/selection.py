@@ -174,6 +174,13 @@ def build_extended(model: Any, fitter: Fitter, spec: Spec, coef: np.ndarray, nam
     return ExtendedModel(model, blocks, effects)
 
 
+def _restarted(core: Any, data: Sequence[RecData], rule: Any) -> list[RecData]:
+    """The recordings as they are (rows, folds, what is not scored), each with `core`'s own initial
+    state by `rule`."""
+    return [dataclasses.replace(d, start=core.resolve_initial_state(
+        d.u, d.s if core.stress_range_MPa is not None else None, rule, d.y, d.t)) for d in data]
+
+
 def _scored(d: RecData, r: np.ndarray) -> np.ndarray:
     """The residual with the samples before the initial state settles set to zero (not scored)."""
     if d.settled <= 0:
@@ -253,9 +260,7 @@ class _Run:
         fitter.delta = max(self.sel.huber_k * robust_sigma, 2.0 * self.noise, 1e-12)
         null = fitter.score(null_specs, want_coef=True)
         assert null.coef_all is not None
-        n_null = max(null.n_test[0] + null.n_test[1], 1)
-        self.null_loss = (null.sse_test[0] + null.sse_test[1]) / n_null
-        self.null_cv = (null.sq_test[0] + null.sq_test[1]) / n_null
+        self.null_loss, self.null_cv = null.held_out_loss, null.held_out_mse
         self.null_pred = fitter.predict_full(Spec(), null.coef_all)
         self.located = [locate(d, _scored(d, d.y - yb), _scored(d, d.y - yn))
                         for d, yb, yn in zip(data, self.base_pred, self.null_pred)]
@@ -263,7 +268,7 @@ class _Run:
         self.cur_cv = self.null_cv
         self.cur_loss = self.null_loss
         self.final = SearchResult(null_specs, self.null_loss, self.null_cv, null.all_mse,
-                                  null.n_test[0] + null.n_test[1], null.coef_all, null.names, 1)
+                                  null.n_held_out, null.coef_all, null.names, 1)
 
     # ------------------------------------------------------------------ step 3: what can be tested
     def open_candidates(self) -> None:
@@ -408,7 +413,7 @@ class _Run:
                 continue
             others: Specs = tuple(s.without(name) for s in self.current)  # type: ignore[assignment]
             o = fitter.score(others)
-            o_cv = (o.sse_test[0] + o.sse_test[1]) / max(o.n_test[0] + o.n_test[1], 1)   # loss
+            o_cv = o.held_out_loss
             best_name, best_res = name, None
             slot: list[tuple[float, str]] = []
             rivals = [c.effect for c in candidates.values() if c.testable and not (c.accepted and c.effect != name)]
@@ -453,24 +458,20 @@ class _Run:
         fitter, final = self.fitter, self.final
         ext = build_extended(self.model, fitter, final.specs[2], final.coef_all, final.names, list(self.accepted))
         inputs = [e for e in ext.chain if e.stage == "input"]
-        self.say("identifying the core again through " + ", ".join(k for e in inputs for k in e.to_blocks()))
-        core = reidentify_through(self.model, inputs, fitter.dt_min)
+        names = ", ".join(k for e in inputs for k in e.to_blocks())
+        self.say(f"identifying the core again through {names}")
+        core = reidentify_through(self.model, inputs, fitter.anchor)    # the base's loops, as the anchor holds them
         if core is None:
             return
-        data = [dataclasses.replace(d, start=core.resolve_initial_state(
-            d.u, d.s if core.stress_range_MPa is not None else None, self.sel.initial_state, d.y, d.t))
-            for d in self.data]                      # the same scored rows, the new core's own start
-        anchor = anchor_data(core, fitter.dt_min)
-        for a, b in zip(anchor, anchor_data(self.model, fitter.dt_min)):
-            a.y = b.y                                # held to the base's loops, as every fit is
-        refit = Fitter(core, data, anchor)
+        # the same recordings and scored rows (the anchor's: the base's loops and tolerances), each
+        # with the new core's own initial state
+        data = _restarted(core, self.data, self.sel.initial_state)
+        refit = Fitter(core, data, _restarted(core, fitter.anchor, "relaxed"))
         refit.use_anchor(fallback_tolerance_um=self.noise)
         refit.delta = fitter.delta
         sc = refit.score(final.specs, want_coef=True)
         assert sc.coef_all is not None
-        n = max(sc.n_test[0] + sc.n_test[1], 1)
-        cv_mse, cv_loss = (sc.sq_test[0] + sc.sq_test[1]) / n, (sc.sse_test[0] + sc.sse_test[1]) / n
-        names = ", ".join(k for e in inputs for k in e.to_blocks())
+        cv_mse, cv_loss = sc.held_out_mse, sc.held_out_loss
         if cv_mse > self.cur_cv:
             self.rebase_note = (f" The core identified again through {names} on the base's own loops was not "
                                 f"kept: held-out {math.sqrt(cv_mse):.4g} um against {math.sqrt(self.cur_cv):.4g} um.")
@@ -481,7 +482,8 @@ class _Run:
                             f"effect would undo that lag twice): held-out {math.sqrt(cv_mse):.4g} um against "
                             f"{math.sqrt(self.cur_cv):.4g} um on the base's core.")
         self.fitter, self.data, self.ext_core = refit, data, core
-        self.final = SearchResult(final.specs, cv_loss, cv_mse, sc.all_mse, n, sc.coef_all, sc.names, final.evaluated)
+        self.final = SearchResult(final.specs, cv_loss, cv_mse, sc.all_mse, sc.n_held_out, sc.coef_all, sc.names,
+                                  final.evaluated)
         self.cur_cv, self.cur_loss = cv_mse, cv_loss
 
     # ------------------------------------------------------------------ step 6: final guards
