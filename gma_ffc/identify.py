@@ -27,6 +27,7 @@ from one extreme to the other (after that the play states no longer depend on wh
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -152,6 +153,31 @@ def burn_in_end(x: np.ndarray, tol: float = 0.02) -> int:
     return end if end < len(x) - 10 else 0
 
 
+FAST_LOOP_HZ = 20.0
+"""Above this loop rate a failed identification also names the drive's speed as a likely cause: the
+GMA's eddy-current and mechanical corner frequencies are tens to hundreds of Hz, and the paper
+identifies at 3 Hz."""
+
+W0_MIN_SHARE = 1e-3
+"""Share of all play weights below which the zero-threshold play's weight is held (`w0_floor`)."""
+
+
+def w0_floor(w_h: np.ndarray) -> float:
+    """Lower bound on w_h0 for an output-error pass: 1e-6 of its value before the pass, so a
+    well-posed fit is left alone, but never below W0_MIN_SHARE of all play weights once w_h0 is
+    that small. Proposition 3.1 needs w_h0 > 0, and the inverse's gain just after a reversal is
+    1/w_h0 times the loop's: the floor keeps it within 1000x the loop's mean gain. A bound relative
+    to the previous pass alone let a very wide (fast, lagging) loop walk w_h0 down 1e-6 per pass
+    to 1e-12, and the model then failed its own invertibility check."""
+    total = float(np.sum(w_h))
+    return 1e-6 * float(w_h[0]) if w_h[0] >= W0_MIN_SHARE * total else W0_MIN_SHARE * total
+
+CLOCKWISE_WIDTH = 0.05
+"""A clockwise loop wider than this share of the stroke (on average over the drive's travel) is
+noted: far above what noise or a settling transient leaves, far below the 10-20 % of the stroke
+that real hysteresis loops are wide."""
+
+
 @dataclass
 class SDPIIdentifier:
     """Fit an SDPI (several stresses) or an MPI (one stress, or no stress column) to recordings.
@@ -198,6 +224,13 @@ class SDPIIdentifier:
         self.notes_: list[str] = []
         data = self._prepare(recordings)
         self.output_sign_ = self._orientation(data)
+        self._check_loop_direction(data)
+        fast = self._fastest_loop_hz(recordings)
+        if fast > FAST_LOOP_HZ:
+            self.notes_.append(f"the drive loops at up to {fast:.3g} Hz: eddy currents, a delay or the load's dynamics "
+                               "widen a loop that fast, and a rate-independent model takes that lag into its "
+                               "hysteresis, so it will not carry to slower or faster drives; identify from a slow "
+                               f"drive (below about {FAST_LOOP_HZ:g} Hz) and let `diagnose` model the lag")
         levels, per_rec_stress = self._stress_levels(data)
         self.stress_levels_MPa_ = levels
         x_all = np.concatenate([d.x for d in data])
@@ -231,7 +264,7 @@ class SDPIIdentifier:
             self.notes_.append(f"{len(short)} recording(s) start with a large share of unknown hysteresis "
                                "history: their initial state was estimated and all their samples fitted")
             self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c, (x_lo, x_hi))
-        self._check_degenerate(data)
+        self._check_degenerate(data, recordings)
         return self
 
     def _fit_all(self, recordings: Sequence[Recording], data: list[_Data], levels: list[float],
@@ -330,21 +363,65 @@ class SDPIIdentifier:
             return -1.0
         return 1.0
 
-    def _check_degenerate(self, data: list[_Data]) -> None:
-        """Refuse a model that explains almost none of the displacement: flat, or noise."""
+    def _check_loop_direction(self, data: list[_Data]) -> None:
+        """Note recordings whose loop runs clockwise: the displacement leads the drive.
+
+        Every play operator's output lags its input, so a PI/SDPI loop always runs anticlockwise
+        (rising branch below the falling one) and a clockwise loop is outside the model class:
+        the fit then draws a curve through the middle. A drive column that lags the displacement
+        (a filtered or late-sampled current) is the usual cause, so the user is told, not refused.
+        The loop's signed area, -(integral of y dx), is compared with the area of the loop of
+        the same travel one twentieth of the stroke wide; noise and fast settling add little."""
+        for d in data:
+            x, y = d.x[burn_in_end(d.x):], d.y[burn_in_end(d.x):]
+            low = np.flatnonzero(x <= x.min() + 0.02 * np.ptp(x)) if x.size else x
+            if low.size < 2 or low[-1] - low[0] < 3:
+                continue
+            # from the first to the last visit of the drive's minimum: closed in the drive, so the
+            # integral holds whole loops, not a half sweep's large one-sided area
+            x, y = x[low[0]: low[-1] + 1], y[low[0]: low[-1] + 1]
+            dx = np.diff(x)
+            area = -float(np.sum(0.5 * (y[1:] + y[:-1]) * dx))        # > 0 for an anticlockwise loop
+            thin = CLOCKWISE_WIDTH * float(np.ptp(y)) * 0.5 * float(np.sum(np.abs(dx)))
+            if area < -thin:
+                self.notes_.append(
+                    f"{d.name}: the loop runs clockwise (the displacement leads the drive), which no play "
+                    "operator can do, so expect a poor fit: check that the drive column is not delayed against "
+                    "the displacement (a filtered or late-sampled current) and that neither column is inverted")
+
+    def _check_degenerate(self, data: list[_Data], recordings: Sequence[Recording]) -> None:
+        """Refuse a model that explains almost none of the displacement: flat, or noise. Judged as
+        `_score` judges the fit, from the initial state estimated from each recording (a default start
+        can put a model with wide plays far outside its loop for the first sweep)."""
         y = np.concatenate([d.y for d in data])
-        pred = np.concatenate([self.output_sign_ * self.model_.simulate(None, d.x, d.sigma) for d in data])
+        pred = np.concatenate([self.output_sign_ * self.model_.simulate(None, d.x, d.sigma,
+                                                                        measured_um=self.output_sign_ * d.y)
+                               for d in data])
         total = float(np.var(y))
         explained = 1.0 - float(np.var(y - pred)) / total if total > 0 else 0.0
-        stroke = float(np.ptp(self.output_sign_ * self.model_.simulate(
-            None, np.linspace(*self.model_.drive_range, 200), None if self.model_.stress_range_MPa is None
-            else self.model_.reference_stress_MPa)))
+        stroke = float(np.ptp(pred))
         if explained < 0.5 or stroke <= 0:
             names = ", ".join(d.name for d in data)
             raise InputError(f"{names}: the displacement hardly follows the drive (the model explains "
                              f"{100 * max(explained, 0):.0f} % of its variance, stroke {stroke:.3g} um): check that "
                              "the columns are the drive and the displacement of one actuator, and record with a "
-                             "drive that moves it over most of its stroke")
+                             f"drive that moves it over most of its stroke{self._fast_hint(recordings)}")
+
+    @staticmethod
+    def _fastest_loop_hz(recordings: Sequence[Recording]) -> float:
+        rates = [loop_frequency_hz(r.time_s, r.drive) for r in recordings]
+        return max((f for f in rates if np.isfinite(f)), default=math.nan)
+
+    @staticmethod
+    def _fast_hint(recordings: Sequence[Recording]) -> str:
+        """The other cause of an unexplained displacement: a drive so fast that lags and resonance
+        (which no rate-independent model has) dominate the loop."""
+        fast = SDPIIdentifier._fastest_loop_hz(recordings)
+        if not fast > FAST_LOOP_HZ:
+            return ""
+        return (f"; or, as the drive loops at {fast:.3g} Hz, eddy currents, a delay or a resonance (which a "
+                "rate-independent model does not have) may dominate the loop: identify from a slow drive "
+                f"(below about {FAST_LOOP_HZ:g} Hz)")
 
     # -- preparation -------------------------------------------------------------------------
     def _check_settings(self) -> None:
@@ -481,7 +558,7 @@ class SDPIIdentifier:
 
         theta0 = np.r_[w_h, slopes, y_c]
         s_floor = 1e-3 * float(np.max(slopes))
-        lower = np.r_[1e-6 * max(w_h[0], 1e-12), np.zeros(n_h - 1), np.full(n_s, s_floor), -np.inf]
+        lower = np.r_[w0_floor(w_h), np.zeros(n_h - 1), np.full(n_s, s_floor), -np.inf]
         theta0 = np.where(np.isfinite(lower), np.maximum(theta0, lower), theta0)
         res = optimize.least_squares(resid, theta0, jac=jac, bounds=(lower, np.inf), method="trf",
                                      x_scale="jac", max_nfev=200, tr_solver="lsmr")
@@ -599,7 +676,7 @@ class SDPIIdentifier:
             return offset + np.einsum("ij,ij->i", slope_basis(z, r_s), slopes), slopes, z
 
         best = (rms(predict(w_h, coeffs, out_coeffs)[0] - y), w_h, coeffs, out_coeffs)
-        lower = np.r_[1e-6 * max(w_h[0], 1e-12), np.zeros(len(w_h) - 1)]
+        lower = np.r_[w0_floor(w_h), np.zeros(len(w_h) - 1)]
         for _ in range(self.joint_passes):
             _, slopes, _ = predict(w_h, coeffs, out_coeffs)
             offset = out_coeffs[0] + sig * (out_coeffs[1] + sig * out_coeffs[2])

@@ -136,3 +136,42 @@ def test_a_few_outlier_stress_rows_neither_make_a_level_nor_empty_the_reference(
     ident = SDPIIdentifier().fit([glitch, train[4]])
     assert ident.model_.kind == "sdpi" and ident.stress_levels_MPa_ == pytest.approx([-21.5, -15.0], abs=0.5)
     assert all(f.rms_um < 0.02 * f.stroke_um for f in ident.report_)
+
+
+def test_a_clockwise_loop_is_noted_and_an_ordinary_one_is_not() -> None:
+    """Played backwards in time, a hysteresis loop runs clockwise: the displacement leads the
+    drive, which no play operator can follow (the usual cause in a lab: a delayed current column)."""
+    t, x = drive_3hz(2.0)
+    y = PreisachActuator(noise_um=0.05).run(x, -11.3)
+    forward = SDPIIdentifier().fit([recording(t, x, y, None, "forward")])
+    assert not any("clockwise" in n for n in forward.notes_)
+    backward = SDPIIdentifier().fit([recording(t, x[::-1].copy(), y[::-1].copy(), None, "backward")])
+    note = [n for n in backward.notes_ if "clockwise" in n]
+    assert len(note) == 1 and note[0].startswith("backward:") and "delayed" in note[0]
+    assert backward.report_[0].rms_um > 3 * forward.report_[0].rms_um     # why it is worth saying
+
+
+def test_a_fast_lagging_loop_gives_an_invertible_model_and_a_note_to_identify_slowly() -> None:
+    """At 100 Hz eddy currents, a delay and the load's dynamics make the loop very wide; the fit
+    used to walk the zero-threshold play's weight down to 1e-12 and refuse its own model."""
+    from hil_sim.plant import GMAPlant, PlantConfig
+
+    cfg = PlantConfig().with_effects(["eddy", "dynamics", "delay", "amplifier", "noise"])
+    t = np.arange(1000) / 10_000.0
+    out = GMAPlant(cfg, seed=1).run(t, 1.5 - 1.5 * np.cos(2 * np.pi * 100.0 * t), load_mass_kg=0.0)
+    rec = Recording({"time_s": t, "current_A": out["current_A"], "displacement_um": out["displacement_um"]},
+                    source="fast")
+    ident = SDPIIdentifier().fit([rec])
+    m = ident.model_
+    assert m.invertibility_violations() == []
+    assert m.play_weights[0] >= 1e-3 * m.play_weights.sum() * (1 - 1e-9)
+    assert any("100 Hz" in n and "slow drive" in n for n in ident.notes_)
+    assert ident.report_[0].rms_um < 0.05 * ident.report_[0].stroke_um
+
+
+def test_a_failed_fit_of_a_fast_drive_names_the_speed_as_a_cause() -> None:
+    t = np.arange(2000) / 10_000.0
+    x = 1.5 - 1.5 * np.cos(2 * np.pi * 50.0 * t)
+    noise = np.random.default_rng(3).normal(0.0, 1.0, t.size)        # a displacement unrelated to the drive
+    with pytest.raises(InputError, match=r"hardly follows the drive.*50 Hz.*slow drive"):
+        SDPIIdentifier().fit([recording(t, x, noise, None, "unrelated")])
