@@ -37,7 +37,7 @@ from scipy import optimize
 from . import operators as ops
 from .drive import loop_frequency_hz
 from .errors import InputError
-from .initial_state import first_direction, resolve
+from .initial_state import first_direction, monotone_play_state, resolve
 from .inverse import deadzone_inverse
 from .model import SDPIModel, rms
 from .recordings import Recording
@@ -250,7 +250,7 @@ class SDPIIdentifier:
         for d in data:
             y0 = d.x[0] - x_c + (r_h if self.initial_state == "descending" else np.zeros_like(r_h))
             if any(d is s for s in no_cycle_after_burn_in):
-                y0 = d.x[0] - x_c - first_direction(d.x) * r_h
+                y0 = monotone_play_state(r_h, d.x[0] - x_c, first_direction(d.x), x_lo - x_c, x_hi - x_c)
                 d.start = 0
             d.plays = np.empty((len(d.x), self.n_play))
             ops.play_outputs(np.ascontiguousarray(d.x - x_c), r_h, np.ascontiguousarray(y0, dtype=float), d.plays)

@@ -14,8 +14,11 @@ The rules (`InitialStateSpec`):
     displacement, the play states that best reproduce it until they are settled (a bounded
     least-squares fit, started from the monotone-stretch rule); without one, the states
     consistent with the first monotone stretch of the drive: a drive that first rises starts
-    with every play at its lower boundary (x0 - r), as if it had come up to x0; one that first
-    falls, at its upper boundary (x0 + r).
+    with every play as low as it can be (x0 - r), as if it had come up to x0; one that first
+    falls, as high (x0 + r). "As it can be" is bounded by the model's drive range: a drive that
+    has stayed within [lo, hi] leaves a play of threshold r between lo + r and hi - r (after a
+    sweep to lo it sits at lo + r, not lo - r), so a run that starts at the bottom of the range
+    starts at the major loop's corner, not below the loop (`monotone_play_state`).
 """
 
 from __future__ import annotations
@@ -93,17 +96,68 @@ def settled_index(model: Any, drive: np.ndarray) -> int:
     return int(hit[0]) if hit.size else int(x.size)
 
 
+def centred_range(model: Any) -> tuple[float, float]:
+    """The model's drive range about its input offset, (-inf, inf) when the file has none."""
+    lo, hi = (float(v) for v in getattr(model, "drive_range", (-np.inf, np.inf)))
+    return lo - model.input_offset, hi - model.input_offset
+
+
+def monotone_play_state(r: np.ndarray, v0: float, d: int, lo: float, hi: float) -> np.ndarray:
+    """Plays (thresholds r) after the drive came monotonically to v0 from direction d, with a history
+    inside [lo, hi] widened to hold v0: each play at v0 - d r, held within [min(lo + r, hi - r),
+    max(lo + r, hi - r)], the values a history in that range can leave it at. Continuous and
+    increasing in v0 (the zero-threshold play always follows), so `monotone_start_drive` inverts it."""
+    if d == 0:
+        return np.full_like(r, v0)
+    a, b = min(lo, v0), max(hi, v0)
+    if not (np.isfinite(a) and np.isfinite(b)):
+        return v0 - d * r
+    return np.clip(v0 - d * r, np.minimum(a + r, b - r), np.maximum(a + r, b - r))
+
+
+def monotone_start_drive(w: np.ndarray, r: np.ndarray, z0: float, d: int, lo: float, hi: float) -> float:
+    """The v0 whose `monotone_play_state` gives the play sum z0 (exactly, to rounding): a bracket,
+    bisection, then one linear step on the piece found (the sum is piecewise linear in v0)."""
+    def z(v: float) -> float:
+        return float(np.dot(w, monotone_play_state(r, v, d, lo, hi)))
+
+    total = float(np.sum(w))
+    v = (z0 + d * float(np.dot(w, r))) / total          # the unbounded rule's answer: a first bracket end
+    if d == 0 or not (np.isfinite(lo) and np.isfinite(hi)):
+        return v
+    span = max(hi - lo, float(r[-1]) if r.size else 0.0, 1e-12)
+    a, b = v - span, v + span
+    while z(a) > z0:
+        a -= 2.0 * (b - a)
+    while z(b) < z0:
+        b += 2.0 * (b - a)
+    for _ in range(200):
+        m = 0.5 * (a + b)
+        if m in (a, b):
+            break
+        if z(m) < z0:
+            a = m
+        else:
+            b = m
+    v = 0.5 * (a + b)
+    p = monotone_play_state(r, v, d, lo, hi)
+    moving = np.isclose(p, v - d * r, rtol=0.0, atol=1e-12 * max(1.0, abs(v)))   # plays not held at a bound
+    slope = float(np.sum(w[moving]))
+    return v + (z0 - z(v)) / slope if slope > 0 else v
+
+
 def monotone_state(model: Any, drive: np.ndarray) -> tuple[np.ndarray, str]:
     """Play states consistent with the first monotone stretch of the drive (see module doc)."""
     u = np.asarray(drive, dtype=float)
     v0 = u[0] - model.input_offset
     d = first_direction(u)
     r = model.play_thresholds
+    state = monotone_play_state(r, v0, d, *centred_range(model))
     if d > 0:
-        return v0 - r, "consistent with the first monotone stretch (the drive first rises)"
+        return state, "consistent with the first monotone stretch (the drive first rises)"
     if d < 0:
-        return v0 + r, "consistent with the first monotone stretch (the drive first falls)"
-    return np.full_like(r, v0), "relaxed at the first drive value (the drive never moves)"
+        return state, "consistent with the first monotone stretch (the drive first falls)"
+    return state, "relaxed at the first drive value (the drive never moves)"
 
 
 def relaxed_state(model: Any, drive_value: float) -> np.ndarray:

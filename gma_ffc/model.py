@@ -297,15 +297,17 @@ class SDPIModel:
         the reference, and that the shared default rule, applied to invert's own output drive,
         gives back: plays at the boundary the drive's first monotone stretch implies
         (`direction`, by default the reference's: the model rises with the drive on every branch)."""
-        from .initial_state import first_direction
+        from .initial_state import centred_range, first_direction, monotone_play_state, monotone_start_drive
 
         y = self.output_sign * np.asarray(reference_um, dtype=float)
         d = first_direction(y) if direction is None else direction
         z0 = self._core_output_inverse(float(y[0]), 0.0 if stress0 is None else stress0)
         r, w = self.play_thresholds, self.play_weights
-        v0 = (z0 + d * float(np.dot(w, r))) / float(np.sum(w))
+        lo, hi = centred_range(self)
+        v0 = monotone_start_drive(w, r, z0, d, lo, hi)
         how = {1: "the drive first rises", -1: "the drive first falls", 0: "the reference never moves"}[d]
-        return v0 - d * r, f"consistent with the first monotone stretch ({how}), output = reference at t0"
+        return (monotone_play_state(r, v0, d, lo, hi),
+                f"consistent with the first monotone stretch ({how}), output = reference at t0")
 
     def invert(self, time_s: Any, reference_um: Any, stress_MPa: Any = None,
                initial_drive: float | None = None, initial_play_state: Any = None,

@@ -5,7 +5,12 @@ built for two benchmark cases) with its simulate, stepper and invert outputs.
 One deliberate change: the recalibration's and stress play's own play operators used to start
 relaxed at the first drive value whatever the core's start; they now start from the core's
 history (`effects.base.PlayStart`). So the outputs agree exactly once the drive has swept those
-plays' full width and the output filters have forgotten the start, and only the start differs."""
+plays' full width and the output filters have forgotten the start, and only the start differs.
+
+A second one: the default start's monotone-stretch rule is now bounded by the model's drive range
+(`initial_state.monotone_play_state`). Its difference lives in slow output filters (creep) well
+past a third of the fixture, so the default-start comparison is made under the old, unbounded
+rule; the start from rest is compared as it is."""
 
 from __future__ import annotations
 
@@ -16,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gma_ffc import initial_state
 from gma_ffc.modelio import model_from_dict
 
 FIXTURES = sorted((Path(__file__).parent / "fixtures").glob("extended_v1_*.json.gz"))
@@ -39,7 +45,13 @@ def _plays_swept(m, model: dict, t: np.ndarray, u: np.ndarray) -> int:
     return int(hit[0]) + 1
 
 
-def test_a_version_1_file_loads_and_behaves_as_before(fixture):
+def _unbounded_monotone_rule(r: np.ndarray, v0: float, d: int, lo: float, hi: float) -> np.ndarray:
+    """The monotone-stretch rule these fixtures were written under: every play at v0 - d r."""
+    return np.full_like(r, v0) if d == 0 else v0 - d * r
+
+
+def test_a_version_1_file_loads_and_behaves_as_before(fixture, monkeypatch):
+    monkeypatch.setattr(initial_state, "monotone_play_state", _unbounded_monotone_rule)
     m = model_from_dict(fixture["model"])
     assert m.kind == "extended"
     t, u, s = (np.asarray(fixture[k]) for k in ("time_s", "drive", "stress_MPa"))

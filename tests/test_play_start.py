@@ -68,3 +68,44 @@ def test_the_inverse_stepper_undoes_the_forward_from_the_same_start():
     inv = ext.inverse_stepper(1e-3, initial_drive=float(u[0]))
     back = np.array([inv.step(float(r), float(b)) for r, b in zip(y, s)])
     np.testing.assert_allclose(back, u, atol=1e-8)
+
+
+# ---- the monotone-stretch rule, bounded by the model's drive range ---------------------------
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from gma_ffc.initial_state import monotone_play_state, monotone_start_drive  # noqa: E402
+
+
+@st.composite
+def bank(draw):
+    n = draw(st.integers(1, 12))
+    half = draw(st.floats(0.1, 5.0))
+    r = np.arange(n) * draw(st.floats(0.3, 1.2)) * half / n
+    w = np.array([draw(st.floats(1e-3, 10.0)) for _ in range(n)])
+    return r, w, -half, half
+
+
+@settings(max_examples=300, deadline=None)
+@given(b=bank(), d=st.sampled_from([1, -1]), where=st.floats(-0.5, 1.5), shift=st.floats(-3.0, 3.0))
+def test_the_monotone_start_is_reachable_and_solved_exactly(b, d, where, shift):
+    r, w, lo, hi = b
+    v0 = lo + where * (hi - lo)                       # inside the range and beyond it
+    p = monotone_play_state(r, v0, d, lo, hi)
+    assert np.all(p >= v0 - r - 1e-12) and np.all(p <= v0 + r + 1e-12)        # eq. (2) at the first sample
+    a, c = min(lo, v0), max(hi, v0)
+    assert np.all(p >= np.minimum(a + r, c - r) - 1e-12) and np.all(p <= np.maximum(a + r, c - r) + 1e-12)
+    z0 = float(np.dot(w, p)) + shift                  # any play sum, reachable or not
+    v = monotone_start_drive(w, r, z0, d, lo, hi)
+    assert abs(float(np.dot(w, monotone_play_state(r, v, d, lo, hi))) - z0) <= 1e-9 * max(1.0, abs(z0))
+
+
+def test_a_run_from_the_bottom_of_the_range_starts_at_the_loop_corner_whatever_the_first_noise():
+    """A recording that starts at zero current starts at the major loop's corner (every play at
+    lo + r, where a sweep down to lo leaves it), whether noise makes the drive's first move look
+    like a rise or a fall; before, a first 'rise' put every play at lo - r, below the loop."""
+    r = np.linspace(0.0, 1.35, 10)
+    up = monotone_play_state(r, -1.5, 1, -1.5, 1.5)
+    down = monotone_play_state(r, -1.5, -1, -1.5, 1.5)
+    assert np.allclose(up, -1.5 + r) and np.allclose(down, up)
