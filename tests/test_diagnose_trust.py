@@ -99,3 +99,37 @@ def test_an_eddy_current_leftover_is_not_called_heating():
     dg = diagnose(model, [rec])
     assert dg.verdict == ["rate_dependence"], dg.explanation
     assert dg.rms_after_um <= 0.5 * dg.rms_before_um
+
+
+def late_drive(rec: Recording, seconds: float) -> Recording:
+    """The recording as a rig whose current column comes `seconds` late (a filtered current sensor)."""
+    n = int(round(seconds / np.median(np.diff(rec.time_s))))
+    cols = {k: v[n:] for k, v in rec.columns.items()}
+    cols["current_A"] = rec.columns["current_A"][:-n]
+    return Recording(cols, dict(rec.metadata), "late_drive")
+
+
+def test_a_late_drive_column_is_named_as_a_timing_fault_not_physics():
+    """No effect makes a displacement lead its drive: a current column 3 ms late is a fault in the
+    columns, and diagnose says so, with the lead it measured, instead of fitting effects to it."""
+    model, rec = bench.make_case(CASES["null#1"])
+    dg = diagnose(model, [late_drive(rec, 0.003)])
+    lead = [c for c in dg.cannot_conclude if "ahead of the model" in c]
+    assert len(lead) == 1 and "runs 3 ms ahead" in lead[0] and "align" in lead[0]
+    assert dg.outcome != "effects_named" and "ahead of the model" in dg.explanation
+    on_time = diagnose(model, [rec])
+    assert not any("ahead of the model" in c for c in on_time.cannot_conclude)
+
+
+def test_only_a_lead_is_a_timing_fault_a_lag_is_physics():
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.timing import displacement_lead
+
+    t = np.arange(20_000) / 2000.0
+    p = np.sin(2 * np.pi * 3 * t) + 0.3 * np.sin(2 * np.pi * 17 * t)
+    for k, expected in ((6, 6 / 2000.0), (-6, None), (1, None)):
+        y = np.roll(p, -k)                      # k > 0: the measurement is k samples ahead of the model
+        d = SimpleNamespace(name="r", y=y, dt_med=1 / 2000.0, settled=0)
+        lead = displacement_lead([d], [p])
+        assert (lead is None) if expected is None else (lead is not None and abs(lead.lead_s - expected) < 1e-12)

@@ -40,6 +40,7 @@ from .explain import decider, drive_unit, explain, identification_rms, runner_up
 from .fitting import ZOOM_LEVELS, Fitter, SearchResult, Spec, search
 from .locate import locate
 from .results import Candidate, Diagnosis
+from .timing import displacement_lead
 
 Specs = tuple[Spec, Spec, Spec]          # fold A's, fold B's and the all-data spec
 
@@ -569,6 +570,11 @@ class _Run:
         else:
             outcome = "unexplained"
         self.cannot.extend(d.extra["settled_note"] for d in self.data if "settled_note" in d.extra)
+        lead = displacement_lead(self.data, self.base_pred)
+        if lead is not None:     # a column-timing fault: effects fitted to it would be confidently wrong
+            self.cannot.append(lead.words())
+            if outcome != "unexplained":
+                outcome, conclusive = "inconclusive", False
         for old_name, new_name, old_rms, new_rms in self.swapped:
             self.runner_note += (f" {old_name} was first chosen while a larger effect dominated the residual; with the "
                                  f"other effects in place {new_name} explains the held-out data better ({new_rms:.4g} "
@@ -576,6 +582,9 @@ class _Run:
         explanation = explain(verdict, self.candidates, self.located, self.rms_before, math.sqrt(self.null_cv),
                               math.sqrt(self.cur_cv), self.noise, self.too_little, self.runner_note.strip(), outcome,
                               drive_unit(self.model), sel.noise_factor, identification_rms(self.model))
+        if lead is not None:
+            explanation += (f" Before any of that: {lead.words()}." if outcome == "unexplained" else
+                            f" But {lead.words()}; whatever is named above may be compensating that.")
         validation = validation_words(self.fitter, self.null_cv, sel.min_mse_ratio, sel.min_loglik_gain)
         if not self.base_kept:
             validation += self.rebase_note
