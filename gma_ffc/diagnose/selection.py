@@ -582,9 +582,10 @@ class _Run:
         explanation = explain(verdict, self.candidates, self.located, self.rms_before, math.sqrt(self.null_cv),
                               math.sqrt(self.cur_cv), self.noise, self.too_little, self.runner_note.strip(), outcome,
                               drive_unit(self.model), sel.noise_factor, identification_rms(self.model))
-        if lead is not None:
-            explanation += (f" Before any of that: {lead.words()}." if outcome == "unexplained" else
-                            f" But {lead.words()}; whatever is named above may be compensating that.")
+        if lead is not None:     # the fault to fix first, so it comes first
+            explanation = (f"First, a fault in the columns: {lead.words()}"
+                           + ("." if outcome == "unexplained" else "; what is named below may only compensate it.")
+                           + " " + explanation)
         validation = validation_words(self.fitter, self.null_cv, sel.min_mse_ratio, sel.min_loglik_gain)
         if not self.base_kept:
             validation += self.rebase_note
