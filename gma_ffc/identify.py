@@ -69,6 +69,7 @@ class _Data:
     plays: np.ndarray = field(default_factory=lambda: np.empty((0, 0)))
     rows: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=int))
     start: int | None = None      # first fitted sample; None: after the burn-in sweep
+    pred: np.ndarray = field(default_factory=lambda: np.empty(0))   # the fitted model's output, as scored
 
     @property
     def stress(self) -> np.ndarray:
@@ -172,6 +173,13 @@ def w0_floor(w_h: np.ndarray) -> float:
     total = float(np.sum(w_h))
     return 1e-6 * float(w_h[0]) if w_h[0] >= W0_MIN_SHARE * total else W0_MIN_SHARE * total
 
+
+def loop_rates_hz(recordings: Sequence[Recording]) -> list[float]:
+    """Each recording's drive loop rate (`drive.loop_frequency_hz`), those that loop at all."""
+    rates = (loop_frequency_hz(r.time_s, r.drive) for r in recordings)
+    return [f for f in rates if np.isfinite(f)]
+
+
 CLOCKWISE_WIDTH = 0.05
 """A clockwise loop wider than this share of the stroke (on average over the drive's travel) is
 noted: far above what noise or a settling transient leaves, far below the 10-20 % of the stroke
@@ -225,7 +233,7 @@ class SDPIIdentifier:
         data = self._prepare(recordings)
         self.output_sign_ = self._orientation(data)
         self._check_loop_direction(data)
-        fast = self._fastest_loop_hz(recordings)
+        fast = max(loop_rates_hz(recordings), default=math.nan)
         if fast > FAST_LOOP_HZ:
             self.notes_.append(f"the drive loops at up to {fast:.3g} Hz: eddy currents, a delay or the load's dynamics "
                                "widen a loop that fast, and a rate-independent model takes that lag into its "
@@ -264,7 +272,7 @@ class SDPIIdentifier:
             self.notes_.append(f"{len(short)} recording(s) start with a large share of unknown hysteresis "
                                "history: their initial state was estimated and all their samples fitted")
             self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c, (x_lo, x_hi))
-        self._check_degenerate(data, recordings)
+        self._check_degenerate(data, fast)
         return self
 
     def _fit_all(self, recordings: Sequence[Recording], data: list[_Data], levels: list[float],
@@ -340,8 +348,7 @@ class SDPIIdentifier:
         self.model_.provenance["fit_rms_um"] = {f.name: round(f.rms_um, 6) for f in self.report_}
         # where the model is known to be right: the loop rate and the stresses it was fitted at
         # (diagnose keeps an extended model close to the base there, `gma_ffc.diagnose.anchor`)
-        rates = [loop_frequency_hz(r.time_s, r.drive) for r in recordings]
-        rates = [f for f in rates if np.isfinite(f)]
+        rates = loop_rates_hz(recordings)
         if rates:
             self.model_.provenance["drive_frequency_hz"] = float(f"{float(np.median(rates)):.4g}")
         if stress_dependent:
@@ -373,7 +380,8 @@ class SDPIIdentifier:
         The loop's signed area, -(integral of y dx), is compared with the area of the loop of
         the same travel one twentieth of the stroke wide; noise and fast settling add little."""
         for d in data:
-            x, y = d.x[burn_in_end(d.x):], d.y[burn_in_end(d.x):]
+            swept = burn_in_end(d.x)
+            x, y = d.x[swept:], d.y[swept:]
             low = np.flatnonzero(x <= x.min() + 0.02 * np.ptp(x)) if x.size else x
             if low.size < 2 or low[-1] - low[0] < 3:
                 continue
@@ -389,14 +397,12 @@ class SDPIIdentifier:
                     "operator can do, so expect a poor fit: check that the drive column is not delayed against "
                     "the displacement (a filtered or late-sampled current) and that neither column is inverted")
 
-    def _check_degenerate(self, data: list[_Data], recordings: Sequence[Recording]) -> None:
-        """Refuse a model that explains almost none of the displacement: flat, or noise. Judged as
-        `_score` judges the fit, from the initial state estimated from each recording (a default start
-        can put a model with wide plays far outside its loop for the first sweep)."""
+    def _check_degenerate(self, data: list[_Data], fastest_hz: float) -> None:
+        """Refuse a model that explains almost none of the displacement: flat, or noise. Judged on
+        the output `_score` scored, from the initial state estimated from each recording (a default
+        start can put a model with wide plays far outside its loop for the first sweep)."""
         y = np.concatenate([d.y for d in data])
-        pred = np.concatenate([self.output_sign_ * self.model_.simulate(None, d.x, d.sigma,
-                                                                        measured_um=self.output_sign_ * d.y)
-                               for d in data])
+        pred = np.concatenate([self.output_sign_ * d.pred for d in data])
         total = float(np.var(y))
         explained = 1.0 - float(np.var(y - pred)) / total if total > 0 else 0.0
         stroke = float(np.ptp(pred))
@@ -405,18 +411,12 @@ class SDPIIdentifier:
             raise InputError(f"{names}: the displacement hardly follows the drive (the model explains "
                              f"{100 * max(explained, 0):.0f} % of its variance, stroke {stroke:.3g} um): check that "
                              "the columns are the drive and the displacement of one actuator, and record with a "
-                             f"drive that moves it over most of its stroke{self._fast_hint(recordings)}")
+                             f"drive that moves it over most of its stroke{self._fast_hint(fastest_hz)}")
 
     @staticmethod
-    def _fastest_loop_hz(recordings: Sequence[Recording]) -> float:
-        rates = [loop_frequency_hz(r.time_s, r.drive) for r in recordings]
-        return max((f for f in rates if np.isfinite(f)), default=math.nan)
-
-    @staticmethod
-    def _fast_hint(recordings: Sequence[Recording]) -> str:
+    def _fast_hint(fast: float) -> str:
         """The other cause of an unexplained displacement: a drive so fast that lags and resonance
         (which no rate-independent model has) dominate the loop."""
-        fast = SDPIIdentifier._fastest_loop_hz(recordings)
         if not fast > FAST_LOOP_HZ:
             return ""
         return (f"; or, as the drive loops at {fast:.3g} Hz, eddy currents, a delay or a resonance (which a "
@@ -699,9 +699,10 @@ class SDPIIdentifier:
 
     # -- scoring -----------------------------------------------------------------------------
     def _score(self, d: _Data) -> RecordingFit:
-        """RMS over the fitted samples, the model started from its estimated initial state."""
+        """RMS over the fitted samples, the model started from its estimated initial state (its
+        output kept in `d.pred` for the degeneracy check)."""
         measured = self.output_sign_ * d.y                 # the recording's own orientation
-        pred = self.model_.simulate(None, d.x, d.sigma, measured_um=measured)
+        pred = d.pred = self.model_.simulate(None, d.x, d.sigma, measured_um=measured)
         start = burn_in_end(d.x) if d.start is None else d.start
         err = pred[start:] - measured[start:]
         stroke = float(d.y.max() - d.y.min())
