@@ -152,12 +152,10 @@ def monotone_state(model: Any, drive: np.ndarray) -> tuple[np.ndarray, str]:
     v0 = u[0] - model.input_offset
     d = first_direction(u)
     r = model.play_thresholds
-    state = monotone_play_state(r, v0, d, *centred_range(model))
-    if d > 0:
-        return state, "consistent with the first monotone stretch (the drive first rises)"
-    if d < 0:
-        return state, "consistent with the first monotone stretch (the drive first falls)"
-    return state, "relaxed at the first drive value (the drive never moves)"
+    how = {1: "consistent with the first monotone stretch (the drive first rises)",
+           -1: "consistent with the first monotone stretch (the drive first falls)",
+           0: "relaxed at the first drive value (the drive never moves)"}[d]
+    return monotone_play_state(r, v0, d, *centred_range(model)), how
 
 
 def relaxed_state(model: Any, drive_value: float) -> np.ndarray:
