@@ -128,3 +128,48 @@ def test_diagnose_report_figures(bench, case):
     for plot in (report.plot_residuals, report.plot_overlays, report.plot_loops, report.plot_candidates):
         fig = plot(dg, render=lambda f: f)
         assert layout_problems(fig) == [], plot.__name__
+
+
+def _record_with_pause_and_steps():
+    """2 kHz: 0-4 s a 5 Hz sine over the full range, 4-8 s a pause at zero drive, 8-12 s a
+    staircase of holds (0, 0.5, 1.5, 0 A) -- the drive users record for a diagnosis."""
+    from types import SimpleNamespace
+
+    t = np.arange(0.0, 12.0, 5e-4)
+    u = np.where(t < 4.0, 0.9 - 0.9 * np.cos(2 * np.pi * 5 * t), 0.0)
+    stairs = (t >= 8.0) & (t < 12.0)
+    u[stairs] = np.array([0.0, 0.5, 1.5, 0.0])[((t[stairs] - 8.0) // 1.0).astype(int)]
+    return SimpleNamespace(t=t, u=u, y=np.zeros_like(t), settled=0)
+
+
+def test_loop_panel_shows_a_window_where_the_drive_sweeps_a_loop():
+    """The residual is largest in the pause and the staircase; a loop drawn there is a blob or a line.
+    The loop panel shows where the drive sweeps, and among those windows where the score is highest."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.report import _shown
+
+    d = _record_with_pause_and_steps()
+    loc = SimpleNamespace(window_s=(4.0, 6.0))                  # located in the pause
+    score = np.where(d.t >= 4.0, 10.0, 0.0) + np.where(d.t < 2.0, 0.0, 1.0)  # the sine's second half scores higher
+    w, sweeps = _shown(d, loc, score, sweep=True)
+    assert sweeps
+    assert 2.0 <= d.t[w.start] and d.t[w.stop - 1] <= 4.0
+    assert np.ptp(d.u[w]) > 0.9 * np.ptp(d.u)
+    # without the sweep condition the same score picks the pause or the staircase
+    w_any, _ = _shown(d, loc, score, sweep=False)
+    assert d.t[w_any.start] >= 4.0
+
+
+def test_loop_panel_says_so_when_no_window_sweeps():
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.report import _shown
+
+    d = _record_with_pause_and_steps()
+    keep = d.t >= 4.0
+    d = SimpleNamespace(t=d.t[keep], u=d.u[keep], y=d.y[keep], settled=0)
+    loc = SimpleNamespace(window_s=(9.0, 11.0))
+    w, sweeps = _shown(d, loc, np.ones_like(d.t), sweep=True)
+    assert not sweeps
+    assert abs(d.t[w.start] - 9.0) < 1e-3                       # the located window, said to sweep nothing

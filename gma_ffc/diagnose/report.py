@@ -88,15 +88,60 @@ def plot_residuals(dg: Diagnosis, render: Any = None) -> Any:
     return (render or _png)(fig)      # render=lambda fig: fig hands tests the figure
 
 
-def _window(d: Any, loc: Any) -> slice:
-    """About five drive cycles at the start of the located window (at most 4000 samples)."""
-    a = int(np.searchsorted(d.t, loc.window_s[0]))
-    b = max(int(np.searchsorted(d.t, loc.window_s[1])), a + 2)
+def _window(d: Any, span_s: tuple[float, float]) -> slice:
+    """About five drive cycles at the start of the time span (at most 4000 samples)."""
+    a = int(np.searchsorted(d.t, span_s[0]))
+    b = max(int(np.searchsorted(d.t, span_s[1])), a + 2)
     seg = d.u[a:b] - np.mean(d.u[a:b])
     crossings = int(np.sum(np.diff(np.signbit(seg)) != 0))
     if crossings >= 10:
         b = a + max(int(10 * (b - a) / crossings), 20)
     return slice(a, min(b, a + 4000, d.t.size))
+
+
+# a loop is only drawn where the drive sweeps at least this share of its range in the recording,
+# continuously (no jump over a quarter of its swing) and through the middle of its swing (a sine
+# spends 1/3 of its time in the middle half): a pause, a step or a staircase plots as a blob or a
+# line, whatever its residual
+LOOP_SWEEP_SHARE = 0.5
+LOOP_MIDDLE_SHARE = 0.2
+LOOP_MAX_JUMP = 0.25
+
+
+def _sweeps(u: np.ndarray, need: float) -> bool:
+    lo, hi = float(np.min(u)), float(np.max(u))
+    if hi - lo < need or float(np.max(np.abs(np.diff(u)))) > LOOP_MAX_JUMP * (hi - lo):
+        return False
+    mid = np.abs(u - 0.5 * (lo + hi)) < 0.25 * (hi - lo)
+    return float(np.mean(mid)) >= LOOP_MIDDLE_SHARE
+
+
+def _shown(d: Any, loc: Any, score: np.ndarray, sweep: bool) -> tuple[slice, bool]:
+    """The samples a panel shows: of the windows `_window` cuts (starts a quarter of the located window's
+    length apart, after the unscored start), the one where the per-sample `score` (a squared residual,
+    or its fall) is highest on average; with `sweep`, only among windows where the drive sweeps a loop.
+    Also says whether that window sweeps (False: none does, and the located window is shown)."""
+    t, n = d.t, d.t.size
+    lo, hi = np.percentile(d.u, [1.0, 99.0])
+    need = LOOP_SWEEP_SHARE * float(hi - lo)
+    first = min(d.settled, n - 1)
+    length = loc.window_s[1] - loc.window_s[0]
+    width = max(int(np.searchsorted(t, t[first] + length)) - first if length > 0 else (n - first) // 16, 20)
+    csum = np.concatenate(([0.0], np.cumsum(np.nan_to_num(score))))
+    best, best_val = None, -np.inf
+    for a in range(first, max(n - width, first) + 1, max(width // 4, 1)):
+        w = _window(d, (float(t[a]), float(t[min(a + width, n) - 1])))
+        if w.stop - w.start < 2 or (sweep and not _sweeps(d.u[w], need)):
+            continue
+        val = (csum[w.stop] - csum[w.start]) / (w.stop - w.start)
+        if val > best_val:
+            best, best_val = w, val
+    return (_window(d, loc.window_s), False) if best is None else (best, True)
+
+
+def _fall(d: Any, yb: np.ndarray, yf: np.ndarray) -> np.ndarray:
+    """Per sample, how much the squared residual falls from the base model to the extended one."""
+    return np.square(d.y - yb) - np.square(d.y - yf)
 
 
 def plot_overlays(dg: Diagnosis, render: Any = None) -> Any:
@@ -107,15 +152,19 @@ def plot_overlays(dg: Diagnosis, render: Any = None) -> Any:
     fig, axes = plt.subplots(n, 2, figsize=(12, 2.7 * n + 0.4), squeeze=False, constrained_layout=True,
                              gridspec_kw={"width_ratios": [1.2, 1.0]})
     same = _unchanged(dg)
+    named = bool(dg.verdict)
     for (ax, axr), d, loc, yb, yf in zip(axes, dg.data, dg.located, dg.base_predictions, dg.final_predictions):
-        w = _window(d, loc)
+        # with effects named, where they change the fit most (where the residual is largest can be where
+        # the base was already right, e.g. a cold start before the heating); else the residual's place
+        w = _window(d, loc.window_s) if not named else _shown(d, loc, _fall(d, yb, yf), sweep=False)[0]
         a, b = w.start, w.stop
         ax.plot(d.t[a:b], d.y[a:b], lw=1.2, color="k", label="measured")
         if not same:
             ax.plot(d.t[a:b], yb[a:b], lw=0.9, color="0.55", ls="--", label="base model")
         ax.plot(d.t[a:b], yf[a:b], lw=0.9, color="tab:blue",
                 label="base model (= extended)" if same else "extended model")
-        ax.set_title(f"{d.name}: where the residual is largest", fontsize=9)
+        ax.set_title(f"{d.name}: {'where the named effects help most' if named else 'where the residual is largest'}",
+                     fontsize=9)
         ax.set_ylabel("displacement (um)")
         ax.set_xlabel("time (s)")
         _legend_outside(ax)
@@ -141,13 +190,15 @@ def plot_loops(dg: Diagnosis, render: Any = None) -> Any:
     fig, axes = plt.subplots(rows, cols, figsize=(6 * cols, 3.4 * rows + 0.4), squeeze=False,
                              constrained_layout=True)
     same = _unchanged(dg)
+    named = bool(dg.verdict)
     for ax, d, loc, yb, yf in zip(axes.flat, dg.data, dg.located, dg.base_predictions, dg.final_predictions):
-        w = _window(d, loc)
+        w, sweeps = _shown(d, loc, _fall(d, yb, yf) if named else np.square(d.y - yf), sweep=True)
         ax.plot(d.u[w], d.y[w], lw=1.2, color="k", label="measured")
         if not same:
             ax.plot(d.u[w], yb[w], lw=0.9, ls="--", color="0.55", label="base")
         ax.plot(d.u[w], yf[w], lw=0.9, color="tab:blue", label="base (= extended)" if same else "extended")
-        ax.set_title(f"{d.name}, t = {d.t[w.start]:.4g}-{d.t[w.stop - 1]:.4g} s", fontsize=9)
+        ax.set_title(f"{d.name}, t = {d.t[w.start]:.4g}-{d.t[w.stop - 1]:.4g} s"
+                     + ("" if sweeps else " (the drive sweeps no loop here)"), fontsize=9)
         ax.set_xlabel(_drive_label(d))
         ax.set_ylabel("displacement (um)")
         _legend_outside(ax)
@@ -194,7 +245,8 @@ def render_html(dg: Diagnosis, doc: dict) -> str:
                "Before and after: measured, base and extended model, and their residuals")
     imgs = [("Residual over time, where it was found", plot_residuals(dg)),
             (overlay, plot_overlays(dg)),
-            ("Loops where the residual is largest: displacement against drive", plot_loops(dg))]
+            ("Loops where the named effects help most: displacement against drive" if dg.verdict else
+             "Loops where the residual is largest: displacement against drive", plot_loops(dg))]
     if any(math.isfinite(c.cv_mse) for c in dg.candidates):      # no empty chart when nothing was tried
         imgs.append(("Candidates: held-out RMS", plot_candidates(dg)))
     e = html.escape
