@@ -173,3 +173,15 @@ def test_loop_panel_says_so_when_no_window_sweeps():
     w, sweeps = _shown(d, loc, np.ones_like(d.t), sweep=True)
     assert not sweeps
     assert abs(d.t[w.start] - 9.0) < 1e-3                       # the located window, said to sweep nothing
+
+
+def test_loop_panel_of_a_slow_drive_holds_a_whole_cycle():
+    """A 1 Hz sine at 5 kHz located in a 0.8 s window: the loop is drawn out and back, not half of it."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.report import _shown
+
+    t = np.arange(0.0, 10.0, 2e-4)
+    d = SimpleNamespace(t=t, u=150 * np.sin(2 * np.pi * t), y=np.zeros_like(t), settled=0)
+    w, sweeps = _shown(d, SimpleNamespace(window_s=(4.5, 5.3)), np.ones_like(t), sweep=True)
+    assert sweeps and t[w.stop - 1] - t[w.start] >= 1.0

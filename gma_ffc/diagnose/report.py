@@ -88,15 +88,27 @@ def plot_residuals(dg: Diagnosis, render: Any = None) -> Any:
     return (render or _png)(fig)      # render=lambda fig: fig hands tests the figure
 
 
-def _window(d: Any, span_s: tuple[float, float]) -> slice:
-    """About five drive cycles at the start of the time span (at most 4000 samples)."""
+def _window(d: Any, span_s: tuple[float, float], whole_cycle: bool = False) -> slice:
+    """About five drive cycles at the start of the time span (at most 4000 samples). With
+    `whole_cycle`, a span holding less than one cycle is lengthened (up to four times, and up to
+    20000 samples) until the drive has gone out and back: a loop panel drawn from part of a slow
+    sine shows half a loop."""
     a = int(np.searchsorted(d.t, span_s[0]))
     b = max(int(np.searchsorted(d.t, span_s[1])), a + 2)
+    n = d.t.size
+    limit = min(a + 4 * (b - a), n)
+
+    def crossings(stop: int) -> int:
+        seg = d.u[a:stop] - 0.5 * (np.min(d.u[a:stop]) + np.max(d.u[a:stop]))
+        return int(np.sum(np.diff(np.signbit(seg)) != 0))
+
+    while whole_cycle and b < limit and crossings(b) < 3:
+        b = min(b + max((b - a) // 2, 1), limit)
     seg = d.u[a:b] - np.mean(d.u[a:b])
-    crossings = int(np.sum(np.diff(np.signbit(seg)) != 0))
-    if crossings >= 10:
-        b = a + max(int(10 * (b - a) / crossings), 20)
-    return slice(a, min(b, a + 4000, d.t.size))
+    c = int(np.sum(np.diff(np.signbit(seg)) != 0))
+    if c >= 10:
+        b = a + max(int(10 * (b - a) / c), 20)
+    return slice(a, min(b, a + (20000 if whole_cycle else 4000), n))
 
 
 # a loop is only drawn where the drive sweeps at least this share of its range in the recording,
@@ -130,13 +142,13 @@ def _shown(d: Any, loc: Any, score: np.ndarray, sweep: bool) -> tuple[slice, boo
     csum = np.concatenate(([0.0], np.cumsum(np.nan_to_num(score))))
     best, best_val = None, -np.inf
     for a in range(first, max(n - width, first) + 1, max(width // 4, 1)):
-        w = _window(d, (float(t[a]), float(t[min(a + width, n) - 1])))
+        w = _window(d, (float(t[a]), float(t[min(a + width, n) - 1])), whole_cycle=sweep)
         if w.stop - w.start < 2 or (sweep and not _sweeps(d.u[w], need)):
             continue
         val = (csum[w.stop] - csum[w.start]) / (w.stop - w.start)
         if val > best_val:
             best, best_val = w, val
-    return (_window(d, loc.window_s), False) if best is None else (best, True)
+    return (_window(d, loc.window_s, whole_cycle=sweep), False) if best is None else (best, True)
 
 
 def _fall(d: Any, yb: np.ndarray, yf: np.ndarray) -> np.ndarray:
