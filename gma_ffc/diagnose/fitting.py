@@ -21,7 +21,15 @@ import numpy as np
 from ..effects import path_order
 from ..effects.base import Effect, Regressors
 from ..effects.static import StaticMap
+from .cache import BoundedCache
 from .data import RecData, mean_stress, stress_levels, stress_span
+
+# the caches' byte budgets: each entry is as long as the recordings, so without them memory grows
+# with the recording (64 core runs of an hour at 1 kHz are 3.7 GB); within them a long recording
+# re-runs the core more often, with the same results. Up to a few minutes at kHz rates every entry fits.
+CORE_CACHE_BYTES = 192 * 2 ** 20
+REGRESSOR_CACHE_BYTES = 128 * 2 ** 20
+ANCHOR_CACHE_BYTES = 96 * 2 ** 20
 
 
 def _plain(p: Any) -> Any:
@@ -137,14 +145,14 @@ class Fitter:
                         for d in self.data + self.anchor}
         self._static_clamped = {id(d): np.ascontiguousarray(np.clip(self._static[id(d)], *rng))
                                 if rng is not None else d.s for d in self.data + self.anchor}
-        self._anchor_cache: dict[Spec, np.ndarray] = {}
-        self._gram_cache: dict[Spec, tuple[list[np.ndarray], list[float]]] = {}
+        self._anchor_cache: BoundedCache[np.ndarray] = BoundedCache(max_bytes=ANCHOR_CACHE_BYTES)
+        self._gram_cache: BoundedCache[tuple[list[np.ndarray], list[float]]] = BoundedCache()
         # the loads' static stress range: the resonance's reference (least compressive) and extent
         self.stress_top = max(float(self._static[id(d)].max()) for d in self.data)
         self.stress_bottom = min(float(self._static[id(d)].min()) for d in self.data)
-        self._core_cache: dict[tuple, list[tuple[np.ndarray, np.ndarray]]] = {}
+        self._core_cache: BoundedCache[list[tuple[np.ndarray, np.ndarray]]] = BoundedCache(max_bytes=CORE_CACHE_BYTES)
         self._yc0: float | None = None
-        self._cache: dict[tuple, np.ndarray] = {}
+        self._cache: BoundedCache[np.ndarray] = BoundedCache(max_bytes=REGRESSOR_CACHE_BYTES)
         self.dt_min = min(d.dt_med for d in self.data)
         self.duration_max = max(d.duration_s for d in self.data)
         self.duration_total = sum(d.duration_s for d in self.data)
@@ -190,15 +198,7 @@ class Fitter:
 
     def core(self, spec: Spec) -> list[tuple[np.ndarray, np.ndarray]]:
         """(core input u3, core output y_c) per recording for the spec's input-side effects."""
-        key = self.input_key(spec)
-        hit = self._core_cache.get(key)
-        if hit is not None:
-            return hit
-        out = self._run_core(spec, self.data)
-        if len(self._core_cache) > 64:
-            self._core_cache.clear()
-        self._core_cache[key] = out
-        return out
+        return self._core_cache.get_or_compute(self.input_key(spec), lambda: self._run_core(spec, self.data))
 
     def _run_core(self, spec: Spec, data: Sequence[RecData]) -> list[tuple[np.ndarray, np.ndarray]]:
         core = self.model
@@ -222,14 +222,7 @@ class Fitter:
 
     def cached(self, key: tuple, compute: Callable[[], np.ndarray]) -> np.ndarray:
         """compute() once per key (e.g. a re-run of the core an effect's regressor needs)."""
-        hit = self._cache.get(key)
-        if hit is not None:
-            return hit
-        out = compute()
-        if len(self._cache) > 64:
-            self._cache.clear()
-        self._cache[key] = out
-        return out
+        return self._cache.get_or_compute(key, compute)
 
     def stress_levels(self) -> list[float]:
         return stress_levels(self.data)
@@ -279,31 +272,24 @@ class Fitter:
 
     def anchor_design(self, spec: Spec) -> np.ndarray:
         """Regressors at the anchor's rows, each loop's offset and base output projected out."""
-        hit = self._anchor_cache.get(spec)
-        if hit is not None:
-            return hit
-        runs = self._run_core(spec, self.anchor)
-        out = np.vstack([_projected(q, np.column_stack(self.columns(d, u3, yc, spec, steady=True)[0])[d.rows])
-                         for q, d, (u3, yc) in zip(self._anchor_free, self.anchor, runs)])
-        if len(self._anchor_cache) > 64:
-            self._anchor_cache.clear()
-        self._anchor_cache[spec] = out
-        return out
+        def compute() -> np.ndarray:
+            runs = self._run_core(spec, self.anchor)
+            return np.vstack([_projected(q, np.column_stack(self.columns(d, u3, yc, spec, steady=True)[0])[d.rows])
+                              for q, d, (u3, yc) in zip(self._anchor_free, self.anchor, runs)])
+
+        return self._anchor_cache.get_or_compute(spec, compute)
 
     def _anchor_grams(self, spec: Spec) -> tuple[list[np.ndarray], list[float]]:
         """Per anchor loop, the quadratic form c' A_k c = (its RMS departure / its tolerance)^2, and
         what each loop may reach: 1 plus the least departure at gain 1 (`_fit`); cached per spec."""
-        hit = self._gram_cache.get(spec)
-        if hit is not None:
-            return hit
-        Xa = self.anchor_design(spec)
-        grams = [Xa[k].T @ Xa[k] / ((k.stop - k.start) * t * t) for k, t in zip(self._anchor_slices, self._anchor_tol)]
-        least = _least_departure(np.sum(grams, axis=0))
-        out = (grams, [1.0 + float(least @ A @ least) for A in grams])
-        if len(self._gram_cache) > 64:
-            self._gram_cache.clear()
-        self._gram_cache[spec] = out
-        return out
+        def compute() -> tuple[list[np.ndarray], list[float]]:
+            Xa = self.anchor_design(spec)
+            grams = [Xa[k].T @ Xa[k] / ((k.stop - k.start) * t * t)
+                     for k, t in zip(self._anchor_slices, self._anchor_tol)]
+            least = _least_departure(np.sum(grams, axis=0))
+            return grams, [1.0 + float(least @ A @ least) for A in grams]
+
+        return self._gram_cache.get_or_compute(spec, compute)
 
     def anchor_deviation(self, spec: Spec, coef: np.ndarray) -> list[float]:
         """Per anchor loop, the RMS by which the model (spec, coefficients) departs from the base's
@@ -395,16 +381,23 @@ class Fitter:
         designs: dict[Spec, np.ndarray] = {}
         names: list[str] = []
 
-        def X_for(spec: Spec) -> np.ndarray:
+        def X_for(f: int) -> np.ndarray:
+            """Fold f's design, kept only while a later fold shares its spec (each is rows x columns)."""
             nonlocal names
-            if spec not in designs:
-                designs[spec], names = self.design(spec)
-            return designs[spec]
+            spec = specs[f]
+            X = designs.get(spec)
+            if X is None:
+                X, names = self.design(spec)
+            if spec in specs[f + 1:]:
+                designs[spec] = X
+            else:
+                designs.pop(spec, None)
+            return X
 
         sse_train, sse_test, n_train, n_test, sq_test = [], [], [], [], []
         na = self.n_a
         for f in (0, 1):
-            X = X_for(specs[f])
+            X = X_for(f)
             tr = slice(0, na) if f == 0 else slice(na, None)
             te = slice(na, None) if f == 0 else slice(0, na)
             c, loss_tr, n_tr = self._fit(X[tr], y[tr], specs[f])
@@ -414,7 +407,8 @@ class Fitter:
             sq_test.append(float(r_te @ r_te))
             n_train.append(n_tr)
             n_test.append(int(r_te.size))
-        X = X_for(specs[2])
+            del X                       # before the next fold's design is built
+        X = X_for(2)
         c_all, loss_all, n_all = self._fit(X, y, specs[2])
         return Score(tuple(sse_train), tuple(sse_test), tuple(n_train), tuple(n_test),  # type: ignore[arg-type]
                      loss_all, n_all, c_all if want_coef else None, names, tuple(sq_test))  # type: ignore[arg-type]
