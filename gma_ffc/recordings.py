@@ -142,6 +142,32 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
     return rec
 
 
+GAP_STEPS = 5.0     # a time step this many times the median one is a gap (a dropout), not jitter
+
+
+def time_gaps(rec: Recording) -> list[tuple[float, float]]:
+    """(start time, length) in s of each gap in time_s: a step over GAP_STEPS times the median
+    step. The models run across a gap (per-sample steps) as if the drive moved in a straight line
+    through it, so whatever happened there is not in the recording."""
+    steps = np.diff(rec.time_s)
+    if steps.size == 0:
+        return []
+    where = np.flatnonzero(steps > GAP_STEPS * float(np.median(steps)))
+    return [(float(rec.time_s[k]), float(steps[k])) for k in where]
+
+
+def gap_note(rec: Recording) -> str | None:
+    """One sentence on a recording's gaps in time, or None when it has none."""
+    gaps = time_gaps(rec)
+    if not gaps:
+        return None
+    start, length = max(gaps, key=lambda g: g[1])
+    step = float(np.median(np.diff(rec.time_s)))
+    return (f"{rec.source}: {len(gaps)} gap(s) in time_s, the longest {length:.4g} s at t = {start:.6g} s "
+            f"({length / step:.0f} sample steps): each is bridged as if the drive moved in a straight line, so "
+            "what happened there is not in the fit; check the logger if the gaps were not intended")
+
+
 def _parse_metadata(lines: Iterable[tuple[int, str]], source: str) -> dict[str, Any]:
     meta: dict[str, Any] = {}
     for lineno, text in lines:

@@ -113,3 +113,22 @@ def test_an_output_path_that_cannot_be_written_is_one_line_exit_2(workdir: Path,
     err = capsys.readouterr().err
     assert err.startswith("gma-ffc simulate: error: /proc/no-such-dir") and err.count("\n") == 1
     assert "Traceback" not in err
+
+
+def test_a_dropout_in_time_is_noted_and_bridged_while_jitter_is_not(workdir: Path, capsys) -> None:
+    """A logger that lost 50 ms: simulate still runs (per-sample steps), and says where the gap is,
+    so a residual there is not read as physics. Timestamp jitter of a tenth of a step says nothing."""
+    rec = read_recording(workdir / "id_19.1.csv")
+    keep = (rec.time_s < 0.5) | (rec.time_s >= 0.55)
+    gapped = Recording({k: v[keep] for k, v in rec.columns.items()}, dict(rec.metadata))
+    write_recording(workdir / "gapped.csv", gapped)
+    jitter = np.random.default_rng(1).uniform(-1e-4, 1e-4, len(rec))
+    write_recording(workdir / "jitter.csv", Recording({**rec.columns, "time_s": rec.time_s + jitter}, {}))
+    capsys.readouterr()
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "gapped.csv"),
+                 "-o", str(workdir / "gapped_sim.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "1 gap(s) in time_s" in err and "t = 0.499 s" in err and "0.051 s" in err
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "jitter.csv"),
+                 "-o", str(workdir / "jitter_sim.csv")]) == 0
+    assert "gap" not in capsys.readouterr().err

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Callable, Sequence, TypeVar
@@ -11,7 +12,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..protocols import Model
-from ..recordings import Recording, read_recording
+from ..recordings import Recording, gap_note, read_recording
 
 T = TypeVar("T")
 
@@ -25,6 +26,14 @@ def existing_output_dir_parent(path: str) -> Path:
 
 def read_all(paths: Sequence[str], require: Sequence[str], group: str | None = None) -> list[Recording]:
     return [read_recording(p, require=require, group=group) for p in paths]
+
+
+def note_gaps(recs: Sequence[Recording]) -> None:
+    """Say on stderr which recordings have dropouts in time (they run, bridged; the user should know)."""
+    for rec in recs:
+        note = gap_note(rec)
+        if note is not None:
+            print(f"note: {note}", file=sys.stderr)
 
 
 def add_group_option(p: argparse.ArgumentParser) -> None:

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InputError
-from ._common import add_group_option, add_initial_state_option, check_drive_name
+from ._common import add_group_option, add_initial_state_option, check_drive_name, note_gaps
 
 HELP = """\
 Compare a model with recordings, locate where they differ (time windows, frequency bands, drive
@@ -64,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
             for p in args.recordings]
     for rec in recs:
         check_drive_name(model, rec)
+    note_gaps(recs)
     with Progress("diagnose") as prog:
         dg = diagnose(model, recs, max_effects=args.max_effects, progress=lambda msg: prog.advance(note=msg),
                       initial_state=args.initial_state)

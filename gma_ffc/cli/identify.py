@@ -8,7 +8,7 @@ import sys
 from ..errors import InputError
 from ..modelio import save_model
 from ..progress import Progress
-from ._common import add_group_option, read_all
+from ._common import add_group_option, note_gaps, read_all
 
 HELP = """\
 Fit a stress-dependent Prandtl-Ishlinskii model (SDPI, seed paper section 3.3) from recordings at
@@ -51,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         refuse_overwrite(args.plot, args.recordings, "plot")
     recs = read_all(args.recordings, require=("time_s", "drive", "displacement_um"), group=args.group)
+    note_gaps(recs)
     with Progress("identify", total=4) as prog:
         ident = SDPIIdentifier(n_play=args.plays, n_deadzone=args.deadzones,
                                reference_stress_MPa=args.reference_stress, refine=not args.no_refine,

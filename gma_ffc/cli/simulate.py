@@ -11,8 +11,8 @@ import numpy as np
 from ..modelio import load_model
 from ..recordings import Recording, write_recording
 from ..atomic import refuse_overwrite
-from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_drive_name, read_while,
-                      stress_for, warm_up)
+from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_drive_name, note_gaps,
+                      read_while, stress_for, warm_up)
 
 HELP = """\
 Run a model (any kind: sdpi, mpi, or an extended model from `gma-ffc diagnose`) on the drive and
@@ -56,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
     model, rec = read_while(prepare, args.recording, require=("time_s", "drive"), group=args.group)
     from ..model import rms
     check_drive_name(model, rec)
+    note_gaps([rec])
     stress = stress_for(model, rec, args.stress)
     measured = rec.displacement_um
     start = model.resolve_initial_state(rec.drive, stress, args.initial_state, measured, rec.time_s)
