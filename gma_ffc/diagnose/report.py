@@ -88,6 +88,12 @@ def plot_residuals(dg: Diagnosis, render: Any = None) -> Any:
     return (render or _png)(fig)      # render=lambda fig: fig hands tests the figure
 
 
+def _crossings(u: np.ndarray) -> int:
+    """How often the drive crosses the middle of its swing (two per cycle)."""
+    seg = u - 0.5 * (float(np.min(u)) + float(np.max(u)))
+    return int(np.sum(np.diff(np.signbit(seg)) != 0))
+
+
 def _window(d: Any, span_s: tuple[float, float], whole_cycle: bool = False) -> slice:
     """About five drive cycles at the start of the time span (at most 4000 samples). With
     `whole_cycle`, a span holding less than one cycle is lengthened (up to four times, and up to
@@ -97,15 +103,9 @@ def _window(d: Any, span_s: tuple[float, float], whole_cycle: bool = False) -> s
     b = max(int(np.searchsorted(d.t, span_s[1])), a + 2)
     n = d.t.size
     limit = min(a + 4 * (b - a), n)
-
-    def crossings(stop: int) -> int:
-        seg = d.u[a:stop] - 0.5 * (np.min(d.u[a:stop]) + np.max(d.u[a:stop]))
-        return int(np.sum(np.diff(np.signbit(seg)) != 0))
-
-    while whole_cycle and b < limit and crossings(b) < 3:
+    while whole_cycle and b < limit and _crossings(d.u[a:b]) < 3:
         b = min(b + max((b - a) // 2, 1), limit)
-    seg = d.u[a:b] - np.mean(d.u[a:b])
-    c = int(np.sum(np.diff(np.signbit(seg)) != 0))
+    c = _crossings(d.u[a:b])
     if c >= 10:
         b = a + max(int(10 * (b - a) / c), 20)
     return slice(a, min(b, a + (20000 if whole_cycle else 4000), n))
@@ -129,10 +129,11 @@ def _sweeps(u: np.ndarray, need: float) -> bool:
 
 
 def _shown(d: Any, loc: Any, score: np.ndarray, sweep: bool) -> tuple[slice, bool]:
-    """The samples a panel shows: of the windows `_window` cuts (starts a quarter of the located window's
-    length apart, after the unscored start), the one where the per-sample `score` (a squared residual,
-    or its fall) is highest on average; with `sweep`, only among windows where the drive sweeps a loop.
-    Also says whether that window sweeps (False: none does, and the located window is shown)."""
+    """The samples a panel shows: of the windows `_window` cuts (starts a quarter of the located
+    window's length apart, at most about 400 of them, after the unscored start), the one where the
+    per-sample `score` (a squared residual, or its fall) is highest on average; with `sweep`, only
+    among windows where the drive sweeps a loop. Also says whether that window sweeps (False: none
+    does, and the located window is shown)."""
     t, n = d.t, d.t.size
     lo, hi = np.percentile(d.u, [1.0, 99.0])
     need = LOOP_SWEEP_SHARE * float(hi - lo)
@@ -141,7 +142,7 @@ def _shown(d: Any, loc: Any, score: np.ndarray, sweep: bool) -> tuple[slice, boo
     width = max(int(np.searchsorted(t, t[first] + length)) - first if length > 0 else (n - first) // 16, 20)
     csum = np.concatenate(([0.0], np.cumsum(np.nan_to_num(score))))
     best, best_val = None, -np.inf
-    for a in range(first, max(n - width, first) + 1, max(width // 4, 1)):
+    for a in range(first, max(n - width, first) + 1, max(width // 4, (n - first) // 400, 1)):
         w = _window(d, (float(t[a]), float(t[min(a + width, n) - 1])), whole_cycle=sweep)
         if w.stop - w.start < 2 or (sweep and not _sweeps(d.u[w], need)):
             continue
