@@ -149,10 +149,10 @@ def time_gaps(rec: Recording) -> list[tuple[float, float]]:
     """(start time, length) in s of each gap in time_s: a step over GAP_STEPS times the median
     step. The models run across a gap (per-sample steps) as if the drive moved in a straight line
     through it, so whatever happened there is not in the recording."""
-    steps = np.diff(rec.time_s)
-    if steps.size == 0:
+    if len(rec) < 2:
         return []
-    where = np.flatnonzero(steps > GAP_STEPS * float(np.median(steps)))
+    steps = np.diff(rec.time_s)
+    where = np.flatnonzero(steps > GAP_STEPS * rec.sample_period_s)
     return [(float(rec.time_s[k]), float(steps[k])) for k in where]
 
 
@@ -162,9 +162,8 @@ def gap_note(rec: Recording) -> str | None:
     if not gaps:
         return None
     start, length = max(gaps, key=lambda g: g[1])
-    step = float(np.median(np.diff(rec.time_s)))
     return (f"{rec.source}: {len(gaps)} gap(s) in time_s, the longest {length:.4g} s at t = {start:.6g} s "
-            f"({length / step:.0f} sample steps): each is bridged as if the drive moved in a straight line, so "
+            f"({length / rec.sample_period_s:.0f} sample steps): each is bridged as if the drive moved in a straight line, so "
             "what happened there is not in the fit; check the logger if the gaps were not intended")
 
 
