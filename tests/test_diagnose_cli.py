@@ -38,7 +38,8 @@ def test_outputs_follow_the_spec(case_files, capsys, tmp_path):
     assert code == 0, err
     assert "verdict: thermal_drift" in out
     doc = json.loads((out_dir / "diagnosis.json").read_text())
-    for key, kind in (("verdict", list), ("explanation", str), ("located", list), ("candidates", list),
+    for key, kind in (("verdict", list), ("explanation", str), ("located", list), ("located_after", list),
+                      ("candidates", list),
                       ("rms_before_um", float), ("rms_after_um", float), ("validation", str),
                       ("extended_model", str)):
         assert isinstance(doc[key], kind), key
@@ -47,6 +48,8 @@ def test_outputs_follow_the_spec(case_files, capsys, tmp_path):
     assert doc["rms_after_um"] < 0.5 * doc["rms_before_um"]
     loc = doc["located"][0]
     assert loc["recording"] == "long_run.csv" and "t = " in loc["where"] and loc["residual_rms_um"] > 0
+    left = doc["located_after"][0]                 # what the extended model leaves, located the same way
+    assert left["recording"] == "long_run.csv" and 0 < left["residual_rms_um"] < loc["residual_rms_um"]
     names = [c["effect"] for c in doc["candidates"]]
     assert names[0] == "thermal_drift" and len(set(names)) == 7
     top = doc["candidates"][0]

@@ -64,3 +64,30 @@ def test_reversals_are_counted_on_smooth_drives_and_on_steps():
     assert _reversals(np.linspace(0.0, 1.0, 500)) == 0
     # turns smaller than 10 % of the span are not reversals
     assert _reversals(np.linspace(0.0, 1.0, 500) + 0.02 * np.sin(2 * np.pi * 20 * np.linspace(0, 1, 500))) == 0
+
+
+def _named_explanation(rms_after: float, noise: float, left: list) -> str:
+    from gma_ffc.diagnose.explain import explain
+    from gma_ffc.diagnose.results import Candidate
+
+    t = np.arange(20000) / 1000.0
+    rec = _rec(t, 1 + np.sin(2 * np.pi * 5 * t), np.full(t.size, -15.0))
+    base = locate(rec, np.sin(t), np.sin(t))
+    cand = Candidate("creep", True, cv_mse=rms_after ** 2, params={"tau_s": 3.0, "gain": 0.02}, accepted=True)
+    return explain(["creep"], {"creep": cand}, [base], 1.0, 0.9, rms_after, noise, False, "", "effects_named",
+                   "A", 1.5, (0.1, 0.2), left, 3.0)
+
+
+def test_a_named_effect_that_leaves_much_says_so_and_where():
+    """A verdict is not read as the whole story: with 10x the noise left, the words say where it sits."""
+    t = np.arange(20000) / 1000.0
+    rec = _rec(t, 1 + np.sin(2 * np.pi * 5 * t), np.full(t.size, -15.0))
+    left = np.where((t > 12) & (t < 14), 0.5, 0.01)        # what the extended model leaves, late in the run
+    loc = locate(rec, left, left)
+    words = _named_explanation(0.2, 0.02, [loc])
+    assert "Not all of it is explained" in words and "10.0x the noise floor" in words
+    assert "t = 12" in words                                # where it sits
+    assert "0.1-0.2 um" in words                            # and its scale against the identification error
+    # a little left (within the core's ordinary error) is not flagged, nor when nothing was located
+    assert "Not all of it" not in _named_explanation(0.05, 0.02, [loc])
+    assert "Not all of it" not in _named_explanation(0.2, 0.02, [])

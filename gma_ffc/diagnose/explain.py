@@ -67,7 +67,8 @@ def identification_rms(model: Any) -> tuple[float, float] | None:
 
 def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[Located], rms_before: float,
             rms_null: float, rms_after: float, noise: float, too_little: bool, runner_note: str,
-            outcome: str, unit: str, noise_factor: float, fit_rms_um: tuple[float, float] | None = None) -> str:
+            outcome: str, unit: str, noise_factor: float, fit_rms_um: tuple[float, float] | None = None,
+            located_after: list[Located] | None = None, model_error_factor: float = 3.0) -> str:
     worst = max(located, key=lambda loc: loc.residual_rms_recalibrated_um)
     parts = [f"The base model misses the recordings by {rms_before:.4g} um RMS; a static recalibration "
              f"(gain/offset/curvature/loop width) leaves {rms_null:.4g} um on held-out data, against a noise floor of "
@@ -113,9 +114,25 @@ def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[
                  f"({rms_after / max(rms_before, 1e-12):.0%} of before).")
     for c in named:
         parts.append(f"{c.effect}: {physics(c.effect, unit)}.")
+    if located_after and rms_after > model_error_factor * noise:
+        parts.append(left_words(located_after, rms_after, noise, fit_rms_um))
     if runner_note:
         parts.append(runner_note)
     return " ".join(parts)
+
+
+def left_words(located_after: list[Located], rms_after: float, noise: float,
+               fit_rms_um: tuple[float, float] | None) -> str:
+    """What the named effects leave when it is well above the noise: not everything is explained,
+    and where the rest sits, so a named effect is not read as the whole story."""
+    worst = max(located_after, key=lambda loc: loc.residual_rms_um)
+    scale = ("" if fit_rms_um is None else
+             f"; for scale, the model missed its own identification recordings by {fit_rms_um[0]:.3g}"
+             f"{'' if fit_rms_um[1] <= 1.005 * fit_rms_um[0] else f'-{fit_rms_um[1]:.3g}'} um RMS")
+    return (f"Not all of it is explained: what is left, {rms_after:.3g} um held-out, is {rms_after / max(noise, 1e-12):.1f}x "
+            f"the noise floor{scale}. It is largest in {worst.recording}, {worst.where}. That is the core's own error "
+            "there, more of the named effect than its law captures, or physics not in the vocabulary: these "
+            "recordings do not tell them apart.")
 
 
 def validation_words(fitter: Fitter, null_cv: float, min_mse_ratio: float, min_loglik_gain: float) -> str:

@@ -66,6 +66,7 @@ class Diagnosis:
     rounds: list[dict]
     n_eff: float
     initial_state: str = "estimate"   # the rule asked for; each recording's resolved state is in data[k].start
+    located_after: list[Located] = field(default_factory=list)   # the residual the named effects leave
 
     def initial_states(self) -> list[dict]:
         """Per recording: the rule, how its state was chosen, and how long it is not scored."""
@@ -79,6 +80,7 @@ class Diagnosis:
             "verdict": list(self.verdict),
             "explanation": self.explanation,
             "located": [loc.to_json() for loc in self.located],
+            "located_after": [loc.to_json() for loc in self.located_after],
             "candidates": [c.to_json() for c in self.candidates],
             "rms_before_um": _round(self.rms_before_um),
             "rms_after_um": _round(self.rms_after_um),

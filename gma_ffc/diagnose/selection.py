@@ -579,9 +579,13 @@ class _Run:
             self.runner_note += (f" {old_name} was first chosen while a larger effect dominated the residual; with the "
                                  f"other effects in place {new_name} explains the held-out data better ({new_rms:.4g} "
                                  f"um against {old_rms:.4g} um), so it replaced {old_name}.")
+        # where the named effects leave residual: located on the final model's, as the base's was
+        after = ([locate(d, _scored(d, d.y - yf), _scored(d, d.y - yf)) for d, yf in zip(self.data, self.final_pred)]
+                 if outcome == "effects_named" else [])
         explanation = explain(verdict, self.candidates, self.located, self.rms_before, math.sqrt(self.null_cv),
                               math.sqrt(self.cur_cv), self.noise, self.too_little, self.runner_note.strip(), outcome,
-                              drive_unit(self.model), sel.noise_factor, identification_rms(self.model))
+                              drive_unit(self.model), sel.noise_factor, identification_rms(self.model),
+                              after, sel.model_error_factor)
         if lead is not None:     # the fault to fix first, so it comes first
             explanation = (f"First, a fault in the columns: {lead.words()}"
                            + ("." if outcome == "unexplained" else "; what is named below may only compensate it.")
@@ -598,4 +602,4 @@ class _Run:
                          math.sqrt(self.null_cv), math.sqrt(self.cur_cv), self.noise, validation, conclusive,
                          self.cannot, self.ext, self.data, self.base_pred, self.null_pred, self.final_pred,
                          self.rounds, self.rounds[0]["n_eff"] if self.rounds else float("nan"),
-                         str(self.sel.initial_state))
+                         str(self.sel.initial_state), after)
