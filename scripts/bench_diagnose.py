@@ -134,6 +134,13 @@ def summarise(todo: list[Case]) -> bool:
           f"{detected / max(len(effect_cases), 1):.0%}")
     print(f"false-alarm rate on null cases: {false_alarms}/{len(nulls)} = {false_alarms / max(len(nulls), 1):.0%} (target 0%)")
     print(f"held-out RMS at least halved where an effect is present: {len(halved)}/{len(effect_cases)}")
+    # beside the target, not instead of it: where half the error before lies below what the model
+    # class leaves without the effect at all (the effect-free twin), halving is out of reach
+    at_floor = [r for r in effect_cases if r not in halved and np.isfinite(r["floor"]) and r["after"] <= r["floor"]]
+    if at_floor:
+        print(f"  (of the others, {len(at_floor)} reach the effect-free floor: "
+              f"{', '.join(r['case'] for r in at_floor)}; halved or at the floor: "
+              f"{len(halved) + len(at_floor)}/{len(effect_cases)})")
     if effect_cases:
         ratio = np.array([r["after"] / r["before"] for r in effect_cases])
         print(f"held-out RMS after/before on effect cases: median {np.median(ratio):.2f}, worst {ratio.max():.2f}")
