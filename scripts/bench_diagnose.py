@@ -138,7 +138,7 @@ def summarise(todo: list[Case]) -> bool:
     # class leaves without the effect at all (the effect-free twin), halving is out of reach
     at_floor = [r for r in effect_cases if r not in halved and np.isfinite(r["floor"]) and r["after"] <= r["floor"]]
     if at_floor:
-        print(f"  (of the others, {len(at_floor)} reach the effect-free floor: "
+        print(f"  (of the others, {len(at_floor)} {'reaches' if len(at_floor) == 1 else 'reach'} the effect-free floor: "
               f"{', '.join(r['case'] for r in at_floor)}; halved or at the floor: "
               f"{len(halved) + len(at_floor)}/{len(effect_cases)})")
     if effect_cases:

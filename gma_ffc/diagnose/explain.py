@@ -123,16 +123,25 @@ def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[
 
 def left_words(located_after: list[Located], rms_after: float, noise: float,
                fit_rms_um: tuple[float, float] | None) -> str:
-    """What the named effects leave when it is well above the noise: not everything is explained,
-    and where the rest sits, so a named effect is not read as the whole story."""
+    """What the named effects leave when it is well above the noise, and where it sits, so a named
+    effect is not read as the whole story; against the core's own identification error when the
+    model file records it (what no effect can remove)."""
     worst = max(located_after, key=lambda loc: loc.residual_rms_um)
-    scale = ("" if fit_rms_um is None else
-             f"; for scale, the model missed its own identification recordings by {fit_rms_um[0]:.3g}"
-             f"{'' if fit_rms_um[1] <= 1.005 * fit_rms_um[0] else f'-{fit_rms_um[1]:.3g}'} um RMS")
-    return (f"Not all of it is explained: what is left, {rms_after:.3g} um held-out, is {rms_after / max(noise, 1e-12):.1f}x "
-            f"the noise floor{scale}. It is largest in {worst.recording}, {worst.where}. That is the core's own error "
-            "there, more of the named effect than its law captures, or physics not in the vocabulary: these "
-            "recordings do not tell them apart.")
+    left = f"{rms_after:.3g} um held-out, {rms_after / max(noise, 1e-12):.1f}x the noise floor"
+    where = f"It is largest in {worst.recording}, {worst.where}."
+    if fit_rms_um is not None:
+        lo, hi = fit_rms_um
+        fit = f"{lo:.3g}{'' if hi <= 1.005 * lo else f'-{hi:.3g}'} um RMS"
+        if rms_after <= hi:
+            return (f"What is left, {left}, is within what the model missed on its own identification recordings "
+                    f"({fit}), so it may be the core's own error rather than missing physics. {where}")
+        return (f"Not all of it is explained: what is left, {left}, is more than the model missed on its own "
+                f"identification recordings ({fit}). {where} That is more of the named effect than its law "
+                "captures, or physics not in the vocabulary, or the core's error on a drive unlike its "
+                "identification data: these recordings do not tell them apart.")
+    return (f"Not all of it may be explained: what is left is {left}. {where} That is the core's own error, more "
+            "of the named effect than its law captures, or physics not in the vocabulary: these recordings do "
+            "not tell them apart.")
 
 
 def validation_words(fitter: Fitter, null_cv: float, min_mse_ratio: float, min_loglik_gain: float) -> str:
