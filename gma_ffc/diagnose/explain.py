@@ -124,8 +124,8 @@ def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[
 def left_words(located_after: list[Located], rms_after: float, noise: float,
                fit_rms_um: tuple[float, float] | None) -> str:
     """What the named effects leave when it is well above the noise, and where it sits, so a named
-    effect is not read as the whole story; against the core's own identification error when the
-    model file records it (what no effect can remove)."""
+    effect is not read as the whole story; set against what the model missed on its own
+    identification recordings when its file records it (below that, it may be the core's error)."""
     worst = max(located_after, key=lambda loc: loc.residual_rms_um)
     left = f"{rms_after:.3g} um held-out, {rms_after / max(noise, 1e-12):.1f}x the noise floor"
     where = f"It is largest in {worst.recording}, {worst.where}."
