@@ -65,6 +65,12 @@ def identification_rms(model: Any) -> tuple[float, float] | None:
     return (min(vals), max(vals)) if vals else None
 
 
+def fit_rms_words(fit_rms_um: tuple[float, float]) -> str:
+    """The range of what the model missed on its own identification recordings, e.g. "0.149-0.656 um RMS"."""
+    lo, hi = fit_rms_um
+    return f"{lo:.3g}{'' if hi <= 1.005 * lo else f'-{hi:.3g}'} um RMS"
+
+
 def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[Located], rms_before: float,
             rms_null: float, rms_after: float, noise: float, too_little: bool, runner_note: str,
             outcome: str, unit: str, noise_factor: float, fit_rms_um: tuple[float, float] | None = None,
@@ -96,10 +102,9 @@ def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[
                 parts.append(f"No effect in the vocabulary explains the rest: the best, {b.effect}, "
                              f"reaches {math.sqrt(b.cv_mse):.4g} um held-out, short of the margin required.")
             if fit_rms_um is not None:
-                lo, hi = fit_rms_um
                 parts.append(f"For scale, the model missed its own identification recordings by "
-                             f"{lo:.3g}{'' if hi <= 1.005 * lo else f'-{hi:.3g}'} um RMS; the held-out residual here is "
-                             f"{rms_after / hi:.1f}x the largest of those.")
+                             f"{fit_rms_words(fit_rms_um)}; the held-out residual here is "
+                             f"{rms_after / fit_rms_um[1]:.1f}x the largest of those.")
             parts.append("What is left is the core's error on a drive unlike its identification data (steps, minor "
                          "loops, other frequencies), the limit of its class (behaviour its operators cannot represent, "
                          "such as these minor loops or a drive range it was not made for), or physics not in the "
@@ -130,9 +135,8 @@ def left_words(located_after: list[Located], rms_after: float, noise: float,
     left = f"{rms_after:.3g} um held-out, {rms_after / max(noise, 1e-12):.1f}x the noise floor"
     where = f"It is largest in {worst.recording}, {worst.where}."
     if fit_rms_um is not None:
-        lo, hi = fit_rms_um
-        fit = f"{lo:.3g}{'' if hi <= 1.005 * lo else f'-{hi:.3g}'} um RMS"
-        if rms_after <= hi:
+        fit = fit_rms_words(fit_rms_um)
+        if rms_after <= fit_rms_um[1]:
             return (f"What is left, {left}, is within what the model missed on its own identification recordings "
                     f"({fit}), so it may be the core's own error rather than missing physics. {where}")
         return (f"Not all of it is explained: what is left, {left}, is more than the model missed on its own "

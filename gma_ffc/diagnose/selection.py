@@ -580,8 +580,8 @@ class _Run:
                                  f"other effects in place {new_name} explains the held-out data better ({new_rms:.4g} "
                                  f"um against {old_rms:.4g} um), so it replaced {old_name}.")
         # where the named effects leave residual: located on the final model's, as the base's was
-        after = ([locate(d, _scored(d, d.y - yf), _scored(d, d.y - yf)) for d, yf in zip(self.data, self.final_pred)]
-                 if outcome == "effects_named" else [])
+        left = [_scored(d, d.y - yf) for d, yf in zip(self.data, self.final_pred)] if outcome == "effects_named" else []
+        after = [locate(d, r, r) for d, r in zip(self.data, left)]     # nothing recalibrated away: raw = residual
         explanation = explain(verdict, self.candidates, self.located, self.rms_before, math.sqrt(self.null_cv),
                               math.sqrt(self.cur_cv), self.noise, self.too_little, self.runner_note.strip(), outcome,
                               drive_unit(self.model), sel.noise_factor, identification_rms(self.model),
