@@ -93,3 +93,100 @@ def test_a_named_effect_that_leaves_much_says_so_and_where():
     assert "Not all" not in words and "may be the core's own error" in words and "t = 12" in words
     for quiet in (_named_explanation(0.05, 0.02, [loc]), _named_explanation(0.3, 0.02, [])):
         assert "Not all" not in quiet and "What is left" not in quiet
+
+
+# ---- narrow lines in the residual: the drive's harmonics, or a pickup the drive cannot make
+
+FS = 2000.0
+
+
+def _tone(t: np.ndarray, hz: float, amp: float, phase: float = 0.3) -> np.ndarray:
+    return amp * np.sin(2 * np.pi * hz * t + phase)
+
+
+def test_a_mains_line_the_drive_cannot_make_is_called_pickup():
+    from gma_ffc.diagnose.locate import line_words, spectral_line
+
+    rng = np.random.default_rng(3)
+    t = np.arange(60000) / FS
+    u = 1 + np.sin(2 * np.pi * 3 * t)
+    hysteresis_error = _tone(t, 6, 0.05) + _tone(t, 9, 0.03)          # the drive's own harmonics
+    r = rng.normal(0, 0.03, t.size) + hysteresis_error + _tone(t, 50, 0.15)
+    line = spectral_line(r, u, 1 / FS)
+    # (17 x 3 Hz is 51 Hz, not 50: the harmonic test places both peaks between bins)
+    assert line is not None and line.hz == pytest.approx(50, abs=0.01) and line.from_drive == ""
+    assert line.share > 0.5
+    assert "mains pickup" in line_words(line)
+    # the same through locate: the words are part of where the residual sits, the line in the JSON
+    rec = _rec(t, u, np.full(t.size, -15.0))
+    loc = locate(rec, r, r)
+    assert "50 Hz" in loc.where and "mains pickup" in loc.where
+    assert loc.to_json()["line"]["hz"] == pytest.approx(50, abs=0.01)
+
+
+def test_a_line_at_a_harmonic_of_the_drive_is_the_drives():
+    from gma_ffc.diagnose.locate import line_words, spectral_line
+
+    rng = np.random.default_rng(4)
+    t = np.arange(60000) / FS
+    noise = rng.normal(0, 0.03, t.size)
+    at_6 = spectral_line(noise + _tone(t, 6, 0.1), 1 + np.sin(2 * np.pi * 3 * t), 1 / FS)
+    assert at_6 is not None and "harmonic 2" in at_6.from_drive
+    # 50 Hz on a 10 Hz drive is its fifth harmonic: no pickup is claimed, mains or not
+    at_50 = spectral_line(noise + _tone(t, 50, 0.1), 1 + np.sin(2 * np.pi * 10 * t), 1 / FS)
+    assert at_50 is not None and "harmonic 5" in at_50.from_drive
+    assert "pickup" not in line_words(at_50)
+    # a mixing product of two drive tones: 2 x 7 + 3 Hz
+    two = 1 + 0.5 * np.sin(2 * np.pi * 3 * t) + 0.5 * np.sin(2 * np.pi * 7 * t)
+    mixed = spectral_line(noise + _tone(t, 17, 0.1), two, 1 / FS)
+    assert mixed is not None and mixed.from_drive != ""
+
+
+def test_a_line_is_judged_where_the_drive_changes():
+    """A drive at 10 Hz for half the run could make a 50 Hz line, but a line that stays when the
+    drive moves to 3 Hz is not its making; one only where the 10 Hz runs is."""
+    from gma_ffc.diagnose.locate import spectral_line
+
+    rng = np.random.default_rng(5)
+    t = np.arange(64000) / FS
+    first = t < t[-1] / 2
+    u = 1 + np.where(first, np.sin(2 * np.pi * 10 * t), np.sin(2 * np.pi * 3 * t))
+    noise = rng.normal(0, 0.03, t.size)
+    throughout = spectral_line(noise + _tone(t, 50, 0.1), u, 1 / FS)
+    assert throughout is not None and throughout.from_drive == ""
+    only_with_10hz = spectral_line(noise + np.where(first, _tone(t, 50, 0.1), 0.0), u, 1 / FS)
+    assert only_with_10hz is not None and "harmonic 5" in only_with_10hz.from_drive
+
+
+def test_noise_and_a_resonance_are_no_line():
+    from scipy.signal import lfilter
+
+    from gma_ffc.diagnose.locate import spectral_line
+
+    rng = np.random.default_rng(6)
+    t = np.arange(60000) / FS
+    u = 1 + np.sin(2 * np.pi * 3 * t)
+    assert spectral_line(rng.normal(0, 0.03, t.size), u, 1 / FS) is None
+    # a 300 Hz resonance (damping 0.04, some 24 Hz wide) rung by noise is a band, not a line
+    w, zeta = 2 * np.pi * 300 / FS, 0.04
+    rr = np.exp(-zeta * w)
+    a = [1.0, -2 * rr * np.cos(w * np.sqrt(1 - zeta ** 2)), rr * rr]
+    ringing = lfilter([1.0], a, rng.normal(0, 0.01, t.size))
+    assert spectral_line(ringing + rng.normal(0, 0.03, t.size), u, 1 / FS) is None
+    # and a line too small to matter is not said (under 5 % of the residual's power)
+    assert spectral_line(rng.normal(0, 0.1, t.size) + _tone(t, 50, 0.02), u, 1 / FS) is None
+
+
+def test_a_correlation_is_worded_by_its_sign():
+    """A residual largest where the drive turns round (slow) is not said to grow with the rate."""
+    rng = np.random.default_rng(7)
+    t = np.arange(20000) / 1000.0
+    u = 1 + np.sin(2 * np.pi * 1 * t)
+    slow = np.abs(np.cos(2 * np.pi * 1 * t)) < 0.3            # near the turning points
+    resid = rng.normal(0, 0.01, t.size) + np.where(slow, rng.normal(0, 0.2, t.size), 0.0)
+    loc = locate(_rec(t, u, np.full(t.size, -15.0)), resid, resid)
+    assert loc.conditions["drive_rate"] < -0.3
+    assert "grows with the drive rate" not in loc.where and "largest where the drive is slow" in loc.where
+    fast = np.where(~slow, rng.normal(0, 0.2, t.size), 0.0)
+    loc = locate(_rec(t, u, np.full(t.size, -15.0)), fast, fast)
+    assert loc.conditions["drive_rate"] > 0.3 and "grows with the drive rate" in loc.where

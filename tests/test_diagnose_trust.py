@@ -133,3 +133,21 @@ def test_only_a_lead_is_a_timing_fault_a_lag_is_physics():
         d = SimpleNamespace(name="r", y=y, dt_med=1 / 2000.0, settled=0)
         lead = displacement_lead([d], [p])
         assert (lead is None) if expected is None else (lead is not None and abs(lead.lead_s - expected) < 1e-12)
+
+
+def test_mains_hum_on_the_sensor_is_described_not_fitted_as_physics():
+    """50 Hz pickup on the displacement channel, as lab cabling adds: no effect is named for it, and
+    the unexplained residual is described as a line nothing in the drive puts there (the diagnosis
+    drive holds a 16.7 Hz burst, whose third harmonic is 50 Hz: only the pieces of the run without
+    it can tell)."""
+    model, rec = bench.make_case(CASES["null#1"])
+    t = rec.time_s
+    cols = dict(rec.columns)
+    cols["displacement_um"] = rec.columns["displacement_um"] + 0.15 * np.sin(2 * np.pi * 50.0 * t + 0.3)
+    dg = diagnose(model, [Recording(cols, dict(rec.metadata), "hum.csv")])
+    assert dg.verdict == [] and dg.outcome == "unexplained"
+    line = dg.located[0].line
+    assert line is not None and abs(line.hz - 50.0) < 0.05 and line.from_drive == ""
+    assert "mains pickup" in dg.explanation
+    clean = diagnose(model, [rec])
+    assert clean.located[0].line is None or clean.located[0].line.from_drive != ""
