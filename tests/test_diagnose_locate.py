@@ -1,4 +1,4 @@
-"""Locating the residual and reading the data's own noise floor and stress levels."""
+"""Locating the residual (its windows, band, narrow lines, correlations) and reading the data's own noise floor and stress levels."""
 
 from __future__ import annotations
 
@@ -105,7 +105,7 @@ def _tone(t: np.ndarray, hz: float, amp: float, phase: float = 0.3) -> np.ndarra
 
 
 def test_a_mains_line_the_drive_cannot_make_is_called_pickup():
-    from gma_ffc.diagnose.locate import line_words, spectral_line
+    from gma_ffc.diagnose.lines import line_words, spectral_line
 
     rng = np.random.default_rng(3)
     t = np.arange(60000) / FS
@@ -125,7 +125,7 @@ def test_a_mains_line_the_drive_cannot_make_is_called_pickup():
 
 
 def test_a_line_at_a_harmonic_of_the_drive_is_the_drives():
-    from gma_ffc.diagnose.locate import line_words, spectral_line
+    from gma_ffc.diagnose.lines import line_words, spectral_line
 
     rng = np.random.default_rng(4)
     t = np.arange(60000) / FS
@@ -145,7 +145,7 @@ def test_a_line_at_a_harmonic_of_the_drive_is_the_drives():
 def test_a_line_is_judged_where_the_drive_changes():
     """A drive at 10 Hz for half the run could make a 50 Hz line, but a line that stays when the
     drive moves to 3 Hz is not its making; one only where the 10 Hz runs is."""
-    from gma_ffc.diagnose.locate import spectral_line
+    from gma_ffc.diagnose.lines import spectral_line
 
     rng = np.random.default_rng(5)
     t = np.arange(64000) / FS
@@ -161,7 +161,7 @@ def test_a_line_is_judged_where_the_drive_changes():
 def test_noise_and_a_resonance_are_no_line():
     from scipy.signal import lfilter
 
-    from gma_ffc.diagnose.locate import spectral_line
+    from gma_ffc.diagnose.lines import spectral_line
 
     rng = np.random.default_rng(6)
     t = np.arange(60000) / FS
