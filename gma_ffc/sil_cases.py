@@ -91,6 +91,11 @@ def cases() -> list[Case]:
     out.append(Case("thermal+delay", ("thermal_drift", "time_delay"),
                     _set(thermal={"enabled": True, "drift_um_per_K": 0.2}, delay={"enabled": True, "delay_ms": 1.0}),
                     "heating while the load changes, with a delay", seed))
+    # nulls at three loads, where stress_dependent_play is testable too: the four above dwell at two,
+    # so a false stress_dependent_play could not show (added 2026-11-24; seeds the counter's next)
+    for k in range(3):
+        seed += 1
+        out.append(Case(f"null#{5 + k}", (), _set(), "no missing physics, three loads", seed, loads=3))
     return out
 
 
