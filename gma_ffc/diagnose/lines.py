@@ -46,14 +46,19 @@ def _prominent(p: np.ndarray, width: int) -> np.ndarray:
     return p / np.maximum(bg, 1e-12 * max(float(p.max()), 1e-300))
 
 
+def _lobe_hz(freqs: np.ndarray) -> float:
+    """How far a line's placing may be off in a spectrum: its main lobe and a bin."""
+    return (LINE_LOBE_BINS + 1) * float(freqs[1])
+
+
 def _lines(p: np.ndarray, freqs: np.ndarray, width: int, most: int = 8) -> list[float]:
     """The frequencies of a spectrum's strongest lines (one per main lobe), strongest first."""
     prom = _prominent(p, width)
     strong = np.flatnonzero((prom >= LINE_PROMINENCE) & (freqs > 0) & (p >= 1e-6 * float(p[1:].max(initial=0.0))))
     out: list[float] = []
-    df = float(freqs[1])
+    tol = _lobe_hz(freqs)
     for j in strong[np.argsort(p[strong])[::-1]]:
-        if all(abs(freqs[j] - g) > (LINE_LOBE_BINS + 1) * df for g in out):
+        if all(abs(freqs[j] - g) > tol for g in out):
             out.append(float(freqs[j]))
         if len(out) == most:
             break
@@ -83,15 +88,14 @@ def _content_floor(freqs: np.ndarray, p: np.ndarray) -> float:
                                  1e-12 * max(float(p.max()), 1e-300))
 
 
-def _drive_relation(f: float, drive: np.ndarray, dt: float, mixing: bool = True) -> tuple[str, tuple[float, ...]]:
-    """How the drive puts a residual line at f, and the drive frequencies that do; ("", ()) when
-    nothing in it can: f is a harmonic of drive content or (`mixing`) a mixing product of two of
-    the drive's lines (what a hysteresis or other nonlinear error of the drive makes). Mixing
-    products of a few lines at a short piece's coarse bins cover most frequencies, so a piece is
-    tested for harmonics only."""
-    freqs, p = _periodogram(drive, dt)
+def _drive_relation(f: float, freqs: np.ndarray, p: np.ndarray, mixing: bool = True) -> tuple[str, tuple[float, ...]]:
+    """How the drive (its periodogram `freqs`, `p`) puts a residual line at f, and the drive
+    frequencies that do; ("", ()) when nothing in it can: f is a harmonic of drive content or
+    (`mixing`) a mixing product of two of the drive's lines (what a hysteresis or other nonlinear
+    error of the drive makes). Mixing products of a few lines at a short piece's coarse bins
+    cover most frequencies, so a piece is tested for harmonics only."""
     df = float(freqs[1])
-    tol = (LINE_LOBE_BINS + 1) * df
+    tol = _lobe_hz(freqs)
     floor = _content_floor(freqs, p)
     for k in range(1, HARMONICS + 1):
         near = np.flatnonzero(np.abs(freqs - f / k) <= tol)
@@ -111,11 +115,9 @@ def _drive_relation(f: float, drive: np.ndarray, dt: float, mixing: bool = True)
     return "", ()
 
 
-def _has_content(drive: np.ndarray, dt: float, at: tuple[float, ...]) -> bool:
-    """Whether a piece of the drive holds content at each of the frequencies `at` (its own bins)."""
-    freqs, p = _periodogram(drive, dt)
-    tol = (LINE_LOBE_BINS + 1) * float(freqs[1])
-    floor = _content_floor(freqs, p)
+def _has_content(freqs: np.ndarray, p: np.ndarray, at: tuple[float, ...]) -> bool:
+    """Whether a piece of the drive (its periodogram) holds content at each of the frequencies `at`."""
+    floor, tol = _content_floor(freqs, p), _lobe_hz(freqs)
     return all(np.any((np.abs(freqs - g) <= tol) & (p >= floor)) for g in at)
 
 
@@ -143,20 +145,20 @@ def spectral_line(residual: np.ndarray, drive: np.ndarray, dt: float) -> Line | 
     if share < LINE_MIN_SHARE:
         return None
     f = _peak_hz(p, freqs, k)
-    relation, makers = _drive_relation(f, drive, dt)
+    relation, makers = _drive_relation(f, *_periodogram(drive, dt))
     n_seg = int(residual.size * dt // SEGMENT_S)
     if relation and n_seg >= 2:
         edges = np.linspace(0, residual.size, n_seg + 1).astype(int)
         for a, b in zip(edges[:-1], edges[1:]):
             fs, ps = _periodogram(residual[a:b], dt)
-            dfs = float(fs[1])
-            near = np.abs(fs - f) <= (LINE_LOBE_BINS + 1) * dfs
+            near = np.abs(fs - f) <= _lobe_hz(fs)
             held = float(ps[near].sum()) / max(float(ps[1:].sum()), 1e-300)
             if (not np.any(near) or held < LINE_MIN_SHARE
-                    or float(np.max(_prominent(ps, _width(dfs, 8))[near])) < LINE_PROMINENCE):
+                    or float(np.max(_prominent(ps, _width(float(fs[1]), 8))[near])) < LINE_PROMINENCE):
                 continue                 # the line is not in this piece, or too weak there to judge
             here = _peak_hz(ps, fs, int(np.flatnonzero(near)[np.argmax(ps[near])]))
-            if not _has_content(drive[a:b], dt, makers) and not _drive_relation(here, drive[a:b], dt, mixing=False)[0]:
+            piece = _periodogram(drive[a:b], dt)      # the same bins as the residual's piece
+            if not _has_content(*piece, makers) and not _drive_relation(here, *piece, mixing=False)[0]:
                 relation = ""            # it is where nothing in the drive makes it
                 break
     return Line(f, share, relation)

@@ -19,6 +19,7 @@ from .lines import Line, line_words, spectral_line
 
 BANDS_HZ = (0.0, 0.5, 5.0, 50.0, 500.0, np.inf)
 
+
 @dataclass
 class Located:
     recording: str
