@@ -151,3 +151,19 @@ def test_mains_hum_on_the_sensor_is_described_not_fitted_as_physics():
     assert "mains pickup" in dg.explanation
     clean = diagnose(model, [rec])
     assert clean.located[0].line is None or clean.located[0].line.from_drive != ""
+
+
+def test_a_re_zeroed_sensor_does_not_hide_the_heating_it_interrupts():
+    """The displacement sensor re-zeroed by 1 um mid-run (at a moment the drive holds still): the
+    step is found and allowed for, and the heating is still named. Before, the step dominated the
+    residual and the outcome was `unexplained`."""
+    model, rec = bench.make_case(CASES["thermal_drift#2"])
+    t = rec.time_s
+    cols = dict(rec.columns)
+    cols["displacement_um"] = rec.columns["displacement_um"] + np.where(t >= 21.3, 1.0, 0.0)
+    dg = diagnose(model, [Recording(cols, dict(rec.metadata), "rezero.csv")])
+    assert dg.verdict == ["thermal_drift"]
+    jumps = dg.located[0].jumps.found
+    assert len(jumps) == 1 and abs(jumps[0].t_s - 21.3) < 0.002 and abs(jumps[0].um - 1.0) < 0.1
+    assert "sensor re-zero" in dg.explanation
+    assert diagnose(model, [rec]).located[0].jumps.found == ()

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..recordings import Recording
+from .jumps import Jumps
 
 N_BLOCKS = 16         # blocks per recording; even-numbered ones form fold A, odd ones fold B
 MAX_FIT_ROWS = 20000  # rows used by the least squares (evenly strided); filters always run at full rate
@@ -35,6 +36,7 @@ class RecData:
     extra: dict[str, Any] = field(default_factory=dict)
     start: Any = None         # the core's initial state, estimated from this recording (gma_ffc.initial_state)
     settled: int = 0          # first sample the unknown initial state no longer affects: nothing before is scored
+    jumps: Jumps = field(default_factory=Jumps)   # steps of the sensor's zero (`jumps.py`), each fitted as an offset change
 
     @property
     def duration_s(self) -> float:

@@ -23,6 +23,7 @@ from ..effects.base import Effect, Regressors
 from ..effects.static import StaticMap
 from .cache import BoundedCache
 from .data import RecData, mean_stress, stress_levels, stress_span
+from .jumps import Jump
 
 # the caches' byte budgets: each entry is as long as the recordings, so without them memory grows
 # with the recording (64 core runs of an hour at 1 kHz are 3.7 GB); within them a long recording
@@ -243,6 +244,9 @@ class Fitter:
         at their reference state: the base absorbed whatever state its loops were recorded in."""
         r = Regressors(d, u3, yc, self.input_key(spec), spec, [], [], {})
         StaticMap.columns(self, r, None)
+        for i, (owner, jump) in enumerate(self.sensor_jumps):     # a sensor event, not physics: in every spec
+            r.cols.append((np.arange(d.t.size) >= jump.index).astype(float) if owner is d else np.zeros(d.t.size))
+            r.names.append(f"sensor_jump_{i}")
         for c in self.effects:
             if c.stage != "input" and c.name in spec:
                 first = len(r.cols)
@@ -250,6 +254,11 @@ class Fitter:
                 if steady and not c.follows_drive:   # a disturbance or slow state: at its reference there
                     r.cols[first:] = [np.zeros_like(col) for col in r.cols[first:]]
         return r.cols, r.names
+
+    @property
+    def sensor_jumps(self) -> list[tuple[RecData, Jump]]:
+        """Every recording's jumps of the sensor's zero, with the recording each belongs to."""
+        return [(d, j) for d in self.data for j in d.jumps.found]
 
     def design(self, spec: Spec) -> tuple[np.ndarray, list[str]]:
         """Regressors at the least-squares rows: fold A rows of every recording, then fold B rows."""

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..effects import kernels as K
 from .data import RecData
+from .jumps import Jumps, jump_words
 from .lines import Line, line_words, spectral_line
 
 BANDS_HZ = (0.0, 0.5, 5.0, 50.0, 500.0, np.inf)
@@ -31,6 +32,7 @@ class Located:
     band_share: float
     conditions: dict[str, float] = field(default_factory=dict)
     line: Line | None = None
+    jumps: Jumps = field(default_factory=Jumps)
 
     def to_json(self) -> dict:
         return {"recording": self.recording, "where": self.where,
@@ -42,6 +44,7 @@ class Located:
                 "line": None if self.line is None else {"hz": round(self.line.hz, 4),
                                                          "share": round(self.line.share, 4),
                                                          "from_drive": self.line.from_drive or None},
+                "sensor_jumps": [{"t_s": round(j.t_s, 6), "um": round(j.um, 6)} for j in self.jumps.found],
                 "conditions": {k: round(v, 4) for k, v in self.conditions.items()}}
 
 
@@ -119,7 +122,9 @@ def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows
     line = spectral_line(residual, d.u, d.dt_med)
     if line is not None:
         where += "; " + line_words(line)
+    if d.jumps.found or d.jumps.excess:
+        where += "; " + jump_words(d.jumps)
     if strong:
         where += "; residual " + ", ".join(words[key] + f" (r = {cond[key]:+.2f})" for _, key in strong[:2])
     return Located(d.name, where, float(np.sqrt(np.mean(raw_residual ** 2))),
-                   float(np.sqrt(np.mean(residual ** 2))), win, band, float(shares[b]), cond, line)
+                   float(np.sqrt(np.mean(residual ** 2))), win, band, float(shares[b]), cond, line, d.jumps)

@@ -81,6 +81,9 @@ def plot_residuals(dg: Diagnosis, render: Any = None) -> Any:
         if d.settled > 0:
             ax.axvspan(d.t[0], d.t[min(d.settled, d.t.size - 1)], color="0.85", alpha=0.6,
                        label="not scored (initial state)")
+        for i, jump in enumerate(d.jumps.found):
+            ax.axvline(jump.t_s, color="tab:purple", ls="--", lw=0.9,
+                       label="sensor's zero steps (allowed for in every fit)" if i == 0 else None)
         ax.set_title(d.name, fontsize=9)
         ax.set_ylabel("residual (um)")
         ax.set_xlabel("time (s)")

@@ -36,6 +36,7 @@ from .checks import check_overlap
 from .anchor import anchor_data, anchor_words
 from .rebase import reidentify_through
 from .data import N_BLOCKS, RecData, noise_floor, prepare
+from .jumps import jump_words, sensor_jumps
 from .explain import decider, drive_unit, explain, identification_rms, runner_up_note, validation_words
 from .fitting import ZOOM_LEVELS, Fitter, SearchResult, Spec, search
 from .locate import locate
@@ -251,6 +252,10 @@ class _Run:
         base_core = fitter.core(Spec())
         _ = fitter.yc_center          # computed once, before any threads share the fitter
         self.base_pred = [yc for _, yc in base_core]
+        for d, yc in zip(data, self.base_pred):     # before any fit: each jump is a column of every design
+            d.jumps = sensor_jumps(d.y, yc, d.u, d.s if d.s_raw is None else d.s_raw, d.t, d.dt_med, d.settled)
+            if d.jumps.excess:
+                self.cannot.append(f"{d.name}: {jump_words(d.jumps)}")
         self.rms_before = float(np.sqrt(sum(float(np.sum((d.y - yc)[d.settled:] ** 2))
                                             for d, yc in zip(data, self.base_pred)) / max(self.n_samples, 1)))
         null_specs = (Spec(), Spec(), Spec())

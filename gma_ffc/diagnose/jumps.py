@@ -1,0 +1,137 @@
+"""Jumps of the displacement sensor's zero in a residual (pure maths).
+
+A laser or capacitive sensor re-zeroed mid-run, an interferometer that loses fringes, a mount that
+slips or a knock on the table: the measured displacement steps within a sample or two and stays
+there, while the drive and the load hold still. No actuator physics does that (heating, creep and
+relaxation are smooth; the actuator's own steps follow a drive or load step), so such a step is a
+sensor event. Left in, it dominates the residual and hides the physics a fit should find; each
+one found is given an offset change of its own in every fit (`Fitter`), and the words say so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# A jump is a change over JUMP_SPAN samples this many times the robust spread of such changes. For
+# white noise that spread is sqrt(2) sigma and the change Gaussian: exceeded with probability ~1e-23.
+JUMP_SIGMAS = 10.0
+JUMP_SPAN = 2                 # samples a sensor's own filter may spread a step over
+SHARPNESS = 3.0               # a step changes the residual 3x more than any change just before or after it
+NEIGHBOURS = 8                # (those: 8 spans either side; a sine sampled 20x per period or faster
+                              # changes by no more than that ratio over them, noise by ~2.5 sigma at most)
+LEVEL_S = 0.1                 # the levels either side: straight lines over this long (at least 20 samples)
+LEVEL_MIN_SAMPLES = 20
+LEVEL_KEPT = 0.5              # the level after must differ from the level before by half the step: not a spike
+QUIET_S = 0.01                # the drive and stress may not step themselves within this long either side
+MAX_JUMPS = 5                 # more than this in one recording is not a re-zero but a sensor to repair
+
+
+@dataclass(frozen=True)
+class Jump:
+    """A step of the sensor's zero: from sample `index` on, the measurement is off by `um` more."""
+    index: int
+    t_s: float
+    um: float
+
+
+@dataclass(frozen=True)
+class Jumps:
+    """The jumps found in one recording; `excess` > 0: more candidates than MAX_JUMPS (none is modelled)."""
+    found: tuple[Jump, ...] = ()
+    excess: int = 0
+
+
+def _changes(x: np.ndarray) -> np.ndarray:
+    """x[k + JUMP_SPAN] - x[k]: the change a step makes within the span."""
+    return x[JUMP_SPAN:] - x[:-JUMP_SPAN]
+
+
+def _spread(change: np.ndarray) -> float:
+    """Robust spread of the changes: the MAD's sigma, or half the quantum of a quantised signal
+    whose changes are mostly zero."""
+    if change.size == 0:
+        return 0.0
+    mad = float(np.median(np.abs(change - np.median(change))))
+    nonzero = np.abs(change)[np.abs(change) > 0]
+    return max(1.4826 * mad, 0.5 * float(nonzero.min()) if nonzero.size else 0.0)
+
+
+def _steps_at(change: np.ndarray, k: int, near: int, w: int, floor: float) -> bool:
+    """Does the signal whose changes are `change` step itself within +-near of k: a change beyond
+    JUMP_SIGMAS of the spread of its changes around k (+-w; a sine's motion is not a step, a step
+    out of a hold or a load change is)?"""
+    local = change[max(0, k - w): k + w + 1]
+    spread = max(_spread(local), floor)
+    return bool(np.max(np.abs(change[max(0, k - near): k + near + 1])) > JUMP_SIGMAS * spread)
+
+
+def _level(r: np.ndarray, t: np.ndarray, a: int, b: int, at: float) -> float:
+    """The residual's level at time `at`, from the straight line through r[a:b] (the residual
+    drifts with the model's error either side of a step)."""
+    return float(np.polyfit(t[a:b] - at, r[a:b], 1)[1])
+
+
+def _sharp(change: np.ndarray, k: int) -> bool:
+    """Is the change at k SHARPNESS times any change just before or after it (a step, not a fast
+    stretch of a smooth signal)?"""
+    around = np.abs(np.concatenate((change[k - JUMP_SPAN - NEIGHBOURS: k - JUMP_SPAN],
+                                    change[k + JUMP_SPAN + 1: k + JUMP_SPAN + 1 + NEIGHBOURS])))
+    return bool(abs(change[k]) >= SHARPNESS * float(around.max()))
+
+
+def sensor_jumps(measured: np.ndarray, predicted: np.ndarray, drive: np.ndarray, stress: np.ndarray,
+                 t: np.ndarray, dt: float, first: int = 0) -> Jumps:
+    """Steps of the residual (measured minus predicted, from sample `first` on) that persist, that
+    are sharp in the measurement itself (a model's kink is not the sensor's), and that come while
+    drive and stress hold still and the samples are evenly spaced."""
+    n = measured.size
+    w = max(LEVEL_MIN_SAMPLES, int(round(LEVEL_S / dt)))
+    if n - first < 2 * w + JUMP_SPAN + 1:
+        return Jumps()
+    r = np.asarray(measured, dtype=float) - np.asarray(predicted, dtype=float)
+    change = _changes(r)                               # change[k] = r[k + span] - r[k]
+    seen = _changes(np.asarray(measured, dtype=float))
+    spread = _spread(change[first:])
+    if spread <= 0:
+        return Jumps()
+    near = max(JUMP_SPAN + 1, int(round(QUIET_S / dt)))
+    inputs = [(ch, _spread(ch)) for ch in (_changes(np.asarray(x, dtype=float)) for x in (drive, stress))]
+    gaps = np.zeros(n, dtype=bool)
+    uneven = np.flatnonzero(np.diff(t) > 1.5 * dt)
+    for g in uneven:                                  # a step across a gap is the gap's, not the sensor's
+        gaps[max(0, g - near): g + near + 1] = True
+    cand = np.flatnonzero(np.abs(change) > JUMP_SIGMAS * spread)
+    cand = cand[(cand >= first + w) & (cand + JUMP_SPAN + w <= n)]
+    found: list[Jump] = []
+    for k in cand[np.argsort(-np.abs(change[cand]), kind="stable")]:
+        if not (_sharp(change, k) and _sharp(seen, k)):
+            continue                                  # a fast stretch, or the model's own kink
+        if gaps[k: k + JUMP_SPAN + 1].any() or any(_steps_at(ch, k, near, w, 1e-3 * whole)
+                                                     for ch, whole in inputs):
+            continue
+        if any(abs(k - j.index) < 2 * w for j in found):
+            continue                                  # the same step seen from a neighbouring sample
+        at = k + 1 + int(np.argmax(np.abs(np.diff(r[k: k + JUMP_SPAN + 1]))))
+        step = _level(r, t, at + JUMP_SPAN, at + JUMP_SPAN + w, t[at]) - _level(r, t, at - w, at, t[at])
+        if step * change[k] <= 0 or abs(step) < LEVEL_KEPT * abs(change[k]):
+            continue                                  # a spike (it comes back) or a wiggle
+        found.append(Jump(at, float(t[at]), step))
+    if len(found) > MAX_JUMPS:
+        return Jumps((), len(found))
+    return Jumps(tuple(sorted(found, key=lambda j: j.index)))
+
+
+def jump_words(jumps: Jumps, unit: str = "um") -> str:
+    """What the jumps are, for the located description ('' if none)."""
+    if jumps.excess:
+        return (f"the residual steps {jumps.excess} times while the drive and load hold still: the displacement "
+                "sensor loses its zero again and again (fringe counting, a loose mount or cable); repair it "
+                "before diagnosing, as these steps are not modelled")
+    if not jumps.found:
+        return ""
+    each = ", ".join(f"{j.um:+.3g} {unit} at t = {j.t_s:.4g} s" for j in jumps.found)
+    return (f"the residual steps by {each} within {JUMP_SPAN} samples while the drive and load hold still: a "
+            "sensor re-zero, a slip or a knock, not the actuator's response; every fit allows the sensor's zero "
+            "to change there")
