@@ -126,12 +126,12 @@ def sensor_jumps(measured: np.ndarray, predicted: np.ndarray, drive: np.ndarray,
 def jump_words(jumps: Jumps, unit: str = "um") -> str:
     """What the jumps are, for the located description ('' if none)."""
     if jumps.excess:
-        return (f"the residual steps {jumps.excess} times while the drive and load hold still: the displacement "
+        return (f"the residual steps {jumps.excess} times while neither the drive nor the load steps: the displacement "
                 "sensor loses its zero again and again (fringe counting, a loose mount or cable); repair it "
                 "before diagnosing, as these steps are not modelled")
     if not jumps.found:
         return ""
     each = ", ".join(f"{j.um:+.3g} {unit} at t = {j.t_s:.4g} s" for j in jumps.found)
-    return (f"the residual steps by {each} within {JUMP_SPAN} samples while the drive and load hold still: a "
+    return (f"the residual steps by {each} within {JUMP_SPAN} samples while neither the drive nor the load steps: a "
             "sensor re-zero, a slip or a knock, not the actuator's response; every fit allows the sensor's zero "
             "to change there")
