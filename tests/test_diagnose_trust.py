@@ -167,3 +167,27 @@ def test_a_re_zeroed_sensor_does_not_hide_the_heating_it_interrupts():
     assert len(jumps) == 1 and abs(jumps[0].t_s - 21.3) < 0.002 and abs(jumps[0].um - 1.0) < 0.1
     assert "sensor re-zero" in dg.explanation
     assert diagnose(model, [rec]).located[0].jumps.found == ()
+
+
+def _halves(rec: Recording, offset_um: float) -> list[Recording]:
+    """The recording as two runs at 20 s, the second with its displacement sensor zeroed elsewhere."""
+    cut = int(np.searchsorted(rec.time_s, 20.0))
+    out = []
+    for a, b, off, name in ((0, cut, 0.0, "first.csv"), (cut, len(rec), offset_um, "second.csv")):
+        cols = {k: np.asarray(v)[a:b].copy() for k, v in rec.columns.items()}
+        cols["time_s"] = cols["time_s"] - cols["time_s"][0]
+        cols["displacement_um"] = cols["displacement_um"] + off
+        out.append(Recording(cols, dict(rec.metadata), name))
+    return out
+
+
+def test_runs_whose_sensor_was_zeroed_apart_are_not_read_as_heating_or_creep():
+    """Two runs of a null case, the second with its sensor's zero 1 um away (re-zeroed between runs,
+    as labs do). Before, the offset between them was read as creep and heating, conclusively. Each
+    recording now has its own zero, so the diagnosis does not change with it at all."""
+    model, rec = bench.make_case(CASES["null#3"])
+    same = diagnose(model, _halves(rec, 0.0))
+    apart = diagnose(model, _halves(rec, 1.0))
+    assert apart.verdict == [] and apart.outcome == same.outcome
+    assert apart.rms_after_um == pytest.approx(same.rms_after_um, rel=1e-6)
+    assert "its own displacement zero" in apart.validation

@@ -148,6 +148,18 @@ def left_words(located_after: list[Located], rms_after: float, noise: float,
             "not tell them apart.")
 
 
+def _zero_words(fitter: Fitter) -> str:
+    """What the fits allow the displacement sensor's zero (nothing to say for one recording without jumps)."""
+    parts = []
+    if len(fitter.data) > 1:
+        parts.append("each recording has its own displacement zero (a sensor is often zeroed again between runs), "
+                     "so only what changes within a recording can show an effect")
+    if fitter.sensor_jumps:
+        parts.append(f"the zero may also step where the sensor's did ({len(fitter.sensor_jumps)} step(s), "
+                     "see located)")
+    return (" In every fit, the null's included, " + "; ".join(parts) + ".") if parts else ""
+
+
 def validation_words(fitter: Fitter, null_cv: float, min_mse_ratio: float, min_loglik_gain: float) -> str:
     """How every figure of the diagnosis was validated."""
     return (
@@ -158,7 +170,7 @@ def validation_words(fitter: Fitter, null_cv: float, min_mse_ratio: float, min_l
         "fold's training blocks. rms_before is the base model as given; rms_after is the held-out RMS of the "
         "selected model; the null every effect had to beat is the base with a static recalibration "
         f"(gain, offset, curvature, loop width{', stress gain' if fitter.stress_varies else ''}), held-out RMS "
-        f"{math.sqrt(null_cv):.4g} um. Fits and the selection use a Huber loss (squared error up to "
+        f"{math.sqrt(null_cv):.4g} um.{_zero_words(fitter)} Fits and the selection use a Huber loss (squared error up to "
         f"{fitter.delta:.3g} um, linear beyond) so that a few bursts no model in the catalog can follow do not "
         "decide it. An effect is accepted if it cuts the held-out loss by >= "
         f"{1 - min_mse_ratio:.0%}, gains >= {min_loglik_gain:g} nats of penalised held-out likelihood "

@@ -244,9 +244,7 @@ class Fitter:
         at their reference state: the base absorbed whatever state its loops were recorded in."""
         r = Regressors(d, u3, yc, self.input_key(spec), spec, [], [], {})
         StaticMap.columns(self, r, None)
-        for i, (owner, jump) in enumerate(self.sensor_jumps):     # a sensor event, not physics: in every spec
-            r.cols.append((np.arange(d.t.size) >= jump.index).astype(float) if owner is d else np.zeros(d.t.size))
-            r.names.append(f"sensor_jump_{i}")
+        self._sensor_zero_columns(r)
         for c in self.effects:
             if c.stage != "input" and c.name in spec:
                 first = len(r.cols)
@@ -259,6 +257,19 @@ class Fitter:
     def sensor_jumps(self) -> list[tuple[RecData, Jump]]:
         """Every recording's jumps of the sensor's zero, with the recording each belongs to."""
         return [(d, j) for d in self.data for j in d.jumps.found]
+
+    def _sensor_zero_columns(self, r: Regressors) -> None:
+        """The displacement sensor's zero, in every spec and no effect's: each recording after the
+        first has its own (a sensor is often zeroed again between runs, and a constant difference
+        between recordings is no evidence of heating or creep), and each jump within a recording
+        (`jumps.py`) moves it from that sample on. Zero on rows of other recordings and on the anchor's."""
+        n = r.d.t.size
+        for i, owner in enumerate(self.data[1:], 1):
+            r.cols.append(np.full(n, 1.0 if owner is r.d else 0.0))
+            r.names.append(f"sensor_zero_{i}")
+        for i, (owner, jump) in enumerate(self.sensor_jumps):
+            r.cols.append((np.arange(n) >= jump.index).astype(float) if owner is r.d else np.zeros(n))
+            r.names.append(f"sensor_jump_{i}")
 
     def design(self, spec: Spec) -> tuple[np.ndarray, list[str]]:
         """Regressors at the least-squares rows: fold A rows of every recording, then fold B rows."""
