@@ -244,13 +244,13 @@ class Fitter:
         at their reference state: the base absorbed whatever state its loops were recorded in."""
         r = Regressors(d, u3, yc, self.input_key(spec), spec, [], [], {})
         StaticMap.columns(self, r, None)
-        self._sensor_zero_columns(r)
         for c in self.effects:
             if c.stage != "input" and c.name in spec:
                 first = len(r.cols)
                 c.columns(self, r, spec[c.name])
                 if steady and not c.follows_drive:   # a disturbance or slow state: at its reference there
                     r.cols[first:] = [np.zeros_like(col) for col in r.cols[first:]]
+        self._sensor_zero_columns(r)                 # last: the sensor's zero passes through no effect's filter
         return r.cols, r.names
 
     @property
