@@ -52,6 +52,7 @@ class RecordingFit:
     rms_um: float
     stroke_um: float
     max_abs_um: float
+    offset_um: float = 0.0         # the error's mean: a constant the model's offset could not take up
 
     @property
     def rms_pct_stroke(self) -> float:
@@ -345,6 +346,10 @@ class SDPIIdentifier:
                              + "; ".join(map(str, violations)) + ". Record the full drive range at every "
                              "stress, or fit fewer dead-zones (--deadzones 5)")
         self.report_ = [self._score(d) for d in data]
+        zero_note = zero_mismatch(self.report_)
+        if zero_note:
+            self.notes_.append(zero_note)
+            self.model_.provenance["notes"] = list(self.notes_)
         self.model_.provenance["fit_rms_um"] = {f.name: round(f.rms_um, 6) for f in self.report_}
         # where the model is known to be right: the loop rate and the stresses it was fitted at
         # (diagnose keeps an extended model close to the base there, `gma_ffc.diagnose.anchor`)
@@ -707,7 +712,28 @@ class SDPIIdentifier:
         err = pred[start:] - measured[start:]
         stroke = float(d.y.max() - d.y.min())
         stress = None if d.sigma is None else float(np.median(d.sigma))
-        return RecordingFit(d.name, stress, rms(err), stroke, float(np.max(np.abs(err))))
+        return RecordingFit(d.name, stress, rms(err), stroke, float(np.max(np.abs(err))), float(np.mean(err)))
+
+
+ZERO_RATIO = 3.0   # a recording's mean error 3x the loops' own (shape) error: the level, not the loop, is off
+
+
+def zero_mismatch(fits: Sequence[RecordingFit]) -> str:
+    """A note when some recordings sit off the model by a constant far beyond the error of their
+    loops' shape: their displacement zero is not the others' (a sensor zeroed again between runs),
+    which no model of the actuator can fit ('' otherwise)."""
+    if len(fits) < 2:
+        return ""
+    shape = float(np.median([math.sqrt(max(f.rms_um ** 2 - f.offset_um ** 2, 0.0)) for f in fits]))
+    off = [f for f in fits if abs(f.offset_um) > ZERO_RATIO * max(shape, 1e-12)]
+    if not off:
+        return ""
+    each = ", ".join(f"{f.name} {f.offset_um:+.3g} um" for f in off)
+    return (f"recordings sit off the model by constants ({each}) while the loops' shape fits to {shape:.3g} um: "
+            "their displacement zero is not the others' (the sensor zeroed again between runs?). The model's "
+            "offset follows stress, not a recording, so it takes up only what is smooth in stress: its absolute "
+            "displacement is off by about as much at those stresses. Zero the sensor the same way for every run "
+            "(e.g. at zero drive and one load), or leave those recordings out")
 
 
 def identify(recordings: Sequence[Recording], **settings: Any) -> SDPIModel:

@@ -175,3 +175,19 @@ def test_a_failed_fit_of_a_fast_drive_names_the_speed_as_a_cause() -> None:
     noise = np.random.default_rng(3).normal(0.0, 1.0, t.size)        # a displacement unrelated to the drive
     with pytest.raises(InputError, match=r"hardly follows the drive.*50 Hz.*slow drive"):
         SDPIIdentifier().fit([recording(t, x, noise, None, "unrelated")])
+
+
+def test_recordings_whose_sensor_was_zeroed_apart_are_named_and_consistent_ones_are_not(preisach_data) -> None:
+    """Six loads, the sensor zeroed again for three of them (+-2 um): identify says which recordings
+    sit off by a constant while their loops fit; with one zero it says nothing."""
+    t, x, train, clean = preisach_data
+    fit = SDPIIdentifier().fit(train)
+    assert not any("displacement zero" in n for n in fit.notes_)
+    moved = {1: 2.0, 3: -1.5, 4: 2.5}
+    shifted = [Recording({**r.columns, "displacement_um": r.columns["displacement_um"] + moved.get(k, 0.0)},
+                         source=r.source) for k, r in enumerate(train)]
+    fit = SDPIIdentifier().fit(shifted)
+    note = [n for n in fit.notes_ if "displacement zero" in n]
+    assert len(note) == 1
+    assert all(f"train {train[k].stress_MPa[0]:g}" in note[0] for k in moved)
+    assert fit.model_.provenance["notes"] == fit.notes_
