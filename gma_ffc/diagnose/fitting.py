@@ -30,6 +30,7 @@ from .jumps import Jump
 # re-runs the core more often, with the same results. Up to a few minutes at kHz rates every entry fits.
 CORE_CACHE_BYTES = 192 * 2 ** 20
 REGRESSOR_CACHE_BYTES = 128 * 2 ** 20
+STATIC_CACHE_BYTES = 64 * 2 ** 20
 ANCHOR_CACHE_BYTES = 96 * 2 ** 20
 
 
@@ -154,6 +155,8 @@ class Fitter:
         self._core_cache: BoundedCache[list[tuple[np.ndarray, np.ndarray]]] = BoundedCache(max_bytes=CORE_CACHE_BYTES)
         self._yc0: float | None = None
         self._cache: BoundedCache[np.ndarray] = BoundedCache(max_bytes=REGRESSOR_CACHE_BYTES)
+        self._static_cache: BoundedCache[tuple[list[np.ndarray], list[str], dict[str, np.ndarray]]] = \
+            BoundedCache(max_bytes=STATIC_CACHE_BYTES)
         self.dt_min = min(d.dt_med for d in self.data)
         self.duration_max = max(d.duration_s for d in self.data)
         self.duration_total = sum(d.duration_s for d in self.data)
@@ -243,7 +246,12 @@ class Fitter:
         (the anchor's loops): effects that do not follow the drive loop (heating, creep, pickup) stay
         at their reference state: the base absorbed whatever state its loops were recorded in."""
         r = Regressors(d, u3, yc, self.input_key(spec), spec, [], [], {})
-        StaticMap.columns(self, r, None)
+        # the static map's columns follow from the core's run alone (its input key): computed once
+        # per recording and run, shared by every spec on that run (no effect changes an array in place)
+        cols, names, shared = self._static_cache.get_or_compute((id(d), r.input_key), lambda: self._static_columns(r))
+        r.cols += cols
+        r.names += names
+        r.shared.update(shared)
         for c in self.effects:
             if c.stage != "input" and c.name in spec:
                 first = len(r.cols)
@@ -252,6 +260,11 @@ class Fitter:
                     r.cols[first:] = [np.zeros_like(col) for col in r.cols[first:]]
         self._sensor_zero_columns(r)                 # last: the sensor's zero passes through no effect's filter
         return r.cols, r.names
+
+    def _static_columns(self, r: Regressors) -> tuple[list[np.ndarray], list[str], dict[str, np.ndarray]]:
+        own = Regressors(r.d, r.u3, r.yc, r.input_key, r.spec, [], [], {})
+        StaticMap.columns(self, own, None)
+        return own.cols, own.names, own.shared
 
     @property
     def sensor_jumps(self) -> list[tuple[RecData, Jump]]:

@@ -2,7 +2,7 @@
 
 A laser or capacitive sensor re-zeroed mid-run, an interferometer that loses fringes, a mount that
 slips or a knock on the table: the measured displacement steps within a sample or two and stays
-there, while the drive and the load hold still. No actuator physics does that (heating, creep and
+there, while neither the drive nor the load steps. No actuator physics does that (heating, creep and
 relaxation are smooth; the actuator's own steps follow a drive or load step), so such a step is a
 sensor event. Left in, it dominates the residual and hides the physics a fit should find; each
 one found is given an offset change of its own in every fit (`Fitter`), and the words say so.
@@ -26,6 +26,7 @@ LEVEL_MIN_SAMPLES = 20
 LEVEL_KEPT = 0.5              # the level after must differ from the level before by half the step: not a spike
 QUIET_S = 0.01                # the drive and stress may not step themselves within this long either side
 MAX_JUMPS = 5                 # more than this in one recording is not a re-zero but a sensor to repair
+MAX_CANDIDATES = 5000         # the largest changes judged (a residual full of fast model error has many)
 
 
 @dataclass(frozen=True)
@@ -38,7 +39,7 @@ class Jump:
 
 @dataclass(frozen=True)
 class Jumps:
-    """The jumps found in one recording; `excess` > 0: more candidates than MAX_JUMPS (none is modelled)."""
+    """The jumps found in one recording; `excess` > 0: more than MAX_JUMPS of them (none is modelled)."""
     found: tuple[Jump, ...] = ()
     excess: int = 0
 
@@ -85,7 +86,8 @@ def sensor_jumps(measured: np.ndarray, predicted: np.ndarray, drive: np.ndarray,
                  t: np.ndarray, dt: float, first: int = 0) -> Jumps:
     """Steps of the residual (measured minus predicted, from sample `first` on) that persist, that
     are sharp in the measurement itself (a model's kink is not the sensor's), and that come while
-    drive and stress hold still and the samples are evenly spaced."""
+    neither drive nor stress steps and the samples are evenly spaced. The largest are judged
+    first; past MAX_JUMPS the search stops (`excess`: at least that many)."""
     n = measured.size
     w = max(LEVEL_MIN_SAMPLES, int(round(LEVEL_S / dt)))
     if n - first < 2 * w + JUMP_SPAN + 1:
@@ -105,7 +107,7 @@ def sensor_jumps(measured: np.ndarray, predicted: np.ndarray, drive: np.ndarray,
     cand = np.flatnonzero(np.abs(change) > JUMP_SIGMAS * spread)
     cand = cand[(cand >= first + w) & (cand + JUMP_SPAN + w <= n)]
     found: list[Jump] = []
-    for k in cand[np.argsort(-np.abs(change[cand]), kind="stable")]:
+    for k in cand[np.argsort(-np.abs(change[cand]), kind="stable")][:MAX_CANDIDATES]:
         if not (_sharp(change, k) and _sharp(seen, k)):
             continue                                  # a fast stretch, or the model's own kink
         if gaps[k: k + JUMP_SPAN + 1].any() or any(_steps_at(ch, k, near, w, 1e-3 * whole)
@@ -118,6 +120,8 @@ def sensor_jumps(measured: np.ndarray, predicted: np.ndarray, drive: np.ndarray,
         if step * change[k] <= 0 or abs(step) < LEVEL_KEPT * abs(change[k]):
             continue                                  # a spike (it comes back) or a wiggle
         found.append(Jump(at, float(t[at]), step))
+        if len(found) > MAX_JUMPS:
+            break
     if len(found) > MAX_JUMPS:
         return Jumps((), len(found))
     return Jumps(tuple(sorted(found, key=lambda j: j.index)))
@@ -126,9 +130,9 @@ def sensor_jumps(measured: np.ndarray, predicted: np.ndarray, drive: np.ndarray,
 def jump_words(jumps: Jumps, unit: str = "um") -> str:
     """What the jumps are, for the located description ('' if none)."""
     if jumps.excess:
-        return (f"the residual steps {jumps.excess} times while neither the drive nor the load steps: the displacement "
-                "sensor loses its zero again and again (fringe counting, a loose mount or cable); repair it "
-                "before diagnosing, as these steps are not modelled")
+        return (f"the residual steps at least {jumps.excess} times while neither the drive nor the load steps: "
+                "the displacement sensor loses its zero again and again (fringe counting, a loose mount or "
+                "cable); repair it before diagnosing, as these steps are not modelled")
     if not jumps.found:
         return ""
     each = ", ".join(f"{j.um:+.3g} {unit} at t = {j.t_s:.4g} s" for j in jumps.found)
