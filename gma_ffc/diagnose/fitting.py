@@ -30,7 +30,7 @@ from .jumps import Jump
 # re-runs the core more often, with the same results. Up to a few minutes at kHz rates every entry fits.
 CORE_CACHE_BYTES = 192 * 2 ** 20
 REGRESSOR_CACHE_BYTES = 128 * 2 ** 20
-STATIC_CACHE_BYTES = 64 * 2 ** 20
+STATIC_CACHE_BYTES = 32 * 2 ** 20
 ANCHOR_CACHE_BYTES = 96 * 2 ** 20
 
 
