@@ -71,6 +71,11 @@ class _Data:
     rows: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=int))
     start: int | None = None      # first fitted sample; None: after the burn-in sweep
     pred: np.ndarray = field(default_factory=lambda: np.empty(0))   # the fitted model's output, as scored
+    zero_shift: float = 0.0       # added to y (fitting orientation) when each recording's zero is its own
+
+    def shift_zero(self, by: float) -> None:
+        self.y = self.y + by
+        self.zero_shift += by
 
     @property
     def stress(self) -> np.ndarray:
@@ -207,9 +212,15 @@ class SDPIIdentifier:
                               inverse dead-zones (forward ones follow from (11)-(14));
                               "intermediate": equal intervals over the range of the play
                               superposition's output, so no dead-zone piece is left without data
+        zero                  "shared": every recording measures displacement from one zero, so the
+                              model's offset may follow stress (the rod's compression under load);
+                              "per_recording": each recording's zero is its own (the sensor zeroed
+                              before each run): a constant per recording is fitted away and the
+                              model's offset is one constant
         progress              optional callback(stage: str) for long fits
     Learned:
-        model_, report_ (list of RecordingFit), stress_levels_MPa_, notes_ (what was assumed)
+        model_, report_ (list of RecordingFit), stress_levels_MPa_, notes_ (what was assumed),
+        zero_shifts_um_ (per recording, what was added to its displacement; zeros when shared)
     """
 
     n_play: int = 10
@@ -221,6 +232,7 @@ class SDPIIdentifier:
     joint_passes: int = 2
     threshold_grid: str = "intermediate"
     initial_state: str = "descending"
+    zero: str = "shared"
     progress: Callable[[str], None] | None = None
 
     def _say(self, stage: str) -> None:
@@ -273,8 +285,34 @@ class SDPIIdentifier:
             self.notes_.append(f"{len(short)} recording(s) start with a large share of unknown hysteresis "
                                "history: their initial state was estimated and all their samples fitted")
             self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c, (x_lo, x_hi))
+        self.zero_shifts_um_ = {d.name: 0.0 for d in data}
+        if self.zero == "per_recording" and len(data) > 1:
+            self._align_zeros(lambda: self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c,
+                                                    (x_lo, x_hi)), data)
         self._check_degenerate(data, fast)
         return self
+
+    def _align_zeros(self, refit: Callable[[], None], data: list[_Data]) -> None:
+        """Each recording's zero its own. The stress step fits each recording's zero with its terms
+        (and moves the recording onto the first one's); what is left (step 1 fitted the reference
+        loops before they were moved) is taken up by shifting each recording by its mean error
+        relative to the first's and fitting again, until the shifts are a small part of the
+        loops' own error."""
+        for _ in range(ZERO_PASSES):
+            off = np.array([f.offset_um for f in self.report_])
+            shape = float(np.median([math.sqrt(max(f.rms_um ** 2 - f.offset_um ** 2, 0.0)) for f in self.report_]))
+            shift = off - off[0]
+            if float(np.max(np.abs(shift))) <= ZERO_SETTLED * shape:
+                break
+            for d, sh in zip(data, shift):
+                d.shift_zero(self.output_sign_ * float(sh))
+            refit()
+        self.zero_shifts_um_ = {d.name: self.output_sign_ * d.zero_shift for d in data}
+        each = ", ".join(f"{name} {v:+.3g} um" for name, v in self.zero_shifts_um_.items())
+        self.notes_.append(f"each recording's displacement zero was fitted on its own (--zero per-recording): {each}; "
+                           "the model's offset is one constant, so its absolute displacement across loads is not known")
+        self.model_.provenance["notes"] = list(self.notes_)
+        self.model_.provenance["zero_shifts_um"] = {k: round(v, 6) for k, v in self.zero_shifts_um_.items()}
 
     def _fit_all(self, recordings: Sequence[Recording], data: list[_Data], levels: list[float],
                  per_rec_stress: list[float], r_h: np.ndarray, x_c: float,
@@ -346,8 +384,8 @@ class SDPIIdentifier:
                              + "; ".join(map(str, violations)) + ". Record the full drive range at every "
                              "stress, or fit fewer dead-zones (--deadzones 5)")
         self.report_ = [self._score(d) for d in data]
-        zero_note = zero_mismatch(self.report_)
-        if zero_note:
+        zero_note = zero_mismatch(self.report_) if self.zero == "shared" else ""
+        if zero_note and zero_note not in self.notes_:
             self.notes_.append(zero_note)
             self.model_.provenance["notes"] = list(self.notes_)
         self.model_.provenance["fit_rms_um"] = {f.name: round(f.rms_um, 6) for f in self.report_}
@@ -432,6 +470,8 @@ class SDPIIdentifier:
     def _check_settings(self) -> None:
         if self.n_play < 1:
             raise InputError(f"n_play must be at least 1, got {self.n_play}")
+        if self.zero not in ZERO_MODES:
+            raise InputError(f"zero must be one of {', '.join(ZERO_MODES)}, got {self.zero!r}")
         if self.n_deadzone < 1 or self.n_deadzone % 2 == 0:
             raise InputError(f"n_deadzone must be odd (2l+1: l negative, one centre, l positive), got {self.n_deadzone}")
 
@@ -578,15 +618,20 @@ class SDPIIdentifier:
         lo, hi = stress_range
         mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
         degree = min(2, n_levels - 1)
+        off_degree = 0 if self.zero == "per_recording" else degree   # zeros apart: the offset is one constant
+        n_zero = len(data) - 1 if self.zero == "per_recording" else 0
         n_s = len(r_s)
         blocks, targets = [], []
-        for d in data:
+        for i, d in enumerate(data):
             rows = self._rows(d)
             u = (d.stress[rows] - mid) / half
             powers = np.vstack([u ** p for p in range(degree + 1)]).T  # (rows, degree+1)
             phi = slope_basis(d.plays[rows] @ w_h, r_s)
             feats = (phi[:, None, :] * powers[:, :, None]).reshape(len(rows), -1)  # [p, k] order
-            blocks.append(np.hstack([feats, powers]))
+            own_zero = np.zeros((len(rows), n_zero))           # recordings after the first: their zero
+            if 0 < i <= n_zero:
+                own_zero[:, i - 1] = 1.0
+            blocks.append(np.hstack([feats, powers[:, : off_degree + 1], own_zero]))
             targets.append(d.y[rows])
         A, y = np.vstack(blocks), np.concatenate(targets)
         n_coef = (degree + 1) * n_s
@@ -626,7 +671,9 @@ class SDPIIdentifier:
         del first_slopes
         theta = theta_s / col_scale
         slope_poly = theta[:n_coef].reshape(degree + 1, n_s)
-        offset_poly = theta[n_coef:]
+        offset_poly = np.r_[theta[n_coef: n_coef + off_degree + 1], np.zeros(degree - off_degree)]
+        for d, z in zip(data[1:], theta[n_coef + off_degree + 1:]):   # each recording onto the first's zero
+            d.shift_zero(-float(z))
         # Back from normalised u = (sigma - mid)/half to plain sigma, coefficients (c0, c1, c2).
         to_sigma = self._poly_in_sigma(mid, half, degree)
         slope_coeffs = to_sigma @ slope_poly  # (3, n_s)
@@ -716,6 +763,10 @@ class SDPIIdentifier:
 
 
 ZERO_RATIO = 3.0   # a recording's mean error 3x the loops' own (shape) error: the level, not the loop, is off
+ZERO_MODES = ("shared", "per_recording")
+ZERO_PASSES = 4    # per-recording zeros: whole refits at most (the stress step fits the zeros jointly;
+                   # a refit lets step 1 see the aligned data)
+ZERO_SETTLED = 0.05  # ... and none once the shifts left are 5 % of the loops' own error
 
 
 def zero_mismatch(fits: Sequence[RecordingFit]) -> str:
@@ -733,7 +784,7 @@ def zero_mismatch(fits: Sequence[RecordingFit]) -> str:
             "their displacement zero is not the others' (the sensor zeroed again between runs?). The model's "
             "offset follows stress, not a recording, so it takes up only what is smooth in stress: its absolute "
             "displacement is off by about as much at those stresses. Zero the sensor the same way for every run "
-            "(e.g. at zero drive and one load), or leave those recordings out")
+            "(e.g. at zero drive and one load), or identify with --zero per-recording")
 
 
 def identify(recordings: Sequence[Recording], **settings: Any) -> SDPIModel:

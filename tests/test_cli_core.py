@@ -44,6 +44,24 @@ def test_identify_writes_a_model_and_a_plot_and_reports_the_fit(workdir: Path, c
     assert "MPI model, 6 plays" in out.out and "% stroke" in out.out and "one stress" in out.err
 
 
+def test_identify_names_runs_zeroed_apart_and_fits_them_with_zero_per_recording(workdir: Path, capsys) -> None:
+    moved = []
+    for k, s in enumerate(STRESSES):
+        rec = read_recording(workdir / f"id_{-s}.csv")
+        cols = dict(rec.columns)
+        cols["displacement_um"] = cols["displacement_um"] + (2.0 if k % 2 else 0.0)
+        path = workdir / f"zeroed_{-s}.csv"
+        write_recording(path, Recording(cols, dict(rec.metadata)))
+        moved.append(str(path))
+    capsys.readouterr()
+    assert main(["identify", *moved, "-o", str(workdir / "zeroed_shared.yaml")]) == 0
+    assert "--zero per-recording" in capsys.readouterr().err
+    assert main(["identify", *moved, "-o", str(workdir / "zeroed_own.yaml"), "--zero", "per-recording"]) == 0
+    err = capsys.readouterr().err
+    assert "fitted on its own" in err and "sit off the model" not in err
+    assert load_model(workdir / "zeroed_own.yaml").provenance["zero_shifts_um"]
+
+
 def test_simulate_output_is_a_recording_that_matches_the_measurement(workdir: Path) -> None:
     out = workdir / "sim.csv"
     assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "id_19.1.csv"), "-o", str(out)]) == 0

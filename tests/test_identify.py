@@ -191,3 +191,30 @@ def test_recordings_whose_sensor_was_zeroed_apart_are_named_and_consistent_ones_
     assert len(note) == 1
     assert all(f"train {train[k].stress_MPa[0]:g}" in note[0] for k in moved)
     assert fit.model_.provenance["notes"] == fit.notes_
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_per_recording_zeros_make_the_fit_blind_to_each_recording_s_zero(preisach_data, sign) -> None:
+    """With --zero per-recording, moving recordings' zeros changes nothing but the fitted shifts,
+    which move by exactly as much (rising and falling actuators)."""
+    t, x, train, clean = preisach_data
+    moved = {1: 2.0, 3: -1.5, 4: 2.5}
+
+    def runs(offsets: dict[int, float]) -> list[Recording]:
+        return [Recording({**r.columns, "displacement_um": sign * r.columns["displacement_um"] + offsets.get(k, 0.0)},
+                          source=r.source) for k, r in enumerate(train)]
+
+    one = SDPIIdentifier(zero="per_recording").fit(runs({}))
+    apart = SDPIIdentifier(zero="per_recording").fit(runs(moved))
+    assert [f.rms_um for f in apart.report_] == pytest.approx([f.rms_um for f in one.report_], rel=1e-3, abs=1e-4)
+    for k, r in enumerate(train):
+        assert apart.zero_shifts_um_[r.source] - one.zero_shifts_um_[r.source] == pytest.approx(-moved.get(k, 0.0),
+                                                                                                 abs=0.02)
+    assert not any("sit off the model" in n for n in apart.notes_)
+    assert any("fitted on its own" in n for n in apart.notes_)
+    assert apart.model_.provenance["zero_shifts_um"][train[1].source] == pytest.approx(apart.zero_shifts_um_[train[1].source],
+                                                                                       abs=1e-6)
+    shared = SDPIIdentifier().fit(runs(moved))
+    assert max(f.rms_um for f in shared.report_) > 3 * max(f.rms_um for f in apart.report_)
+    with pytest.raises(InputError, match="zero must be one of"):
+        SDPIIdentifier(zero="each").fit(train)

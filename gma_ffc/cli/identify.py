@@ -35,6 +35,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="stress of the paper's step 1 (default: the least compressive in the data)")
     p.add_argument("--no-refine", action="store_true",
                    help="skip the output-error refinement (the paper's equation-error fit (15) alone)")
+    p.add_argument("--zero", choices=("shared", "per-recording"), default="shared",
+                   help="shared (default): every recording measures displacement from one zero, so the model's "
+                        "offset may follow stress; per-recording: the sensor was zeroed before each run, so "
+                        "each recording's zero is fitted on its own (the model's offset is then one constant)")
     p.add_argument("--plot", metavar="PNG", help="also save measured vs modelled loops to this image")
     add_group_option(p)
     p.set_defaults(func=run)
@@ -55,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
     with Progress("identify", total=4) as prog:
         ident = SDPIIdentifier(n_play=args.plays, n_deadzone=args.deadzones,
                                reference_stress_MPa=args.reference_stress, refine=not args.no_refine,
+                               zero=args.zero.replace("-", "_"),
                                progress=lambda stage: prog.advance(note=stage))
         ident.fit(recs)
     model = ident.model_
