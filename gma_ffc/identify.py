@@ -376,7 +376,7 @@ class SDPIIdentifier:
             drive_name=recordings[0].drive_name, initial_state=self.initial_state,
             provenance={"tool": "gma-ffc identify", "recordings": [d.name for d in data],
                         "settings": {"n_play": self.n_play, "n_deadzone": self.n_deadzone,
-                                     "refine": self.refine}, "notes": list(self.notes_)},
+                                     "refine": self.refine, "zero": self.zero}, "notes": list(self.notes_)},
         )
         violations = self.model_.invertibility_violations()
         if violations:  # cannot happen by construction; refuse rather than hand out a bad inverse

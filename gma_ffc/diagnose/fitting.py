@@ -248,7 +248,8 @@ class Fitter:
         r = Regressors(d, u3, yc, self.input_key(spec), spec, [], [], {})
         # the static map's columns follow from the core's run alone (its input key): computed once
         # per recording and run, shared by every spec on that run (no effect changes an array in place)
-        cols, names, shared = self._static_cache.get_or_compute((id(d), r.input_key), lambda: self._static_columns(r))
+        cols, names, shared = self._static_cache.get_or_compute((id(d), r.input_key),
+                                                                lambda: self._static_columns(r))
         r.cols += cols
         r.names += names
         r.shared.update(shared)
@@ -262,6 +263,7 @@ class Fitter:
         return r.cols, r.names
 
     def _static_columns(self, r: Regressors) -> tuple[list[np.ndarray], list[str], dict[str, np.ndarray]]:
+        """The static map's columns (and its play bank) for r's recording and core run alone."""
         own = Regressors(r.d, r.u3, r.yc, r.input_key, r.spec, [], [], {})
         StaticMap.columns(self, own, None)
         return own.cols, own.names, own.shared
