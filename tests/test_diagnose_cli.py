@@ -48,6 +48,7 @@ def test_outputs_follow_the_spec(case_files, capsys, tmp_path):
     assert doc["rms_after_um"] < 0.5 * doc["rms_before_um"]
     loc = doc["located"][0]
     assert loc["recording"] == "long_run.csv" and "t = " in loc["where"] and loc["residual_rms_um"] > 0
+    assert loc["sensor_jumps"] == [] and "line" in loc      # the keys docs/cli.md promises, empty here
     left = doc["located_after"][0]                 # what the extended model leaves, located the same way
     assert left["recording"] == "long_run.csv" and 0 < left["residual_rms_um"] < loc["residual_rms_um"]
     names = [c["effect"] for c in doc["candidates"]]
