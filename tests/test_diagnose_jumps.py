@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.signal import lfilter
 
 from gma_ffc.diagnose.jumps import MAX_JUMPS, jump_words, sensor_jumps
 
@@ -101,3 +102,19 @@ def test_no_jump_where_earlier_drafts_saw_one_on_the_benchmark(name):
     d = prepare([rec], model)[0]
     yc = model.simulate(d.t, d.u, d.s, initial_state=d.start)
     assert sensor_jumps(d.y, yc, d.u, d.s_raw, d.t, d.dt_med, d.settled).found == ()
+
+
+@pytest.mark.parametrize("fs, filter_hz", [(200.0, None), (10000.0, 1000.0), (50000.0, 2000.0)])
+def test_a_step_is_found_at_low_rates_and_through_a_sensor_s_filter_at_high_rates(fs, filter_hz):
+    """At 10-50 kHz a sensor's own 1-2 kHz filter spreads a step over tens of samples: the span a
+    step may take is a time (1 ms), not a number of samples."""
+    rng = np.random.default_rng(2)
+    t = np.arange(int(8 * fs)) / fs
+    u = 1.0 - 0.9 * np.cos(2 * np.pi * 2.0 * t) + rng.normal(0, 1e-3, t.size)
+    step = np.where(t >= 2.5, 0.5, 0.0)
+    if filter_hz is not None:                       # first-order sensor filter
+        a = np.exp(-2 * np.pi * filter_hz / fs)
+        step = np.asarray(lfilter([1 - a], [1, -a], step))
+    r = 0.3 * np.sin(2 * np.pi * 0.2 * t) + 0.2 * (u - 1.0) + rng.normal(0, 0.03, t.size) + step
+    found = sensor_jumps(r, 0 * r, u, np.zeros_like(t), t, 1 / fs).found
+    assert len(found) == 1 and abs(found[0].t_s - 2.5) < 1e-3 and abs(found[0].um - 0.5) < 0.05

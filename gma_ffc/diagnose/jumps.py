@@ -14,10 +14,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# A jump is a change over JUMP_SPAN samples this many times the robust spread of such changes. For
-# white noise that spread is sqrt(2) sigma and the change Gaussian: exceeded with probability ~1e-23.
+# A jump is a change over a span this many times the robust spread of such changes. For white
+# noise that spread is sqrt(2) sigma and the change Gaussian: exceeded with probability ~1e-23.
 JUMP_SIGMAS = 10.0
-JUMP_SPAN = 2                 # samples a sensor's own filter may spread a step over
+JUMP_SPAN_S = 1e-3            # a sensor's own filter (1 kHz or faster) may spread a step over this long
+JUMP_SPAN_MIN = 2             # samples, at least
 SHARPNESS = 3.0               # a step changes the residual 3x more than any change just before or after it
 NEIGHBOURS = 8                # (those: 8 spans either side; a sine sampled 20x per period or faster
                               # changes by no more than that ratio over them, noise by ~2.5 sigma at most)
@@ -44,9 +45,9 @@ class Jumps:
     excess: int = 0
 
 
-def _changes(x: np.ndarray) -> np.ndarray:
-    """x[k + JUMP_SPAN] - x[k]: the change a step makes within the span."""
-    return x[JUMP_SPAN:] - x[:-JUMP_SPAN]
+def _changes(x: np.ndarray, span: int) -> np.ndarray:
+    """x[k + span] - x[k]: the change a step makes within the span."""
+    return x[span:] - x[:-span]
 
 
 def _spread(change: np.ndarray) -> float:
@@ -74,11 +75,12 @@ def _level(r: np.ndarray, t: np.ndarray, a: int, b: int, at: float) -> float:
     return float(np.polyfit(t[a:b] - at, r[a:b], 1)[1])
 
 
-def _sharp(change: np.ndarray, k: int) -> bool:
+def _sharp(change: np.ndarray, k: int, span: int) -> bool:
     """Is the change at k SHARPNESS times any change just before or after it (a step, not a fast
     stretch of a smooth signal)?"""
-    around = np.abs(np.concatenate((change[k - JUMP_SPAN - NEIGHBOURS: k - JUMP_SPAN],
-                                    change[k + JUMP_SPAN + 1: k + JUMP_SPAN + 1 + NEIGHBOURS])))
+    reach = NEIGHBOURS * span
+    around = np.abs(np.concatenate((change[max(0, k - span - reach): k - span],
+                                    change[k + span + 1: k + span + 1 + reach])))
     return bool(abs(change[k]) >= SHARPNESS * float(around.max()))
 
 
@@ -89,34 +91,35 @@ def sensor_jumps(measured: np.ndarray, predicted: np.ndarray, drive: np.ndarray,
     neither drive nor stress steps and the samples are evenly spaced. The largest are judged
     first; past MAX_JUMPS the search stops (`excess`: at least that many)."""
     n = measured.size
-    w = max(LEVEL_MIN_SAMPLES, int(round(LEVEL_S / dt)))
-    if n - first < 2 * w + JUMP_SPAN + 1:
+    span = max(JUMP_SPAN_MIN, int(round(JUMP_SPAN_S / dt)))
+    w = max(LEVEL_MIN_SAMPLES, int(round(LEVEL_S / dt)), 4 * span)
+    if n - first < 2 * w + span + 1:
         return Jumps()
     r = np.asarray(measured, dtype=float) - np.asarray(predicted, dtype=float)
-    change = _changes(r)                               # change[k] = r[k + span] - r[k]
-    seen = _changes(np.asarray(measured, dtype=float))
+    change = _changes(r, span)                         # change[k] = r[k + span] - r[k]
+    seen = _changes(np.asarray(measured, dtype=float), span)
     spread = _spread(change[first:])
     if spread <= 0:
         return Jumps()
-    near = max(JUMP_SPAN + 1, int(round(QUIET_S / dt)))
-    inputs = [(ch, _spread(ch)) for ch in (_changes(np.asarray(x, dtype=float)) for x in (drive, stress))]
+    near = max(span + 1, int(round(QUIET_S / dt)))
+    inputs = [(ch, _spread(ch)) for ch in (_changes(np.asarray(x, dtype=float), span) for x in (drive, stress))]
     gaps = np.zeros(n, dtype=bool)
     uneven = np.flatnonzero(np.diff(t) > 1.5 * dt)
     for g in uneven:                                  # a step across a gap is the gap's, not the sensor's
         gaps[max(0, g - near): g + near + 1] = True
     cand = np.flatnonzero(np.abs(change) > JUMP_SIGMAS * spread)
-    cand = cand[(cand >= first + w) & (cand + JUMP_SPAN + w <= n)]
+    cand = cand[(cand >= first + w) & (cand + span + w <= n)]
     found: list[Jump] = []
     for k in cand[np.argsort(-np.abs(change[cand]), kind="stable")][:MAX_CANDIDATES]:
-        if not (_sharp(change, k) and _sharp(seen, k)):
+        if not (_sharp(change, k, span) and _sharp(seen, k, span)):
             continue                                  # a fast stretch, or the model's own kink
-        if gaps[k: k + JUMP_SPAN + 1].any() or any(_steps_at(ch, k, near, w, 1e-3 * whole)
+        if gaps[k: k + span + 1].any() or any(_steps_at(ch, k, near, w, 1e-3 * whole)
                                                      for ch, whole in inputs):
             continue
         if any(abs(k - j.index) < 2 * w for j in found):
             continue                                  # the same step seen from a neighbouring sample
-        at = k + 1 + int(np.argmax(np.abs(np.diff(r[k: k + JUMP_SPAN + 1]))))
-        step = _level(r, t, at + JUMP_SPAN, at + JUMP_SPAN + w, t[at]) - _level(r, t, at - w, at, t[at])
+        at = k + 1 + int(np.argmax(np.abs(np.diff(r[k: k + span + 1]))))
+        step = _level(r, t, at + span, at + span + w, t[at]) - _level(r, t, at - w, at, t[at])
         if step * change[k] <= 0 or abs(step) < LEVEL_KEPT * abs(change[k]):
             continue                                  # a spike (it comes back) or a wiggle
         found.append(Jump(at, float(t[at]), step))
@@ -136,6 +139,6 @@ def jump_words(jumps: Jumps, unit: str = "um") -> str:
     if not jumps.found:
         return ""
     each = ", ".join(f"{j.um:+.3g} {unit} at t = {j.t_s:.4g} s" for j in jumps.found)
-    return (f"the residual steps by {each} within {JUMP_SPAN} samples while neither the drive nor the load steps: a "
+    return (f"the residual steps by {each} within {JUMP_SPAN_S * 1e3:g} ms while neither the drive nor the load steps: a "
             "sensor re-zero, a slip or a knock, not the actuator's response; every fit allows the sensor's zero "
             "to change there")
