@@ -118,3 +118,13 @@ def test_a_step_is_found_at_low_rates_and_through_a_sensor_s_filter_at_high_rate
     r = 0.3 * np.sin(2 * np.pi * 0.2 * t) + 0.2 * (u - 1.0) + rng.normal(0, 0.03, t.size) + step
     found = sensor_jumps(r, 0 * r, u, np.zeros_like(t), t, 1 / fs).found
     assert len(found) == 1 and abs(found[0].t_s - 2.5) < 1e-3 and abs(found[0].um - 0.5) < 0.05
+
+
+def test_a_step_in_a_hold_is_found_however_much_fast_model_error_the_rest_of_the_run_holds():
+    """Thousands of larger changes elsewhere (a model missing a rate effect, on a fast sine) do not
+    crowd out the one step: only sharp changes are candidates."""
+    t, u, s, r = signals()
+    r = r + 10.0 * np.sin(2 * np.pi * 40.0 * t) * (t > 6) + np.where(t >= 2.5, 1.0, 0.0)
+    assert np.sum(np.abs(r[2:] - r[:-2]) > 1.0) > 5000
+    found = sensor_jumps(r, 0 * r, u, s, t, 1 / FS).found
+    assert [round(j.t_s, 3) for j in found] == [2.5]

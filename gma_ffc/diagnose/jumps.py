@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# A jump is a change over a span this many times the robust spread of such changes. For white
-# noise that spread is sqrt(2) sigma and the change Gaussian: exceeded with probability ~1e-23.
+# A jump is a change over a span this many times the spread the noise gives such changes (sqrt(2)
+# sigma for white noise, the change Gaussian): exceeded with probability ~1e-23.
 JUMP_SIGMAS = 10.0
 JUMP_SPAN_S = 1e-3            # a sensor's own filter (1 kHz or faster) may spread a step over this long
 JUMP_SPAN_MIN = 2             # samples, at least
@@ -27,7 +27,7 @@ LEVEL_MIN_SAMPLES = 20
 LEVEL_KEPT = 0.5              # the level after must differ from the level before by half the step: not a spike
 QUIET_S = 0.01                # the drive and stress may not step themselves within this long either side
 MAX_JUMPS = 5                 # more than this in one recording is not a re-zero but a sensor to repair
-MAX_CANDIDATES = 5000         # the largest changes judged (a residual full of fast model error has many)
+MAX_CANDIDATES = 5000         # the largest sharp changes judged (a noisy, spiky record can have many)
 
 
 @dataclass(frozen=True)
@@ -60,6 +60,17 @@ def _spread(change: np.ndarray) -> float:
     return max(1.4826 * mad, 0.5 * float(nonzero.min()) if nonzero.size else 0.0)
 
 
+def _noise_spread(r: np.ndarray, span: int) -> float:
+    """The spread of a change over the span that the noise alone makes: sqrt(2) sigma, sigma from the
+    MAD of second differences (white noise: var 6 sigma^2), which the signal's own motion, however
+    fast at these rates, hardly reaches; half the quantum of a quantised signal at least."""
+    if r.size < 3:
+        return 0.0
+    d2 = np.diff(r, 2)
+    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
+    return max(np.sqrt(2.0) * sigma, _spread(_changes(r, span)) if sigma == 0 else 0.0)
+
+
 def _steps_at(change: np.ndarray, k: int, near: int, w: int, floor: float) -> bool:
     """Does the signal whose changes are `change` step itself within +-near of k: a change beyond
     JUMP_SIGMAS of the spread of its changes around k (+-w; a sine's motion is not a step, a step
@@ -75,19 +86,36 @@ def _level(r: np.ndarray, t: np.ndarray, a: int, b: int, at: float) -> float:
     return float(np.polyfit(t[a:b] - at, r[a:b], 1)[1])
 
 
-def _sharp(change: np.ndarray, k: int, span: int) -> bool:
-    """Is the change at k SHARPNESS times any change just before or after it (a step, not a fast
-    stretch of a smooth signal)?"""
+def _sharp(change: np.ndarray, span: int) -> np.ndarray:
+    """Per change index: is it SHARPNESS times any change just before or after it (a step, not a
+    fast stretch of a smooth signal)? False where the neighbours run off the record."""
+    a = np.abs(change)
     reach = NEIGHBOURS * span
-    around = np.abs(np.concatenate((change[max(0, k - span - reach): k - span],
-                                    change[k + span + 1: k + span + 1 + reach])))
-    return bool(abs(change[k]) >= SHARPNESS * float(around.max()))
+    out = np.zeros(a.size, dtype=bool)
+    if a.size < 2 * (span + reach) + 1:
+        return out
+    window = np.lib.stride_tricks.sliding_window_view(a, reach).max(axis=1)   # window[j]: a[j:j + reach]
+    k = np.arange(span + reach, a.size - span - reach)
+    around = np.maximum(window[k - span - reach], window[k + span + 1])
+    out[k] = a[k] >= SHARPNESS * around
+    return out
+
+
+def _breaks(seen: np.ndarray, k: int, span: int, step: float) -> bool:
+    """Is the measurement itself discontinuous at k by at least LEVEL_KEPT of the residual's step,
+    in its direction: its change over the span less the mean of the spans just before and after
+    (a smooth motion, however fast, leaves about y'' (span dt)^2 there; a model whose output turns
+    a corner leaves the measurement smooth)?"""
+    if k - span < 0 or k + span >= seen.size:
+        return False
+    gap = float(seen[k]) - 0.5 * (float(seen[k - span]) + float(seen[k + span]))
+    return gap * step > 0 and abs(gap) >= LEVEL_KEPT * abs(step)
 
 
 def sensor_jumps(measured: np.ndarray, predicted: np.ndarray, drive: np.ndarray, stress: np.ndarray,
                  t: np.ndarray, dt: float, first: int = 0) -> Jumps:
     """Steps of the residual (measured minus predicted, from sample `first` on) that persist, that
-    are sharp in the measurement itself (a model's kink is not the sensor's), and that come while
+    the measurement itself makes (a model's kink is not the sensor's), and that come while
     neither drive nor stress steps and the samples are evenly spaced. The largest are judged
     first; past MAX_JUMPS the search stops (`excess`: at least that many)."""
     n = measured.size
@@ -98,7 +126,7 @@ def sensor_jumps(measured: np.ndarray, predicted: np.ndarray, drive: np.ndarray,
     r = np.asarray(measured, dtype=float) - np.asarray(predicted, dtype=float)
     change = _changes(r, span)                         # change[k] = r[k + span] - r[k]
     seen = _changes(np.asarray(measured, dtype=float), span)
-    spread = _spread(change[first:])
+    spread = _noise_spread(r[first:], span)
     if spread <= 0:
         return Jumps()
     near = max(span + 1, int(round(QUIET_S / dt)))
@@ -107,12 +135,12 @@ def sensor_jumps(measured: np.ndarray, predicted: np.ndarray, drive: np.ndarray,
     uneven = np.flatnonzero(np.diff(t) > 1.5 * dt)
     for g in uneven:                                  # a step across a gap is the gap's, not the sensor's
         gaps[max(0, g - near): g + near + 1] = True
-    cand = np.flatnonzero(np.abs(change) > JUMP_SIGMAS * spread)
+    cand = np.flatnonzero((np.abs(change) > JUMP_SIGMAS * spread) & _sharp(change, span))
     cand = cand[(cand >= first + w) & (cand + span + w <= n)]
     found: list[Jump] = []
     for k in cand[np.argsort(-np.abs(change[cand]), kind="stable")][:MAX_CANDIDATES]:
-        if not (_sharp(change, k, span) and _sharp(seen, k, span)):
-            continue                                  # a fast stretch, or the model's own kink
+        if not _breaks(seen, k, span, float(change[k])):
+            continue                                  # the model's own kink: the measurement is smooth
         if gaps[k: k + span + 1].any() or any(_steps_at(ch, k, near, w, 1e-3 * whole)
                                                      for ch, whole in inputs):
             continue
@@ -139,6 +167,6 @@ def jump_words(jumps: Jumps, unit: str = "um") -> str:
     if not jumps.found:
         return ""
     each = ", ".join(f"{j.um:+.3g} {unit} at t = {j.t_s:.4g} s" for j in jumps.found)
-    return (f"the residual steps by {each} within {JUMP_SPAN_S * 1e3:g} ms while neither the drive nor the load steps: a "
-            "sensor re-zero, a slip or a knock, not the actuator's response; every fit allows the sensor's zero "
-            "to change there")
+    return (f"the residual steps by {each} within {JUMP_SPAN_S * 1e3:g} ms while neither the drive nor the load "
+            "steps: a sensor re-zero, a slip or a knock, not the actuator's response; every fit allows the "
+            "sensor's zero to change there")
