@@ -128,3 +128,37 @@ def test_a_step_in_a_hold_is_found_however_much_fast_model_error_the_rest_of_the
     assert np.sum(np.abs(r[2:] - r[:-2]) > 1.0) > 5000
     found = sensor_jumps(r, 0 * r, u, s, t, 1 / FS).found
     assert [round(j.t_s, 3) for j in found] == [2.5]
+
+
+def test_a_quantised_sensor_ticking_through_a_slow_motion_is_not_jumping():
+    """Where the motion is slow, a sensor of 0.2 um resolution holds still and then ticks by one
+    quantum: against a smooth prediction each tick is sharp and persists, but it is the sensor's
+    resolution, not a step of its zero."""
+    fs = 5000.0
+    t = np.arange(int(10 * fs)) / fs
+    u = 75.0 * np.sin(2 * np.pi * 1.0 * t)
+    smooth = 20.0 * np.sin(2 * np.pi * 1.0 * t - 0.2)
+    measured = np.round((smooth + np.random.default_rng(3).normal(0, 0.002, t.size)) / 0.2) * 0.2
+    assert sensor_jumps(measured, smooth, u, np.zeros_like(t), t, 1 / fs).found == ()
+    stepped = measured + np.where(t >= 4.3, 2.0, 0.0)
+    assert [round(j.t_s, 2) for j in sensor_jumps(stepped, smooth, u, np.zeros_like(t), t, 1 / fs).found] == [4.3]
+
+
+@pytest.mark.parametrize("name", ["JUMP_SIGMAS", "SHARPNESS", "LEVEL_KEPT"])
+@pytest.mark.parametrize("factor", [0.7, 1.3])
+def test_each_detection_threshold_moved_30_percent_changes_no_answer(monkeypatch, name, factor):
+    """A threshold that flips the answers when moved by 30 % is a tuned number. (On the 49 benchmark
+    recordings the same sweep finds no jump where none was added and every 1 um step in a drive
+    hold: scripts/scan_sensor_jumps.py with the constants moved.)"""
+    import gma_ffc.diagnose.jumps as jumps
+
+    monkeypatch.setattr(jumps, name, getattr(jumps, name) * factor)
+    t, u, s, r = signals()
+    spiky = r.copy()
+    spiky[np.random.default_rng(1).choice(t.size, 30, replace=False)] += 2.0
+    fast = r + 3.0 * np.sin(2 * np.pi * 40.0 * t) * (t > 6)
+    for quiet in (r, spiky, fast):
+        assert jumps.sensor_jumps(quiet, 0 * r, u, s, t, 1 / FS).found == ()
+    stepped = fast + np.where(t >= 2.5, 0.8, 0.0) - np.where(t >= 5.3, 0.8, 0.0)
+    assert [round(j.t_s, 3) for j in jumps.sensor_jumps(stepped, 0 * r, u, s, t, 1 / FS).found] == [2.5, 5.3]
+    assert jumps.sensor_jumps(r, np.where(t >= 2.5, -0.8, 0.0), u, s, t, 1 / FS).found == ()

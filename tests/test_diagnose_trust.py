@@ -191,3 +191,21 @@ def test_runs_whose_sensor_was_zeroed_apart_are_not_read_as_heating_or_creep():
     assert apart.verdict == [] and apart.outcome == same.outcome
     assert apart.rms_after_um == pytest.approx(same.rms_after_um, rel=1e-6)
     assert "its own displacement zero" in apart.validation
+
+
+@pytest.mark.skipif(not PIEZO.exists(), reason="the measured recording lives in shared/ beside the repo")
+def test_the_measured_piezo_quantised_holds_no_sensor_jump_and_a_re_zero_in_it_is_found():
+    """The measured piezo at 1/200 of its stroke's resolution: where the sine turns, the sensor
+    holds and then ticks by a quantum, which is no jump; a 5 % re-zero is one."""
+    rec = read_recording(PIEZO)
+    model = SDPIIdentifier().fit([window(rec, 3.0, 6.6, "identification")]).model_
+    judged = window(rec, 6.6, name="judged")
+    y = judged.columns["displacement_um"]
+    q = float(np.ptp(y)) / 200
+    quantised = Recording({**judged.columns, "displacement_um": np.round(y / q) * q}, {}, "quantised.csv")
+    assert diagnose(model, [quantised]).located[0].jumps.found == ()
+    t = judged.time_s
+    moved = Recording({**quantised.columns, "displacement_um": quantised.columns["displacement_um"]
+                       + np.where(t >= 8.37, 10 * q, 0.0)}, {}, "re_zeroed.csv")
+    found = diagnose(model, [moved]).located[0].jumps.found
+    assert len(found) == 1 and abs(found[0].t_s - 8.37) < 1e-3 and abs(found[0].um - 10 * q) < 2 * q

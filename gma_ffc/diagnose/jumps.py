@@ -19,9 +19,10 @@ import numpy as np
 JUMP_SIGMAS = 10.0
 JUMP_SPAN_S = 1e-3            # a sensor's own filter (1 kHz or faster) may spread a step over this long
 JUMP_SPAN_MIN = 2             # samples, at least
-SHARPNESS = 3.0               # a step changes the residual 3x more than any change just before or after it
-NEIGHBOURS = 8                # (those: 8 spans either side; a sine sampled 20x per period or faster
-                              # changes by no more than that ratio over them, noise by ~2.5 sigma at most)
+SHARPNESS = 5.0               # a step changes the residual 5x more than any change just before or after it
+NEIGHBOURS = 8                # (those: the changes 1..8 spans either side; a sine sampled 20x per period
+                              # or faster changes by less than that ratio over them, and noise gives 16
+                              # such changes a largest of about 2.2 of their sigma, 10 sigmas / 5 above)
 LEVEL_S = 0.1                 # the levels either side: straight lines over this long (at least 20 samples)
 LEVEL_MIN_SAMPLES = 20
 LEVEL_KEPT = 0.5              # the level after must differ from the level before by half the step: not a spike
@@ -71,6 +72,14 @@ def _noise_spread(r: np.ndarray, span: int) -> float:
     return max(np.sqrt(2.0) * sigma, _spread(_changes(r, span)) if sigma == 0 else 0.0)
 
 
+def _quantum(y: np.ndarray) -> float:
+    """The measurement's resolution: its smallest step between samples (a quantised sensor ticks by
+    one quantum where the motion is slow, which is no jump; for an unquantised one it is tiny)."""
+    d = np.abs(np.diff(y))
+    d = d[d > 0]
+    return float(d.min()) if d.size else 0.0
+
+
 def _steps_at(change: np.ndarray, k: int, near: int, w: int, floor: float) -> bool:
     """Does the signal whose changes are `change` step itself within +-near of k: a change beyond
     JUMP_SIGMAS of the spread of its changes around k (+-w; a sine's motion is not a step, a step
@@ -87,16 +96,19 @@ def _level(r: np.ndarray, t: np.ndarray, a: int, b: int, at: float) -> float:
 
 
 def _sharp(change: np.ndarray, span: int) -> np.ndarray:
-    """Per change index: is it SHARPNESS times any change just before or after it (a step, not a
-    fast stretch of a smooth signal)? False where the neighbours run off the record."""
+    """Per change index: is it SHARPNESS times each of the NEIGHBOURS changes a span, two spans, ...
+    before and after it (a step, not a fast stretch of a smooth signal)? Those neighbours do not
+    overlap, so how many the noise offers does not grow with the sampling rate. False where they
+    run off the record."""
     a = np.abs(change)
     reach = NEIGHBOURS * span
     out = np.zeros(a.size, dtype=bool)
-    if a.size < 2 * (span + reach) + 1:
+    if a.size < 2 * reach + 1:
         return out
-    window = np.lib.stride_tricks.sliding_window_view(a, reach).max(axis=1)   # window[j]: a[j:j + reach]
-    k = np.arange(span + reach, a.size - span - reach)
-    around = np.maximum(window[k - span - reach], window[k + span + 1])
+    k = np.arange(reach, a.size - reach)
+    around = np.zeros(k.size)
+    for j in range(1, NEIGHBOURS + 1):
+        np.maximum(around, np.maximum(a[k - j * span], a[k + j * span]), out=around)
     out[k] = a[k] >= SHARPNESS * around
     return out
 
@@ -126,7 +138,7 @@ def sensor_jumps(measured: np.ndarray, predicted: np.ndarray, drive: np.ndarray,
     r = np.asarray(measured, dtype=float) - np.asarray(predicted, dtype=float)
     change = _changes(r, span)                         # change[k] = r[k + span] - r[k]
     seen = _changes(np.asarray(measured, dtype=float), span)
-    spread = _noise_spread(r[first:], span)
+    spread = max(_noise_spread(r[first:], span), 0.5 * _quantum(np.asarray(measured[first:], dtype=float)))
     if spread <= 0:
         return Jumps()
     near = max(span + 1, int(round(QUIET_S / dt)))
