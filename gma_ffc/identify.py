@@ -55,6 +55,11 @@ class RecordingFit:
     offset_um: float = 0.0         # the error's mean: a constant the model's offset could not take up
 
     @property
+    def shape_rms_um(self) -> float:
+        """The error with its mean taken out: how well the loop's shape fits, whatever its level."""
+        return math.sqrt(max(self.rms_um ** 2 - self.offset_um ** 2, 0.0))
+
+    @property
     def rms_pct_stroke(self) -> float:
         return 100.0 * self.rms_um / self.stroke_um if self.stroke_um > 0 else float("nan")
 
@@ -300,7 +305,7 @@ class SDPIIdentifier:
         loops' own error."""
         for _ in range(ZERO_PASSES):
             off = np.array([f.offset_um for f in self.report_])
-            shape = float(np.median([math.sqrt(max(f.rms_um ** 2 - f.offset_um ** 2, 0.0)) for f in self.report_]))
+            shape = float(np.median([f.shape_rms_um for f in self.report_]))
             shift = off - off[0]
             if float(np.max(np.abs(shift))) <= ZERO_SETTLED * shape:
                 break
@@ -775,7 +780,7 @@ def zero_mismatch(fits: Sequence[RecordingFit]) -> str:
     which no model of the actuator can fit ('' otherwise)."""
     if len(fits) < 2:
         return ""
-    shape = float(np.median([math.sqrt(max(f.rms_um ** 2 - f.offset_um ** 2, 0.0)) for f in fits]))
+    shape = float(np.median([f.shape_rms_um for f in fits]))
     off = [f for f in fits if abs(f.offset_um) > ZERO_RATIO * max(shape, 1e-12)]
     if not off:
         return ""

@@ -39,6 +39,11 @@ class RecData:
     jumps: Jumps = field(default_factory=Jumps)   # steps of the sensor's zero (`jumps.py`), each fitted as an offset change
 
     @property
+    def recorded_stress(self) -> np.ndarray:
+        """The stress as recorded (unclamped), or the clamped zeros of a recording without one."""
+        return self.s if self.s_raw is None else self.s_raw
+
+    @property
     def duration_s(self) -> float:
         return float(self.t[-1] - self.t[0])
 

@@ -57,8 +57,7 @@ def _spread(change: np.ndarray) -> float:
     if change.size == 0:
         return 0.0
     mad = float(np.median(np.abs(change - np.median(change))))
-    nonzero = np.abs(change)[np.abs(change) > 0]
-    return max(1.4826 * mad, 0.5 * float(nonzero.min()) if nonzero.size else 0.0)
+    return max(1.4826 * mad, 0.5 * _smallest_step(change))
 
 
 def _noise_spread(r: np.ndarray, span: int) -> float:
@@ -72,12 +71,12 @@ def _noise_spread(r: np.ndarray, span: int) -> float:
     return max(np.sqrt(2.0) * sigma, _spread(_changes(r, span)) if sigma == 0 else 0.0)
 
 
-def _quantum(y: np.ndarray) -> float:
-    """The measurement's resolution: its smallest step between samples (a quantised sensor ticks by
-    one quantum where the motion is slow, which is no jump; for an unquantised one it is tiny)."""
-    d = np.abs(np.diff(y))
-    d = d[d > 0]
-    return float(d.min()) if d.size else 0.0
+def _smallest_step(x: np.ndarray) -> float:
+    """The smallest non-zero magnitude in x (0 if none): a quantised signal's quantum, when x holds
+    its changes (for an unquantised one it is tiny)."""
+    a = np.abs(x)
+    a = a[a > 0]
+    return float(a.min()) if a.size else 0.0
 
 
 def _steps_at(change: np.ndarray, k: int, near: int, w: int, floor: float) -> bool:
@@ -135,10 +134,12 @@ def sensor_jumps(measured: np.ndarray, predicted: np.ndarray, drive: np.ndarray,
     w = max(LEVEL_MIN_SAMPLES, int(round(LEVEL_S / dt)), 4 * span)
     if n - first < 2 * w + span + 1:
         return Jumps()
-    r = np.asarray(measured, dtype=float) - np.asarray(predicted, dtype=float)
+    y = np.asarray(measured, dtype=float)
+    r = y - np.asarray(predicted, dtype=float)
     change = _changes(r, span)                         # change[k] = r[k + span] - r[k]
-    seen = _changes(np.asarray(measured, dtype=float), span)
-    spread = max(_noise_spread(r[first:], span), 0.5 * _quantum(np.asarray(measured[first:], dtype=float)))
+    seen = _changes(y, span)
+    # a quantised sensor ticks by one quantum where the motion is slow, which is no jump
+    spread = max(_noise_spread(r[first:], span), 0.5 * _smallest_step(np.diff(y[first:])))
     if spread <= 0:
         return Jumps()
     near = max(span + 1, int(round(QUIET_S / dt)))

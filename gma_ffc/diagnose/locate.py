@@ -122,8 +122,9 @@ def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows
     line = spectral_line(residual, d.u, d.dt_med)
     if line is not None:
         where += "; " + line_words(line)
-    if d.jumps.found or d.jumps.excess:
-        where += "; " + jump_words(d.jumps)
+    jumped = jump_words(d.jumps)
+    if jumped:
+        where += "; " + jumped
     if strong:
         where += "; residual " + ", ".join(words[key] + f" (r = {cond[key]:+.2f})" for _, key in strong[:2])
     return Located(d.name, where, float(np.sqrt(np.mean(raw_residual ** 2))),

@@ -253,7 +253,7 @@ class _Run:
         _ = fitter.yc_center          # computed once, before any threads share the fitter
         self.base_pred = [yc for _, yc in base_core]
         for d, yc in zip(data, self.base_pred):     # before any fit: each jump is a column of every design
-            d.jumps = sensor_jumps(d.y, yc, d.u, d.s if d.s_raw is None else d.s_raw, d.t, d.dt_med, d.settled)
+            d.jumps = sensor_jumps(d.y, yc, d.u, d.recorded_stress, d.t, d.dt_med, d.settled)
             if d.jumps.excess:
                 self.cannot.append(f"{d.name}: {jump_words(d.jumps)}")
         self.rms_before = float(np.sqrt(sum(float(np.sum((d.y - yc)[d.settled:] ** 2))

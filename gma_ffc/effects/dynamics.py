@@ -138,7 +138,7 @@ class Dynamics(EffectBase):
     def fit_stress(cls, d: Any) -> np.ndarray:
         """The stress transform on a recording (the diagnosis' `RecData`): the load's static stress
         from the stress as recorded (not clamped; the fitter clamps what the core sees)."""
-        return RL.static_stress(d.s if d.s_raw is None else d.s_raw, d.dt)
+        return RL.static_stress(d.recorded_stress, d.dt)
 
     @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
