@@ -15,6 +15,7 @@ import numpy as np
 from ..errors import InputError
 from ..recordings import Recording
 from .jumps import Jumps
+from .noise import second_difference_sigma
 
 N_BLOCKS = 16         # blocks per recording; even-numbered ones form fold A, odd ones fold B
 MAX_FIT_ROWS = 20000  # rows used by the least squares (evenly strided); filters always run at full rate
@@ -124,16 +125,11 @@ def mean_stress(data: Sequence[RecData]) -> float:
 
 
 def noise_floor(y: np.ndarray) -> float:
-    """Measurement noise std from the data: robust spread of the second difference (white noise: var 6 sigma^2).
-
-    Slow signal content hardly contributes to a second difference at kHz rates; the median
-    absolute deviation ignores the few samples where the signal itself turns fast.
-    """
+    """Measurement noise std from the data (`noise.second_difference_sigma`); a quantised, nearly
+    constant signal falls back on the plain spread of its second differences."""
     if y.size < 5:
         return float("nan")
-    d2 = np.diff(y, 2)
-    mad = float(np.median(np.abs(d2 - np.median(d2))))
-    sigma = 1.4826 * mad / np.sqrt(6.0)
-    if sigma == 0.0:  # quantised, nearly constant signal: fall back on the plain spread
-        sigma = float(np.std(d2)) / np.sqrt(6.0)
+    sigma = second_difference_sigma(y)
+    if sigma == 0.0:
+        sigma = float(np.std(np.diff(y, 2))) / np.sqrt(6.0)
     return sigma

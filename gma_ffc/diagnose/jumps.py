@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .noise import second_difference_sigma
+
 # A jump is a change over a span this many times the spread the noise gives such changes (sqrt(2)
 # sigma for white noise, the change Gaussian): exceeded with probability ~1e-23.
 JUMP_SIGMAS = 10.0
@@ -61,13 +63,12 @@ def _spread(change: np.ndarray) -> float:
 
 
 def _noise_spread(r: np.ndarray, span: int) -> float:
-    """The spread of a change over the span that the noise alone makes: sqrt(2) sigma, sigma from the
-    MAD of second differences (white noise: var 6 sigma^2), which the signal's own motion, however
-    fast at these rates, hardly reaches; half the quantum of a quantised signal at least."""
+    """The spread of a change over the span that the noise alone makes: sqrt(2) sigma (sigma from
+    `noise.second_difference_sigma`, which the signal's own motion, however fast at these rates,
+    hardly reaches); the changes' own spread where that is 0."""
     if r.size < 3:
         return 0.0
-    d2 = np.diff(r, 2)
-    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
+    sigma = second_difference_sigma(r)
     return max(np.sqrt(2.0) * sigma, _spread(_changes(r, span)) if sigma == 0 else 0.0)
 
 
