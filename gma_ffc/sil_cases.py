@@ -117,6 +117,25 @@ def sdp_variant_cases() -> list[Case]:
 
 HOLDOUT_SEED = 20261122   # fixed before the set was first run; never changed to move a result
 
+# each effect's plant setting and the range its magnitude is drawn from (the never-tuned sets)
+EFFECT_RANGES: dict[str, tuple[str, str, tuple[float, float]]] = {
+    "rate_dependence": ("eddy", "time_constant_ms", (0.8, 3.5)),
+    "time_delay": ("delay", "delay_ms", (0.7, 3.5)),
+    "mechanical_dynamics": ("dynamics", "damping_ratio", (0.05, 0.25)),
+    "thermal_drift": ("thermal", "drift_um_per_K", (0.12, 0.45)),
+    "creep": ("creep", "gains", (0.03, 0.07)),
+    "stress_dependent_play": ("magnetics", "width_change_per_MPa", (0.15, 0.35)),
+}
+
+
+def _effect_drawn(label: str, rng: np.random.Generator) -> tuple[str, dict[str, Any]]:
+    """The plant section and settings that switch effect `label` on at a magnitude drawn from its range."""
+    sec, key, (lo, hi) = EFFECT_RANGES[label]
+    v = float(np.round(rng.uniform(lo, hi), 3))
+    values: dict[str, Any] = {key: [v, v, v] if key == "gains" else v}
+    values["stress_dependent_width" if sec == "magnetics" else "enabled"] = True
+    return sec, values
+
 
 def holdout_cases() -> list[Case]:
     """The never-tuned set: magnitudes, seeds and variants drawn once from HOLDOUT_SEED.
@@ -126,22 +145,9 @@ def holdout_cases() -> list[Case]:
     nulls, a pair, and the families users bring: cut mid-cycle, voltage-labelled, falling polarity.
     """
     rng = np.random.default_rng(HOLDOUT_SEED)
-    ranges: dict[str, tuple[str, str, tuple[float, float]]] = {
-        "rate_dependence": ("eddy", "time_constant_ms", (0.8, 3.5)),
-        "time_delay": ("delay", "delay_ms", (0.7, 3.5)),
-        "mechanical_dynamics": ("dynamics", "damping_ratio", (0.05, 0.25)),
-        "thermal_drift": ("thermal", "drift_um_per_K", (0.12, 0.45)),
-        "creep": ("creep", "gains", (0.03, 0.07)),
-        "stress_dependent_play": ("magnetics", "width_change_per_MPa", (0.15, 0.35)),
-    }
     out: list[Case] = []
-    for label, (sec, key, (lo, hi)) in ranges.items():
-        v = float(np.round(rng.uniform(lo, hi), 3))
-        values: dict[str, Any] = {key: [v, v, v] if key == "gains" else v}
-        if sec == "magnetics":
-            values["stress_dependent_width"] = True
-        else:
-            values["enabled"] = True
+    for label in EFFECT_RANGES:
+        sec, values = _effect_drawn(label, rng)
         variant = ("plain", "cut", "voltage", "falling")[int(rng.integers(4))]
         out.append(Case(f"holdout:{label}", (label,), _set(**{sec: values}), f"{sec} {values} ({variant})",
                         int(rng.integers(10_000, 99_999)), loads=3 if label == "stress_dependent_play" else 2,
@@ -160,6 +166,41 @@ def holdout_cases() -> list[Case]:
                     _set(eddy={"enabled": True, "time_constant_ms": tau},
                          dynamics={"enabled": True, "damping_ratio": zeta}),
                     f"eddy tau {tau} ms with a resonance (zeta {zeta})", int(rng.integers(10_000, 99_999))))
+    return out
+
+
+OTHER_PLANTS_SEED = 20261124   # fixed before the set was first run; never changed to move a result
+
+
+def other_plant_cases(n_plants: int = 6) -> list[Case]:
+    """Actuators that are not hil_sim's default one: Jiles-Atherton parameters, magnetostriction,
+    stress coupling, preload, rod length and sensor noise drawn once from OTHER_PLANTS_SEED over
+    the ranges a Terfenol-D rig spans. Each plant gives a null case (nothing missing) and a case
+    with one effect drawn at a magnitude from its range, so a threshold that only holds for the
+    default actuator shows. Quoted apart from the development and never-tuned sets."""
+    rng = np.random.default_rng(OTHER_PLANTS_SEED)
+    out: list[Case] = []
+    labels = list(EFFECT_RANGES)
+    for k in range(n_plants):
+        plant = {"magnetics": {"pinning_A_per_m": float(np.round(rng.uniform(1500, 4000))),
+                               "anhysteretic_shape_A_per_m": float(np.round(rng.uniform(5000, 10000))),
+                               "reversibility": float(np.round(rng.uniform(0.1, 0.35), 3)),
+                               "saturation_magnetostriction_ppm": float(np.round(rng.uniform(900, 1500))),
+                               "stress_coupling": float(np.round(rng.uniform(0.6, 1.2), 3))},
+                 "rig": {"preload_stress_MPa": float(np.round(rng.uniform(-15, -8), 2)),
+                         "rod_length_mm": float(np.round(rng.uniform(60, 100)))},
+                 "noise": {"displacement_std_um": float(np.round(rng.uniform(0.01, 0.05), 4))}}
+        label = labels[int(rng.integers(len(labels)))]
+        sec, values = _effect_drawn(label, rng)
+        seeds = rng.integers(10_000, 99_999, 2)
+        about = (f"JA k {plant['magnetics']['pinning_A_per_m']:.0f} a {plant['magnetics']['anhysteretic_shape_A_per_m']:.0f} "
+                 f"c {plant['magnetics']['reversibility']}, preload {plant['rig']['preload_stress_MPa']} MPa")
+        out.append(Case(f"plant{k + 1}:null", (), _set(**plant), f"no missing physics ({about})", int(seeds[0]),
+                        loads=3))
+        with_effect = copy.deepcopy(plant)
+        with_effect.setdefault(sec, {}).update(values)
+        out.append(Case(f"plant{k + 1}:{label}", (label,), _set(**with_effect), f"{sec} {values} ({about})",
+                        int(seeds[1]), loads=3 if label == "stress_dependent_play" else 2))
     return out
 
 
