@@ -53,3 +53,18 @@ def test_no_stress_dependent_play_on_a_null_case_at_three_loads():
     play = next(c for c in dg.candidates if c.effect == "stress_dependent_play")
     assert play.testable, play.reason            # the case does put the effect to the test
     assert dg.verdict == [] and dg.outcome in ("within_noise", "unexplained"), dg.explanation
+
+
+def test_an_effect_named_against_the_core_before_the_rebase_must_earn_its_place_again():
+    """An actuator other than the default one (`other_plant_cases`, plant 5: a 2.3 ms eddy lag):
+    the eddy's leftover on the base's core, which the core identified again through the eddy lag
+    no longer has, was named creep (and before that a 1 kHz resonance at 2 kHz sampling). On the
+    new core each later effect is judged again by the rule it was accepted by."""
+    case = next(c for c in bench.other_plant_cases() if c.name == "plant5:rate_dependence")
+    model, rec = bench.make_case(case, scale=0.5)
+    dg = diagnose(model, [rec])
+    assert dg.verdict == ["rate_dependence"], dg.explanation
+    dropped = [c for c in dg.candidates if "no longer earns its place" in c.reason]
+    assert dropped and not any(c.accepted for c in dropped)
+    assert f"{dropped[0].effect} was dropped" in dg.validation
+    assert dg.rms_after_um <= 0.5 * dg.rms_before_um

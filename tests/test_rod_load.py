@@ -199,3 +199,49 @@ def test_diagnose_recovers_known_load_dynamics(base):
     # per-fold choice of three nonlinear parameters leaves a few hundredths of a micrometre)
     assert dg.rms_after_um < 2.0 * dg.noise_um
     assert dg.rms_after_um < 0.02 * dg.rms_before_um
+
+
+class _Fit:
+    """What the resonance's signature and search points read of the diagnosis' fitter."""
+
+    dt_min = 1.0 / FS
+    stress_varies = False
+    stress_top, stress_bottom = -11.0, -20.0
+
+
+def _check(f_hz: float, zeta: float):
+    from types import SimpleNamespace
+
+    from gma_ffc.effects.base import SignatureCheck
+    from gma_ffc.effects.dynamics import Dynamics
+
+    spec = {Dynamics.name: (f_hz, zeta, 0.0)}
+    return Dynamics.signature(SignatureCheck(_Fit(), None, (), SimpleNamespace(specs=(spec, spec, spec)), {},
+                                             0.02, 0.5, 3.0))
+
+
+@given(f=st.floats(5.0, 0.79 * FS / 2), zeta=st.floats(0.01, 0.49))
+@settings(max_examples=50, deadline=None)
+def test_a_resonance_inside_the_search_passes_its_signature(f, zeta):
+    assert _check(f, zeta) is None
+
+
+def test_a_fit_at_the_heaviest_damping_or_the_highest_frequency_is_no_resonance():
+    """Damping run to the cap (a low-pass, no peak) or a frequency run to the sampling's limit is a
+    lag, which a leftover of eddy currents or a delay gives as well: not named a resonance."""
+    from gma_ffc.effects.dynamics import MAX_ZETA, TOP_OF_NYQUIST
+
+    assert "heaviest damping" in _check(300.0, MAX_ZETA).reason
+    assert "highest frequency" in _check(TOP_OF_NYQUIST * FS / 2, 0.1).reason
+
+
+def test_the_search_never_leaves_the_frequencies_the_sampling_resolves():
+    """The zoom multiplies the frequency: its points stay at or below the grid's top (0.8 Nyquist),
+    where a period still spans 2.5 samples (a resonance found at 1058 Hz at 2 kHz sampling was the
+    leftover of an eddy lag)."""
+    from gma_ffc.effects.dynamics import TOP_OF_NYQUIST, Dynamics
+
+    top = TOP_OF_NYQUIST * FS / 2
+    assert max(p[0] for p in Dynamics.grid(type("F", (_Fit,), {"duration_max": 40.0})())) == pytest.approx(top)
+    for level in range(4):
+        assert max(p[0] for p in Dynamics.refine(_Fit(), (0.95 * top, 0.3, 0.0), level)) <= top

@@ -131,8 +131,13 @@ class EffectSelector:
 
     def accepts(self, best: Candidate, cur_loss: float, noise: float) -> bool:
         """The acceptance rule of one round (before the winner's signature check)."""
-        return (best.cv_loss < self.min_mse_ratio * cur_loss and best.loglik_gain > self.min_loglik_gain
-                and math.sqrt(cur_loss) - math.sqrt(best.cv_loss) > 0.5 * noise)
+        return self.earns_place(best.cv_loss, best.loglik_gain, cur_loss, noise)
+
+    def earns_place(self, loss: float, loglik_gain: float, loss_without: float, noise: float) -> bool:
+        """Does an effect that takes the held-out loss from `loss_without` to `loss` (with that
+        log-likelihood gain, its parameters paid for) earn its place in the model?"""
+        return (loss < self.min_mse_ratio * loss_without and loglik_gain > self.min_loglik_gain
+                and math.sqrt(loss_without) - math.sqrt(loss) > 0.5 * noise)
 
 
 def effective_samples(resid: np.ndarray, lengths: Sequence[int]) -> float:
@@ -335,15 +340,14 @@ class _Run:
         tried.sort(key=lambda c: c.cv_loss)
         best = tried[0]
         ok = sel.accepts(best, self.cur_loss, self.noise)
-        # signature checks, in registry order: a winner without its effect's signature is dropped
-        for cls in effect_registry.candidates():
-            if not (ok and best.effect == cls.name):
-                continue
+        # signature checks: a winner without its effect's signature is dropped, and the next one checked
+        while ok:
             assert best.result is not None
-            failure = cls.signature(SignatureCheck(fitter, self.model, self.current, best.result, best.params,
-                                                   self.noise, sel.slow_ratio_max, sel.model_error_factor))
+            failure = REGISTRY[best.effect].signature(
+                SignatureCheck(fitter, self.model, self.current, best.result, best.params, self.noise,
+                               sel.slow_ratio_max, sel.model_error_factor))
             if failure is None:
-                continue
+                break
             best.testable, best.reason = False, failure.reason
             if failure.outside_class:
                 self.outside_class = failure.reason
@@ -491,6 +495,32 @@ class _Run:
         self.final = SearchResult(final.specs, cv_loss, cv_mse, sc.all_mse, sc.n_held_out, sc.coef_all, sc.names,
                                   final.evaluated)
         self.cur_cv, self.cur_loss = cv_mse, cv_loss
+        self._prune_after_rebase(names)
+
+    def _prune_after_rebase(self, through: str) -> None:
+        """Effects accepted later than the input-side one were judged against the residual of the old
+        core, part of which was the input-side effect's lag absorbed twice: on the new core each must
+        earn its place again, by the rule it was accepted by, or it is dropped."""
+        for name in [n for n in self.accepted if REGISTRY[n].stage != "input"]:
+            fitter, final = self.fitter, self.final
+            without: Specs = tuple(s.without(name) for s in final.specs)  # type: ignore[assignment]
+            sc = fitter.score(without, want_coef=True)
+            assert sc.coef_all is not None
+            n_eff = effective_samples(fitter.test_residuals(final.specs), fitter.segment_lengths)
+            gain = 0.5 * n_eff * math.log(sc.held_out_loss / max(self.cur_loss, 1e-300)) - REGISTRY[name].n_params
+            if self.sel.earns_place(self.cur_loss, gain, sc.held_out_loss, self.noise):
+                continue
+            cand = self.candidates[name]
+            cand.accepted = False
+            cand.reason = (f"named against the core before it was identified again through {through}; on the new "
+                           f"core it no longer earns its place (held-out {math.sqrt(self.cur_cv):.4g} um with it, "
+                           f"{math.sqrt(sc.held_out_mse):.4g} um without)")
+            self.accepted.remove(name)
+            self.ambiguous_pairs = [p for p in self.ambiguous_pairs if name not in p]
+            self.rebase_note += f" {name} was dropped: {cand.reason}."
+            self.final = SearchResult(without, sc.held_out_loss, sc.held_out_mse, sc.all_mse, sc.n_held_out,
+                                      sc.coef_all, sc.names, final.evaluated)
+            self.cur_cv, self.cur_loss = sc.held_out_mse, sc.held_out_loss
 
     # ------------------------------------------------------------------ step 6: final guards
     def final_guards(self) -> None:

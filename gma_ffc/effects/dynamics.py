@@ -18,9 +18,12 @@ import numpy as np
 from ..errors import ModelError
 from . import kernels as K
 from . import rod_load as RL
-from .base import BatchSignals, EffectBase, FitData, Regressors, StepSignals, positive
+from .base import (BatchSignals, EffectBase, FitData, Regressors, SignatureCheck, SignatureFailure, StepSignals,
+                   positive)
 
 MAX_ZETA = 0.5   # a resonance must peak; heavier damping is a lag/delay look-alike and is left to those
+TOP_OF_NYQUIST = 0.8   # the highest resonance searched, as a fraction of the Nyquist frequency: above
+                       # it a few samples per period cannot show a peak, only a lag
 
 
 class Dynamics(EffectBase):
@@ -85,9 +88,9 @@ class Dynamics(EffectBase):
     @classmethod
     def grid(cls, fitter: FitData) -> list[tuple[float, float, float]]:
         """Resonance frequency x damping, load-independent; the load dependence is refined afterwards."""
-        nyq = 0.5 / fitter.dt_min
+        f_hi = _f_max(fitter)
         f_lo = max(2.0, 20.0 / max(fitter.duration_max, 1e-9))
-        freqs = np.geomspace(f_lo, 0.8 * nyq, 18) if 0.8 * nyq > f_lo else np.array([0.8 * nyq])
+        freqs = np.geomspace(f_lo, f_hi, 18) if f_hi > f_lo else np.array([f_hi])
         zetas = (0.02, 0.05, 0.12, 0.25, 0.45)
         return [(float(fr), z, 0.0) for fr in freqs for z in zetas]
 
@@ -133,6 +136,22 @@ class Dynamics(EffectBase):
             return _point(fitter, fr * k[0], z * k[1], ratio * k[2] if k.size > 2 else ratio)
 
         return (3 if fitter.stress_varies else 2), at
+
+    @classmethod
+    def signature(cls, check: SignatureCheck) -> SignatureFailure | None:
+        """A resonance the data show peaks: a fit that runs to the heaviest damping searched (or to the
+        highest frequency the sampling resolves) wants a low-pass, a lag that a leftover of eddy
+        currents, a delay or the core's shape gives as well."""
+        f, zeta, _ = check.result.specs[2][cls.name]
+        if zeta >= MAX_ZETA * (1.0 - 1e-9):
+            return SignatureFailure(
+                f"its fit runs to the heaviest damping of a resonance that peaks (damping ratio {MAX_ZETA:.2g}): "
+                "the gain is a low-pass's, a lag that a leftover of another effect gives as well")
+        if f >= _f_max(check.fitter) * (1.0 - 1e-9):
+            return SignatureFailure(
+                f"its fit runs to the highest frequency the sampling resolves ({f:.4g} Hz, "
+                f"{TOP_OF_NYQUIST:.0%} of Nyquist): no peak is seen, only a lag")
+        return None
 
     @classmethod
     def fit_stress(cls, d: Any) -> np.ndarray:
@@ -183,8 +202,13 @@ def _point(fitter: FitData, f_top: float, zeta: float, ratio: float) -> tuple[fl
     """The parameter point (resonance at the least compressive load, damping, beta) of a frequency,
     a damping (at most MAX_ZETA) and a heaviest/lightest frequency ratio (0.15..1)."""
     ratio = min(max(ratio, 0.15), 1.0)
-    return (float(f_top), float(min(zeta, MAX_ZETA)),
+    return (float(min(f_top, _f_max(fitter))), float(min(zeta, MAX_ZETA)),
             float((ratio ** -2 - 1.0) / _stress_extent(fitter)) if fitter.stress_varies else 0.0)
+
+
+def _f_max(fitter: FitData) -> float:
+    """The highest resonance (at the least compressive load) the recordings' sampling resolves."""
+    return TOP_OF_NYQUIST * 0.5 / fitter.dt_min
 
 
 def _stress_extent(f: FitData) -> float:
