@@ -36,7 +36,7 @@ import numpy as np
 from gma_ffc.diagnose.engine import diagnose
 from gma_ffc.initial_state import settled_index
 from gma_ffc.sil_cases import (FS, LABELS, Case, cases, holdout_cases, make_case,  # noqa: F401  (re-exported)
-                               other_plant_cases, sdp_variant_cases)
+                               OTHER_PLANTS_HOLDOUT_SEED, other_plant_cases, sdp_variant_cases)
 
 def run_case(case: Case) -> dict[str, Any]:
     model, rec = make_case(case)
@@ -64,18 +64,20 @@ def effect_free_floor(case: Case) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--set", choices=("tuned", "holdout", "all", "sdp-variants", "plants"), default="tuned",
+    ap.add_argument("--set", choices=("tuned", "holdout", "all", "sdp-variants", "plants", "plants-holdout"), default="tuned",
                     help="the development cases (default), the never-tuned set, both, six more "
                          "stress-dependent play cases on plain, voltage, falling and cut recordings, or "
                          "six other actuators (drawn Jiles-Atherton parameters, preload, rod, noise), "
-                         "each with nothing missing and with one effect")
+                         "each with nothing missing and with one effect (plants-holdout: six more, never tuned)")
     ap.add_argument("--quick", action="store_true", help="middle magnitude of each effect, two nulls, one pair")
     ap.add_argument("--only", default="", help="comma-separated case-name prefixes")
     args = ap.parse_args(argv)
     sets = {"tuned": [("development cases (thresholds were developed on these)", cases())],
             "holdout": [("never-tuned set (seed fixed in advance; quoted apart)", holdout_cases())],
             "sdp-variants": [("stress-dependent play variants (development; quoted apart)", sdp_variant_cases())],
-            "plants": [("other actuators (seed fixed in advance; quoted apart)", other_plant_cases())]}
+            "plants": [("other actuators (development: looked at, one fix made on it)", other_plant_cases())],
+            "plants-holdout": [("other actuators, never tuned (seed fixed in advance; quoted apart)",
+                                other_plant_cases(seed=OTHER_PLANTS_HOLDOUT_SEED, prefix="unseen-plant"))]}
     chosen = sets["tuned"] + sets["holdout"] if args.set == "all" else sets[args.set]
     ok = True
     for title, todo in chosen:
