@@ -233,7 +233,11 @@ def plot_candidates(dg: Diagnosis, render: Any = None) -> Any:
     ax.barh(names, vals, color=colors)
     ax.axvline(dg.rms_recalibrated_um, color="tab:orange", ls="--", label="recalibrated base (null)")
     ax.axvline(dg.noise_um, color="tab:green", ls=":", label="noise floor")
-    ax.set_xlabel("held-out RMS (um), last round each effect was tried")
+    if dg.verdict:
+        # each bar is from the round the effect was last tried in, with the effects accepted before it
+        # in place: an accepted one's bar is its own round's, and the model with all of them ends here
+        ax.axvline(dg.rms_after_um, color="tab:blue", ls="-.", label="extended model (final)")
+    ax.set_xlabel("held-out RMS (um) in the round each effect was last tried (with the effects accepted before it)")
     ax.set_ylabel("candidate effect (blue: accepted)")
     ax.invert_yaxis()
     _legend_outside(ax)
