@@ -56,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
         model, rec = make_case(case)
         d = prepare([rec], model)[0]
         yc = model.simulate(d.t, d.u, d.s if model.stress_range_MPa is not None else None, initial_state=d.start)
-        stress = d.s if d.s_raw is None else d.s_raw
+        stress = d.recorded_stress
         plain = sensor_jumps(d.y, yc, d.u, stress, d.t, d.dt_med, d.settled)
         false_found += len(plain.found) + plain.excess
         cells = []

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .noise import second_difference_sigma
+from .noise import mad_sigma, second_difference_sigma
 
 # A jump is a change over a span this many times the spread the noise gives such changes (sqrt(2)
 # sigma for white noise, the change Gaussian): exceeded with probability ~1e-23.
@@ -58,8 +58,7 @@ def _spread(change: np.ndarray) -> float:
     whose changes are mostly zero."""
     if change.size == 0:
         return 0.0
-    mad = float(np.median(np.abs(change - np.median(change))))
-    return max(1.4826 * mad, 0.5 * _smallest_step(change))
+    return max(mad_sigma(change), 0.5 * _smallest_step(change))
 
 
 def _noise_spread(r: np.ndarray, span: int) -> float:

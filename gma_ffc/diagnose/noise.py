@@ -7,6 +7,12 @@ import numpy as np
 MAD_TO_SIGMA = 1.4826       # a normal distribution's standard deviation per median absolute deviation
 
 
+def mad_sigma(x: np.ndarray) -> float:
+    """A normal sample's standard deviation from its median absolute deviation: what most samples
+    spread by, whatever a few outliers (bursts, steps) do."""
+    return MAD_TO_SIGMA * float(np.median(np.abs(x - np.median(x))))
+
+
 def second_difference_sigma(y: np.ndarray) -> float:
     """The white noise's std in y: the robust spread (MAD) of its second differences, whose variance
     is 6 sigma^2 for white noise. Slow signal content hardly reaches a second difference at kHz
@@ -15,5 +21,4 @@ def second_difference_sigma(y: np.ndarray) -> float:
     than three samples."""
     if y.size < 3:
         return 0.0
-    d2 = np.diff(y, 2)
-    return MAD_TO_SIGMA * float(np.median(np.abs(d2 - np.median(d2)))) / float(np.sqrt(6.0))
+    return mad_sigma(np.diff(y, 2)) / float(np.sqrt(6.0))

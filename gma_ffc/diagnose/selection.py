@@ -36,6 +36,7 @@ from .checks import check_overlap
 from .anchor import anchor_data, anchor_words
 from .rebase import reidentify_through
 from .data import N_BLOCKS, RecData, noise_floor, prepare
+from .noise import mad_sigma
 from .jumps import jump_words, sensor_jumps
 from .explain import decider, drive_unit, explain, identification_rms, runner_up_note, validation_words
 from .fitting import ZOOM_LEVELS, Fitter, SearchResult, Spec, search
@@ -138,6 +139,12 @@ class EffectSelector:
         log-likelihood gain, its parameters paid for) earn its place in the model?"""
         return (loss < self.min_mse_ratio * loss_without and loglik_gain > self.min_loglik_gain
                 and math.sqrt(loss_without) - math.sqrt(loss) > 0.5 * noise)
+
+
+def loglik_gain(n_eff: float, loss_without: float, loss: float, n_params: int) -> float:
+    """Penalised held-out log-likelihood gain (nats) of a model that takes the loss per sample from
+    `loss_without` to `loss` on n_eff effectively independent samples, one nat per parameter."""
+    return 0.5 * n_eff * math.log(loss_without / max(loss, 1e-300)) - n_params
 
 
 def effective_samples(resid: np.ndarray, lengths: Sequence[int]) -> float:
@@ -267,8 +274,7 @@ class _Run:
         # Huber scale from the recalibrated base's held-out residual: bursts the core cannot follow at all
         # (e.g. a load change) then weigh in linearly, not quadratically, in fits and in the selection
         r0 = fitter.test_residuals(null_specs)
-        robust_sigma = 1.4826 * float(np.median(np.abs(r0 - np.median(r0))))
-        fitter.delta = max(self.sel.huber_k * robust_sigma, 2.0 * self.noise, 1e-12)
+        fitter.delta = max(self.sel.huber_k * mad_sigma(r0), 2.0 * self.noise, 1e-12)
         null = fitter.score(null_specs, want_coef=True)
         assert null.coef_all is not None
         self.null_loss, self.null_cv = null.held_out_loss, null.held_out_mse
@@ -330,7 +336,7 @@ class _Run:
         assert leader.result is not None
         n_eff = effective_samples(fitter.test_residuals(leader.result.specs), fitter.segment_lengths)
         for c in tried:
-            c.loglik_gain = 0.5 * n_eff * math.log(self.cur_loss / max(c.cv_loss, 1e-300)) - REGISTRY[c.effect].n_params
+            c.loglik_gain = loglik_gain(n_eff, self.cur_loss, c.cv_loss, REGISTRY[c.effect].n_params)
         gains = np.array([c.loglik_gain for c in tried])
         top = max(0.0, float(gains.max()))
         weights = np.exp(np.clip(gains - top, -700, 0))
@@ -507,7 +513,7 @@ class _Run:
             sc = fitter.score(without, want_coef=True)
             assert sc.coef_all is not None
             n_eff = effective_samples(fitter.test_residuals(final.specs), fitter.segment_lengths)
-            gain = 0.5 * n_eff * math.log(sc.held_out_loss / max(self.cur_loss, 1e-300)) - REGISTRY[name].n_params
+            gain = loglik_gain(n_eff, sc.held_out_loss, self.cur_loss, REGISTRY[name].n_params)
             if self.sel.earns_place(self.cur_loss, gain, sc.held_out_loss, self.noise):
                 continue
             cand = self.candidates[name]
