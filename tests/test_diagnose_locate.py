@@ -190,3 +190,19 @@ def test_a_correlation_is_worded_by_its_sign():
     fast = np.where(~slow, rng.normal(0, 0.2, t.size), 0.0)
     loc = locate(_rec(t, u, np.full(t.size, -15.0)), fast, fast)
     assert loc.conditions["drive_rate"] > 0.3 and "grows with the drive rate" in loc.where
+
+
+@pytest.mark.parametrize("r", [-0.54, 0.54])
+def test_each_phrase_carries_its_direction_and_the_r_printed_is_its_size(r):
+    """"grows with the time since steps (r = -0.54)" reads the wrong way round; each phrase says
+    the direction and prints |r|, in the location and in an unexplained residual's words alike."""
+    from gma_ffc.diagnose.explain import residual_words
+    from gma_ffc.diagnose.locate import Located, condition_words
+    cond = {"after_steps": r, "drive_rate": 0.1, "stress": -0.4, "cumulative_heating": 0.35}
+    words = condition_words(cond, "V", 3)
+    assert [w.split(" (r = ")[1] for w in words] == ["0.54)", "0.40)", "0.35)"]     # strongest first, no sign
+    assert words[0].startswith("is largest just after steps" if r > 0 else "grows with the time since steps")
+    assert words[1].startswith("grows with the compression") and "V^2" in words[2]
+    loc = Located("a.csv", "t = 0-1 s", 1.0, 1.0, (0.0, 1.0), (0.0, 1.0), 0.5, cond, None, None)
+    text = residual_words(loc, "V")
+    assert "r = -" not in text and words[0] in text and "drive rate" not in text

@@ -8,7 +8,7 @@ from typing import Any
 from ..effects import REGISTRY
 from .data import N_BLOCKS
 from .fitting import Fitter
-from .locate import Located
+from .locate import Located, condition_words
 from .results import Candidate
 
 
@@ -43,16 +43,13 @@ def physics(effect: str, unit: str) -> str:
     return (cls.physics_voltage or cls.physics) if unit == "V" else cls.physics
 
 
-def residual_words(worst: Located) -> str:
+def residual_words(worst: Located, unit: str = "A") -> str:
     """What an unexplained residual looks like: where, at which frequencies, what it follows."""
-    strong = sorted(((abs(v), k, v) for k, v in worst.conditions.items() if abs(v) >= 0.3), reverse=True)
-    names = {"drive_rate": "the drive rate", "drive_amplitude": "the drive amplitude",
-             "cumulative_heating": "the cumulative drive squared (time)", "stress": "stress",
-             "after_steps": "the time since drive steps"}
-    follows = (", ".join(f"{names[k]} (r = {v:+.2f})" for _, k, v in strong[:3]) if strong
-               else "none of drive rate, amplitude, stress or elapsed time (|r| < 0.3)")
+    follows = condition_words(worst.conditions, "V" if unit == "V" else "I", 3)
+    follows_txt = (", ".join(follows) if follows
+                   else "follows none of drive rate, amplitude, stress or elapsed time (|r| < 0.3)")
     return (f"The residual left is {worst.residual_rms_recalibrated_um:.3g} um RMS in {worst.recording} "
-            f"({worst.where}); it correlates with {follows}.")
+            f"({worst.where}); it {follows_txt}.")
 
 
 def identification_rms(model: Any) -> tuple[float, float] | None:
@@ -93,7 +90,7 @@ def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[
         elif outcome == "inconclusive":
             parts.append("The residual is above the noise but the data cannot decide what it is: see "
                          "cannot_conclude for what could not be tested and the recording that would decide.")
-            parts.append(residual_words(worst))
+            parts.append(residual_words(worst, unit))
         else:
             tried = [c for c in candidates.values() if c.testable and math.isfinite(c.cv_mse)]
             tried.sort(key=lambda c: c.cv_mse)
@@ -111,7 +108,7 @@ def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[
                          "vocabulary. Identifying the core again with a second recording like these among its data "
                          "(gma-ffc identify) and diagnosing these with it removes the first; what stays is one of "
                          "the other two, which these recordings cannot tell apart.")
-            parts.append(residual_words(worst))
+            parts.append(residual_words(worst, unit))
         return " ".join(parts)
     named = [candidates[v] for v in verdict]
     parts.append("The recordings show " + "; then ".join(f"{describe(c, unit)} ({c.effect})" for c in named) + ".")

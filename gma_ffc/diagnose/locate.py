@@ -69,6 +69,24 @@ def band_powers(r: np.ndarray, dt: float) -> np.ndarray:
     return np.array(shares)
 
 
+STRONG_R = 0.3      # a correlation this size explains a tenth of the residual size's variance: worth saying
+
+
+def condition_words(cond: dict[str, float], drive_symbol: str = "I", n: int = 2) -> list[str]:
+    """The n strongest conditions (|r| >= STRONG_R) as phrases that carry their direction, each with
+    |r|: "is largest just after steps (r = 0.54)", never "grows with the time since steps (r = -0.54)",
+    which a reader takes the wrong way round."""
+    up = {"drive_rate": "grows with the drive rate", "drive_amplitude": "grows with the drive amplitude",
+          "cumulative_heating": f"follows the integral of {drive_symbol}^2 (cumulative heating)",
+          "stress": "grows as the compression eases", "after_steps": "is largest just after steps"}
+    down = {"drive_rate": "is largest where the drive is slow",
+            "drive_amplitude": "is largest near the drive's median",
+            "cumulative_heating": f"runs against the integral of {drive_symbol}^2 (cumulative heating)",
+            "stress": "grows with the compression", "after_steps": "grows with the time since steps"}
+    strong = sorted(((abs(v), key, v) for key, v in cond.items() if abs(v) >= STRONG_R), reverse=True)
+    return [f"{(up if v > 0 else down)[key]} (r = {a:.2f})" for a, key, v in strong[:n]]
+
+
 def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows: int = 10) -> Located:
     """Locate the residual (after static recalibration) of one recording."""
     n = residual.size
@@ -107,16 +125,6 @@ def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows
         fin = np.isfinite(since)
         if fin.sum() > 10:
             cond["after_steps"] = _corr(size[fin], -np.log(since[fin] + d.dt_med))
-    rising = {key: v > 0 for key, v in cond.items()}       # a size correlation's words follow its sign
-    words = {"drive_rate": "grows with the drive rate" if rising["drive_rate"]
-             else "is largest where the drive is slow",
-             "drive_amplitude": "grows with the drive amplitude" if rising["drive_amplitude"]
-             else "is largest near the drive's median",
-             "cumulative_heating": f"follows the integral of {d.extra.get('drive_symbol', 'I')}^2 (cumulative heating)",
-             "stress": "changes with stress",
-             "after_steps": "is largest just after steps" if rising.get("after_steps", True)
-             else "grows with the time since steps"}
-    strong = sorted(((abs(v), key) for key, v in cond.items() if abs(v) >= 0.3), reverse=True)
     band_txt = (f"{band[0]:g}-{band[1]:g} Hz" if np.isfinite(band[1]) else f"above {band[0]:g} Hz")
     where = f"t = {win[0]:.4g}-{win[1]:.4g} s ({ratio:.1f}x the median window); {shares[b]:.0%} of its power at {band_txt}"
     line = spectral_line(residual, d.u, d.dt_med)
@@ -125,7 +133,8 @@ def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows
     jumped = jump_words(d.jumps)
     if jumped:
         where += "; " + jumped
-    if strong:
-        where += "; residual " + ", ".join(words[key] + f" (r = {cond[key]:+.2f})" for _, key in strong[:2])
+    follows = condition_words(cond, d.extra.get("drive_symbol", "I"), 2)
+    if follows:
+        where += "; residual " + ", ".join(follows)
     return Located(d.name, where, float(np.sqrt(np.mean(raw_residual ** 2))),
                    float(np.sqrt(np.mean(residual ** 2))), win, band, float(shares[b]), cond, line, d.jumps)
