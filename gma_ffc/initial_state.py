@@ -389,8 +389,6 @@ def _descend(p: np.ndarray, best_cost: float, lo: np.ndarray, hi: np.ndarray, w_
             break
     # Plays that only act together (both still inside their boxes) form valleys that a
     # coordinate search crosses slowly: finish with a joint bounded least-squares step.
-    from scipy.optimize import least_squares
-
     span = np.maximum(hi - lo, 1e-12)
 
     def resid(q: np.ndarray) -> np.ndarray:
@@ -403,8 +401,44 @@ def _descend(p: np.ndarray, best_cost: float, lo: np.ndarray, hi: np.ndarray, w_
         z = (w_h * _clip(pp, A, B)).sum(axis=1)
         return slope(z)[:, None] * inside * (w_h * span)[None, :]
 
-    sol = least_squares(resid, np.clip((p - lo) / span, 0.0, 1.0), jac=jac, bounds=(0.0, 1.0), xtol=1e-14,
-                        ftol=1e-14, gtol=1e-14, max_nfev=20 * n_play)
-    if 2 * sol.cost < best_cost:
-        p, best_cost = lo + sol.x * span, float(2 * sol.cost)
+    q, cost = box_gauss_newton(resid, jac, np.clip((p - lo) / span, 0.0, 1.0), max_nfev=20 * n_play)
+    if cost < best_cost:
+        p, best_cost = lo + q * span, cost
     return best_cost, p
+
+
+def box_gauss_newton(resid: Any, jac: Any, q: np.ndarray, max_nfev: int) -> tuple[np.ndarray, float]:
+    """Least squares of resid(q) over the unit box, from q: projected Gauss-Newton steps on the
+    variables not held at a bound by the gradient, halved until the cost falls. The model is
+    piecewise linear in the states, so within a piece one step lands on its minimum and the
+    halving only works across kinks. Returns (q, sum of squares). Plain numpy: scipy's
+    trust-region solver did the same here at twice the time and a 0.2 s import in every
+    `gma-ffc simulate`."""
+    r = resid(q)
+    cost = float(r @ r)
+    nfev = 1
+    while nfev < max_nfev and cost > 0.0:
+        J = jac(q)
+        g = J.T @ r
+        free = ~(((q <= 0.0) & (g > 0.0)) | ((q >= 1.0) & (g < 0.0)))
+        if not free.any():
+            break
+        step = np.zeros_like(q)
+        step[free] = np.linalg.lstsq(J[:, free], -r, rcond=None)[0]
+        t, moved = 1.0, False
+        while nfev < max_nfev and t > 1e-6:
+            q_new = np.clip(q + t * step, 0.0, 1.0)
+            r_new = resid(q_new)
+            nfev += 1
+            c_new = float(r_new @ r_new)
+            if c_new < cost:
+                moved = True
+                break
+            t *= 0.5
+        if not moved:
+            break
+        gain = cost - c_new
+        q, r, cost = q_new, r_new, c_new
+        if gain <= 1e-14 * (cost + gain):
+            break
+    return q, cost
