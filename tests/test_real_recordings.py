@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from gma_ffc.cli import main
@@ -114,7 +114,8 @@ def test_the_state_fit_escapes_the_local_minima_a_random_search_found(base, k):
 
 
 @settings(max_examples=300, deadline=None)
-@given(seed=st.integers(0, 2**31), n=st.integers(1, 12), m=st.integers(3, 60))
+@given(seed=st.integers(0, 2**31), n=st.integers(1, 12), m=st.integers(1, 60))
+@example(seed=11, n=11, m=3)     # fewer rows than variables: the first active-set form stalled at 1.6x
 def test_the_box_gauss_newton_polish_finds_the_bounded_least_squares_optimum(seed, n, m):
     """On linear residuals (the state fit's model within one piece), the numpy polish reaches
     the box-constrained optimum that scipy's exact active-set solver finds, from any start, within
