@@ -427,19 +427,20 @@ def box_gauss_newton(resid: Any, jac: Any, q: np.ndarray, max_nfev: int) -> tupl
         if held.all():
             break
         moved = False
-        for step, t in (_gauss_newton_step(J, r, q, held), _descent_step(J, g, held)):
-            out = _line_search(resid, q, step, t, cost, max_nfev - nfev)
-            nfev += out[3]
-            if out[0] is not None:
-                q, r, cost = out[0], out[1], out[2]
-                moved = True
+        for direction in (_gauss_newton_step, _descent_step):      # the second only when the first fails
+            step, t = direction(J, r, g, q, held)
+            q_new, r_new, c_new, used = _line_search(resid, q, step, t, cost, max_nfev - nfev)
+            nfev += used
+            if q_new is not None:
+                q, r, cost, moved = q_new, r_new, c_new, True
                 break
         if not moved:
             break
     return q, cost
 
 
-def _gauss_newton_step(J: np.ndarray, r: np.ndarray, q: np.ndarray, held: np.ndarray) -> tuple[np.ndarray, float]:
+def _gauss_newton_step(J: np.ndarray, r: np.ndarray, g: np.ndarray, q: np.ndarray,
+                       held: np.ndarray) -> tuple[np.ndarray, float]:
     """The linearised optimum over the variables not held, holding also those it would push out
     of the bound they are on (so that the step can move at all)."""
     free = ~held
@@ -455,7 +456,8 @@ def _gauss_newton_step(J: np.ndarray, r: np.ndarray, q: np.ndarray, held: np.nda
     return step, 1.0
 
 
-def _descent_step(J: np.ndarray, g: np.ndarray, held: np.ndarray) -> tuple[np.ndarray, float]:
+def _descent_step(J: np.ndarray, r: np.ndarray, g: np.ndarray, q: np.ndarray,
+                  held: np.ndarray) -> tuple[np.ndarray, float]:
     """Down the gradient over the variables not held, to the linearised cost's minimum along it."""
     step = np.where(held, 0.0, -g)
     Jd = J @ step

@@ -68,7 +68,7 @@ def _noise_spread(r: np.ndarray, span: int) -> float:
     if r.size < 3:
         return 0.0
     sigma = second_difference_sigma(r)
-    return max(np.sqrt(2.0) * sigma, _spread(_changes(r, span)) if sigma == 0 else 0.0)
+    return float(np.sqrt(2.0) * sigma) if sigma > 0 else _spread(_changes(r, span))
 
 
 def _smallest_step(x: np.ndarray) -> float:

@@ -507,12 +507,15 @@ class _Run:
         """Effects accepted later than the input-side one were judged against the residual of the old
         core, part of which was the input-side effect's lag absorbed twice: on the new core each must
         earn its place again, by the rule it was accepted by, or it is dropped."""
+        fitter = self.fitter
+        n_eff: float | None = None          # of the current final model's residual: found again only after a drop
         for name in [n for n in self.accepted if REGISTRY[n].stage != "input"]:
-            fitter, final = self.fitter, self.final
+            final = self.final
             without: Specs = tuple(s.without(name) for s in final.specs)  # type: ignore[assignment]
             sc = fitter.score(without, want_coef=True)
             assert sc.coef_all is not None
-            n_eff = effective_samples(fitter.test_residuals(final.specs), fitter.segment_lengths)
+            if n_eff is None:
+                n_eff = effective_samples(fitter.test_residuals(final.specs), fitter.segment_lengths)
             gain = loglik_gain(n_eff, sc.held_out_loss, self.cur_loss, REGISTRY[name].n_params)
             if self.sel.earns_place(self.cur_loss, gain, sc.held_out_loss, self.noise):
                 continue
@@ -527,6 +530,7 @@ class _Run:
             self.final = SearchResult(without, sc.held_out_loss, sc.held_out_mse, sc.all_mse, sc.n_held_out,
                                       sc.coef_all, sc.names, final.evaluated)
             self.cur_cv, self.cur_loss = sc.held_out_mse, sc.held_out_loss
+            n_eff = None
 
     # ------------------------------------------------------------------ step 6: final guards
     def final_guards(self) -> None:
