@@ -19,7 +19,7 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set all      # both, each summarised on its own
     .venv/bin/python scripts/bench_diagnose.py --set sdp-variants  # stress-dependent play on six more recordings
 
-The never-tuned set (`gma_ffc.sil_cases.holdout_cases`, seed fixed before it was first run) also
+The never-tuned set (`benchmarks.cases.holdout_cases`, seed fixed before it was first run) also
 holds the families users bring: a recording cut mid-cycle, a drive labelled in volts and an
 actuator mounted to fall. Nothing in diagnose is adjusted while looking at it.
 """
@@ -28,14 +28,18 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 import time
 from typing import Any
 
 import numpy as np
 
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))      # benchmarks/ is a checkout folder, not part of the package
+
 from gma_ffc.diagnose.engine import diagnose
 from gma_ffc.initial_state import settled_index
-from gma_ffc.sil_cases import (FS, LABELS, Case, cases, holdout_cases, make_case,  # noqa: F401  (re-exported)
+from benchmarks.cases import (FS, LABELS, Case, cases, holdout_cases, make_case,  # noqa: F401  (re-exported)
                                OTHER_PLANTS_HOLDOUT_SEED, other_plant_cases, sdp_variant_cases)
 
 def run_case(case: Case) -> dict[str, Any]:

@@ -2,7 +2,7 @@
 """Does the extended model that `diagnose` writes track better than its base in the control loop?
 
 For each concealed hil_sim case of the diagnosis benchmark: the base SDPI and the case's
-diagnosis recording (`gma_ffc.sil_cases.make_case`), `diagnose` on it, then the real controller
+diagnosis recording (`benchmarks.cases.make_case`), `diagnose` on it, then the real controller
 (sim driver, simulated clock) tracking a sine (3 Hz unless --freq) on the case's own plant, once with the base
 model and once with the extended model as feedforward, through a load change at half time. The
 plant is hil_sim's physical GMA with the case's effect, not the model (no inverse crime); the
@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT))
 from gma_ffc.diagnose.engine import diagnose  # noqa: E402
 from gma_ffc.modelio import save_model  # noqa: E402
 from gma_ffc.sil import run_tracking  # noqa: E402
-from gma_ffc.sil_cases import Case, case_plant, cases, holdout_cases, make_case  # noqa: E402
+from benchmarks.cases import Case, case_plant, cases, holdout_cases, make_case  # noqa: E402
 
 FREQ_HZ = 3.0
 SKIP_PERIODS = 2

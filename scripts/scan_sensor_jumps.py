@@ -17,12 +17,16 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))      # benchmarks/ is a checkout folder, not part of the package
+
 from gma_ffc.diagnose.data import prepare
 from gma_ffc.diagnose.jumps import sensor_jumps
-from gma_ffc.sil_cases import cases, holdout_cases, make_case, sdp_variant_cases
+from benchmarks.cases import cases, holdout_cases, make_case, sdp_variant_cases
 
 STEP_UM = 1.0
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gma_ffc import sil_cases as bench
+from benchmarks import cases as bench
 from gma_ffc.diagnose.anchor import DEFAULT_ID_HZ, anchor_data, identification_loops, identification_rate
 from gma_ffc.diagnose.engine import diagnose
 from gma_ffc.drive import loop_frequency_hz

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from gma_ffc import sil_cases as bench
+from benchmarks import cases as bench
 from gma_ffc.diagnose.engine import diagnose
 
 CASES = {c.name: c for c in bench.cases()}

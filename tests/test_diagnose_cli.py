@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gma_ffc.cli import main
-from gma_ffc import sil_cases as bench
+from benchmarks import cases as bench
 from gma_ffc.modelio import load_model, save_model
 from gma_ffc.recordings import Recording, read_recording, write_recording
 

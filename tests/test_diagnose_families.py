@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from gma_ffc import sil_cases as bench
+from benchmarks import cases as bench
 from gma_ffc.diagnose.engine import diagnose
 from gma_ffc.recordings import Recording
 from hil_sim.plant import PlantConfig

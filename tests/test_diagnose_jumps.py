@@ -95,7 +95,7 @@ def test_no_jump_where_earlier_drafts_saw_one_on_the_benchmark(name):
     beyond the identified range and an SDPI reversal kink: each was taken for a jump by a draft of
     the detector; none is one (the 49 benchmark recordings hold no sensor jump)."""
     from gma_ffc.diagnose.data import prepare
-    from gma_ffc.sil_cases import cases, make_case
+    from benchmarks.cases import cases, make_case
 
     case = next(c for c in cases() if c.name == name)
     model, rec = make_case(case)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gma_ffc import sil_cases as bench
+from benchmarks import cases as bench
 from gma_ffc.diagnose.anchor import anchor_data
 from gma_ffc.diagnose.rebase import reidentify_through
 from gma_ffc.extended import ExtendedModel

@@ -19,7 +19,7 @@ DEFAULTS = {k: p.default for k, p in inspect.signature(EffectSelector).parameter
 
 @pytest.fixture(scope="module")
 def cases():
-    from gma_ffc import sil_cases as bench
+    from benchmarks import cases as bench
 
     by_name = {c.name: c for c in bench.cases()}
     return {name: bench.make_case(by_name[name], scale=0.5) + (by_name[name].truth,) for name in SUBSET}

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gma_ffc import sil_cases as bench
+from benchmarks import cases as bench
 from gma_ffc.diagnose.engine import OUTCOMES, diagnose
 from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.model import SDPIModel

@@ -30,7 +30,7 @@ def registered():
 
 @pytest.fixture(scope="module")
 def case():
-    from gma_ffc import sil_cases as bench
+    from benchmarks import cases as bench
 
     by_name = {c.name: c for c in bench.cases()}
     model, rec = bench.make_case(by_name["null#1"], scale=0.5)

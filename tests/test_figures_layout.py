@@ -12,7 +12,7 @@ from figure_layout import layout_problems
 
 @pytest.fixture(scope="module")
 def bench():
-    from gma_ffc import sil_cases
+    from benchmarks import cases as sil_cases
 
     return sil_cases
 

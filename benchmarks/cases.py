@@ -12,8 +12,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .identify import SDPIIdentifier
-from .recordings import Recording
+from gma_ffc.identify import SDPIIdentifier
+from gma_ffc.recordings import Recording
 
 from hil_sim.plant import GMAPlant, PlantConfig
 
