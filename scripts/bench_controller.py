@@ -54,9 +54,9 @@ def _cfg(rate_hz: float, driver: dict[str, Any], telemetry: str | None) -> Any:
 
 
 def _run(cfg: Any, model: Any, duration: float, driver: Any = None) -> dict[str, Any]:
-    from gma_ffc.control.controller import Controller
+    from gma_ffc.control.manager import ControllerManager
 
-    ctrl = Controller(cfg, model=model, driver=driver)
+    ctrl = ControllerManager(cfg, model=model, driver=driver)
     s = ctrl.run(duration_s=duration)
     if not s["ok"]:
         raise SystemExit(f"benchmark run failed: {s['fault_messages']}")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gma_ffc.control.config import validate_config
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import ControllerManager
 from gma_ffc.control.reference import MultiSine, Sine, Triangle
 from gma_ffc.sil import cached_sdpi_and_mpi
 
@@ -29,7 +29,7 @@ def test_memory_does_not_grow_with_the_number_of_ticks(model):
                                                         {"frequency_hz": 7, "amplitude_um": 2}]},
                            "limits": {"current_min_A": 0, "current_max_A": 3, "slew_A_per_s": 500},
                            "telemetry": {"path": None}})
-    ctrl = Controller(cfg, model=model)
+    ctrl = ControllerManager(cfg, model=model)
     ctrl.run(duration_s=0.05)                 # first run: anything lazily created
     tracemalloc.start()
     try:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from gma_ffc.control.config import validate_config
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import ControllerManager
 from gma_ffc.sil import cached_sdpi_and_mpi, tracking_rms_um
 from gma_ffc.recordings import read_recording
 from hil_sim.plant import PlantConfig
@@ -39,7 +39,7 @@ def test_sdpi_tracks_at_least_twice_as_well_as_mpi(models, tmp_path, stress):
     rms = {}
     for name, model in (("sdpi", sdpi), ("mpi", mpi)):
         cfg = sim_cfg(tmp_path, name, load_mass_kg=PLANT.mass_for_stress(stress))
-        summary = Controller(cfg, model=model).run(duration_s=2.0)
+        summary = ControllerManager(cfg, model=model).run(duration_s=2.0)
         assert summary["ok"], summary["faults"]
         rec = read_recording(cfg.telemetry["path"], require=("time_s", "drive", "displacement_um", "reference_um"))
         assert abs(np.median(rec.stress_MPa) - stress) < 0.5
@@ -49,10 +49,10 @@ def test_sdpi_tracks_at_least_twice_as_well_as_mpi(models, tmp_path, stress):
 
 def test_telemetry_is_a_recording_with_every_tick_and_start_time(models, tmp_path):
     cfg = sim_cfg(tmp_path, "tel", load_mass_kg=10.0)
-    ctrl = Controller(cfg, model=models[0])
+    ctrl = ControllerManager(cfg, model=models[0])
     summary = ctrl.run(duration_s=0.5)
     rec = read_recording(cfg.telemetry["path"])
-    assert len(rec) == summary["ticks"] == ctrl.telemetry.rows_written
+    assert len(rec) == summary["ticks"] == ctrl.recorder.telemetry.rows_written
     for col in ("reference_um", "current_cmd_A", "current_A", "stress_MPa", "displacement_um", "force_N"):
         assert col in rec.columns
     assert rec.metadata["start_unix_s"] == pytest.approx(summary["started_unix_s"])
@@ -67,7 +67,7 @@ def test_stress_change_during_a_run_is_followed(models, tmp_path):
     """The load goes from 0 to 30.6 kg mid-run; the SDPI uses the new stress at once."""
     cfg = sim_cfg(tmp_path, "sched", load_mass_kg=0.0,
                   load_schedule=[[1.0, PLANT.mass_for_stress(-19.1)]])
-    summary = Controller(cfg, model=models[0]).run(duration_s=2.0)
+    summary = ControllerManager(cfg, model=models[0]).run(duration_s=2.0)
     assert summary["ok"]
     rec = read_recording(cfg.telemetry["path"])
     before = rec.stress_MPa[(rec.time_s > 0.2) & (rec.time_s < 0.9)]
@@ -78,7 +78,7 @@ def test_stress_change_during_a_run_is_followed(models, tmp_path):
 
 def test_status_reports_rate_jitter_and_last_values(models, tmp_path):
     cfg = sim_cfg(tmp_path, "status", load_mass_kg=10.0)
-    ctrl = Controller(cfg, model=models[0])
+    ctrl = ControllerManager(cfg, model=models[0])
     assert ctrl.status()["state"] == "idle"
     s = ctrl.run(duration_s=0.3)
     assert s["state"] == "stopped" and s["faults"] == []
@@ -93,7 +93,7 @@ def test_status_reports_rate_jitter_and_last_values(models, tmp_path):
 def test_reload_swaps_model_without_a_current_jump(models, tmp_path):
     sdpi, mpi = models
     cfg = sim_cfg(tmp_path, "reload", load_mass_kg=15.0)
-    ctrl = Controller(cfg, model=sdpi)
+    ctrl = ControllerManager(cfg, model=sdpi)
     # Reload from inside the loop at t = 0.5 s, through the driver's write path.
     orig_write = ctrl.driver.write
     ticks = {"n": 0}
@@ -106,7 +106,7 @@ def test_reload_swaps_model_without_a_current_jump(models, tmp_path):
 
     ctrl.driver.write = write
     summary = ctrl.run(duration_s=1.0)
-    assert summary["ok"] and ctrl.model is mpi
+    assert summary["ok"] and ctrl.setup.model is mpi
     rec = read_recording(cfg.telemetry["path"])
     steps = np.abs(np.diff(rec.columns["current_cmd_A"]))
     assert steps.max() <= 500.0 * 1e-3 + 1e-9
@@ -116,11 +116,11 @@ def test_reload_refuses_restart_keys_and_keeps_old(models, tmp_path):
     from gma_ffc.errors import ConfigError
 
     cfg = sim_cfg(tmp_path, "r2", load_mass_kg=1.0)
-    ctrl = Controller(cfg, model=models[0])
+    ctrl = ControllerManager(cfg, model=models[0])
     other = validate_config({**cfg.raw, "rate_hz": 500})
     with pytest.raises(ConfigError, match="rate_hz"):
         ctrl.reload(other, model=models[1])
-    assert ctrl.cfg is cfg and ctrl.model is models[0]
+    assert ctrl.setup.cfg is cfg and ctrl.setup.model is models[0]
 
 
 def test_telemetry_feeds_identify(models, tmp_path):
@@ -128,7 +128,7 @@ def test_telemetry_feeds_identify(models, tmp_path):
     from gma_ffc.identify import SDPIIdentifier
 
     cfg = sim_cfg(tmp_path, "ident", load_mass_kg=15.0)
-    Controller(cfg, model=models[0]).run(duration_s=1.0)
+    ControllerManager(cfg, model=models[0]).run(duration_s=1.0)
     rec = read_recording(cfg.telemetry["path"])
     model = SDPIIdentifier(n_play=10, n_deadzone=7).fit([rec]).model_
     pred = model.simulate(rec.time_s, rec.drive, rec.stress_MPa)
