@@ -297,7 +297,8 @@ class ControllerManager:
         self.hardware.at_safe = False
         self.driver.write(cmd)
         limited = RAMP if self._mode != RUNNING else s.limiter.clipped
-        s.law.observe(t, ref_now, inputs.displacement_um, stress, limited)
+        if s.law.learner is not None:       # the tick's outcome, to the law's learner
+            s.law.observe(t, ref_now, inputs.displacement_um, stress, limited)
         tick.reference_um = ref_now
         tick.command_A = cmd
         meas = inputs.current_A
