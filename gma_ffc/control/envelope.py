@@ -78,10 +78,6 @@ class StressRange:
         rng = model.stress_range_MPa
         return cls(*(rng if rng is not None else (-math.inf, math.inf)), policy=policy)
 
-    def outside(self, stress: float) -> bool:
-        """The tick's one test of the stress against the range (allocation-free)."""
-        return stress < self.lo or stress > self.hi
-
     def operating_point(self) -> float:
         """A stress inside the range: its middle, or the reference stress where it is unbounded."""
         if math.isfinite(self.lo) and math.isfinite(self.hi):

@@ -35,6 +35,7 @@ from . import safety
 from .builder import build, build_reload
 from .config import ControllerConfig
 from .faults import TickFault, classify
+from .law import FeedforwardController
 from .learned_file import save_if_learned
 from .realtime import realtime
 from .safety import RAMP
@@ -293,44 +294,46 @@ class ControllerManager:
             raise TickFault(bad, s.monitor.message(bad, inputs.force_N if s.monitor.source_force else inputs.stress_MPa))
         stress = s.monitor.stress
         ref_now = s.reference_now.value(t)
-        cmd = s.limiter.apply(self._target(t, stress))
+        law = s.law
+        if self._mode != RUNNING or stress != stress:
+            u = s.safe_A                        # stopping, or before the first good stress
+        else:
+            u = self._law_drive(law, t, stress)
+        cmd = s.limiter.apply(u)
         self.hardware.at_safe = False
         self.driver.write(cmd)
         limited = RAMP if self._mode != RUNNING else s.limiter.clipped
-        if s.law.learner is not None:       # the tick's outcome, to the law's learner
-            s.law.observe(t, ref_now, inputs.displacement_um, stress, limited)
+        if law.learner is not None:         # the tick's outcome, to the law's learner
+            law.observe(t, ref_now, inputs.displacement_um, stress, limited)
         tick.reference_um = ref_now
         tick.command_A = cmd
         meas = inputs.current_A
         tick.current_A = meas if self._has_current and meas == meas else cmd   # commanded where unmeasured
         tick.stress_MPa = stress
-        tick.correction_um = s.law.correction
+        tick.correction_um = law.correction
         tick.limited_by = limited
         tick.faulted = False
 
-    def _target(self, t: float, stress: float) -> float:
-        """The law's drive with the model's envelope checked; the safe current when stopping or
-        before the first good stress."""
-        s = self.setup
-        if self._mode != RUNNING or stress != stress:
-            return s.safe_A
-        if s.stress_range.outside(stress):              # the tick's one test of the stress range
+    def _law_drive(self, law: FeedforwardController, t: float, stress: float) -> float:
+        """The law's drive with the model's envelope checked (the safe current if that stops the run)."""
+        rng = self.setup.stress_range
+        if stress < rng.lo or stress > rng.hi:         # the tick's one test of the stress range
             self.tick.outside_model = OUTSIDE_STRESS
             self._stress_out = True
             self._envelope_fault(safety.STRESS_RANGE, stress, t)
             if self._mode != RUNNING:
-                return s.safe_A
+                return self.setup.safe_A
         elif self._stress_out:
             self._stress_out = False
             self.faults.clear(safety.STRESS_RANGE)
-        u = s.law.update(t, stress)
+        u = law.update(t, stress)
         if u != u:
             raise TickFault(safety.EXCEPTION, "the inverse model returned NaN")
-        if s.law.beyond:
+        if law.beyond:
             self.tick.outside_model |= OUTSIDE_DRIVE
-            self._envelope_fault(safety.DRIVE_RANGE, s.law.raw, t)
+            self._envelope_fault(safety.DRIVE_RANGE, law.raw, t)
             if self._mode != RUNNING:
-                return s.safe_A
+                return self.setup.safe_A
         return u
 
     # ---- faults: the table's interpreter ---------------------------------------------------------
