@@ -15,7 +15,8 @@ figures can be read as ratios (compute time over the bare loop's).
 Before against after (issue 34: p99 jitter and compute per tick within 1.1x): with
 `--baseline-src DIR` (a source tree of the earlier package, e.g. `git archive main | tar -x -C DIR`)
 the sim cases run in child processes, one importing the package from DIR, one from this tree,
-alternating ABBA for `--repeats` rounds so a drifting machine load falls on both alike:
+alternating ABBA for `--repeats` rounds so a drifting machine load falls on both alike; first,
+compute per tick is also measured as the loop thread's CPU time, both packages in this process:
 
     .venv/bin/python scripts/bench_controller.py --baseline-src /tmp/main-src --duration 20 --repeats 3
 
@@ -226,6 +227,70 @@ def _median(values: list[float]) -> float:
     return 0.5 * (v[(len(v) - 1) // 2] + v[len(v) // 2])
 
 
+def _load_as(src: Path, name: str) -> Any:
+    """The package in `src`/gma_ffc imported under another name (its imports are relative)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, src / "gma_ffc" / "__init__.py",
+                                                  submodule_search_locations=[str(src / "gma_ffc")])
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _simulated(pkg: str, rate: float, model_dict: dict[str, Any]) -> Any:
+    """A controller of package `pkg` on the sim rig and a simulated clock, warmed up; each
+    part (model, driver) is the package's own, so nothing of the other package runs."""
+    import importlib
+
+    config = importlib.import_module(f"{pkg}.control.config")
+    try:
+        manager = importlib.import_module(f"{pkg}.control.manager").ControllerManager
+    except ImportError:
+        manager = importlib.import_module(f"{pkg}.control.controller").Controller
+    cfg = config.validate_config({
+        "rate_hz": rate, "clock": "simulated", "model": "unused.yaml", "driver": {"kind": "sim", "load_mass_kg": 15.3},
+        "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0},
+        "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
+        "telemetry": {"path": None}, "watchdog_s": 1.0})
+    model = importlib.import_module(f"{pkg}.model").SDPIModel.from_dict(model_dict)
+    driver = importlib.import_module(f"{pkg}.drivers.sim").SimDriver(cfg.driver, cfg.period_s)
+    ctrl = manager(cfg, model=model, driver=driver)
+    ctrl.run(duration_s=0.3)
+    return ctrl
+
+
+def cpu_per_tick(baseline: Path, rates: list[float], rounds: int = 24, ticks: int = 3000) -> dict[str, Any]:
+    """Compute per tick as CPU time of the loop thread (time.thread_time: what other processes
+    take from this core does not count), before and after in this one process, alternating
+    runs on a simulated clock. The minimum over the rounds is the least disturbed run."""
+    _load_as(baseline.resolve(), "gma_ffc_baseline")
+    model_dict = _models()[0].to_dict()
+    out: dict[str, Any] = {}
+    print("compute per tick, CPU time of the loop thread, same process, simulated clock (us):")
+    for rate in rates:
+        ctrls = {"before": _simulated("gma_ffc_baseline", rate, model_dict), "after": _simulated("gma_ffc", rate, model_dict)}
+        seen = {k: c.stats.count for k, c in ctrls.items()}
+        cpu: dict[str, list[float]] = {"before": [], "after": []}
+        for r in range(rounds):
+            for which in (("before", "after") if r % 2 == 0 else ("after", "before")):
+                ctrl = ctrls[which]
+                t0 = time.thread_time()
+                s = ctrl.run(duration_s=ticks / rate)
+                cpu[which].append((time.thread_time() - t0) / (s["ticks"] - seen[which]) * 1e6)
+                seen[which] = s["ticks"]
+        b, a = min(cpu["before"]), min(cpu["after"])
+        mb, ma = _median(cpu["before"]), _median(cpu["after"])
+        out[f"cpu_per_tick_{rate:.0f}Hz"] = {"before_min": b, "after_min": a, "ratio_min": a / b,
+                                             "before_median": mb, "after_median": ma, "ratio_median": ma / mb}
+        print(f"  {rate / 1000:g} kHz: min {b:.2f} -> {a:.2f} ({a / b:.2f}x); median {mb:.2f} -> {ma:.2f} "
+              f"({ma / mb:.2f}x) over {rounds} runs of {ticks} ticks each; load average {os.getloadavg()[0]:.2f}")
+    print()
+    return out
+
+
 def compare(baseline: Path, rates: list[float], duration: float, repeats: int) -> dict[str, Any]:
     """Before (the package in `baseline`) against after (this tree), alternating ABBA per round."""
     model_path = str(Path(tempfile.mkdtemp()) / "sdpi.yaml")
@@ -287,7 +352,8 @@ def main(argv: list[str] | None = None) -> int:
         if not (args.baseline_src / "gma_ffc" / "__init__.py").is_file():
             raise SystemExit(f"--baseline-src {args.baseline_src}: no gma_ffc package there "
                              "(make one with: git archive main | tar -x -C DIR)")
-        figures = compare(args.baseline_src, [float(r) for r in args.rates.split(",")], args.duration, args.repeats)
+        rates = [float(r) for r in args.rates.split(",")]
+        figures = {**cpu_per_tick(args.baseline_src, rates), **compare(args.baseline_src, rates, args.duration, args.repeats)}
         if args.json:
             args.json.write_text(json.dumps(figures, indent=2, default=str))
         return 0
