@@ -233,3 +233,29 @@ def test_a_plugged_broadcaster_sees_every_tick_and_every_setup(models, tmp_path)
     assert counter.setups == [models[0], models[1]]
     assert counter.ticks == ctrl.recorder.telemetry.head == s["ticks"] + 1    # the fault tick has its row too
     assert counter.faulted == 1 and counter.last_command == 0.0
+
+
+# ---- the law's lifecycle across runs ---------------------------------------------------------------
+def test_every_run_starts_the_law_from_the_safe_current(models):  # noqa: F811
+    """A run ends at the safe current, so the next starts the inverse there afresh (deactivate at
+    the end, activate at the start): on a rig that reads the same, it commands the same."""
+    from test_controller_hotpath import Quiet
+
+    class Logged(Quiet):
+        def write(self, current_A):
+            self.writes.append(current_A)
+
+    cfg = validate_config({"rate_hz": 1000, "clock": "simulated", "model": "unused.yaml", "driver": {"kind": "sim"},
+                           "reference": {"kind": "sine", "frequency_hz": 3, "amplitude_um": 8, "offset_um": 15},
+                           "limits": {"current_min_A": 0, "current_max_A": 3, "slew_A_per_s": 500},
+                           "telemetry": {"path": None}})
+    rig = Logged({}, 1e-3)
+    ctrl = ControllerManager(cfg, model=models[0], driver=rig)
+    runs = []
+    for _ in range(2):
+        rig.writes, rig.odd = [], False
+        ctrl.run(duration_s=0.25)
+        assert not ctrl.setup.law.active
+        runs.append(rig.writes)
+    assert len(runs[0]) == len(runs[1]) > 250
+    np.testing.assert_allclose(runs[1], runs[0], rtol=0, atol=1e-9)     # to the rounding of t

@@ -11,12 +11,12 @@ Its lifecycle follows a ros2_control controller's:
 * construct = configure: the reference, the inverse stepper, the learner and the drive range,
   all built from one model (`builder`);
 * `activate(drive)`: the inverse starts from the shared default start at that drive (the safe
-  current), at the first run and after a reconnect;
+  current), at the start of each run and after a reconnect;
 * `take_over(previous, drive)`: activation on a reload. The new inverse continues the old one's
   hysteresis memory at the command the amplifier holds, so the command and the tracking go on
   without a bump;
-* `deactivate(t, why)`: the output is no longer the law's (a fault wrote the safe current);
-  learning freezes;
+* `deactivate(t, why)`: the output is no longer the law's (a fault wrote the safe current, or
+  the run ended); learning freezes on a fault;
 * `update(t, stress) -> drive` each tick while active, then `observe(...)` with the tick's
   outcome: the one place the learner hears whether the command was the law's own.
 """
@@ -81,7 +81,12 @@ class FeedforwardController:
 
     def take_over(self, previous: FeedforwardController, drive_A: float) -> None:
         """Activate in place of `previous` (a reload), continuing its hysteresis memory at the
-        command `drive_A` the amplifier holds; a stepper without play state starts relaxed there."""
+        command `drive_A` the amplifier holds; a stepper without play state starts relaxed there.
+        A `previous` that was not driving (between runs) has no memory worth keeping: the
+        default start, as `activate`."""
+        if not previous.active:
+            self.activate(drive_A)
+            return
         plays = carried_play_state(previous.model, previous.stepper, self.model)
         if plays is not None and isinstance(self.stepper, SDPIInverseStepper):
             self.stepper.reset(drive_A, plays)

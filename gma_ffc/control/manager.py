@@ -132,7 +132,7 @@ class ControllerManager:
         self.started_unix_s = time.time()
         opened = False
         try:
-            if not self.setup.law.active:         # a fault deactivated it in an earlier run
+            if not self.setup.law.active:         # every run starts from the safe current
                 self.setup.law.activate(self.setup.safe_A)
             opened = self._open()
             if opened:
@@ -178,6 +178,7 @@ class ControllerManager:
             self._go_safe()
         if opened:
             self.hardware.deactivate()
+        self.setup.law.deactivate(0.0, "the run ended", freeze_learning=False)
         self.watchdog.join()
         error = save_if_learned(self.setup.law.learner, self.setup.cfg.learning.file)
         if error:
