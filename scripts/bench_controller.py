@@ -202,8 +202,9 @@ def _child(rate: float, duration: float, model_path: str) -> int:
 
     with tempfile.TemporaryDirectory() as tmp:
         cfg = _cfg(rate, {"kind": "sim", "load_mass_kg": 15.3}, str(Path(tmp) / "bench.csv"))
-        s = _run(cfg, load_model(model_path), duration)
-    print(json.dumps({"package": str(Path(gma_ffc.__file__).parent), **{k: s[k] for k in KEPT}}))
+        s = _manager_class()(cfg, model=load_model(model_path)).run(duration_s=duration)
+    print(json.dumps({"package": str(Path(gma_ffc.__file__).parent), "faults": s["fault_messages"],
+                      **{k: s[k] for k in KEPT}}))
     return 0
 
 
@@ -310,15 +311,21 @@ def compare(baseline: Path, rates: list[float], duration: float, repeats: int) -
                 load = os.getloadavg()[0]
                 s = _in_child(trees[which], rate, duration, model_path)
                 s["load1"] = load
+                if s["faults"]:        # a stalled machine trips the watchdog: the run is left out, said so
+                    print(f"{k + 1:>5} {which:<7} {rate:>6.0f} {load:>6.2f} left out: {s['faults']}")
+                    continue
                 runs[f"{which}_{rate:.0f}"].append(s)
                 print(f"{k + 1:>5} {which:<7} {rate:>6.0f} {load:>6.2f} {s['jitter_p50_us']:>8.1f} "
                       f"{s['jitter_p99_us']:>8.1f} {s['compute_p50_us']:>8.1f} {s['compute_p99_us']:>8.1f} "
                       f"{s['overruns']:>6d}")
-    print(f"\nmedians over {2 * repeats} runs each (after / before):")
+    print("\nmedians of the runs (after / before):")
     summary: dict[str, Any] = {"runs": runs}
     for rate in rates:
         b, a = runs[f"before_{rate:.0f}"], runs[f"after_{rate:.0f}"]
-        line = []
+        if not (a and b):
+            print(f"  {rate / 1000:g} kHz: no run finished on one side")
+            continue
+        line = [f"{len(b)} before, {len(a)} after"]
         for key in ("jitter_p99_us", "compute_p50_us", "compute_p99_us"):
             mb, ma = _median([x[key] for x in b]), _median([x[key] for x in a])
             summary[f"{key}_{rate:.0f}Hz"] = {"before": mb, "after": ma, "ratio": ma / mb}
