@@ -226,8 +226,7 @@ def test_a_plugged_broadcaster_sees_every_tick_and_every_setup(models, tmp_path)
 
     ctrl, driver, cfg = make(tmp_path, models, inject, sensor={"bad_ticks": 1})
     counter = Counter()
-    ctrl.broadcasters.append(counter)
-    counter.on_setup(ctrl.setup)
+    ctrl.attach(counter)
     ctrl.reload(cfg, model=models[1])
     s = ctrl.run(duration_s=1.0)
     assert counter.setups == [models[0], models[1]]

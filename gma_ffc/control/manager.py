@@ -66,7 +66,7 @@ class ControllerManager:
     """Runs the law at the configured rate; `run` returns a summary (`summary["ok"]` False on a fault).
 
     `model`, `driver` and `clock` may be given (tests, the demo); by default they are built from
-    the config. `broadcasters` may be extended before `run`: each gets every tick.
+    the config. `attach` plugs in another broadcaster (a model-fit monitor, say) before `run`.
     """
 
     def __init__(self, cfg: ControllerConfig, *, model: Model | None = None, driver: DriverProtocol | None = None,
@@ -94,6 +94,12 @@ class ControllerManager:
         self.setup.law.activate(self.setup.safe_A)
         for b in self.broadcasters:
             b.on_setup(self.setup)
+
+    def attach(self, broadcaster: Broadcaster) -> None:
+        """Plug in a part that watches the loop: it gets the setup now and after every reload,
+        and every tick (between runs only: the list is not locked against the loop)."""
+        broadcaster.on_setup(self.setup)
+        self.broadcasters.append(broadcaster)
 
     # ---- requests from other threads -----------------------------------------------------
     def request_stop(self, reason: str = "stop requested") -> None:

@@ -2,8 +2,9 @@
 
 The runner fills one preallocated `Tick` per tick, after the write (and on a fault tick, with
 the safe current as the command), then hands it to each `Broadcaster` in turn: the telemetry
-recorder, the state broadcaster behind `status()`, and any part plugged in later (a model-fit
-monitor, say) without a change to the loop. A broadcaster's `on_tick` runs on the hot path:
+recorder, the state broadcaster behind `status()`, and any part plugged in with
+`ControllerManager.attach` (a model-fit monitor, say), without a change to the loop. A
+broadcaster's `on_tick` runs on the hot path:
 it reads the record, allocates nothing and logs nothing. `on_setup` runs off it, at the start
 and after every reload, with the setup (model, law, limits) the ticks that follow will use.
 """
