@@ -231,7 +231,8 @@ def test_a_plugged_broadcaster_sees_every_tick_and_every_setup(models, tmp_path)
     s = ctrl.run(duration_s=1.0)
     assert counter.setups == [models[0], models[1]]
     assert counter.ticks == ctrl.recorder.telemetry.head == s["ticks"] + 1    # the fault tick has its row too
-    assert counter.faulted == 1 and counter.last_command == 0.0
+    assert counter.faulted == 1 and counter.last_command > 0.5     # the command the fault found
+    assert ctrl.tick.command_A == 0.0 == s["current_cmd_A"]        # then the safe current was written
 
 
 # ---- the law's lifecycle across runs ---------------------------------------------------------------

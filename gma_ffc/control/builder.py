@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from ..drivers import Driver, DriverProtocol, driver_class
+from ..drivers import Driver, DriverProtocol, Inputs, driver_class
 from ..drivers.base import FORCE, INSTANCE_MEMBERS, STRESS, missing_members
 from ..errors import ConfigError
 from ..protocols import Model
@@ -29,6 +29,7 @@ from .reference import Reference, build_reference
 from .scheduler import Clock, MonotonicClock, SimulatedClock, TickStats
 from .setup import RESTART_KEYS, Setup
 from .state_broadcaster import StateBroadcaster
+from .tick import Tick
 from .watchdog import Watchdog
 
 
@@ -39,6 +40,7 @@ class Parts:
     cfg: ControllerConfig
     clock: Clock
     setup: Setup
+    tick: Tick
     stats: TickStats
     faults: FaultLog
     hardware: DriverSupervisor
@@ -58,9 +60,10 @@ def build(cfg: ControllerConfig, *, model: Model | None = None, driver: DriverPr
     faults = FaultLog(stats)
     hardware = DriverSupervisor(drv, clock.simulated, cfg.comms, faults)
     recorder = TelemetryRecorder(cfg, clock.simulated)
-    state = StateBroadcaster(cfg.rate_hz, stats, faults, hardware, recorder)
+    tick = Tick(Inputs())
+    state = StateBroadcaster(cfg.rate_hz, tick, stats, faults, hardware, recorder)
     watchdog = Watchdog(cfg.watchdog_s, clock, faults, cfg.scheduler["realtime_priority"])
-    return Parts(cfg, clock, setup, stats, faults, hardware, recorder, state, watchdog)
+    return Parts(cfg, clock, setup, tick, stats, faults, hardware, recorder, state, watchdog)
 
 
 def load_model(cfg: ControllerConfig) -> Model:

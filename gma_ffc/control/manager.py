@@ -27,7 +27,7 @@ import time
 from enum import Enum
 from typing import Any, Mapping
 
-from ..drivers import DriverError, DriverProtocol, Inputs
+from ..drivers import DriverError, DriverProtocol
 from ..drivers.base import CURRENT
 from ..errors import GmaError
 from ..protocols import Model
@@ -41,7 +41,7 @@ from .realtime import realtime
 from .safety import RAMP
 from .scheduler import Scheduler
 from .setup import Setup
-from .tick import OUTSIDE_DRIVE, OUTSIDE_STRESS, Broadcaster, Tick
+from .tick import OUTSIDE_DRIVE, OUTSIDE_STRESS, Broadcaster
 
 RUNNING, STOPPING = 0, 1      # the loop's own mode within State.RUNNING / State.STOPPING
 FLAGGED, RAMPING, RESUME, EXIT = 0, 1, 2, 3    # what the loop does after `_execute` ran a fault's row
@@ -76,9 +76,8 @@ class ControllerManager:
         self.stats, self.faults, self.watchdog = parts.stats, parts.faults, parts.watchdog
         self.hardware, self.recorder, self.state_broadcaster = parts.hardware, parts.recorder, parts.state
         self.driver: DriverProtocol = parts.hardware.driver
-        self.broadcasters: list[Broadcaster] = [parts.recorder, parts.state]
-        self.inputs = Inputs()
-        self.tick = Tick(self.inputs)
+        self.broadcasters: list[Broadcaster] = [parts.recorder]
+        self.tick, self.inputs = parts.tick, parts.tick.inputs
         self.state = State.IDLE
         self.exit_reason = ""
         self.started_unix_s: float | None = None
@@ -121,7 +120,7 @@ class ControllerManager:
 
     def status(self) -> dict[str, Any]:
         """Thread-safe snapshot for the service, the CLI and tests (`state_broadcaster`)."""
-        return self.state_broadcaster.status(self.state.value, self.exit_reason, self.started_unix_s)
+        return self.state_broadcaster.status(self.setup, self.state.value, self.exit_reason, self.started_unix_s)
 
     def summary(self) -> dict[str, Any]:
         snap = self.status()
@@ -200,7 +199,7 @@ class ControllerManager:
         """The safe current through the supervisor (with its retries); the limiter starts from it."""
         s = self.setup
         if self.hardware.write_safe(s.safe_A):
-            self.state_broadcaster.last_cmd_A = s.safe_A
+            self.tick.command_A = s.safe_A     # the amplifier's last command, for the status
         s.limiter.force(s.safe_A)
 
     def _reconnect(self) -> bool:
@@ -317,6 +316,7 @@ class ControllerManager:
         meas = inputs.current_A
         tick.current_A = meas if self._has_current and meas == meas else cmd   # commanded where unmeasured
         tick.stress_MPa = stress
+        tick.displacement_um = inputs.displacement_um
         tick.correction_um = law.correction
         tick.limited_by = limited
         tick.faulted = False
@@ -326,6 +326,7 @@ class ControllerManager:
         rng = self.setup.stress_range
         if stress < rng.lo or stress > rng.hi:         # the tick's one test of the stress range
             self.tick.outside_model = OUTSIDE_STRESS
+            self.state_broadcaster.count_outside(OUTSIDE_STRESS)
             self._stress_out = True
             self._envelope_fault(safety.STRESS_RANGE, stress, t)
             if self._mode != RUNNING:
@@ -338,6 +339,7 @@ class ControllerManager:
             raise TickFault(safety.EXCEPTION, "the inverse model returned NaN")
         if law.beyond:
             self.tick.outside_model |= OUTSIDE_DRIVE
+            self.state_broadcaster.count_outside(OUTSIDE_DRIVE)
             self._envelope_fault(safety.DRIVE_RANGE, law.raw, t)
             if self._mode != RUNNING:
                 return self.setup.safe_A
@@ -362,11 +364,11 @@ class ControllerManager:
         if self._read_ok:   # a tick whose read failed has no data to log
             s, tick = self.setup, self.tick
             meas = self.inputs.current_A
-            tick.command_A = s.safe_A
             tick.current_A = meas if self._has_current and meas == meas else s.safe_A
             tick.stress_MPa = s.monitor.stress
+            tick.displacement_um = self.inputs.displacement_um
             tick.correction_um = 0.0
-            tick.faulted = True        # its reference_um stays the last good tick's
+            tick.faulted = True        # its row records the safe current; reference_um stays the last good
             for b in self.broadcasters:
                 b.on_tick(tick)
         self.faults.raise_fault(name, message)

@@ -53,6 +53,7 @@ class TelemetryRecorder(Broadcaster):
         self._closed = True
         self._row = np.zeros(len(FIXED) + 1)
         self._push = _not_started
+        self._safe_A = 0.0
         self._disp = self._force = self._corr = -1
 
     def start(self, channels: Sequence[str], setup: Setup, started_unix_s: float) -> None:
@@ -74,6 +75,9 @@ class TelemetryRecorder(Broadcaster):
                                                for c in (DISPLACEMENT, FORCE, CORRECTION))
         tel.start()
 
+    def on_setup(self, setup: Setup) -> None:
+        self._safe_A = setup.safe_A        # the command a fault tick's row records
+
     def stamp_start(self, start_unix_s: float) -> None:
         """The wall-clock time of t = 0, known once the loop's first deadline is (before any row)."""
         if self.telemetry is not None:
@@ -84,11 +88,11 @@ class TelemetryRecorder(Broadcaster):
         row = self._row
         row[0] = tick.time_s
         row[1] = tick.reference_um
-        row[2] = tick.command_A
+        row[2] = self._safe_A if tick.faulted else tick.command_A
         row[3] = tick.current_A
         row[4] = tick.stress_MPa
         if self._disp >= 0:
-            row[self._disp] = tick.inputs.displacement_um
+            row[self._disp] = tick.displacement_um
         if self._force >= 0:
             row[self._force] = tick.inputs.force_N
         if self._corr >= 0:

@@ -1,8 +1,10 @@
 """The state broadcaster: the one place the controller's status is assembled.
 
-On the hot path it keeps the tick's last values and counts the ticks outside the model (a
-broadcaster: a few stores per tick). `status()` builds the snapshot the service, the CLI and the
-tests read, from any thread: the keys are the controller contract's (docs/ARCHITECTURE.md).
+It reads the loop's state when a status is asked for, from any thread: the last tick's record
+(`tick.Tick`, which the loop keeps current), the tick statistics, the faults, the driver's
+health and the telemetry's counts. So it costs the loop nothing per tick; the loop only tells
+it when a tick was outside the model (`count_outside`, on those ticks alone). The keys are the
+controller contract's (docs/ARCHITECTURE.md).
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any
 
-from .tick import OUTSIDE_DRIVE, OUTSIDE_STRESS, Broadcaster, Tick
+from .tick import OUTSIDE_DRIVE, OUTSIDE_STRESS, Tick
 
 if TYPE_CHECKING:
     from .faults import FaultLog
@@ -20,54 +22,36 @@ if TYPE_CHECKING:
     from .setup import Setup
 
 
-class StateBroadcaster(Broadcaster):
-    """Last values of the run and the status snapshot."""
+class StateBroadcaster:
+    """The status snapshot, from the parts that hold the state."""
 
-    def __init__(self, rate_hz: float, stats: TickStats, faults: FaultLog, hardware: DriverSupervisor,
-                 recorder: TelemetryRecorder) -> None:
+    def __init__(self, rate_hz: float, tick: Tick, stats: TickStats, faults: FaultLog,
+                 hardware: DriverSupervisor, recorder: TelemetryRecorder) -> None:
         self.rate_hz = rate_hz
-        self.stats, self.faults, self.hardware, self.recorder = stats, faults, hardware, recorder
-        self.setup: Setup | None = None
-        self.last_reference_um = math.nan
-        self.last_cmd_A = math.nan
-        self.last_current_A = math.nan
-        self.last_stress_MPa = math.nan
-        self.last_displacement_um = math.nan
+        self.tick, self.stats, self.faults, self.hardware, self.recorder = tick, stats, faults, hardware, recorder
         self.drive_outside_ticks = 0
         self.stress_outside_ticks = 0
 
-    def on_setup(self, setup: Setup) -> None:
-        self.setup = setup
+    def count_outside(self, which: int) -> None:
+        """A tick beyond the model's drive range (OUTSIDE_DRIVE) or stress range (OUTSIDE_STRESS)."""
+        if which & OUTSIDE_DRIVE:
+            self.drive_outside_ticks += 1
+        if which & OUTSIDE_STRESS:
+            self.stress_outside_ticks += 1
 
-    def on_tick(self, tick: Tick) -> None:
-        if not tick.faulted:      # a fault tick's command is the safe current, its reference the last good
-            self.last_reference_um = tick.reference_um
-            self.last_cmd_A = tick.command_A
-            self.last_stress_MPa = tick.stress_MPa
-        self.last_current_A = tick.current_A
-        self.last_displacement_um = tick.inputs.displacement_um
-        outside = tick.outside_model
-        if outside:
-            if outside & OUTSIDE_DRIVE:
-                self.drive_outside_ticks += 1
-            if outside & OUTSIDE_STRESS:
-                self.stress_outside_ticks += 1
-
-    def status(self, state: str, exit_reason: str, started_unix_s: float | None) -> dict[str, Any]:
-        """Thread-safe snapshot (the runner passes its own lifecycle: state, exit reason, start)."""
-        setup = self.setup
-        assert setup is not None, "status before the first setup"
+    def status(self, setup: Setup, state: str, exit_reason: str, started_unix_s: float | None) -> dict[str, Any]:
+        """Thread-safe snapshot (the runner passes its setup and its lifecycle: state, exit reason, start)."""
         faults, history = self.faults.snapshot()
-        law = setup.law
+        law, tick = setup.law, self.tick
         return {
             "state": state,
             "target_rate_hz": self.rate_hz,
             **self.stats.summary(),
-            "stress_MPa": _finite(self.last_stress_MPa),
-            "current_cmd_A": _finite(self.last_cmd_A),
-            "current_A": _finite(self.last_current_A),
-            "reference_um": _finite(self.last_reference_um),
-            "displacement_um": _finite(self.last_displacement_um),
+            "stress_MPa": _finite(tick.stress_MPa),
+            "current_cmd_A": _finite(tick.command_A),
+            "current_A": _finite(tick.current_A),
+            "reference_um": _finite(tick.reference_um),
+            "displacement_um": _finite(tick.displacement_um),
             "faults": sorted(faults),
             "fault_messages": faults,
             "fault_history": history,

@@ -2,9 +2,9 @@
 
 The runner fills one preallocated `Tick` per tick, after the write (and on a fault tick, with
 the safe current as the command), then hands it to each `Broadcaster` in turn: the telemetry
-recorder, the state broadcaster behind `status()`, and any part plugged in with
-`ControllerManager.attach` (a model-fit monitor, say), without a change to the loop. A
-broadcaster's `on_tick` runs on the hot path:
+recorder, and any part plugged in with `ControllerManager.attach` (a model-fit monitor, say),
+without a change to the loop; the state broadcaster reads the same record when a status is
+asked for, so it costs the loop nothing. A broadcaster's `on_tick` runs on the hot path:
 it reads the record, allocates nothing and logs nothing. `on_setup` runs off it, at the start
 and after every reload, with the setup (model, law, limits) the ticks that follow will use.
 """
@@ -22,19 +22,21 @@ OUTSIDE_STRESS = 2    # the stress was beyond the identified range (the model cl
 
 
 class Tick:
-    """One tick's data: preallocated once, overwritten every tick."""
+    """One tick's data: preallocated once, overwritten every tick; between ticks, the loop's last
+    values (what the state broadcaster reports)."""
 
     __slots__ = ("time_s", "t", "inputs", "reference_um", "command_A", "current_A", "stress_MPa",
-                 "correction_um", "outside_model", "limited_by", "faulted")
+                 "displacement_um", "correction_um", "outside_model", "limited_by", "faulted")
 
     def __init__(self, inputs: Inputs) -> None:
         self.inputs = inputs            # the driver's reading this tick (force, current, displacement)
         self.time_s = 0.0               # when the tick started, from the first deadline (telemetry's time)
         self.t = 0.0                    # the tick's nominal time (its deadline): what the law used
-        self.reference_um = math.nan    # the reference for the tick's own instant
-        self.command_A = math.nan       # the command written (the safe current on a fault tick)
+        self.reference_um = math.nan    # the reference for the tick's own instant (a fault tick keeps the last)
+        self.command_A = math.nan       # the last command the amplifier got: written, or a safe-current write
         self.current_A = math.nan       # measured, or the command where the driver measures none
         self.stress_MPa = math.nan      # the last good stress
+        self.displacement_um = math.nan  # the tick's displacement reading
         self.correction_um = 0.0        # the learner's correction in the command (0 without learning)
         self.outside_model = 0          # OUTSIDE_DRIVE | OUTSIDE_STRESS
         self.limited_by = ""            # safety.NOT_LIMITED or the limit that changed the command
