@@ -287,6 +287,7 @@ class ControllerManager:
     def _tick(self, t: float, time_s: float) -> None:
         """One tick, up to the law's observation; the loop broadcasts it. A fault raises."""
         s, tick, inputs = self.setup, self.tick, self.inputs
+        tick.t = t
         tick.time_s = time_s
         tick.outside_model = 0
         if self.watchdog.tripped:
