@@ -236,17 +236,18 @@ class ControllerManager:
     # ---- the loop ----------------------------------------------------------------------------
     def _loop(self, duration_s: float | None) -> None:
         clock, stats, tick, broadcasters = self.clock, self.stats, self.tick, self.broadcasters
+        watchdog, stop_event = self.watchdog, self._stop_event
         sched, t0 = self._start_schedule()
         end_t = math.inf if duration_s is None else duration_s
         watchdog_s = self.setup.cfg.watchdog_s
         while True:
             deadline = sched.wait()
             t_start = clock.now()
-            self.watchdog.heartbeat = t_start
+            watchdog.heartbeat = t_start
             t = deadline - t0
-            if self._mode == RUNNING and (t >= end_t or self._stop_event.is_set() or self._stop_reason is not None):
+            if self._mode == RUNNING and (t >= end_t or stop_event.is_set() or self._stop_reason is not None):
                 if self._execute(safety.STOP, t, self._stop_reason or (
-                        "stop requested" if self._stop_event.is_set() else "duration reached")) == EXIT:
+                        "stop requested" if stop_event.is_set() else "duration reached")) == EXIT:
                     return
             if self._pending is not None:
                 self._apply_pending()
