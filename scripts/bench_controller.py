@@ -263,6 +263,30 @@ def _simulated(pkg: str, rate: float, model_dict: dict[str, Any]) -> Any:
     return ctrl
 
 
+def _traced_work(ctrl: Any, rate: float, ticks: int = 1000) -> tuple[float, float]:
+    """(Python calls, bytecodes) per tick of the loop thread: a count, so the machine's load
+    cannot move it (sys.settrace with opcode events; C work such as numba's is not counted)."""
+    calls = ops = 0
+
+    def trace(frame: Any, event: str, arg: Any) -> Any:
+        nonlocal calls, ops
+        if event == "call":
+            calls += 1
+            frame.f_trace_opcodes = True
+        elif event == "opcode":
+            ops += 1
+        return trace
+
+    seen = ctrl.stats.count
+    sys.settrace(trace)
+    try:
+        s = ctrl.run(duration_s=ticks / rate)
+    finally:
+        sys.settrace(None)
+    n = s["ticks"] - seen
+    return calls / n, ops / n
+
+
 def cpu_per_tick(baseline: Path, rates: list[float], rounds: int = 24, ticks: int = 3000) -> dict[str, Any]:
     """Compute per tick as CPU time of the loop thread (time.thread_time: what other processes
     take from this core does not count), before and after in this one process, alternating
@@ -282,12 +306,16 @@ def cpu_per_tick(baseline: Path, rates: list[float], rounds: int = 24, ticks: in
                 s = ctrl.run(duration_s=ticks / rate)
                 cpu[which].append((time.thread_time() - t0) / (s["ticks"] - seen[which]) * 1e6)
                 seen[which] = s["ticks"]
+        work = {k: _traced_work(c, rate) for k, c in ctrls.items()}
         b, a = min(cpu["before"]), min(cpu["after"])
         mb, ma = _median(cpu["before"]), _median(cpu["after"])
         out[f"cpu_per_tick_{rate:.0f}Hz"] = {"before_min": b, "after_min": a, "ratio_min": a / b,
                                              "before_median": mb, "after_median": ma, "ratio_median": ma / mb}
+        out[f"python_work_per_tick_{rate:.0f}Hz"] = {k: {"calls": c, "bytecodes": o} for k, (c, o) in work.items()}
         print(f"  {rate / 1000:g} kHz: min {b:.2f} -> {a:.2f} ({a / b:.2f}x); median {mb:.2f} -> {ma:.2f} "
-              f"({ma / mb:.2f}x) over {rounds} runs of {ticks} ticks each; load average {os.getloadavg()[0]:.2f}")
+              f"({ma / mb:.2f}x) over {rounds} runs of {ticks} ticks each; load average {os.getloadavg()[0]:.2f}"
+              f"\n           Python work per tick: {work['before'][0]:.1f} -> {work['after'][0]:.1f} calls, "
+              f"{work['before'][1]:.0f} -> {work['after'][1]:.0f} bytecodes (counted, not timed)")
     print()
     return out
 
