@@ -10,7 +10,7 @@ import pytest
 
 from gma_ffc.control.config import validate_config
 from gma_ffc.control.manager import ControllerManager
-from gma_ffc.drivers.base import CURRENT, DISPLACEMENT, FORCE, Driver
+from gma_ffc.drivers.sim import SimDriver
 from gma_ffc.control.reference import MultiSine, Sine, Triangle
 from gma_ffc.sil import cached_sdpi_and_mpi
 
@@ -44,20 +44,15 @@ def test_memory_does_not_grow_with_the_number_of_ticks(model):
     assert long - short < 8 * 1024, (short, long)
 
 
-class Quiet(Driver):
-    """A device that answers at once, its displacement flickering in the last digit like a live
-    sensor's (between two constants: the driver itself allocates nothing)."""
+class Quiet(SimDriver):
+    """The sim driver without its plant: a device that answers at once, its displacement
+    flickering in the last digit like a live sensor's (between two constants: the driver itself
+    allocates nothing)."""
 
-    kind = "quiet"
-    simulated_clock_ok = True
     odd = False
 
-    @classmethod
-    def validate_config(cls, section, prefix, base_dir):
-        return dict(section)
-
     def open(self):
-        self.channels = (FORCE, CURRENT, DISPLACEMENT)
+        pass
 
     def read(self, inputs):
         self.odd = not self.odd
@@ -66,9 +61,6 @@ class Quiet(Driver):
 
     def write(self, current_A):
         self.last_written_A = current_A
-
-    def close(self):
-        pass
 
 
 @pytest.mark.parametrize("learning", [False, True])
