@@ -52,6 +52,22 @@ def play_inverse_initial_state(w_h: np.ndarray, y0: np.ndarray) -> np.ndarray:
     return cum * y0 + tail if n else y0.copy()
 
 
+def play_forward_state(w_h: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """The forward plays' states from the inverse PI's plays `q`: (10) solved back, bottom up.
+
+    (10) ties the two sets of plays at every sample, not only the first (the inverse's plays move
+    with the forward ones), so this reads the hysteresis memory out of a running inverse.
+    """
+    w_h = np.asarray(w_h, dtype=float)
+    cum = np.cumsum(w_h)
+    y0 = np.empty(len(w_h))
+    tail = 0.0                                  # sum_{j>i} w_j y0_j
+    for i in range(len(w_h) - 1, -1, -1):
+        y0[i] = (float(q[i]) - tail) / cum[i]
+        tail += w_h[i] * y0[i]
+    return y0
+
+
 def deadzone_inverse(r_s: np.ndarray, w_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Thresholds (11)/(13) and weights (12)/(14) of the inverse dead-zone superposition.
 

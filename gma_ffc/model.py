@@ -16,7 +16,7 @@ import numpy as np
 
 from . import operators as ops
 from .errors import ModelError
-from .inverse import deadzone_inverse, play_inverse, play_inverse_initial_state
+from .inverse import deadzone_inverse, play_forward_state, play_inverse, play_inverse_initial_state
 
 if TYPE_CHECKING:
     from .initial_state import ResolvedInitialState
@@ -479,6 +479,11 @@ class InverseStepper:
 
     def step(self, reference_um: float, stress_MPa: float = 0.0) -> float:
         return ops.inverse_step(self._sign * reference_um, stress_MPa, self._p, self._state)
+
+    def play_state(self) -> np.ndarray:
+        """The forward plays' outputs (the model's play units: drive - input_offset) that this
+        inverse's state stands for: what `reset` takes to continue the same hysteresis memory."""
+        return play_forward_state(self._model.play_weights, self._state[: self._model.n_play])
 
     def peek(self, reference_um: float, stress_MPa: float = 0.0) -> float:
         """What `step` would return, without moving the state (an extended model's inverse solves

@@ -1,7 +1,7 @@
 """Software-in-the-loop harness: the real controller on the simulated rig (hil_sim).
 
 Identification data from hil_sim, models fitted from it, tracking error, and closed-loop runs of
-the real `Controller` with or without learning. It stands above both the controller and the
+the real controller (`ControllerManager`) with or without learning. It stands above both the controller and the
 simulator (it imports them; neither imports it), so the SIL tests, the benchmarks and the demo
 exercise the same path a lab runs without the controller package carrying test harness code.
 """
@@ -115,7 +115,7 @@ def run_tracking(model_path: str | Path, frequency_hz: float, periods: int, *, l
                  plant_effects: dict | None = None, seed: int = 0, workdir: str | Path | None = None) -> LoopRun:
     """Track a sine for `periods` periods on the simulated rig through the real controller."""
     from .control.config import validate_config
-    from .control.controller import Controller
+    from .control.manager import ControllerManager
     from .recordings import read_recording
 
     tmp = tempfile.TemporaryDirectory() if workdir is None else None
@@ -137,7 +137,7 @@ def run_tracking(model_path: str | Path, frequency_hz: float, periods: int, *, l
         if learning:
             data["learning"] = dict(learning)
         cfg = validate_config(data)
-        ctrl = Controller(cfg)
+        ctrl = ControllerManager(cfg)
         status = ctrl.run(duration_s=periods / frequency_hz)
         rec = read_recording(cfg.telemetry["path"])
         err = rec.columns["reference_um"] - rec.displacement_um

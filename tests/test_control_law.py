@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from allocation import worst_call_allocation
+from gma_ffc.control.envelope import DriveRange
 from gma_ffc.control.law import FeedforwardController
 from gma_ffc.control.reference import Sine
 from gma_ffc.modelio import load_model
@@ -21,7 +22,7 @@ def law_for(model, ref, policy="warn"):
     stepper = model.inverse_stepper(1e-3, initial_drive=0.0)
     start = model.invert_initial_state(ref.batch(np.zeros(1)), -15.2)[0]
     stepper.reset(0.0, start)
-    return FeedforwardController(ref, stepper, None, model.drive_range, policy), start
+    return FeedforwardController(model, ref, stepper, drive=DriveRange(*model.drive_range, policy)), start
 
 
 def test_update_is_the_batch_inverse_sample_for_sample():

@@ -126,8 +126,8 @@ def test_drivers_come_from_the_entry_point_group():
 
 
 def test_stress_source_must_match_the_driver_channels(tmp_path):
-    from gma_ffc.control.controller import Controller
+    from gma_ffc.control.manager import ControllerManager
 
     cfg = validate_config(with_("stress.source", "stress"))
     with pytest.raises(ConfigError, match=r"'stress.source' is 'stress' but driver 'sim' provides no 'stress_MPa'"):
-        Controller(cfg, model=object())
+        ControllerManager(cfg, model=object())

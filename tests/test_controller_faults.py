@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from gma_ffc.control.config import validate_config
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import ControllerManager
 from gma_ffc.sil import cached_sdpi_and_mpi
 from gma_ffc.drivers import DriverError
 from gma_ffc.drivers.sim import SimDriver
@@ -58,7 +58,7 @@ def make(tmp_path, models, inject=None, clock="simulated", **over):
     data.update(over)
     cfg = validate_config(data)
     driver = LoggingSim(cfg.driver, cfg.period_s, inject)
-    return Controller(cfg, model=models[0], driver=driver), driver, cfg
+    return ControllerManager(cfg, model=models[0], driver=driver), driver, cfg
 
 
 def check_common(ctrl, driver, cfg, summary, fault):
@@ -67,7 +67,7 @@ def check_common(ctrl, driver, cfg, summary, fault):
     assert driver.log[-1] == ("safe", 0.0)
     assert any(cmd > 0.5 for kind, cmd in driver.log if kind == "write")   # it was driving
     rec = read_recording(cfg.telemetry["path"])
-    assert len(rec) == ctrl.telemetry.head and ctrl.telemetry.dropped == 0
+    assert len(rec) == ctrl.recorder.telemetry.head and ctrl.recorder.telemetry.dropped == 0
     return rec
 
 
@@ -99,7 +99,7 @@ def test_exception_in_model_step_is_caught(models, tmp_path):
         def reset(self, u):
             self.inner.reset(u)
 
-    ctrl.stepper = Boom(ctrl.stepper)
+    ctrl.setup.law.stepper = Boom(ctrl.setup.law.stepper)
     s = ctrl.run(duration_s=1.0)
     rec = check_common(ctrl, driver, cfg, s, "exception")
     assert rec.columns["current_cmd_A"][-1] == 0.0     # the fault tick is logged with the safe command
@@ -243,13 +243,13 @@ def test_driver_that_cannot_open_faults_without_output(models, tmp_path):
 CHILD = r'''
 import sys, threading, time
 from gma_ffc.control.config import validate_config
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import ControllerManager
 from gma_ffc.modelio import load_model
 cfg = validate_config({"rate_hz": 500, "model": sys.argv[1], "driver": {"kind": "sim", "load_mass_kg": 15.0},
                        "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0},
                        "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
                        "telemetry": {"path": sys.argv[2], "flush_interval_s": 0.5}})
-ctrl = Controller(cfg)
+ctrl = ControllerManager(cfg)
 threading.Thread(target=ctrl.run, daemon=True).start()
 while ctrl.stats.count == 0:
     time.sleep(0.001)

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from gma_ffc.control.config import validate_config
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import ControllerManager
+from gma_ffc.drivers.sim import SimDriver
 from gma_ffc.control.reference import MultiSine, Sine, Triangle
 from gma_ffc.sil import cached_sdpi_and_mpi
 
@@ -29,7 +30,7 @@ def test_memory_does_not_grow_with_the_number_of_ticks(model):
                                                         {"frequency_hz": 7, "amplitude_um": 2}]},
                            "limits": {"current_min_A": 0, "current_max_A": 3, "slew_A_per_s": 500},
                            "telemetry": {"path": None}})
-    ctrl = Controller(cfg, model=model)
+    ctrl = ControllerManager(cfg, model=model)
     ctrl.run(duration_s=0.05)                 # first run: anything lazily created
     tracemalloc.start()
     try:
@@ -41,6 +42,62 @@ def test_memory_does_not_grow_with_the_number_of_ticks(model):
         tracemalloc.stop()
     assert ctrl.stats.count > 5000
     assert long - short < 8 * 1024, (short, long)
+
+
+class Quiet(SimDriver):
+    """The sim driver without its plant: a device that answers at once, its displacement
+    flickering in the last digit like a live sensor's (between two constants: the driver itself
+    allocates nothing)."""
+
+    odd = False
+
+    def open(self):
+        pass
+
+    def read(self, inputs):
+        self.odd = not self.odd
+        inputs.force_N, inputs.current_A = 600.0, 1.0
+        inputs.displacement_um = 10.001 if self.odd else 10.0
+
+    def write(self, current_A):
+        self.last_written_A = current_A
+
+
+@pytest.mark.parametrize("learning", [False, True])
+def test_ticks_and_their_broadcasts_keep_nothing(model, learning):
+    """Ticks as the loop runs them (read, stress, law, limits, write, the learner's observation,
+    telemetry row, status values), driven by hand so nothing but the tick is traced: ten
+    thousand more of them retain no more memory than a thousand (counters replace their ints,
+    buffers were sized at start)."""
+    cfg = validate_config({"rate_hz": 1000, "clock": "simulated", "model": "unused.yaml", "driver": {"kind": "sim"},
+                           "reference": {"kind": "sine", "frequency_hz": 3, "amplitude_um": 8, "offset_um": 15},
+                           "limits": {"current_min_A": 0, "current_max_A": 3, "slew_A_per_s": 500},
+                           "telemetry": {"path": None},      # no writer thread: tracemalloc counts every thread
+                           "learning": {"kind": "repetitive"} if learning else {}})
+    ctrl = ControllerManager(cfg, model=model, driver=Quiet({}, 1e-3))
+    ctrl.recorder.start(ctrl.driver.channels, ctrl.setup, 0.0)
+    ctrl._start_schedule()
+
+    def ticks(first, n):
+        for k in range(first, first + n):
+            t = k * 1e-3
+            ctrl._tick(t, t)
+            for b in ctrl.broadcasters:
+                b.on_tick(ctrl.tick)
+
+    ticks(0, 1000)                       # a learner's first periods set up what it keeps
+    tracemalloc.start()
+    try:
+        ticks(1000, 1000)
+        short = tracemalloc.get_traced_memory()[0]
+        ticks(2000, 10_000)
+        long = tracemalloc.get_traced_memory()[0]
+    finally:
+        tracemalloc.stop()
+        ctrl.recorder.close()
+    assert long - short < 1024, (short, long)
+    learner = ctrl.setup.law.learner
+    assert (learner is not None) == learning and (learner is None or learner.learned_periods > 20)
 
 
 def test_sine_leads_by_the_configured_latency():

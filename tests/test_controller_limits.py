@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gma_ffc.control.config import validate_config
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import ControllerManager
 from gma_ffc.control.reference import Playback
 from gma_ffc.control.safety import Limiter
 from gma_ffc.sil import cached_sdpi_and_mpi
@@ -89,8 +89,8 @@ def test_controller_commands_stay_inside_limits(model, refs, forces, lo, span, s
         "limits": {"current_min_A": lo, "current_max_A": hi, "slew_A_per_s": slew, "safe_current_A": safe},
         "sensor": {"bad_ticks": 2}})
     rig = ScriptedRig(forces)
-    ctrl = Controller(cfg, model=model, driver=rig)
-    ctrl.reference = Playback(np.arange(len(refs)) * 1e-3, np.array(refs))
+    ctrl = ControllerManager(cfg, model=model, driver=rig)
+    ctrl.setup.law.reference = Playback(np.arange(len(refs)) * 1e-3, np.array(refs))
     ctrl.run(duration_s=0.08)
     cmds = [safe] + rig.writes
     assert all(lo <= c <= hi for c in cmds + rig.safes)

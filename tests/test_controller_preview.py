@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from gma_ffc.control.config import validate_config
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import ControllerManager
 from gma_ffc.sil import cached_sdpi_and_mpi, tracking_rms_um
 from gma_ffc.extended import ExtendedModel
 from gma_ffc.recordings import read_recording
@@ -31,7 +31,7 @@ def run(tmp_path, model, name: str) -> tuple[float, dict]:
         "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
         "telemetry": {"path": str(tmp_path / f"{name}.csv")},
     })
-    ctrl = Controller(cfg, model=model)
+    ctrl = ControllerManager(cfg, model=model)
     summary = ctrl.run(duration_s=1.5)
     assert summary["ok"], summary["faults"]
     rec = read_recording(cfg.telemetry["path"], require=("time_s", "drive", "displacement_um", "reference_um"))

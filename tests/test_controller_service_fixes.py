@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from gma_ffc.control.config import load_config, validate_config
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import ControllerManager
 from gma_ffc.control.telemetry import Telemetry
 from gma_ffc.drivers.sim import SimDriver
 from gma_ffc.errors import ConfigError
@@ -49,7 +49,7 @@ class WallStampingSim(SimDriver):
 def test_telemetry_wall_clock_is_within_2_ms_at_start_and_after_60_s(tmp_path):
     cfg = cfg_for(tmp_path)
     drv = WallStampingSim(cfg.driver, cfg.period_s)
-    status = Controller(cfg, driver=drv).run(duration_s=61.0)
+    status = ControllerManager(cfg, driver=drv).run(duration_s=61.0)
     assert status["ok"], status["fault_messages"]
     rec = read_recording(cfg.telemetry["path"])
     start = float(rec.metadata["start_unix_s"])
@@ -69,11 +69,11 @@ def test_a_second_controller_on_the_same_telemetry_file_is_refused_naming_the_fi
         with pytest.raises(ConfigError, match=f"another controller \\(pid {os.getpid()}\\)"):
             Telemetry(tmp_path / "tel.csv", ["time_s", "x"], {}, capacity=64).start()
         cfg = cfg_for(tmp_path, clock="simulated")
-        status = Controller(cfg).run(duration_s=0.1)
+        status = ControllerManager(cfg).run(duration_s=0.1)
         assert not status["ok"] and any("another controller" in m for m in status["fault_messages"].values())
     finally:
         first.close()
-    assert Controller(cfg_for(tmp_path, clock="simulated")).run(duration_s=0.1)["ok"]   # free again
+    assert ControllerManager(cfg_for(tmp_path, clock="simulated")).run(duration_s=0.1)["ok"]   # free again
     assert read_recording(tmp_path / "tel.csv").time_s.size > 0
     assert b"\0" not in (tmp_path / "tel.csv").read_bytes()
 
@@ -92,7 +92,7 @@ def test_a_controller_in_another_process_is_refused_naming_its_pid(tmp_path):
     try:
         assert holder.stdout is not None and holder.stdout.readline().strip() == "holding"
         before = tel.read_bytes() if tel.exists() else b""
-        status = Controller(cfg_for(tmp_path, clock="simulated")).run(duration_s=0.1)
+        status = ControllerManager(cfg_for(tmp_path, clock="simulated")).run(duration_s=0.1)
         assert not status["ok"]
         assert any(f"another controller (pid {holder.pid})" in m for m in status["fault_messages"].values()), \
             status["fault_messages"]
@@ -123,9 +123,9 @@ def test_a_command_beyond_the_identified_drive_range_is_never_silent(tmp_path, p
                   reference={"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 40.0, "offset_um": 40.0},
                   limits={"current_min_A": 0.0, "current_max_A": 8.0, "slew_A_per_s": 500.0,
                           "beyond_model": policy})
-    ctrl = Controller(cfg)
+    ctrl = ControllerManager(cfg)
     status = ctrl.run(duration_s=1.0)
-    lo, hi = ctrl.model.drive_range
+    lo, hi = ctrl.setup.model.drive_range
     assert "drive_out_of_model_range" in status["faults"]
     assert status["outside_model"]["drive_ticks"] > 0 and status["outside_model"]["policy"] == policy
     rec = read_recording(cfg.telemetry["path"])

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from gma_ffc.control.config import validate_config
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import ControllerManager
 from gma_ffc.drivers import driver_class
 from gma_ffc.registers import load_register_map
 from hil_sim.emulators.modbus import ModbusEmulator
@@ -80,7 +80,7 @@ def _assert_device_order(rig: EmulatedRig) -> None:
 def test_sim_driver_lifecycle(tmp_path):
     cfg = _cfg(tmp_path, {"kind": "sim", "load_mass_kg": 15.3}, 200, clock="simulated")
     driver, calls = _spied(cfg)
-    status = Controller(cfg, driver=driver).run(duration_s=0.5)
+    status = ControllerManager(cfg, driver=driver).run(duration_s=0.5)
     assert status["ok"], status["fault_messages"]
     _assert_order(calls)
 
@@ -93,7 +93,7 @@ def test_modbus_driver_lifecycle(tmp_path):
         dev = {"transport": "tcp", "host": host, "port": port, "timeout_s": 0.2, "register_map": rmap.to_dict()}
         cfg = _cfg(tmp_path, {"kind": "modbus", "devices": {"amp": dev}}, 100)
         driver, calls = _spied(cfg)
-        status = Controller(cfg, driver=driver).run(duration_s=0.5)
+        status = ControllerManager(cfg, driver=driver).run(duration_s=0.5)
     assert status["ok"], status["fault_messages"]
     _assert_order(calls)
     _assert_device_order(rig)
@@ -106,7 +106,7 @@ def test_serial_driver_lifecycle(tmp_path):
                "queries": {"force_N": "MEAS:FORC?", "current_A": "MEAS:CURR?", "displacement_um": "MEAS:DISP?"}}
         cfg = _cfg(tmp_path, drv, 100)
         driver, calls = _spied(cfg)
-        status = Controller(cfg, driver=driver).run(duration_s=0.5)
+        status = ControllerManager(cfg, driver=driver).run(duration_s=0.5)
     assert status["ok"], status["fault_messages"]
     _assert_order(calls)
     _assert_device_order(rig)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from gma_ffc.control.config import validate_config
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import ControllerManager
 from gma_ffc.sil import cached_sdpi_and_mpi, tracking_rms_um
 from gma_ffc.errors import ConfigError
 from gma_ffc.recordings import read_recording
@@ -94,7 +94,7 @@ def test_sil_sdpi_beats_mpi_through_modbus(models, bench_factory, tmp_path, tran
     for name, model in (("sdpi", sdpi), ("mpi", mpi)):
         bench = bench_factory(transport, map_file, stress)
         cfg = bench.cfg(tmp_path, name, rate)
-        ctrl = Controller(cfg, model=model)
+        ctrl = ControllerManager(cfg, model=model)
         summary = ctrl.run(duration_s=1.5)
         assert summary["ok"], summary["fault_messages"]
         rec = read_recording(cfg.telemetry["path"])
@@ -123,7 +123,7 @@ def wait_ticks(ctrl, thread, n, limit_s=10.0):
 def run_with_fault(bench, cfg, model, spec, *, clear_after_fault=True, at_s=0.4):
     """Run, inject `spec` at `at_s`, clear it once the controller reports a fault (so the safe
     write can reach the device, as it would once a cable is back); returns the controller."""
-    ctrl = Controller(cfg, model=model)
+    ctrl = ControllerManager(cfg, model=model)
     result = {}
     th = threading.Thread(target=lambda: result.setdefault("s", ctrl.run(duration_s=4.0)))
     th.start()
@@ -131,7 +131,7 @@ def run_with_fault(bench, cfg, model, spec, *, clear_after_fault=True, at_s=0.4)
         wait_ticks(ctrl, th, int(at_s * cfg.rate_hz))
         t_fault = time.monotonic()
         bench.rig.faults.set(spec)
-        while th.is_alive() and not ctrl.active_faults and time.monotonic() - t_fault < 3.0:
+        while th.is_alive() and not ctrl.faults.active and time.monotonic() - t_fault < 3.0:
             time.sleep(0.005)
         if clear_after_fault:
             bench.rig.faults.clear()
@@ -159,7 +159,7 @@ def test_fault_modes_end_at_safe_current(models, bench_factory, tmp_path, spec, 
     assert setpoints[-1].value == 0.0               # the last command the device received is safe
     assert not bench.rig.output_enabled
     rec = read_recording(cfg.telemetry["path"], require=("time_s", "current_A"))
-    tel = ctrl.telemetry
+    tel = ctrl.recorder.telemetry
     assert tel.dropped == 0 and len(rec) == tel.head >= summary["ticks"]
     assert rec.time_s[-1] >= 0.35                   # rows right up to the fault
     if spec.split(":")[0] in ("stuck", "nan", "out_of_range"):
@@ -171,7 +171,7 @@ def test_rtu_timeout_reconnects_and_resumes_without_a_jump(models, bench_factory
     cfg = bench.cfg(tmp_path, "reconnect", 100, comms={"on_fault": "reconnect", "backoff_initial_s": 0.1,
                                                         "max_attempts": 20},
                     limits={"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 20.0})
-    ctrl = Controller(cfg, model=models[0])
+    ctrl = ControllerManager(cfg, model=models[0])
     result = {}
     th = threading.Thread(target=lambda: result.setdefault("s", ctrl.run(duration_s=3.5)))
     th.start()
@@ -179,7 +179,7 @@ def test_rtu_timeout_reconnects_and_resumes_without_a_jump(models, bench_factory
         wait_ticks(ctrl, th, 80)
         # go silent while it drives (the command follows a sine and rests at 0 A near its troughs)
         end = time.monotonic() + 1.0
-        while not ctrl.last_cmd_A > 1.0 and th.is_alive() and time.monotonic() < end:
+        while not ctrl.state_broadcaster.last_cmd_A > 1.0 and th.is_alive() and time.monotonic() < end:
             time.sleep(0.002)
         bench.rig.faults.set("silent")
         time.sleep(0.4)
@@ -244,7 +244,7 @@ def test_channels_on_two_devices(models, tmp_path):
             "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 5.0, "offset_um": 8.0},
             "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 100.0},
             "telemetry": {"path": str(tmp_path / "two.csv")}})
-        summary = Controller(cfg, model=models[0]).run(duration_s=0.5)
+        summary = ControllerManager(cfg, model=models[0]).run(duration_s=0.5)
     finally:
         for e in emus:
             e.stop()

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from gma_ffc.control.config import validate_config
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import ControllerManager
 from gma_ffc.sil import cached_sdpi_and_mpi, tracking_rms_um
 from gma_ffc.errors import ConfigError
 from gma_ffc.recordings import read_recording
@@ -68,7 +68,7 @@ def test_sil_sdpi_beats_mpi_through_serial(models, amplifier, tmp_path, stress):
     for name, model in zip(("sdpi", "mpi"), models):
         rig, port = amplifier(stress)
         cfg = serial_cfg(tmp_path, name, port)
-        summary = Controller(cfg, model=model).run(duration_s=1.5)
+        summary = ControllerManager(cfg, model=model).run(duration_s=1.5)
         assert summary["ok"], summary["fault_messages"]
         rms[name] = tracking_rms_um(read_recording(cfg.telemetry["path"]), skip_s=0.5)
         assert rig.last_setpoint_A == 0.0 and not rig.output_enabled
@@ -86,7 +86,7 @@ LINK = {"comms_timeout", "comms_error"}
 def test_serial_fault_modes_end_at_safe_current(models, amplifier, tmp_path, spec, expected):
     rig, port = amplifier(noise=True)
     cfg = serial_cfg(tmp_path, "fault", port, comms={"on_fault": "stop"}, sensor={"bad_ticks": 3, "stale_ticks": 40})
-    ctrl = Controller(cfg, model=models[0])
+    ctrl = ControllerManager(cfg, model=models[0])
     out = {}
     th = threading.Thread(target=lambda: out.setdefault("s", ctrl.run(duration_s=4.0)))
     th.start()
@@ -96,7 +96,7 @@ def test_serial_fault_modes_end_at_safe_current(models, amplifier, tmp_path, spe
             time.sleep(0.005)
         rig.faults.set(spec)
         t_fault = time.monotonic()
-        while th.is_alive() and not ctrl.active_faults and time.monotonic() - t_fault < 3.0:
+        while th.is_alive() and not ctrl.faults.active and time.monotonic() - t_fault < 3.0:
             time.sleep(0.005)
         rig.faults.clear()          # the link comes back: the safe write must get through
     finally:
@@ -110,7 +110,7 @@ def test_serial_fault_modes_end_at_safe_current(models, amplifier, tmp_path, spe
     assert len(setpoints) > 20 and setpoints[-1].value == 0.0
     assert not rig.output_enabled
     rec = read_recording(cfg.telemetry["path"], require=("time_s", "current_A"))
-    assert ctrl.telemetry.dropped == 0 and len(rec) == ctrl.telemetry.head >= s["ticks"]
+    assert ctrl.recorder.telemetry.dropped == 0 and len(rec) == ctrl.recorder.telemetry.head >= s["ticks"]
     assert rec.time_s[-1] >= 0.35
 
 

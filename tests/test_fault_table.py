@@ -11,13 +11,12 @@ from __future__ import annotations
 import ast
 import math
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from gma_ffc.control import safety
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import exit_state
 from gma_ffc.drivers import DriverError
 from gma_ffc.recordings import read_recording
 
@@ -130,7 +129,7 @@ def _run(tmp_path, models, name, over, inject):  # noqa: F811
     provoked = Provoked()
     if inject is not None:
         driver.inject = lambda tick, inputs: inject(tick, inputs, ctrl, driver, provoked)
-    learner = ctrl.learner
+    learner = ctrl.setup.law.learner
     freezes, observed = [], []
     real_freeze, real_observe = learner.freeze, learner.observe
 
@@ -169,7 +168,7 @@ def _cfg(over):
 def test_each_row_of_the_fault_table_does_what_it_says(models, tmp_path, case):  # noqa: F811
     name, over, inject = case
     ctrl, driver, cfg, s, mark, freezes, observed = _run(tmp_path, models, name, over, inject)
-    row = ctrl.fault_table[name]
+    row = ctrl.setup.fault_table[name]
     assert row == safety.fault_actions(cfg)[name]
     assert mark is not None, "the fault was never provoked"
     if name != safety.STOP:       # a stop request is a row, not a fault the status reports
@@ -223,14 +222,15 @@ def test_a_reconnect_row_that_cannot_reconnect_ends_in_its_exit_state(models, tm
     driver.inject = lambda tick, inputs: inject(tick, inputs, ctrl, driver, provoked)
     driver.reconnect = fail
     s = ctrl.run(duration_s=1.5)
-    row = ctrl.fault_table[safety.COMMS_ERROR]
+    row = ctrl.setup.fault_table[safety.COMMS_ERROR]
     assert row.then == "reconnect" and s["state"] == row.exit_state == "fault"
     assert "reconnect_failed" in s["faults"] and s["reconnects"] == 0
     assert driver.log[-1] == ("safe", SAFE) and all(k == "safe" for k, _ in driver.log[provoked.mark:])
 
 
 def _raised_fault_names() -> set[str]:
-    """Every fault name the package passes to `_raise_fault`: a `safety.NAME` or a literal."""
+    """Every fault name the package raises: the first argument of a `raise_fault`, `_execute` or
+    `_envelope_fault` call or of a `TickFault`, when it is a `safety.NAME` or a literal."""
     names: set[str] = set()
     root = Path(safety.__file__).resolve().parents[1]
     for path in root.rglob("*.py"):
@@ -238,8 +238,8 @@ def _raised_fault_names() -> set[str]:
             if not (isinstance(node, ast.Call) and node.args):
                 continue
             func = node.func
-            if (isinstance(func, ast.Attribute) and func.attr in ("_raise_fault", "_execute")) \
-                    or (isinstance(func, ast.Name) and func.id == "_TickFault"):
+            if (isinstance(func, ast.Attribute) and func.attr in ("raise_fault", "_execute", "_envelope_fault")) \
+                    or (isinstance(func, ast.Name) and func.id == "TickFault"):
                 for arg in ast.walk(node.args[0]):
                     if isinstance(arg, ast.Attribute) and isinstance(arg.value, ast.Name) and arg.value.id == "safety":
                         names.add(getattr(safety, arg.attr))
@@ -256,14 +256,15 @@ def test_every_fault_name_has_a_row():
     known = set(safety.FAULT_ACTIONS) | safety.EXIT_FAULTS | safety.WARNINGS
     assert raised <= known, f"fault names with no row: {sorted(raised - known)}"
     # and every name safety defines is in exactly one of them
-    defined = {v for k, v in vars(safety).items() if k.isupper() and isinstance(v, str)}
+    limits = set(safety.LIMITS) | {safety.NOT_LIMITED}          # the limiter's words, not faults
+    defined = {v for k, v in vars(safety).items() if k.isupper() and isinstance(v, str)} - limits
     assert defined == known
     assert not set(safety.FAULT_ACTIONS) & (safety.EXIT_FAULTS | safety.WARNINGS)
     assert not safety.EXIT_FAULTS & safety.WARNINGS
     # and should one slip through anyway, a run ending with it active ends in fault, never "stopped"
-    runner = SimpleNamespace(fault_table=safety.fault_actions(_cfg({})))
-    assert Controller._exit_state(runner, "a_fault_nobody_wrote_down") == "fault"
-    assert Controller._exit_state(runner, safety.REALTIME_REFUSED) == "stopped"
+    table = safety.fault_actions(_cfg({}))
+    assert exit_state(table, "a_fault_nobody_wrote_down") == "fault"
+    assert exit_state(table, safety.REALTIME_REFUSED) == "stopped"
 
 
 def test_a_row_that_makes_no_sense_is_refused():

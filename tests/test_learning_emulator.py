@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import ControllerManager
 from gma_ffc.recordings import read_recording
 from test_drivers_modbus import STRONG, Bench, wait_ticks  # noqa: F401  (fixtures reused)
 from gma_ffc.sil import cached_sdpi_and_mpi
@@ -34,14 +34,14 @@ def test_two_second_stall_freezes_learning_goes_safe_and_tracking_returns(tmp_pa
                         comms={"on_fault": "reconnect", "backoff_initial_s": 0.1, "backoff_max_s": 0.5,
                                "max_attempts": 0},
                         learning={"kind": "repetitive"})
-        ctrl = Controller(cfg, model=model)
+        ctrl = ControllerManager(cfg, model=model)
         result = {}
         th = threading.Thread(target=lambda: result.setdefault("s", ctrl.run(duration_s=16.0)))
         th.start()
         frozen_during_stall = None
         try:
             wait_ticks(ctrl, th, int(6.0 * RATE), limit_s=30.0)     # 15 periods of learning
-            learned_before = ctrl.learner.learned_periods
+            learned_before = ctrl.setup.law.learner.learned_periods
             bench.rig.faults.set("silent")
             time.sleep(2.0)
             during = ctrl.status()

@@ -320,7 +320,7 @@ def test_no_output_overwrites_an_input(files, capsys, how, command):
 
 def test_the_controller_starts_from_the_shared_rule_and_says_so():
     from gma_ffc.control.config import validate_config
-    from gma_ffc.control.controller import Controller
+    from gma_ffc.control.manager import ControllerManager
 
     model_path = Path(__file__).resolve().parents[1] / "config" / "models" / "sim_sdpi.yaml"
     cfg = validate_config({"rate_hz": 1000, "clock": "simulated", "model": str(model_path),
@@ -328,5 +328,5 @@ def test_the_controller_starts_from_the_shared_rule_and_says_so():
                            "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 10.0, "offset_um": 20.0},
                            "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
                            "telemetry": {"path": None}})
-    status = Controller(cfg).run(duration_s=0.2)
+    status = ControllerManager(cfg).run(duration_s=0.2)
     assert "first monotone stretch (the drive first rises)" in status["initial_state"]

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from gma_ffc.control.controller import Controller
+from gma_ffc.control.manager import ControllerManager
 from gma_ffc.recordings import read_recording
 from gma_ffc.sil import cached_sdpi_and_mpi
 from test_drivers_modbus import STRONG, Bench, wait_ticks
@@ -58,7 +58,7 @@ def test_two_second_stall_on_modbus_recovers(request, tmp_path, transport, rate)
                         limits={"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": SLEW},
                         comms={"on_fault": "reconnect", "backoff_initial_s": 0.1, "backoff_max_s": 0.5,
                                "max_attempts": 0})
-        s = run_with_stall(Controller(cfg, model=model), bench.rig, rate)
+        s = run_with_stall(ControllerManager(cfg, model=model), bench.rig, rate)
         check_recovered(s, cfg.telemetry["path"], rate)
     finally:
         bench.emu.stop()
@@ -72,5 +72,5 @@ def test_two_second_stall_on_serial_recovers(request, tmp_path, amplifier):
                      limits={"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": SLEW},
                      comms={"on_fault": "reconnect", "backoff_initial_s": 0.1, "backoff_max_s": 0.5,
                             "max_attempts": 0})
-    s = run_with_stall(Controller(cfg, model=model), rig, 100)
+    s = run_with_stall(ControllerManager(cfg, model=model), rig, 100)
     check_recovered(s, cfg.telemetry["path"], 100)

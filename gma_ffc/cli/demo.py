@@ -3,7 +3,7 @@
 The paper's experiment (Figs. 8-9), end to end through the same code a user runs: record 3 Hz
 identification sets with hil_sim at four stresses, identify an SDPI model from all of them and
 an MPI model from -11.3 MPa alone, then track a 3 Hz sine at -15.2 and -19.1 MPa with each
-through the real Controller on the sim driver (simulated clock: same loop, faster than real
+through the real controller loop on the sim driver (simulated clock: same loop, faster than real
 time), and compare the RMS tracking errors with the paper's. Everything it makes goes to one
 folder: recordings, models, runnable configs, telemetry, plots, results.json.
 """
@@ -147,14 +147,14 @@ def _identify(recordings: Sequence[Recording]) -> tuple[SDPIModel, SDPIModel]:
 
 
 def _track(out: Path, name: str, stress: float, seed: int) -> TrackingResult:
-    """Write a runnable config, load it as `gma-ffc run` would, and run the real Controller."""
+    """Write a runnable config, load it as `gma-ffc run` would, and run the real controller loop."""
     import yaml
 
     from hil_sim.plant import PlantConfig
 
     from ..atomic import atomic_write
     from ..control.config import load_config
-    from ..control.controller import Controller
+    from ..control.manager import ControllerManager
     from ..recordings import read_recording
 
     learning = name.endswith("+learning")
@@ -178,7 +178,7 @@ def _track(out: Path, name: str, stress: float, seed: int) -> TrackingResult:
         fh.write(f"# gma-ffc demo: {name.upper()} feedforward at {stress:g} MPa on the simulated rig.\n"
                  f"# Rerun: gma-ffc run --config {cfg_path.name} --duration {track_s:g}\n")
         yaml.safe_dump(config, fh, sort_keys=False)
-    summary = Controller(load_config(cfg_path)).run(duration_s=track_s)
+    summary = ControllerManager(load_config(cfg_path)).run(duration_s=track_s)
     if not summary.get("ok", True):
         raise FaultError(f"the {name.upper()} run at {stress:g} MPa ended on a fault: "
                          f"{', '.join(summary.get('faults', [])) or summary.get('exit_reason')}")

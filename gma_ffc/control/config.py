@@ -15,9 +15,10 @@ from typing import Any, Mapping
 
 
 from ..errors import ConfigError
-from ..yamlfile import read_yaml
-from .learning import LearningConfig, reference_period_s
 from ..schema import Field, pair, validate_section
+from ..yamlfile import read_yaml
+from .envelope import BEYOND_POLICIES, STRESS_POLICIES
+from .learning import LearningConfig, reference_period_s
 
 DEFAULT_ROD_DIAMETER_MM = 7.0
 
@@ -40,7 +41,7 @@ TOP = {
 STRESS = {
     "rod_diameter_mm": Field("float", DEFAULT_ROD_DIAMETER_MM, min=0.0, min_exclusive=True),
     "source": Field("choice", "force", choices=("force", "stress")),
-    "out_of_range": Field("choice", "clamp", choices=("clamp", "fault")),
+    "out_of_range": Field("choice", "clamp", choices=STRESS_POLICIES),
     "valid_range_MPa": Field("list", [-80.0, 10.0], check=pair),
 }
 
@@ -50,7 +51,7 @@ LIMITS = {
     "slew_A_per_s": Field("float", min=0.0, min_exclusive=True),
     "safe_current_A": Field("float", 0.0),
     "stop_ramp_max_s": Field("float", 2.0, min=0.0),
-    "beyond_model": Field("choice", "warn", choices=("warn", "clamp", "fault"),
+    "beyond_model": Field("choice", "warn", choices=BEYOND_POLICIES,
                           help="a command outside the drive range the model was identified on: warn (flag it "
                                "in status and telemetry), clamp (to that range) or fault (ramp to safe, stop)"),
 }
@@ -58,7 +59,11 @@ LIMITS = {
 SENSOR = {
     "bad_ticks": Field("int", 3, min=1),
     "stale_ticks": Field("int", 0, min=0, help="0 disables the stuck-sensor check"),
-    "force_limit_N": Field("float", 5000.0, min=0.0, min_exclusive=True),
+    # The load cell's rated capacity, from its datasheet. By default none: the plausible stress
+    # range (stress.valid_range_MPa) on the configured rod already bounds the force. Set, it holds
+    # whatever the rod diameter says, so a wrong diameter cannot make an overload look plausible.
+    "force_limit_N": Field("float", None, min=0.0, min_exclusive=True, nullable=True,
+                           help="the load cell's rated capacity (N); only with stress.source: force"),
 }
 
 COMMS = {
@@ -170,70 +175,86 @@ def _resolve(path: str, base: Path | None) -> str:
 
 def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | None = None) -> ControllerConfig:
     """Validate a parsed config mapping; relative file paths resolve against `base_dir`."""
-    from ..drivers import driver_class
-
     top = validate_section(data, TOP, "")
     base = Path(base_dir) if base_dir is not None else None
+    reference = _reference(top["reference"], base)         # sections in this order: the first error is reported
+    limits = _limits(top["limits"])
+    driver = _driver(top["driver"], top["clock"], base)
+    stress, sensor = _sensing(top["stress"], top["sensor"])
+    comms = _comms(top["comms"])
+    telemetry = validate_section(top["telemetry"], TELEMETRY, "telemetry")
+    if telemetry["path"] is not None:
+        telemetry["path"] = _resolve(telemetry["path"], base)
+    learning = _learning(top["learning"], reference, base)
+    return ControllerConfig(rate_hz=top["rate_hz"], clock=top["clock"], model=_resolve(top["model"], base),
+                            driver=driver, reference=reference, stress=stress, limits=limits, sensor=sensor,
+                            comms=comms, telemetry=telemetry,
+                            scheduler=validate_section(top["scheduler"], SCHEDULER, "scheduler"),
+                            watchdog_s=top["watchdog_s"], learning=learning, source=source, raw=dict(data))
 
-    ref_raw = top["reference"]
-    kind = ref_raw.get("kind")
+
+def _reference(raw: dict[str, Any], base: Path | None) -> dict[str, Any]:
+    kind = raw.get("kind")
     if kind is None:
         raise ConfigError(f"config key 'reference.kind' is required: one of {', '.join(REFERENCE_KINDS)}")
     if kind not in REFERENCE:
         validate_section({"kind": kind}, {"kind": Field("choice", choices=REFERENCE_KINDS)}, "reference")
-    reference = validate_section(ref_raw, REFERENCE[kind], "reference")
+    reference = validate_section(raw, REFERENCE[kind], "reference")
     if kind == "playback":
         reference["file"] = _resolve(reference["file"], base)
+    return reference
 
-    limits = validate_section(top["limits"], LIMITS, "limits")
+
+def _limits(raw: dict[str, Any]) -> dict[str, Any]:
+    limits = validate_section(raw, LIMITS, "limits")
     if not limits["current_min_A"] < limits["current_max_A"]:
         raise ConfigError("config key 'limits.current_min_A' must be below 'limits.current_max_A' "
                           f"({limits['current_min_A']} >= {limits['current_max_A']})")
     if not limits["current_min_A"] <= limits["safe_current_A"] <= limits["current_max_A"]:
         raise ConfigError(f"config key 'limits.safe_current_A' ({limits['safe_current_A']}) must lie within "
                           f"[limits.current_min_A, limits.current_max_A]")
+    return limits
 
-    drv_raw = top["driver"]
-    if "kind" not in drv_raw:
+
+def _driver(raw: dict[str, Any], clock: str, base: Path | None) -> dict[str, Any]:
+    """The driver section, validated by the driver plugin itself."""
+    from ..drivers import driver_class
+
+    if "kind" not in raw:
         raise ConfigError("config key 'driver.kind' is required (sim, modbus, serial or a plugin's name)")
-    cls = driver_class(drv_raw["kind"], key="driver.kind")
-    if top["clock"] == "simulated" and not getattr(cls, "simulated_clock_ok", False):
+    cls = driver_class(raw["kind"], key="driver.kind")
+    if clock == "simulated" and not getattr(cls, "simulated_clock_ok", False):
         raise ConfigError(f"config key 'clock': 'simulated' never sleeps, which only suits a simulated rig; "
-                          f"driver '{drv_raw['kind']}' talks to real devices: use clock: real")
-    driver = cls.validate_config(drv_raw, "driver", base)
+                          f"driver '{raw['kind']}' talks to real devices: use clock: real")
+    return cls.validate_config(raw, "driver", base)
 
-    comms = validate_section(top["comms"], COMMS, "comms")
+
+def _sensing(stress_raw: dict[str, Any], sensor_raw: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The `stress` and `sensor` sections, which must agree on what the sensor reads."""
+    stress = validate_section(stress_raw, STRESS, "stress")
+    sensor = validate_section(sensor_raw, SENSOR, "sensor")
+    if sensor["force_limit_N"] is not None and stress["source"] != "force":
+        raise ConfigError("config key 'sensor.force_limit_N' bounds a load cell's reading, but stress.source is "
+                          f"{stress['source']!r}: remove it, or read the load cell (stress.source: force)")
+    return stress, sensor
+
+
+def _comms(raw: dict[str, Any]) -> dict[str, Any]:
+    comms = validate_section(raw, COMMS, "comms")
     if comms["backoff_max_s"] < comms["backoff_initial_s"]:
         raise ConfigError("config key 'comms.backoff_max_s' must be >= 'comms.backoff_initial_s'")
-    telemetry = validate_section(top["telemetry"], TELEMETRY, "telemetry")
-    if telemetry["path"] is not None:
-        telemetry["path"] = _resolve(telemetry["path"], base)
+    return comms
 
-    learning = LearningConfig.from_mapping(top["learning"] or None)
+
+def _learning(raw: Any, reference: dict[str, Any], base: Path | None) -> LearningConfig:
+    learning = LearningConfig.from_mapping(raw or None)
     if learning.enabled and learning.period_s is None and reference_period_s(reference) is None \
             and not (reference["kind"] == "playback" and reference["loop"]):
         raise ConfigError("config key 'learning.period_s' is required: the reference is not periodic, so the "
                           "learner cannot take its period from it")
     if learning.file is not None:
         learning = LearningConfig(**{**learning.to_dict(), "file": _resolve(learning.file, base)})
-
-    return ControllerConfig(
-        rate_hz=top["rate_hz"],
-        clock=top["clock"],
-        model=_resolve(top["model"], base),
-        driver=driver,
-        reference=reference,
-        stress=validate_section(top["stress"], STRESS, "stress"),
-        limits=limits,
-        sensor=validate_section(top["sensor"], SENSOR, "sensor"),
-        comms=comms,
-        telemetry=telemetry,
-        scheduler=validate_section(top["scheduler"], SCHEDULER, "scheduler"),
-        watchdog_s=top["watchdog_s"],
-        learning=learning,
-        source=source,
-        raw=dict(data),
-    )
+    return learning
 
 
 def load_config(path: str | os.PathLike) -> ControllerConfig:

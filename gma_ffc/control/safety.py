@@ -1,7 +1,7 @@
 """Safety: current and slew limits, sensor plausibility, and the fault vocabulary.
 
 The fault vocabulary is a table of data, `FAULT_ACTIONS`: fault name -> `FaultAction`, which the
-loop runner (`controller.Controller`) executes on its one fault path. A row says
+runner (`manager.ControllerManager`) executes on its one fault path. A row says
 
 * `output` - how the output goes safe: "immediate" (the safe current written in one step,
   ignoring the slew limit: the loop can no longer be trusted, or the device is not answering),
@@ -107,35 +107,56 @@ def fault_actions(cfg: Any) -> dict[str, FaultAction]:
     return table
 
 
-class Limiter:
-    """Clamp to [lo, hi] and limit the step per tick to slew*dt; NaN commands hold the last."""
+# Which limit changed the tick's command (`Limiter.clipped`; RAMP is set by the runner when it
+# commands the safe current instead of the law). Interned strings: recording one allocates nothing.
+NOT_LIMITED = ""
+CURRENT_MIN = "current_min"
+CURRENT_MAX = "current_max"
+SLEW = "slew"
+RAMP = "ramp"
+LIMITS = (CURRENT_MIN, CURRENT_MAX, SLEW, RAMP)
 
-    __slots__ = ("lo", "hi", "max_step", "last")
+
+class Limiter:
+    """Clamp to [lo, hi] and limit the step per tick to slew*dt; NaN commands hold the last.
+
+    After each `apply`, `clipped` names the limit that changed the command (the last one to
+    bind: a target beyond `hi` that the slew limit then holds back is SLEW), or NOT_LIMITED.
+    """
+
+    __slots__ = ("lo", "hi", "max_step", "last", "clipped")
 
     def __init__(self, lo: float, hi: float, slew_A_per_s: float, period_s: float, initial: float) -> None:
         self.lo = lo
         self.hi = hi
         self.max_step = slew_A_per_s * period_s
         self.last = min(max(initial, lo), hi)
+        self.clipped = NOT_LIMITED
 
     def apply(self, target: float) -> float:
+        clipped = NOT_LIMITED
         if target != target:            # NaN: hold (the caller raises the fault)
             target = self.last
         if target > self.hi:
             target = self.hi
+            clipped = CURRENT_MAX
         elif target < self.lo:
             target = self.lo
+            clipped = CURRENT_MIN
         step = target - self.last
         if step > self.max_step:
             target = self.last + self.max_step
+            clipped = SLEW
         elif step < -self.max_step:
             target = self.last - self.max_step
+            clipped = SLEW
         # Rounding can put last+max_step a hair outside the box when last sits on a bound.
         if target > self.hi:
             target = self.hi
         elif target < self.lo:
             target = self.lo
         self.last = target
+        self.clipped = clipped
         return target
 
     def force(self, value: float) -> None:
@@ -146,20 +167,23 @@ class Limiter:
 class SensorMonitor:
     """Turns raw load-cell readings into a stress, holding the last good one through short glitches.
 
-    A reading is bad when NaN/missing, beyond the force limit, or gives a stress outside the
-    plausible range; `bad_ticks` bad readings in a row raise the fault. A reading unchanged
-    for `stale_ticks` ticks (0 = off) means a stuck sensor.
+    A reading is bad when NaN/missing or implausible; `bad_ticks` bad readings in a row raise the
+    fault. Plausible is one interval on the raw reading, fixed at configure time: the stress
+    range `valid_range`, and for a load cell (source "force") also |F| <= `force_limit_N` when
+    set (its rated capacity: it holds whatever rod diameter was configured), so a tick makes
+    one comparison pair. A reading unchanged for `stale_ticks` ticks (0 = off) is a stuck sensor.
     """
 
-    __slots__ = ("source_force", "area", "lo", "hi", "force_limit", "bad_ticks", "stale_ticks",
-                 "bad_run", "stale_run", "last_raw", "stress", "bad_kind")
+    __slots__ = ("source_force", "area", "lo", "hi", "force_limit", "raw_lo", "raw_hi", "bad_ticks",
+                 "stale_ticks", "bad_run", "stale_run", "last_raw", "stress", "bad_kind")
 
     def __init__(self, source: str, area_mm2: float, valid_range: tuple[float, float],
-                 force_limit_N: float, bad_ticks: int, stale_ticks: int) -> None:
+                 force_limit_N: float | None, bad_ticks: int, stale_ticks: int) -> None:
         self.source_force = source == "force"
         self.area = area_mm2
         self.lo, self.hi = valid_range
-        self.force_limit = force_limit_N
+        self.force_limit = math.inf if force_limit_N is None else force_limit_N
+        self.raw_lo, self.raw_hi = self.plausible_raw()
         self.bad_ticks = bad_ticks
         self.stale_ticks = stale_ticks
         self.bad_run = 0
@@ -168,18 +192,18 @@ class SensorMonitor:
         self.stress = math.nan          # last good stress (MPa)
         self.bad_kind = ""
 
+    def plausible_raw(self) -> tuple[float, float]:
+        """The plausible interval of the raw reading (N for a load cell: sigma = -F / A)."""
+        if not self.source_force:
+            return self.lo, self.hi
+        return max(-self.hi * self.area, -self.force_limit), min(-self.lo * self.area, self.force_limit)
+
     def update(self, force_N: float, stress_MPa: float) -> str:
         """Feed one reading; returns '' or the name of the fault that is now due."""
         raw = force_N if self.source_force else stress_MPa
         if raw != raw or math.isinf(raw):
             return self._bad(SENSOR_NAN)
-        if self.source_force:
-            if abs(raw) > self.force_limit:
-                return self._bad(SENSOR_ABSURD)
-            stress = -raw / self.area
-        else:
-            stress = raw
-        if stress < self.lo or stress > self.hi:
+        if raw < self.raw_lo or raw > self.raw_hi:
             return self._bad(SENSOR_ABSURD)
         if self.stale_ticks:
             if raw == self.last_raw:
@@ -190,10 +214,28 @@ class SensorMonitor:
                 self.stale_run = 0
         self.last_raw = raw
         self.bad_run = 0
-        self.stress = stress
+        self.stress = -raw / self.area if self.source_force else raw
         return ""
 
     def _bad(self, kind: str) -> str:
         self.bad_run += 1
         self.bad_kind = kind
         return kind if self.bad_run >= self.bad_ticks else ""
+
+    def restart(self) -> None:
+        """After a reconnect: the runs of bad and unchanged readings start afresh."""
+        self.bad_run = 0
+        self.stale_run = 0
+
+    def continue_from(self, other: SensorMonitor) -> None:
+        """A reload: keep the last good stress and the stuck-sensor reference of the monitor replaced."""
+        self.stress = other.stress
+        self.last_raw = other.last_raw
+
+    def message(self, fault: str, raw: float) -> str:
+        """The fault's message (the fault path only: it allocates)."""
+        n = self.stale_ticks if fault == SENSOR_STALE else self.bad_ticks
+        what = {SENSOR_NAN: "missing or NaN", SENSOR_STALE: "stuck (unchanged)",
+                SENSOR_ABSURD: f"absurd (outside the plausible {self.raw_lo:.4g} .. {self.raw_hi:.4g} "
+                               f"{'N' if self.source_force else 'MPa'})"}[fault]
+        return f"load-cell reading {what} for {n} ticks (last value {raw!r})"

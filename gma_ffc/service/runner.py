@@ -47,9 +47,9 @@ def _default_loader(path: Path) -> Any:
 
 
 def _default_factory(cfg: Any) -> Any:
-    from ..control.controller import Controller
+    from ..control.manager import ControllerManager
 
-    return Controller(cfg)
+    return ControllerManager(cfg)
 
 
 @dataclass

@@ -1,0 +1,89 @@
+"""The model's envelope: the drive and stress ranges it was identified on, and the policy beyond each.
+
+This is the one home of three policies:
+
+* the drive range (`DriveRange`): the law flags a drive outside it, and clamps it under
+  `limits.beyond_model: clamp`;
+* the stress range (`StressRange`): the model's kernel clamps the stress into it; the loop
+  flags a stress outside it once per tick, and `stress.out_of_range` says whether that is a fault;
+* the reference stress (`REFERENCE_STRESS_MPA`): the stress used where a model states none.
+
+What the runner does on each flag (go on, or ramp to the safe current and stop) is a row of the
+fault table (`safety.FAULT_ACTIONS`, chosen by the same config keys), not code here.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..protocols import Model
+
+# The paper's rod under its preload alone (seed paper, section 4). Used only where a model states
+# no stress: an MPI ignores the value, so any stress serves, and this one is physical.
+REFERENCE_STRESS_MPA = -11.3
+
+BEYOND_POLICIES = ("warn", "clamp", "fault")      # limits.beyond_model
+STRESS_POLICIES = ("clamp", "fault")              # stress.out_of_range
+
+# The identified extremes are where the fit's data ended: a command that rounds a hair past them
+# is not a drive the model never saw. 1 % of the range is well above rounding, well below a step.
+DRIVE_PAD = 0.01
+
+_BEYOND_VERB = {"warn": "commanded anyway (limits.beyond_model: warn)",
+                "clamp": "clamped to the identified range (limits.beyond_model: clamp)",
+                "fault": "fault (limits.beyond_model: fault)"}
+_STRESS_VERB = {"clamp": "clamped to the model's range", "fault": "fault (stress.out_of_range: fault)"}
+
+
+class DriveRange:
+    """[lo, hi] of the drive, and whether the law clamps a drive beyond it."""
+
+    __slots__ = ("lo", "hi", "policy", "clamp")
+
+    def __init__(self, lo: float = -math.inf, hi: float = math.inf, policy: str = "warn") -> None:
+        if policy not in BEYOND_POLICIES:
+            raise ValueError(f"policy must be one of {BEYOND_POLICIES}, got {policy!r}")
+        self.lo, self.hi = float(lo), float(hi)
+        self.policy = policy
+        self.clamp = policy == "clamp"
+
+    @classmethod
+    def of_model(cls, model: Model, policy: str) -> DriveRange:
+        """The model's identified drive range, widened by `DRIVE_PAD` of its span at each end."""
+        lo, hi = model.drive_range
+        pad = DRIVE_PAD * (hi - lo) if math.isfinite(hi - lo) else 0.0
+        return cls(float(lo) - pad, float(hi) + pad, policy)
+
+    def message(self, drive: float) -> str:
+        """The fault message for a drive beyond the range (the fault path only: it allocates)."""
+        return (f"the inverse asks for {drive:.4g} outside the drive range the model was identified on "
+                f"[{self.lo:.4g}, {self.hi:.4g}]: {_BEYOND_VERB[self.policy]}")
+
+
+class StressRange:
+    """[lo, hi] of the stress the model was identified on; unbounded for a stress-free MPI."""
+
+    __slots__ = ("lo", "hi", "policy")
+
+    def __init__(self, lo: float = -math.inf, hi: float = math.inf, policy: str = "clamp") -> None:
+        if policy not in STRESS_POLICIES:
+            raise ValueError(f"policy must be one of {STRESS_POLICIES}, got {policy!r}")
+        self.lo, self.hi = float(lo), float(hi)
+        self.policy = policy
+
+    @classmethod
+    def of_model(cls, model: Model, policy: str) -> StressRange:
+        rng = model.stress_range_MPa
+        return cls(*(rng if rng is not None else (-math.inf, math.inf)), policy=policy)
+
+    def operating_point(self) -> float:
+        """A stress inside the range: its middle, or the reference stress where it is unbounded."""
+        if math.isfinite(self.lo) and math.isfinite(self.hi):
+            return 0.5 * (self.lo + self.hi)
+        return REFERENCE_STRESS_MPA
+
+    def message(self, stress: float) -> str:
+        return (f"stress {stress:.2f} MPa outside the model's range [{self.lo:.2f}, {self.hi:.2f}] MPa: "
+                f"{_STRESS_VERB[self.policy]}")

@@ -1,0 +1,66 @@
+"""Fault bookkeeping: which faults are active, the recent history, and a tick's exception as a fault.
+
+The loop raises and clears faults; the service's status requests read them from other threads,
+so every change and every read holds one lock. What a fault makes the runner do is not here:
+that is the fault table (`safety.FAULT_ACTIONS`), which the runner (`manager`) executes.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from typing import Any
+
+from ..drivers import DriverError
+from . import safety
+from .scheduler import TickStats
+
+FAULT_HISTORY = 200     # most recent faults kept for the status (bounded for long service lives)
+
+
+class TickFault(Exception):
+    """Raised inside a tick to leave it for the fault path (only on the rare fault branch)."""
+
+    def __init__(self, name: str, message: str) -> None:
+        super().__init__(message)
+        self.name = name
+
+
+class FaultLog:
+    """Active faults (name -> message) and the last `FAULT_HISTORY` raised, thread-safe.
+
+    `active` is read without the lock by the loop's membership tests (a dict lookup is atomic
+    under the GIL); every change, and every copy for a status, takes the lock.
+    """
+
+    def __init__(self, stats: TickStats) -> None:
+        self._stats = stats             # for the tick a fault was raised at
+        self._lock = threading.Lock()
+        self.active: dict[str, str] = {}
+        self.history: collections.deque[dict[str, Any]] = collections.deque(maxlen=FAULT_HISTORY)
+
+    def raise_fault(self, name: str, message: str) -> None:
+        with self._lock:
+            self.active[name] = message
+            self.history.append({"fault": name, "message": message, "at_unix_s": time.time(),
+                                 "tick": self._stats.count})
+
+    def clear(self, name: str) -> None:
+        with self._lock:
+            self.active.pop(name, None)
+
+    def snapshot(self) -> tuple[dict[str, str], list[dict[str, Any]]]:
+        """Copies of the active faults and the history, for a status."""
+        with self._lock:
+            return dict(self.active), list(self.history)
+
+
+def classify(exc: Exception) -> tuple[str, str, str]:
+    """A tick's exception as (fault name, fault message, exit reason)."""
+    if isinstance(exc, TickFault):
+        return exc.name, str(exc), str(exc)
+    if isinstance(exc, DriverError):
+        return (safety.COMMS_TIMEOUT if exc.reason == "timeout" else safety.COMMS_ERROR), str(exc), str(exc)
+    message = f"{type(exc).__name__}: {exc}"
+    return safety.EXCEPTION, message, f"exception in the tick: {message}"

@@ -1,0 +1,108 @@
+"""The driver supervisor: ros2_control's resource manager for the one hardware interface.
+
+It takes the driver through its lifecycle (open = configure, activate, deactivate, close), writes
+the safe current with retries, and reconnects with exponential backoff. Failures become faults
+in the `FaultLog`, never exceptions out of here; which fault leads to a reconnect and which to a
+stop is the fault table's call, made by the runner (`manager`). The tick's own `read` and
+`write` go to the driver directly: nothing stands between the loop and the hardware.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Callable
+
+from ..drivers import DriverError, DriverProtocol
+from . import safety
+from .faults import FaultLog
+
+SAFE_RETRY_PAUSE_S = 0.05     # between safe-current tries on a failing link: a device gets time to answer
+
+
+class DriverSupervisor:
+    """Lifecycle, safe write and reconnect for `driver`; `at_safe` says the last write was the safe one."""
+
+    def __init__(self, driver: DriverProtocol, simulated: bool, comms: dict[str, Any], faults: FaultLog) -> None:
+        self.driver = driver
+        self.simulated = simulated       # a simulated clock: no real-time retry of the safe write
+        self.comms = comms
+        self.faults = faults
+        self.reconnects = 0
+        self.at_safe = False
+
+    def open(self) -> str:
+        """Configure (connect): '' when open, else the comms fault raised."""
+        try:
+            self.driver.open()
+            return ""
+        except DriverError as exc:
+            name = safety.COMMS_ERROR if exc.reason != "timeout" else safety.COMMS_TIMEOUT
+            self.faults.raise_fault(name, f"cannot open the driver: {exc}")
+            return name
+
+    def activate(self) -> None:
+        """Output on, just before the first command (never by a write)."""
+        self.driver.activate()
+
+    def write_safe(self, safe_A: float) -> bool:
+        """The safe current, at once. On a failing link keep retrying (with a reconnect between
+        tries) for `comms.safe_retry_s` of real time; a final failure is the fault
+        `safe_write_failed`, never raised. True when the write got through."""
+        give_up = time.monotonic() + (0.0 if self.simulated else self.comms["safe_retry_s"])
+        while True:
+            try:
+                self.driver.safe(safe_A)
+                self.at_safe = True
+                self.faults.clear(safety.SAFE_WRITE_FAILED)
+                return True
+            except Exception as exc:  # the device may be gone; keep trying for a while
+                if time.monotonic() >= give_up:
+                    self.faults.raise_fault(safety.SAFE_WRITE_FAILED,
+                                            f"could not write the safe current: {type(exc).__name__}: {exc}")
+                    return False
+            time.sleep(SAFE_RETRY_PAUSE_S)
+            try:
+                self.driver.reconnect()
+            except Exception:
+                pass
+
+    def reconnect(self, wait: Callable[[float], bool]) -> bool:
+        """Reconnect with exponential backoff; True when the driver answers again. `wait(s)`
+        sleeps on the runner's clock and says whether a stop came meanwhile."""
+        comms = self.comms
+        delay = comms["backoff_initial_s"]
+        attempt = 0
+        while comms["max_attempts"] == 0 or attempt < comms["max_attempts"]:
+            attempt += 1
+            if wait(delay):
+                return False
+            try:
+                self.driver.reconnect()
+                self.driver.activate()         # safe() may have switched the output off
+            except DriverError as exc:
+                self.driver.last_error = str(exc)
+                delay = min(delay * 2.0, comms["backoff_max_s"])
+                continue
+            except Exception as exc:
+                self.faults.raise_fault(safety.EXCEPTION, f"reconnect raised {type(exc).__name__}: {exc}")
+                return False
+            self.reconnects += 1
+            self.faults.clear(safety.COMMS_ERROR)
+            self.faults.clear(safety.COMMS_TIMEOUT)
+            return True
+        self.faults.raise_fault(safety.RECONNECT_FAILED, f"gave up after {attempt} reconnect attempts")
+        return False
+
+    def deactivate(self) -> None:
+        """Output off, after the safe current; a failure is the fault `deactivate_failed`."""
+        try:
+            self.driver.deactivate()
+        except Exception as exc:   # after the safe current: the output may still be on, say so
+            self.faults.raise_fault(safety.DEACTIVATE_FAILED,
+                                    f"output not switched off: {type(exc).__name__}: {exc}")
+
+    def close(self) -> None:
+        try:
+            self.driver.close()
+        except Exception as exc:
+            self.faults.raise_fault(safety.CLOSE_FAILED, f"{type(exc).__name__}: {exc}")

@@ -1,0 +1,52 @@
+"""The learned-correction file (`learning.file`, `gma-ffc run --learned`): the one place it is read
+and written. A correction belongs to the model it was learned through, so the file carries the
+model's fingerprint and a file learned with another model is refused when it is loaded.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+
+from ..errors import ConfigError
+from ..protocols import Model
+from .learning import RepetitiveLearner
+
+HEADER = "# gma-ffc learned feedforward correction: loaded by `gma-ffc run --learned FILE`\n"
+
+
+def model_fingerprint(model: Model) -> str:
+    """A short hash of the model's data: a learned correction belongs to the model it was learned through."""
+    return hashlib.sha256(json.dumps(model.to_dict(), sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def load_learned(learner: RepetitiveLearner, path: str) -> None:
+    """Take the correction saved at `path` if there is one (a first run has none)."""
+    if not os.path.exists(path):
+        return
+    from ..yamlfile import read_yaml
+
+    learner.load_dict(read_yaml(path, "learned-correction file", ConfigError), path)
+
+
+def save_learned(learner: RepetitiveLearner, path: str) -> None:
+    """Write the correction whole or not at all (an interrupted save keeps the previous file)."""
+    import yaml
+
+    from ..atomic import atomic_write
+
+    with atomic_write(path) as fh:
+        fh.write(HEADER)
+        yaml.safe_dump(learner.to_dict(), fh, sort_keys=False)
+
+
+def save_if_learned(learner: RepetitiveLearner | None, path: str | None) -> str:
+    """At the end of a run: keep what was learned for the next one. Returns '' or what went wrong."""
+    if learner is None or path is None or learner.learned_periods == 0:
+        return ""
+    try:
+        save_learned(learner, path)
+    except OSError as exc:
+        return f"could not save the learned correction to {path}: {exc}"
+    return ""

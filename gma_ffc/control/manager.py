@@ -1,0 +1,416 @@
+"""The controller manager: ros2_control's update loop, and the fault-table interpreter.
+
+Each tick: read the driver, turn the load cell into a stress (sigma = -F / A_rod), run the law's
+`update`, apply the current and slew limits, write the command, tell the law how the tick went,
+and hand the tick to every broadcaster (telemetry, status, any part plugged in). The hot path
+allocates nothing, does no I/O of its own besides the driver's, and logs nothing.
+
+Faults take one path, which executes the fault table (`safety.FAULT_ACTIONS`, resolved from the
+config when the setup is built): how the output goes safe, what follows, whether learning
+freezes, and the state the run ends in. Every exit from `run` - normal end, stop request, fault,
+exception - writes the safe current through the driver BEFORE the driver and the telemetry close.
+
+The parts come from the builder (`builder.build`): the law (the *controller*), the driver
+supervisor (resource manager), the telemetry recorder and the state broadcaster.
+
+    ctrl = ControllerManager(cfg)               # builds model, driver, law, telemetry
+    summary = ctrl.run(stop_event, duration_s)  # blocking; the safe current on every way out
+    ctrl.status()                               # thread-safe snapshot; ctrl.request_stop(reason)
+    ctrl.reload(load_config(path))              # bumpless; the old config is kept on error
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from enum import Enum
+from typing import Any, Mapping
+
+from ..drivers import DriverError, DriverProtocol
+from ..drivers.base import CURRENT
+from ..errors import GmaError
+from ..protocols import Model
+from . import safety
+from .builder import build, build_reload
+from .config import ControllerConfig
+from .faults import TickFault, classify
+from .law import FeedforwardController
+from .learned_file import save_if_learned
+from .realtime import realtime
+from .safety import RAMP
+from .scheduler import Scheduler
+from .setup import Setup
+from .tick import OUTSIDE_DRIVE, OUTSIDE_STRESS, Broadcaster
+
+RUNNING, STOPPING = 0, 1      # the loop's own mode within State.RUNNING / State.STOPPING
+FLAGGED, RAMPING, RESUME, EXIT = 0, 1, 2, 3    # what the loop does after `_execute` ran a fault's row
+
+
+class State(str, Enum):
+    """The controller's lifecycle state; a str so status and JSON read as plain words."""
+
+    IDLE = "idle"
+    STARTING = "starting"
+    RUNNING = "running"
+    RECONNECTING = "reconnecting"
+    STOPPING = "stopping"
+    STOPPED = "stopped"
+    FAULT = "fault"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+class ControllerManager:
+    """Runs the law at the configured rate; `run` returns a summary (`summary["ok"]` False on a fault).
+
+    `model`, `driver` and `clock` may be given (tests, the demo); by default they are built from
+    the config. `attach` plugs in another broadcaster (a model-fit monitor, say) before `run`.
+    """
+
+    def __init__(self, cfg: ControllerConfig, *, model: Model | None = None, driver: DriverProtocol | None = None,
+                 clock: Any = None) -> None:
+        parts = build(cfg, model=model, driver=driver, clock=clock)
+        self.clock, self.period_s, self.setup = parts.clock, cfg.period_s, parts.setup
+        self.stats, self.faults, self.watchdog = parts.stats, parts.faults, parts.watchdog
+        self.hardware, self.recorder, self.state_broadcaster = parts.hardware, parts.recorder, parts.state
+        self.driver: DriverProtocol = parts.hardware.driver
+        self.broadcasters: list[Broadcaster] = [parts.recorder]
+        self.tick, self.inputs = parts.tick, parts.tick.inputs
+        self.state = State.IDLE
+        self.exit_reason = ""
+        self.started_unix_s: float | None = None
+        self._lock = threading.Lock()
+        self._pending: Setup | None = None
+        self._stop_reason: str | None = None
+        self._stop_event = threading.Event()
+        self._mode = RUNNING
+        self._stop_started = 0.0
+        self._read_ok = False
+        self._stress_out = False
+        self._has_current = False
+        self.setup.law.activate(self.setup.safe_A)
+        for b in self.broadcasters:
+            b.on_setup(self.setup)
+
+    def attach(self, broadcaster: Broadcaster) -> None:
+        """Plug in a part that watches the loop: it gets the setup now and after every reload,
+        and every tick (between runs only: the list is not locked against the loop)."""
+        broadcaster.on_setup(self.setup)
+        self.broadcasters.append(broadcaster)
+
+    # ---- requests from other threads -----------------------------------------------------
+    def request_stop(self, reason: str = "stop requested") -> None:
+        """Ask the loop to ramp to the safe current and stop (thread-safe, signal-safe)."""
+        if self._stop_reason is None:
+            self._stop_reason = reason
+
+    def reload(self, new_cfg: ControllerConfig, model: Model | None = None) -> None:
+        """Swap model, reference, limits and sensor settings at the next tick, bumplessly.
+
+        Everything is built and validated here, in the caller's thread (`builder.build_reload`);
+        on any error the old configuration keeps running and the error propagates.
+        """
+        setup = build_reload(self.setup.cfg, new_cfg, model)
+        with self._lock:
+            self._pending = setup
+        if self.state in (State.IDLE, State.STOPPED, State.FAULT):
+            self._apply_pending()
+
+    def status(self) -> dict[str, Any]:
+        """Thread-safe snapshot for the service, the CLI and tests (`state_broadcaster`)."""
+        return self.state_broadcaster.status(self.setup, self.state.value, self.exit_reason, self.started_unix_s)
+
+    def summary(self) -> dict[str, Any]:
+        snap = self.status()
+        snap["ok"] = snap["state"] != "fault"
+        return snap
+
+    # ---- lifecycle -------------------------------------------------------------------------
+    def run(self, stop_event: threading.Event | None = None, duration_s: float | None = None) -> dict[str, Any]:
+        """Blocking fixed-rate loop; the safe current is written on every way out."""
+        self._stop_event = stop_event or threading.Event()
+        self.state = State.STARTING
+        self.hardware.at_safe = False
+        self.exit_reason = ""
+        self.started_unix_s = time.time()
+        opened = False
+        try:
+            if not self.setup.law.active:         # every run starts from the safe current
+                self.setup.law.activate(self.setup.safe_A)
+            opened = self._open()
+            if opened:
+                self._start_and_loop(duration_s)
+            else:
+                self.exit_reason = "driver could not be opened"
+        except GmaError as exc:
+            self.faults.raise_fault(safety.COMMS_ERROR if isinstance(exc, DriverError) else safety.EXCEPTION, str(exc))
+            self.exit_reason = str(exc)
+        except BaseException as exc:  # anything at all: safe current first, then report
+            self.faults.raise_fault(safety.EXCEPTION, f"{type(exc).__name__}: {exc}")
+            self.exit_reason = f"{type(exc).__name__}: {exc}"
+        finally:
+            self._finish(opened)
+        return self.summary()
+
+    def _open(self) -> bool:
+        """Open (configure) the driver, reconnecting with backoff when the table says so."""
+        name = self.hardware.open()
+        if not name:
+            return True
+        return self.setup.fault_table[name].then == "reconnect" and self._reconnect()
+
+    def _start_and_loop(self, duration_s: float | None) -> None:
+        channels = self.driver.channels
+        self._has_current = CURRENT in channels
+        self.recorder.start(channels, self.setup, self.started_unix_s or time.time())
+        if self.clock.simulated:
+            self.hardware.activate()      # output on just before the first command, never by a write
+            self._loop(duration_s)
+            return
+        self.watchdog.start()
+        self.hardware.activate()
+        with realtime(self.setup.cfg.scheduler,
+                      lambda message: self.faults.raise_fault(safety.REALTIME_REFUSED, message)):
+            self._loop(duration_s)
+
+    def _finish(self, opened: bool) -> None:
+        """Safe current and output off (deactivate) first, then join the watchdog, keep what was
+        learned, flush telemetry and close the driver."""
+        self.watchdog.stop()
+        if opened and not self.hardware.at_safe:
+            self._go_safe()
+        if opened:
+            self.hardware.deactivate()
+        self.setup.law.deactivate(0.0, "the run ended", freeze_learning=False)
+        self.watchdog.join()
+        error = save_if_learned(self.setup.law.learner, self.setup.cfg.learning.file)
+        if error:
+            self.faults.raise_fault(safety.LEARNING_SAVE_FAILED, error)
+        error = self.recorder.close()
+        if error:
+            self.faults.raise_fault(safety.TELEMETRY, error)
+        self.hardware.close()
+        hard = [f for f in self.faults.active if exit_state(self.setup.fault_table, f) == "fault"]
+        self.state = State.FAULT if hard else State.STOPPED
+
+    def _go_safe(self) -> None:
+        """The safe current through the supervisor (with its retries); the limiter starts from it."""
+        s = self.setup
+        if self.hardware.write_safe(s.safe_A):
+            self.tick.command_A = s.safe_A     # the amplifier's last command, for the status
+        s.limiter.force(s.safe_A)
+
+    def _reconnect(self) -> bool:
+        """Reconnect with backoff; the amplifier is already safe, so the watchdog pauses."""
+        self.state = State.RECONNECTING
+        self.watchdog.pause()
+        return self.hardware.reconnect(self._wait)
+
+    def _wait(self, delay: float) -> bool:
+        """Sleep `delay` on the controller's clock; True if a stop came meanwhile."""
+        if self.clock.simulated:
+            self.clock.advance(delay)          # type: ignore[attr-defined]  # a SimulatedClock
+        else:
+            self._stop_event.wait(delay)
+        return self._stop_event.is_set() or self._stop_reason is not None
+
+    def _apply_pending(self) -> None:
+        """Swap in a reload's setup between two ticks: the new law takes over the old one's
+        hysteresis memory at the command the amplifier holds, and the limits start from it."""
+        with self._lock:
+            new, self._pending = self._pending, None
+        if new is None:
+            return
+        old = self.setup
+        last = old.limiter.last
+        new.law.take_over(old.law, last)
+        new.monitor.continue_from(old.monitor)
+        new.limiter.force(last)
+        self.hardware.comms = new.cfg.comms
+        self.setup = new
+        for b in self.broadcasters:
+            b.on_setup(new)
+
+    # ---- the loop ----------------------------------------------------------------------------
+    def _loop(self, duration_s: float | None) -> None:
+        clock, stats, tick, broadcasters = self.clock, self.stats, self.tick, self.broadcasters
+        watchdog, stop_event = self.watchdog, self._stop_event
+        sched, t0 = self._start_schedule()
+        end_t = math.inf if duration_s is None else duration_s
+        watchdog_s = self.setup.cfg.watchdog_s
+        while True:
+            deadline = sched.wait()
+            t_start = clock.now()
+            watchdog.heartbeat = t_start
+            t = deadline - t0
+            if self._mode == RUNNING and (t >= end_t or stop_event.is_set() or self._stop_reason is not None):
+                if self._execute(safety.STOP, t, self._stop_reason or (
+                        "stop requested" if stop_event.is_set() else "duration reached")) == EXIT:
+                    return
+            if self._pending is not None:
+                self._apply_pending()
+            try:
+                self._tick(t, t_start - t0)
+            except Exception as exc:   # the one fault path: the table says what happens
+                if self._on_fault(exc, t) == RESUME:
+                    sched.next_deadline = clock.now()
+                    continue
+                return
+            for b in broadcasters:
+                b.on_tick(tick)
+            compute = clock.now() - t_start
+            stats.record(t_start, compute)
+            stats.overruns = sched.overruns
+            stats.missed = sched.missed
+            if compute > watchdog_s:
+                self.faults.raise_fault(safety.WATCHDOG, f"a tick took {compute:.3f} s (watchdog {watchdog_s:g} s)")
+                if self._execute(safety.WATCHDOG, t, "watchdog") != RESUME:
+                    return
+            if self._mode == STOPPING and (tick.command_A == self.setup.safe_A or
+                                           t - self._stop_started >= self.setup.cfg.limits["stop_ramp_max_s"]):
+                return
+
+    def _start_schedule(self) -> tuple[Scheduler, float]:
+        """The first deadline, and the wall-clock time of t = 0 from one reading of both clocks,
+        so a row's unix time is start_unix_s + time_s to well within a millisecond."""
+        sched = Scheduler(self.clock, self.period_s)
+        t0 = sched.start()
+        wall, mono = time.time(), self.clock.now()
+        self.started_unix_s = wall - (mono - t0) if not self.clock.simulated else wall
+        self.recorder.stamp_start(self.started_unix_s)
+        self._mode = RUNNING
+        self._read_ok = False
+        self.state = State.RUNNING
+        return sched, t0
+
+    def _tick(self, t: float, time_s: float) -> None:
+        """One tick, up to the law's observation; the loop broadcasts it. A fault raises."""
+        s, tick, inputs = self.setup, self.tick, self.inputs
+        tick.t = t
+        tick.time_s = time_s
+        tick.outside_model = 0
+        if self.watchdog.tripped:
+            raise TickFault(safety.WATCHDOG, self.faults.active.get(safety.WATCHDOG, "watchdog"))
+        self._read_ok = False
+        inputs.clear()
+        self.driver.read(inputs)
+        self._read_ok = True
+        bad = s.monitor.update(inputs.force_N, inputs.stress_MPa)
+        if bad:
+            raise TickFault(bad, s.monitor.message(bad, inputs.force_N if s.monitor.source_force else inputs.stress_MPa))
+        stress = s.monitor.stress
+        ref_now = s.reference_now.value(t)
+        law = s.law
+        if self._mode != RUNNING or stress != stress:
+            u = s.safe_A                        # stopping, or before the first good stress
+        else:
+            u = self._law_drive(law, t, stress)
+        cmd = s.limiter.apply(u)
+        self.hardware.at_safe = False
+        self.driver.write(cmd)
+        limited = RAMP if self._mode != RUNNING else s.limiter.clipped
+        if law.learner is not None:         # the tick's outcome, to the law's learner
+            law.observe(t, ref_now, inputs.displacement_um, stress, limited)
+        tick.reference_um = ref_now
+        tick.command_A = cmd
+        meas = inputs.current_A
+        tick.current_A = meas if self._has_current and meas == meas else cmd   # commanded where unmeasured
+        tick.stress_MPa = stress
+        tick.displacement_um = inputs.displacement_um
+        tick.correction_um = law.correction
+        tick.limited_by = limited
+        tick.faulted = False
+
+    def _law_drive(self, law: FeedforwardController, t: float, stress: float) -> float:
+        """The law's drive with the model's envelope checked (the safe current if that stops the run)."""
+        rng = self.setup.stress_range
+        if stress < rng.lo or stress > rng.hi:         # the tick's one test of the stress range
+            self.tick.outside_model = OUTSIDE_STRESS
+            self.state_broadcaster.count_outside(OUTSIDE_STRESS)
+            self._stress_out = True
+            self._envelope_fault(safety.STRESS_RANGE, stress, t)
+            if self._mode != RUNNING:
+                return self.setup.safe_A
+        elif self._stress_out:
+            self._stress_out = False
+            self.faults.clear(safety.STRESS_RANGE)
+        u = law.update(t, stress)
+        if u != u:
+            raise TickFault(safety.EXCEPTION, "the inverse model returned NaN")
+        if law.beyond:
+            self.tick.outside_model |= OUTSIDE_DRIVE
+            self.state_broadcaster.count_outside(OUTSIDE_DRIVE)
+            self._envelope_fault(safety.DRIVE_RANGE, law.raw, t)
+            if self._mode != RUNNING:
+                return self.setup.safe_A
+        return u
+
+    # ---- faults: the table's interpreter ---------------------------------------------------------
+    def _envelope_fault(self, name: str, value: float, t: float) -> None:
+        """A stress or drive beyond the model: raised once while it lasts (its message built only
+        then), its row executed every tick it lasts; an immediate row leaves by the fault path."""
+        immediate = self.setup.fault_table[name].output == "immediate"
+        if immediate or name not in self.faults.active:
+            s = self.setup
+            message = s.stress_range.message(value) if name == safety.STRESS_RANGE else s.law.drive.message(value)
+            if immediate:
+                raise TickFault(name, message)
+            self.faults.raise_fault(name, message)
+        self._execute(name, t)
+
+    def _on_fault(self, exc: Exception, t: float) -> int:
+        """A tick that raised: its row (the safe current as command) if it read, then the table's row."""
+        name, message, reason = classify(exc)
+        if self._read_ok:   # a tick whose read failed has no data to log
+            s, tick = self.setup, self.tick
+            meas = self.inputs.current_A
+            tick.current_A = meas if self._has_current and meas == meas else s.safe_A
+            tick.stress_MPa = s.monitor.stress
+            tick.displacement_um = self.inputs.displacement_um
+            tick.correction_um = 0.0
+            tick.faulted = True        # its row records the safe current; reference_um stays the last good
+            for b in self.broadcasters:
+                b.on_tick(tick)
+        self.faults.raise_fault(name, message)
+        return self._execute(name, t, reason)
+
+    def _execute(self, name: str, t: float, reason: str | None = None) -> int:
+        """Execute the fault table's row for `name` (already raised, or a stop request); returns
+        FLAGGED (the tick goes on), RAMPING (the loop heads for the safe current within the slew
+        limit), RESUME (reconnected: next tick) or EXIT. `reason` (default: the fault's message)
+        becomes the exit reason when the row stops the run. Only ever called on a fault."""
+        action = self.setup.fault_table[name]
+        if action.output == "none":
+            return FLAGGED
+        if reason is None:
+            reason = self.faults.active.get(name, name)
+        if action.output == "ramp":      # the stopping ticks observe with RAMP: learning frozen
+            self.exit_reason = reason
+            self.state = State.STOPPING
+            if self._mode == RUNNING:
+                self._mode, self._stop_started = STOPPING, t
+            return RAMPING
+        # immediate. Fault handling is bounded (comms timeouts, safe_retry_s, the reconnect
+        # policy): the watchdog, which guards against a loop that hangs, pauses until the next tick.
+        self.watchdog.pause()
+        self._go_safe()
+        reconnect = action.then == "reconnect" and self._mode == RUNNING
+        self.setup.law.deactivate(t, f"{name}: at the safe current" + (", reconnecting" if reconnect else ""),
+                                  action.freeze_learning)
+        if reconnect and self._reconnect():
+            self.setup.law.activate(self.setup.safe_A)
+            self.setup.monitor.restart()
+            self.state = State.RUNNING
+            return RESUME
+        self.exit_reason = reason
+        return EXIT
+
+
+def exit_state(fault_table: Mapping[str, safety.FaultAction], name: str) -> str:
+    """The state a run ending with fault `name` active ends in (unknown names: fault)."""
+    action = fault_table.get(name)
+    if action is not None:
+        return action.exit_state
+    return "stopped" if name in safety.WARNINGS else "fault"

@@ -1,0 +1,116 @@
+"""The telemetry recorder: the run's recording, one row per tick (a broadcaster).
+
+It owns the recording's schema (which columns, from the driver's channels and whether learning
+is on), its metadata, and the packing of a `Tick` into a preallocated row. `telemetry.Telemetry`
+is the writer: the ring buffer, the writer thread and the file. Columns follow
+docs/recordings.md; `reference_um` is the reference for the tick's own instant, so
+`reference_um - displacement_um` is the tracking error.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, Sequence
+
+import numpy as np
+
+from ..drivers.base import CURRENT, DISPLACEMENT, FORCE
+from .telemetry import Telemetry
+from .tick import Broadcaster, Tick
+
+if TYPE_CHECKING:
+    from .config import ControllerConfig
+    from .setup import Setup
+
+FIXED = ("time_s", "reference_um", "current_cmd_A", "current_A", "stress_MPa")
+CORRECTION = "correction_um"
+OUTSIDE = "outside_model"       # 1: drive beyond the identified range, 2: stress beyond it, 3: both
+
+
+def columns(channels: Sequence[str], learning: bool) -> list[str]:
+    """The recording's columns for a driver with these channels."""
+    cols = list(FIXED) + [ch for ch in (DISPLACEMENT, FORCE) if ch in channels]
+    if learning:
+        cols.append(CORRECTION)
+    cols.append(OUTSIDE)
+    return cols
+
+
+def _not_started(row: np.ndarray) -> None:
+    raise RuntimeError("telemetry recorder: a tick before start()")
+
+
+class TelemetryRecorder(Broadcaster):
+    """Schema, metadata and row packing for one run; `telemetry` is the writer while it runs."""
+
+    def __init__(self, cfg: ControllerConfig, simulated: bool) -> None:
+        self.section = cfg.telemetry
+        self.rate_hz = cfg.rate_hz
+        self.simulated = simulated
+        self.writer_priority = 0 if simulated else max(0, cfg.scheduler["realtime_priority"] - 1)
+        self.base_metadata = {"source": "gma-ffc controller", "sample_rate_hz": cfg.rate_hz,
+                              "driver": cfg.driver["kind"], "config": cfg.source}
+        self.telemetry: Telemetry | None = None
+        self._closed = True
+        self._row = np.zeros(len(FIXED) + 1)
+        self._push = _not_started
+        self._safe_A = 0.0
+        self._disp = self._force = self._corr = -1
+
+    def start(self, channels: Sequence[str], setup: Setup, started_unix_s: float) -> None:
+        """Open the recording (the writer refuses a file another controller holds)."""
+        cols = columns(channels, setup.law.learner is not None)
+        metadata = {**self.base_metadata, "start_unix_s": started_unix_s,
+                    "command_lead_s": setup.law.reference.lead_s, "model_kind": setup.model.kind,
+                    "current_A_is": "measured (commanded where a reading is missing)"
+                    if CURRENT in channels else "commanded"}
+        tel = Telemetry(self.section["path"], cols, metadata, capacity=int(self.section["buffer_s"] * self.rate_hz),
+                        flush_interval_s=self.section["flush_interval_s"], block_when_full=self.simulated)
+        if self.writer_priority > 0:          # just below the loop (0 when the loop runs without SCHED_FIFO)
+            tel.realtime_priority = self.writer_priority
+        self.telemetry = tel
+        self._push = tel.push
+        self._closed = False
+        self._row = np.zeros(len(cols))
+        self._disp, self._force, self._corr = (cols.index(c) if c in cols else -1
+                                               for c in (DISPLACEMENT, FORCE, CORRECTION))
+        tel.start()
+
+    def on_setup(self, setup: Setup) -> None:
+        self._safe_A = setup.safe_A        # the command a fault tick's row records
+
+    def stamp_start(self, start_unix_s: float) -> None:
+        """The wall-clock time of t = 0, known once the loop's first deadline is (before any row)."""
+        if self.telemetry is not None:
+            self.telemetry.metadata["start_unix_s"] = start_unix_s
+            self.telemetry.metadata["unix_time_of_a_row"] = "start_unix_s + time_s"
+
+    def on_tick(self, tick: Tick) -> None:
+        row = self._row
+        row[0] = tick.time_s
+        row[1] = tick.reference_um
+        row[2] = self._safe_A if tick.faulted else tick.command_A
+        row[3] = tick.current_A
+        row[4] = tick.stress_MPa
+        if self._disp >= 0:
+            row[self._disp] = tick.displacement_um
+        if self._force >= 0:
+            row[self._force] = tick.inputs.force_N
+        if self._corr >= 0:
+            row[self._corr] = tick.correction_um
+        row[-1] = tick.outside_model
+        self._push(row)
+
+    def close(self) -> str:
+        """Write what is left and close the file; returns the writer's error ('' when none)."""
+        if self.telemetry is None or self._closed:
+            return ""
+        self._closed = True
+        self.telemetry.close()
+        return self.telemetry.error
+
+    def status(self) -> dict[str, Any] | None:
+        tel = self.telemetry
+        if tel is None:
+            return None
+        return {"path": str(tel.path) if tel.path else None, "rows": tel.head, "rows_written": tel.rows_written,
+                "dropped": tel.dropped}
