@@ -21,9 +21,6 @@ from gma_ffc.modelio import save_model
 from gma_ffc.recordings import Recording, read_recording, write_recording
 from test_inverse import drive_from_rng, histories, sdpi_from_rng, sdpi_models
 
-PIEZO = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "piezo_150V_1Hz" / "piezo_150V_1Hz.csv"
-needs_piezo = pytest.mark.skipif(not PIEZO.exists(), reason="the measured recording lives in shared/ beside the repo")
-
 
 def cut(rec: Recording, a: float, b: float = np.inf, name: str | None = None) -> Recording:
     keep = (rec.time_s >= a) & (rec.time_s < b)
@@ -33,13 +30,12 @@ def cut(rec: Recording, a: float, b: float = np.inf, name: str | None = None) ->
 # ---- the measured piezo recording: simulate over the whole of any window -----------------------
 
 @pytest.fixture(scope="module")
-def piezo():
-    rec = read_recording(PIEZO)
+def piezo(piezo_csv):
+    rec = read_recording(piezo_csv)
     model = SDPIIdentifier().fit([cut(rec, 3.0, 7.0, "train")]).model_
     return rec, model
 
 
-@needs_piezo
 @pytest.mark.parametrize("start_s", [0.0, 2.0, 3.4, 3.73, 4.1, 5.5, 6.0, 7.3, 8.0])
 def test_simulate_over_the_whole_window_is_as_good_as_after_the_first_cycle(piezo, start_s):
     rec, model = piezo
@@ -56,7 +52,6 @@ def test_simulate_over_the_whole_window_is_as_good_as_after_the_first_cycle(piez
     assert whole <= relaxed + 1e-12
 
 
-@needs_piezo
 def test_simulate_command_says_which_initial_state_it_used(piezo, tmp_path, capsys):
     rec, model = piezo
     save_model(model, tmp_path / "m.yaml")
@@ -149,7 +144,6 @@ def test_initial_state_spec_parses_and_refuses():
         InitialStateSpec.parse("drive:abc")
 
 
-@needs_piezo
 @pytest.mark.parametrize("start_s", [4.3, 5.1, 5.77, 6.0])
 def test_a_one_cycle_recording_contributes_all_its_samples(piezo, start_s):
     """One drive period cut anywhere (here mid-rise, mid-fall, near a turn) is identified from
