@@ -147,15 +147,15 @@ def test_initial_state_spec_parses_and_refuses():
 @pytest.mark.parametrize("start_s", [4.3, 5.1, 5.77, 6.0])
 def test_a_one_cycle_recording_contributes_all_its_samples(piezo, start_s):
     """One drive period cut anywhere (here mid-rise, mid-fall, near a turn) is identified from
-    all its samples and predicts the rest of the recording within 1 % of its peak-to-peak
-    (such a window was refused as 'no full sweep', or fitted on the quarter cycle after its
-    burn-in)."""
+    all its samples and predicts the rest of the recording (three unseen seconds) within 0.4 % of
+    its peak-to-peak, RMS, as the README says (such a window was refused as 'no full sweep', or
+    fitted on the quarter cycle after its burn-in). Measured: 0.21 % at each of the four cuts."""
     rec, _ = piezo
     fit = SDPIIdentifier().fit([cut(rec, start_s, start_s + 1.0, "one_cycle")])
     assert any("all their samples fitted" in n for n in fit.notes_)
     unseen = cut(rec, 7.0)
     pred = fit.model_.simulate(unseen.time_s, unseen.drive, measured_um=unseen.displacement_um)
-    assert rms(pred - unseen.displacement_um) < 0.01 * np.ptp(unseen.displacement_um)
+    assert rms(pred - unseen.displacement_um) < 0.004 * np.ptp(unseen.displacement_um)
 
 
 def test_a_full_sweep_is_travel_both_ways_wherever_the_recording_starts():
