@@ -312,6 +312,34 @@ def test_no_output_overwrites_an_input(files, capsys, how, command):
     assert src.read_bytes() == before
 
 
+@pytest.mark.parametrize("how", ["same path", "hard link", "symlink"])
+def test_identify_plot_never_overwrites_a_recording(files, capsys, how):
+    d, good = files
+    before = good[0].read_bytes()
+    plot = alias(good[0], how, d / "alias_plot.png")
+    err = run_refused(["identify", *good, "-o", d / "plotted.yaml", "--plot", plot], capsys, "refusing to overwrite")
+    assert " plot " in err, err          # the guard of --plot, not of -o
+    assert good[0].read_bytes() == before and not (d / "plotted.yaml").exists()
+
+
+@pytest.mark.parametrize("how", ["same path", "hard link", "symlink"])
+@pytest.mark.parametrize("produced", ["diagnosis.json", "report.html", "extended_model.yaml"])
+def test_diagnose_out_never_overwrites_an_input(files, capsys, how, produced):
+    """An input that sits in the --out folder under the name of a file diagnose writes there."""
+    d, good = files
+    folder = d / f"diag_{how.replace(' ', '_')}_{produced}"
+    folder.mkdir()
+    model = d / "model.yaml"
+    if how == "same path":
+        model = folder / produced
+        model.write_bytes((d / "model.yaml").read_bytes())
+    else:
+        alias(model, how, folder / produced)
+    before = model.read_bytes()
+    run_refused(["diagnose", "--model", model, good[0], "--out", folder], capsys, "refusing to overwrite")
+    assert model.read_bytes() == before and sorted(p.name for p in folder.iterdir()) == [produced]
+
+
 def test_the_controller_starts_from_the_shared_rule_and_says_so():
     from gma_ffc.control.config import validate_config
     from gma_ffc.control.controller import Controller
