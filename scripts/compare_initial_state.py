@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """The initial-state fit of this checkout against a baseline checkout: the same fits?
 
-    python scripts/compare_initial_state.py --baseline-src /tmp/base [--seeds 11 12] [--cases 200]
+    python scripts/compare_initial_state.py --baseline-src /tmp/base [--seeds 11 12] [--cases 200] [--cache DIR]
 
 Two checks, each run once per checkout in a fresh process (PYTHONPATH=the checkout):
   - random models: the state fit's cases of tests/test_real_recordings.py (`random_case`, seeds
@@ -10,7 +10,8 @@ Two checks, each run once per checkout in a fresh process (PYTHONPATH=the checko
   - the measured piezo recording: a model identified on 3-7 s simulates nine windows cut
     mid-history, and four one-period windows each identify a model that predicts 7-10 s.
 
-Printed: per check, how many cases the two fits differ by more than the tolerance (1e-4 of
+Printed (seconds per fit are from when each checkout ran: with --cache, the baseline may be older):
+per check, how many cases the two fits differ by more than the tolerance (1e-4 of
 the stroke), which way, the largest difference, and the seconds per fit. Exit 1 when a fit of
 this checkout is worse than the baseline's by more than the tolerance.
 """
@@ -94,11 +95,23 @@ def worker(tree: Path, out: Path, seeds: list[int], cases: int, piezo: Path) -> 
 
 # ---- the comparison --------------------------------------------------------------------------------
 
+def clean_commit(tree: Path) -> str | None:
+    """The checkout's commit when it has no uncommitted change (its results can be kept), else None."""
+    def git(*a: str) -> str:
+        return subprocess.run(["git", "-C", str(tree), *a], capture_output=True, text=True).stdout.strip()
+    return None if git("status", "--porcelain", "--untracked-files=no") else (git("rev-parse", "HEAD") or None)
+
+
 def run_tree(tree: Path, args: argparse.Namespace, tmp: Path) -> dict[str, list[dict[str, Any]]]:
-    out = tmp / f"{abs(hash(str(tree)))}.pkl"
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), str(ROOT / "tests")]))
-    subprocess.run([sys.executable, __file__, "--worker", str(tree), "--out", str(out), "--piezo", str(args.piezo),
-                    "--cases", str(args.cases), "--seeds", *map(str, args.seeds)], check=True, env=env, cwd=tree)
+    """The worker's results on `tree`; with --cache, a clean commit's are kept and reused."""
+    commit = clean_commit(tree)
+    key = f"{commit}-{'_'.join(map(str, args.seeds))}-{args.cases}-{args.piezo.name}.pkl"
+    out = args.cache / key if args.cache and commit else tmp / f"{abs(hash(str(tree)))}.pkl"
+    if not out.exists():
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree), str(ROOT / "tests")]))
+        subprocess.run([sys.executable, __file__, "--worker", str(tree), "--out", str(out), "--piezo",
+                        str(args.piezo), "--cases", str(args.cases), "--seeds", *map(str, args.seeds)],
+                       check=True, env=env, cwd=tree)
     result: dict[str, list[dict[str, Any]]] = pickle.loads(out.read_bytes())
     return result
 
@@ -135,6 +148,8 @@ def main() -> int:
     ap.add_argument("--cases", type=int, default=200, help="random models per seed")
     ap.add_argument("--piezo", type=Path, default=ROOT.parent / "shared" / "data" / "real" / "piezo_150V_1Hz"
                     / "piezo_150V_1Hz.csv")
+    ap.add_argument("--cache", type=Path, metavar="DIR",
+                    help="keep each clean commit's results here and reuse them (the baseline runs once)")
     ap.add_argument("--worker", type=Path, help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -145,6 +160,8 @@ def main() -> int:
         ap.error("--baseline-src DIR is required (e.g. git worktree add /tmp/base main)")
     print(f"this checkout {ROOT}, baseline {args.baseline_src}; seeds {args.seeds} x {args.cases} random models; "
           f"load average {os.getloadavg()[0]:.1f}")
+    if args.cache:
+        args.cache.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         new, old = run_tree(ROOT, args, Path(tmp)), run_tree(args.baseline_src.resolve(), args, Path(tmp))
     ok = compare("random models", new["random"], old["random"], detail=False)
