@@ -330,7 +330,13 @@ def _history_search(v0: float, r: np.ndarray, reach: float, cost: Any) -> np.nda
     """States after random drives of three to six turning points within the operators' reach,
     then parallel hill-climbs on the turning points of the best few (each keeps its own lineage,
     so the starts stay in different basins). A fixed generator: the estimate is a deterministic
-    function of the data. Returns the climbs' best states, best first."""
+    function of the data. Returns the climbs' best states, best first.
+
+    Hand-written, measured against scipy's differential_evolution over the same six turning points
+    and about the same 5,100 costs (40 x 6 a generation, 20 generations, vectorised): the search
+    took 0.30 s against 0.05 s (20 random models, interleaved), and on the 400 random models of
+    scripts/compare_initial_state.py two fits came out worse by up to 2.1e-4 of the stroke (and
+    two better by up to 4.3e-4)."""
     rng = np.random.default_rng(HISTORY_SEARCH_SEED)
     turns = v0 + rng.uniform(-reach, reach, (RANDOM_HISTORIES, 6))
     n_turns = rng.integers(3, 7, RANDOM_HISTORIES)
