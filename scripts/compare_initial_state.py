@@ -10,10 +10,11 @@ Two checks, each run once per checkout in a fresh process (PYTHONPATH=the checko
   - the measured piezo recording: a model identified on 3-7 s simulates nine windows cut
     mid-history, and four one-period windows each identify a model that predicts 7-10 s.
 
-Printed (seconds per fit are from when each checkout ran: with --cache, the baseline may be older):
-per check, how many cases the two fits differ by more than the tolerance (1e-4 of
-the stroke), which way, the largest difference, and the seconds per fit. Exit 1 when a fit of
-this checkout is worse than the baseline's by more than the tolerance.
+Printed: per check, how many cases the two fits differ by more than the tolerance (1e-4 of
+the stroke), which way, the largest difference, and the seconds per fit (from when each checkout
+ran: with --cache, the baseline's may be older). Then seconds per fit with the two checkouts
+interleaved in one process (--timing). Exit 1 when a fit of this checkout is worse than the
+baseline's by more than the tolerance.
 """
 
 from __future__ import annotations
@@ -93,6 +94,34 @@ def worker(tree: Path, out: Path, seeds: list[int], cases: int, piezo: Path) -> 
     out.write_bytes(pickle.dumps(result))
 
 
+def interleaved_timing(baseline: Path, cases: int) -> None:
+    """Seconds per state fit, the two checkouts' initial_state modules alternating case by case in
+    one process (the baseline's file loaded beside this one), so both see the same machine load."""
+    import importlib.util
+    import statistics
+
+    import gma_ffc.initial_state as this
+    from test_real_recordings import random_case
+
+    spec = importlib.util.spec_from_file_location("gma_ffc._baseline_initial_state",
+                                                  baseline / "gma_ffc" / "initial_state.py")
+    assert spec is not None and spec.loader is not None
+    base = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = base
+    spec.loader.exec_module(base)
+    times: dict[str, list[float]] = {"this": [], "baseline": []}
+    for k in range(cases):
+        model, x, stress, pre = random_case(13, k)
+        y = model.simulate(None, x, stress, initial_state="relaxed")
+        for name, mod in (("this", this), ("baseline", base))[:: 1 if k % 2 else -1]:
+            t0 = time.perf_counter()
+            mod.resolve(model, x, stress, "estimate", y)
+            times[name].append(time.perf_counter() - t0)
+    a, b = statistics.median(times["this"]), statistics.median(times["baseline"])
+    print(f"\nseconds per state fit, {cases} random models (seed 13), interleaved in one process: "
+          f"this {a:.3f}, baseline {b:.3f} (median; ratio {a / b:.2f}; load average {os.getloadavg()[0]:.1f})")
+
+
 # ---- the comparison --------------------------------------------------------------------------------
 
 def clean_commit(tree: Path) -> str | None:
@@ -150,6 +179,8 @@ def main() -> int:
                     / "piezo_150V_1Hz.csv")
     ap.add_argument("--cache", type=Path, metavar="DIR",
                     help="keep each clean commit's results here and reuse them (the baseline runs once)")
+    ap.add_argument("--timing", type=int, default=40, metavar="N",
+                    help="also time the fit on N random models, the two checkouts interleaved (0: skip)")
     ap.add_argument("--worker", type=Path, help=argparse.SUPPRESS)
     ap.add_argument("--out", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -169,6 +200,9 @@ def main() -> int:
         ok &= compare(f"measured piezo ({args.piezo.name})", new["piezo"], old["piezo"], detail=True)
     else:
         print(f"\nmeasured piezo: {args.piezo} not found, not compared")
+    if args.timing:
+        sys.path.insert(0, str(ROOT / "tests"))
+        interleaved_timing(args.baseline_src.resolve(), args.timing)
     print(f"\n(load average {os.getloadavg()[0]:.1f} at the end)")
     return 0 if ok else 1
 
