@@ -370,7 +370,7 @@ def _descend(p: np.ndarray, best_cost: float, lo: np.ndarray, hi: np.ndarray, w_
     z = (w_h * _clip(p, A, B)).sum(axis=1)
     for _ in range(4):
         before = best_cost
-        for i in np.flatnonzero(_movable(w_h, lo, hi)):
+        for i in np.flatnonzero(_movable(w_h, lo, hi)).tolist():
             z_rest = z - contrib(i, p[i:i + 1])[0]
             grid = np.r_[np.linspace(lo[i], hi[i], 33), p[i]]
             costs = cost_of(z_rest, i, grid)
