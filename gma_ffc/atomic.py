@@ -46,7 +46,7 @@ def _umask() -> int:
 def refuse_overwrite(output: str | os.PathLike, inputs: "Iterable[str | os.PathLike]", what: str = "output") -> None:
     """InputError if writing `output` would replace one of `inputs`: the same path, or the same
     file under another name (a symlink, a hard link, a bind mount: compared by device and inode).
-    Also refuses an output folder that contains an input when `output` is a directory to be filled."""
+    A command that fills a folder asks once for each file it writes there (`diagnose --out`)."""
     from .errors import InputError
 
     out = Path(output)

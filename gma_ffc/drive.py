@@ -37,8 +37,9 @@ def reversals(u: np.ndarray) -> int:
 
 
 def loop_frequency_hz(time_s: np.ndarray, u: np.ndarray) -> float:
-    """Full drive loops per second (turning points / 2 / duration; nan without a loop): the rate a
-    recording sweeps its hysteresis loops at, whatever the drive's shape."""
+    """Full drive loops per second ((turning points + 1) / 2 / duration: a run from one extreme to
+    the other is half a loop; nan without two turning points): the rate a recording sweeps its
+    hysteresis loops at, whatever the drive's shape."""
     t = np.asarray(time_s, dtype=float)
     n = reversals(np.asarray(u, dtype=float))
     duration = float(t[-1] - t[0]) if t.size > 1 else 0.0

@@ -220,7 +220,7 @@ class ExtendedModel:
         if self.preview_s > 0:
             r = np.interp(t + self.preview_s, t, r)
         dt = float(np.median(np.diff(t)))
-        # the actuator rests at the low end of the identified range, as the core's own inverse assumes
+        # the actuator rests at the low end of the identified range (the core's stepper rule from there)
         x0 = self.drive_range[0] if math.isfinite(self.drive_range[0]) else 0.0
         inv = self.inverse_stepper(dt, initial_drive=x0)
         out = np.empty_like(r)

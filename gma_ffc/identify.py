@@ -7,7 +7,9 @@ The steps, as in the paper, with what the paper leaves open made explicit:
 
 1. MPI at the reference stress (the least compressive one: preload only). Thresholds are equal
    intervals over the data: play thresholds over the drive's half-range, inverse dead-zone
-   thresholds over the displacement's half-range. The weights come from the linear
+   thresholds over the displacement's half-range (the paper's grid, `threshold_grid="output"`;
+   by default the dead-zones are then placed again, at equal intervals of the play
+   superposition's output, and their slopes refitted). The weights come from the linear
    least-squares fit of (15), w_s'^T S'[y] = w_h^T H[x], with the inverse dead-zone's centre slope
    fixed to 1 (the equation is homogeneous) and Proposition 3.1 as bounds: weights are
    parametrised by the slopes of the linear pieces, so "cumulative weights >= eps" becomes
@@ -20,9 +22,11 @@ The steps, as in the paper, with what the paper leaves open made explicit:
    any violating stress and re-solving until none is left. Fitting the quadratics directly, not
    per-stress weights then curves, uses recordings whose stress changes during the run too.
 
-Initial states are explicit: models start in the state a drive history that came down to the
-first sample leaves ("descending"), and the fit ignores each recording until the drive has swept
-from one extreme to the other (after that the play states no longer depend on where they began).
+Initial states are explicit: the fit starts each recording's plays in the state a drive history
+that came down to the first sample leaves ("descending"), and ignores the recording until the
+drive has swept from one extreme to the other (after that the play states no longer depend on
+where they began). A recording that would lose more than a fifth of its samples that way has its
+initial state estimated from the measurement (`gma_ffc.initial_state`) and all its samples fitted.
 """
 
 from __future__ import annotations
@@ -222,6 +226,9 @@ class SDPIIdentifier:
                               "per_recording": each recording's zero is its own (the sensor zeroed
                               before each run): a constant per recording is fitted away and the
                               model's offset is one constant
+        initial_state         the fit's start of each recording's plays, and the model file's
+                              stepper rule: "descending" (as if the drive came down to its first
+                              value) or "relaxed"
         progress              optional callback(stage: str) for long fits
     Learned:
         model_, report_ (list of RecordingFit), stress_levels_MPa_, notes_ (what was assumed),

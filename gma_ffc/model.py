@@ -256,9 +256,10 @@ class SDPIModel:
                  initial_state: Any = None, measured_um: Any = None) -> np.ndarray:
         """Displacement (um) for a drive history; time is unused (rate-independent).
 
-        The play states at the first sample: `initial_play_state` if given, else relaxed-from
-        `initial_drive` if given (the model's stepper convention), else the `initial_state`
-        rule (`gma_ffc.initial_state`; default "estimate", which uses `measured_um` if given).
+        The play states at the first sample: `initial_play_state` if given, else the model's
+        stepper convention at `initial_drive` if given (its `initial_state` field: "descending"
+        or "relaxed"), else the `initial_state` rule (`gma_ffc.initial_state`; default
+        "estimate", which uses `measured_um` if given).
         """
         x, s, state = self.batch_start(time_s, drive, stress_MPa, initial_drive, initial_play_state,
                                        initial_state, measured_um)
@@ -314,10 +315,11 @@ class SDPIModel:
                initial_state: Any = None) -> np.ndarray:
         """The drive that makes the model follow `reference_um` (analytic inverse, eq. 17).
 
-        Start: `initial_play_state` (forward plays, mapped to the inverse by (10)) or relaxed at
-        `initial_drive` if given; by default the state whose output is the reference's first
-        value, consistent with the first monotone stretch (see `invert_initial_state`), so that
-        simulating the result with the default rule returns the reference from the first sample.
+        Start: `initial_play_state` (forward plays, mapped to the inverse by (10)) or the stepper
+        convention at `initial_drive` if given (see `simulate`); by default the state whose output
+        is the reference's first value, consistent with the first monotone stretch (see
+        `invert_initial_state`), so that simulating the result with the default rule returns the
+        reference from the first sample.
         `initial_state` "relaxed" / "drive:V" take those rules at the drive they imply.
         """
         y = np.ascontiguousarray(reference_um, dtype=float)
@@ -474,7 +476,8 @@ class InverseStepper:
         self._state = model.inverse_state(initial_drive)
 
     def reset(self, initial_drive: float = 0.0, play_state: Any = None) -> None:
-        """Back to the relaxed state at `initial_drive`, or to the forward play state given."""
+        """Back to the model's stepper convention at `initial_drive` (its `initial_state` field),
+        or to the forward play state given."""
         self._state[:] = self._model.inverse_state(initial_drive, play_state)
 
     def step(self, reference_um: float, stress_MPa: float = 0.0) -> float:

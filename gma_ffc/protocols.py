@@ -26,7 +26,8 @@ class ForwardStepper(Protocol):
     def step(self, drive: float, stress_MPa: float, /) -> float: ...
 
     def reset(self, initial_drive: float = 0.0) -> None:
-        """Back to the relaxed state at `initial_drive`."""
+        """Back to the state a new stepper starts in at `initial_drive` (the model's convention:
+        an SDPI file's `initial_state`, "descending" or "relaxed")."""
         ...
 
 
@@ -37,7 +38,8 @@ class InverseStepper(Protocol):
     def step(self, reference_um: float, stress_MPa: float, /) -> float: ...
 
     def reset(self, initial_drive: float = 0.0) -> None:
-        """Back to the relaxed state at `initial_drive`."""
+        """Back to the state a new stepper starts in at `initial_drive` (the model's convention:
+        an SDPI file's `initial_state`, "descending" or "relaxed")."""
         ...
 
 

@@ -1,9 +1,9 @@
 """Recordings: read, validate and write the format of docs/recordings.md.
 
 A recording is a CSV file (optional ``# key: value`` metadata lines, a header, numeric rows) or a
-MATLAB ``.mat`` file with the same variable names. Every command reads and writes this one format,
-so every output can be fed back in. Violations raise `RecordingError` naming the file, the line
-and what is wrong.
+MATLAB ``.mat`` file with the same variable names; LabVIEW ``.tdms`` and HDF5 ``.h5`` files with
+channels so named are read too. Every command writes CSV (or ``.mat``), so every output can be fed
+back in. Violations raise `RecordingError` naming the file, the line and what is wrong.
 """
 
 from __future__ import annotations

@@ -67,16 +67,17 @@ def tracking_rms_um(rec: Recording, skip_s: float = 0.0) -> float:
 
 def cached_sdpi_and_mpi(cache_dir: str | Path, plant_cfg: Any = None) -> tuple[Model, Model]:
     """`fit_sdpi_and_mpi(identification_recordings(plant_cfg))`, saved as model files in
-    `cache_dir`, keyed by the source of the plant and the identifier and by the plant config, so
-    parallel test workers fit only once."""
-    from . import identify, model as model_mod, operators
+    `cache_dir`, keyed by the source of the plant and of the identifier with every module its fit
+    runs, and by the plant config, so parallel test workers fit only once."""
+    from . import drive, identify, initial_state, inverse, model as model_mod, operators, recordings
     from .errors import ModelError
     from .modelio import load_model, save_model
     import hil_sim.kernels
     import hil_sim.plant
 
     digest = hashlib.sha256()
-    for mod in (identify, model_mod, operators, hil_sim.kernels, hil_sim.plant):
+    for mod in (identify, model_mod, operators, inverse, initial_state, drive, recordings, hil_sim.kernels,
+                hil_sim.plant):
         digest.update(Path(str(mod.__file__)).read_bytes())
     digest.update(repr(plant_cfg).encode())
     key = digest.hexdigest()[:16]

@@ -16,3 +16,12 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if item.get_closest_marker("realtime") is not None and item.get_closest_marker("flaky") is None:
             item.add_marker(pytest.mark.flaky(reruns=REALTIME_RERUNS, reruns_delay=1.0))
+
+
+@pytest.fixture(scope="session")
+def piezo_csv(tmp_path_factory: pytest.TempPathFactory):
+    """The measured piezo recording (tests/measured.py): ../shared's, else the vendored copy; an
+    error, never a skip, when neither is there."""
+    from measured import piezo_csv as find
+
+    return find(tmp_path_factory.mktemp("measured"))

@@ -85,6 +85,40 @@ def test_invert_then_simulate_follows_the_reference(workdir: Path) -> None:
     assert rms(rig_y[200:] - d.columns["reference_um"][200:]) < 0.02 * 24.0
 
 
+def test_invert_initial_drive_starts_relaxed_at_that_drive_as_its_help_says(workdir: Path, capsys) -> None:
+    """--initial-drive A is --initial-state drive:A; it started from the model file's stepper rule
+    (descending: every play A + r), while saying 'relaxed'."""
+    outs = {}
+    for flags in (["--initial-drive", "1.2"], ["--initial-state", "drive:1.2"]):
+        out = workdir / f"drive_{flags[0].strip('-')}.csv"
+        assert main(["invert", "--model", str(workdir / "model.yaml"), str(workdir / "ref.csv"), "-o", str(out),
+                     *flags]) == 0
+        assert "initial state: relaxed at drive 1.2\n" in capsys.readouterr().out
+        outs[flags[0]] = read_recording(out, require=("time_s", "drive")).drive
+    np.testing.assert_array_equal(outs["--initial-drive"], outs["--initial-state"])
+    model = load_model(workdir / "model.yaml")
+    descending = model.invert(None, read_recording(workdir / "ref.csv", require=("time_s",)).columns["reference_um"],
+                              -17.0, initial_drive=1.2)
+    assert np.max(np.abs(descending - outs["--initial-drive"])) > 1e-3      # the two rules differ here
+
+
+def test_invert_refuses_start_options_an_extended_model_does_not_take(workdir: Path, capsys) -> None:
+    import gzip
+    import json
+
+    from gma_ffc.modelio import model_from_dict, save_model
+
+    fixture = Path(__file__).parent / "fixtures" / "extended_v1_all_blocks.json.gz"
+    with gzip.open(fixture, "rt") as fh:
+        save_model(model_from_dict(json.load(fh)["model"]), workdir / "extended.yaml")
+    for flags in (["--initial-drive", "0.5"], ["--initial-state", "relaxed"]):
+        assert main(["invert", "--model", str(workdir / "extended.yaml"), str(workdir / "ref.csv"), "-o",
+                     str(workdir / "x.csv"), *flags]) == 2
+        err = capsys.readouterr().err
+        assert "apply to sdpi and mpi models" in err and err.count("\n") == 1
+    assert not (workdir / "x.csv").exists()
+
+
 def _bad(workdir: Path, name: str, text: str) -> Path:
     p = workdir / name
     p.write_text(text)

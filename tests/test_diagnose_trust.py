@@ -3,8 +3,6 @@ from the start-up transient, words that follow the drive, and a short recording 
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -14,8 +12,6 @@ from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.model import SDPIModel
 from gma_ffc.recordings import Recording, read_recording
 
-ROOT = Path(__file__).resolve().parents[1]
-PIEZO = ROOT.parent / "shared" / "data" / "real" / "piezo_150V_1Hz" / "piezo_150V_1Hz.csv"
 CASES = {c.name: c for c in bench.cases()}
 
 
@@ -24,12 +20,11 @@ def window(rec: Recording, a: float, b: float = np.inf, name: str = "") -> Recor
     return Recording({k: v[keep] for k, v in rec.columns.items()}, dict(rec.metadata), name or f"from_{a:g}s")
 
 
-@pytest.mark.skipif(not PIEZO.exists(), reason="the measured recording lives in shared/ beside the repo")
 @pytest.mark.parametrize("start_s", [0.0, 1.5, 3.4, 3.73, 4.4])
-def test_measured_piezo_cut_anywhere_never_gets_an_effect_from_the_start_up_transient(start_s):
+def test_measured_piezo_cut_anywhere_never_gets_an_effect_from_the_start_up_transient(start_s, piezo_csv):
     """A model identified on the second half, judged on the first half cut mid-history: the
     transient while the hysteresis state settles must never come out as physics."""
-    rec = read_recording(PIEZO)
+    rec = read_recording(piezo_csv)
     model = SDPIIdentifier().fit([window(rec, 6.0, 10.1, "second_half")]).model_
     dg = diagnose(model, [window(rec, start_s, 6.0)])
     assert dg.outcome in OUTCOMES
@@ -193,11 +188,10 @@ def test_runs_whose_sensor_was_zeroed_apart_are_not_read_as_heating_or_creep():
     assert "its own displacement zero" in apart.validation
 
 
-@pytest.mark.skipif(not PIEZO.exists(), reason="the measured recording lives in shared/ beside the repo")
-def test_the_measured_piezo_quantised_holds_no_sensor_jump_and_a_re_zero_in_it_is_found():
+def test_the_measured_piezo_quantised_holds_no_sensor_jump_and_a_re_zero_in_it_is_found(piezo_csv):
     """The measured piezo at 1/200 of its stroke's resolution: where the sine turns, the sensor
     holds and then ticks by a quantum, which is no jump; a 5 % re-zero is one."""
-    rec = read_recording(PIEZO)
+    rec = read_recording(piezo_csv)
     model = SDPIIdentifier().fit([window(rec, 3.0, 6.6, "identification")]).model_
     judged = window(rec, 6.6, name="judged")
     y = judged.columns["displacement_um"]

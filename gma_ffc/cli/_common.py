@@ -97,16 +97,18 @@ def read_while(work: Callable[[], T], path: str, require: Sequence[str],
 
 def warm_up(model: Any, initial_state: Any) -> None:
     """Run `model` once on three samples of made-up data: numba loads the kernels the real run
-    calls from its cache (about a quarter second on first use), the initial-state fit's path
-    included when the state will be estimated. Only ever called next to a read (see
-    `read_while`), where that time is otherwise spent waiting. Nothing here decides anything:
-    an error is left for the real run to meet and report."""
+    calls from its cache (about a quarter second on first use), and the initial-state fit's
+    optimisers (scipy.optimize, 0.2 s to import) are imported when the state will be estimated.
+    Only ever called next to a read (see `read_while`), where that time is otherwise spent
+    waiting. Nothing here decides anything: an error is left for the real run to meet and report."""
     span = getattr(model, "stress_range_MPa", None)
     stress = None if span is None else 0.5 * (span[0] + span[1])
     t = np.array([0.0, 1e-3, 2e-3])
     drive = np.zeros(3)
     try:
         if getattr(initial_state, "kind", None) == "estimate":
+            import scipy.optimize  # noqa: F401  (the state fit's, gma_ffc.initial_state)
+
             model.simulate(t, drive, stress, initial_state="estimate", measured_um=np.zeros(3))
         else:
             model.simulate(t, drive, stress, initial_state="relaxed")

@@ -132,15 +132,11 @@ def _record(folder: Path, seed: int) -> list[Path]:
 
 
 def _identify(recordings: Sequence[Recording]) -> tuple[SDPIModel, SDPIModel]:
-    """SDPI from every stress; MPI from the -11.3 MPa run with its stress column dropped."""
-    from ..identify import SDPIIdentifier
-    from ..recordings import Recording
+    """SDPI from every stress; MPI from the -11.3 MPa run with its stress column dropped: the SIL
+    harness's fit (`gma_ffc.sil.fit_sdpi_and_mpi`), the one the SIL tests and benchmarks use."""
+    from ..sil import fit_sdpi_and_mpi
 
-    sdpi = SDPIIdentifier(n_play=10, n_deadzone=7).fit(list(recordings)).model_
-    base = min(recordings, key=lambda r: abs(float(np.median(r.column("stress_MPa"))) - MPI_STRESS_MPA))
-    no_stress = Recording({k: v for k, v in base.columns.items() if k != "stress_MPa"},
-                          dict(base.metadata), base.source)
-    mpi = SDPIIdentifier(n_play=10, n_deadzone=7).fit([no_stress]).model_
+    sdpi, mpi = fit_sdpi_and_mpi(recordings, MPI_STRESS_MPA)
     if sdpi.kind != "sdpi" or mpi.kind != "mpi":
         raise FaultError(f"identification gave {sdpi.kind}/{mpi.kind} models, expected sdpi/mpi")
     return sdpi, mpi

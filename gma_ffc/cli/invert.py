@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 import numpy as np
 
 from ..errors import InputError
+from ..initial_state import InitialStateSpec
 from ..model import SDPIModel
 from ..modelio import load_model
 from ..recordings import Recording, read_recording, write_recording
@@ -55,15 +57,7 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(args.model)
     rec = read_recording(args.reference, require=("time_s", "reference_um"), group=args.group)
     stress = stress_for(model, rec, args.stress)
-    if args.initial_drive is not None:
-        kwargs, how = {"initial_drive": args.initial_drive}, f"relaxed at drive {args.initial_drive:g}"
-    elif isinstance(model, SDPIModel):          # sdpi and mpi: the inverse's own start is explained
-        kwargs = {"initial_state": args.initial_state}
-        how = (model.invert_initial_state(rec.columns["reference_um"], None if stress is None else
-                                          float(np.ravel(stress)[0]))[1]
-               if args.initial_state.kind == "estimate" else f"{args.initial_state}")
-    else:
-        kwargs, how = {}, "the model kind's own start (relaxed at the low end of the identified drive)"
+    kwargs, how = _start(model, args, rec, stress)
     drive = model.invert(rec.time_s, rec.columns["reference_um"], stress, **kwargs)
     clipped_note = ""
     if args.limit:
@@ -93,3 +87,20 @@ def run(args: argparse.Namespace) -> int:
     print(f"drive {drive.min():.4g}..{drive.max():.4g} for {len(drive)} samples -> {args.output}")
     print(f"initial state: {how}")
     return 0
+
+
+def _start(model: Any, args: argparse.Namespace, rec: Recording, stress: Any) -> tuple[dict[str, Any], str]:
+    """How the inverse starts (`model.invert`'s keywords) and the words that say so."""
+    if not isinstance(model, SDPIModel):
+        if args.initial_drive is not None or args.initial_state.kind != "estimate":
+            raise InputError(f"{args.model}: an {model.kind} model's inverse always starts from its core's stepper at "
+                             "the low end of the identified drive; --initial-drive and --initial-state apply to sdpi "
+                             "and mpi models: leave them out")
+        return {}, "the model kind's own start (its core's stepper at the low end of the identified drive)"
+    spec = args.initial_state if args.initial_drive is None else InitialStateSpec("drive", args.initial_drive)
+    if spec.kind == "drive":                    # relaxed there, as the help says (not the file's stepper rule)
+        return {"initial_state": spec}, f"relaxed at drive {spec.drive:g}"
+    if spec.kind == "relaxed":
+        return {"initial_state": spec}, "relaxed at the drive whose output is the reference's first value"
+    s0 = None if stress is None else float(np.ravel(stress)[0])
+    return {"initial_state": args.initial_state}, model.invert_initial_state(rec.columns["reference_um"], s0)[1]
