@@ -203,6 +203,13 @@ class PlayWeights:
         return np.maximum(np.linalg.solve(self.T, w), self.lower)
 
 
+def _fewer_operators(n_samples: int, n_play: int) -> str:
+    """The part of the too-few-samples advice that fits fewer operators, when a model with at least
+    two plays and one dead-zone fits in `n_samples` (eight samples per operator): '' otherwise."""
+    plays = min(n_samples // 8 - 1, n_play - 1)
+    return f", or fit fewer operators (--plays {plays} --deadzones 1)" if plays >= 2 else ""
+
+
 def loop_rates_hz(recordings: Sequence[Recording]) -> list[float]:
     """Each recording's drive loop rate (`drive.loop_frequency_hz`), those that loop at all."""
     rates = (loop_frequency_hz(r.time_s, r.drive) for r in recordings)
@@ -518,8 +525,9 @@ class SDPIIdentifier:
                 raise InputError(f"{r.source}: identification needs a displacement_um column")
             if len(r) < min_samples:
                 raise InputError(f"{r.source}: only {len(r)} samples; identifying {self.n_play} plays and "
-                                 f"{self.n_deadzone} dead-zones needs at least {min_samples}: record at least one "
-                                 "full drive cycle (min to max and back) with tens of samples per cycle")
+                                 f"{self.n_deadzone} dead-zones needs at least {min_samples}: record at least "
+                                 f"{min_samples} samples over at least one full drive cycle (min to max and back)"
+                                 + _fewer_operators(len(r), self.n_play))
             if np.ptp(r.drive) <= 0:
                 raise InputError(f"{r.source}: the drive is constant; a hysteresis model needs a swept drive")
             if not has_full_sweep(r.drive):
