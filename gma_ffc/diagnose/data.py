@@ -151,7 +151,6 @@ def start_and_scored(core: Any, drive: np.ndarray, stress: Any, rule: Any, measu
     the band widens to hold it, so what it leaves unknown is not scored."""
     y = np.asarray(measured_um, dtype=float)
     floor = noise_floor(y)
-    floor = floor if np.isfinite(floor) else 0.0
     box = output_band(core, drive, stress)
     known = box.known(floor)
     aligned = y - float(np.mean((y - box.lower)[known])) if known.any() else y
@@ -203,9 +202,10 @@ def mean_stress(data: Sequence[RecData]) -> float:
 
 def noise_floor(y: np.ndarray) -> float:
     """Measurement noise std from the data (`noise.second_difference_sigma`); a quantised, nearly
-    constant signal falls back on the plain spread of its second differences."""
+    constant signal falls back on the plain spread of its second differences. Fewer than five
+    samples give no estimate, and none is assumed (0: such a recording is too short to score)."""
     if y.size < 5:
-        return float("nan")
+        return 0.0
     sigma = second_difference_sigma(y)
     if sigma == 0.0:
         sigma = float(np.std(np.diff(y, 2))) / np.sqrt(6.0)

@@ -111,7 +111,7 @@ def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows
     win = (float(t[windows[k][0]]), float(t[windows[k][-1]]))
     # against a positive floor: the typical window's RMS, at least the sensor's noise (no window can be
     # told quieter than that) and RATIO_FLOOR_SHARE of the largest
-    floor = max(float(np.median(rms_w)), _finite_or_zero(noise_floor(d.y)), RATIO_FLOOR_SHARE * float(rms_w[k]), 1e-300)
+    floor = max(float(np.median(rms_w)), noise_floor(d.y), RATIO_FLOOR_SHARE * float(rms_w[k]), 1e-300)
     ratio = float(rms_w[k] / floor)
     shares = band_powers(residual, d.dt_med)
     b = int(np.argmax(shares))
@@ -157,7 +157,3 @@ def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows
         where += "; residual " + ", ".join(follows)
     return Located(d.name, where, float(np.sqrt(np.mean(raw_residual[keep] ** 2))),
                    float(np.sqrt(np.mean(residual[keep] ** 2))), win, band, float(shares[b]), cond, line, d.jumps)
-
-
-def _finite_or_zero(v: float) -> float:
-    return v if np.isfinite(v) else 0.0
