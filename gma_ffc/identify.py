@@ -180,7 +180,8 @@ by 1e-6 per pass to 1e-12, and the model failed its own invertibility check."""
 
 W0_MIN_GAIN = 1e-6
 """...and w_h0 is at least this share of the data's mean gain (stroke over drive span), so it
-stays positive however the other weights fall."""
+stays positive however the other weights fall: far below any real loop's slope (which the share
+above already holds it to), far above rounding in the weights' units, whatever the drive's unit."""
 
 
 class PlayWeights:
