@@ -65,8 +65,7 @@ class RecData:
 
     def scored_runs(self) -> list[slice]:
         """The contiguous stretches of scored samples, in order."""
-        edges = np.flatnonzero(np.diff(np.r_[0, self.mask.astype(np.int8), 0]))
-        return [slice(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+        return _runs(self.mask)
 
     @property
     def unscored_s(self) -> float:
@@ -232,5 +231,10 @@ def unscored_note(d: RecData) -> str:
 
 def unscored_spans(d: RecData) -> list[tuple[float, float]]:
     """The time spans (first to last sample) of the stretches that are not scored."""
-    edges = np.flatnonzero(np.diff(np.r_[0, (~d.mask).astype(np.int8), 0]))
-    return [(float(d.t[a]), float(d.t[b - 1])) for a, b in zip(edges[::2], edges[1::2])]
+    return [(float(d.t[r.start]), float(d.t[r.stop - 1])) for r in _runs(~d.mask)]
+
+
+def _runs(mask: np.ndarray) -> list[slice]:
+    """The contiguous stretches where `mask` is True, in order."""
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
+    return [slice(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
