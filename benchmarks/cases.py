@@ -36,6 +36,7 @@ class Case:
     start_s: float = 0.0            # the diagnosis recording starts this late: cut mid-cycle, mid-history
     falling: bool = False           # mounted the other way round: displacement falls as the drive rises
     voltage: bool = False           # the drive column is labelled voltage_V (a voltage-driven actuator)
+    drive: str = "mixed"            # "mixed" (`diagnosis_drive`) or "rising" (`rising_drive`)
 
 
 def _set(**sections: dict[str, Any]) -> Callable[[PlantConfig], None]:
@@ -96,6 +97,55 @@ def cases() -> list[Case]:
     for k in range(3):
         seed += 1
         out.append(Case(f"null#{5 + k}", (), _set(), "no missing physics, three loads", seed, loads=3))
+    return out
+
+
+def rising_cases() -> list[Case]:
+    """The rising-amplitude family (issue 31): each effect at the development set's middle
+    magnitude and three nulls, on `rising_drive` recordings (sines whose amplitude grows from the
+    drive's minimum and decays to it, as labs identify). Seeds fixed when the set was made
+    (2026-11-25). A development set: it was looked at while the scoring was built."""
+    out: list[Case] = []
+    settings: list[tuple[str, dict[str, Any]]] = [
+        ("rate_dependence", {"eddy": {"enabled": True, "time_constant_ms": 1.5}}),
+        ("time_delay", {"delay": {"enabled": True, "delay_ms": 1.5}}),
+        ("mechanical_dynamics", {"dynamics": {"enabled": True, "damping_ratio": 0.12}}),
+        ("thermal_drift", {"thermal": {"enabled": True, "drift_um_per_K": 0.2}}),
+        ("creep", {"creep": {"enabled": True, "gains": [0.04, 0.04, 0.04]}}),
+        ("stress_dependent_play", {"magnetics": {"stress_dependent_width": True, "width_change_per_MPa": 0.2}}),
+    ]
+    for k, (label, sections) in enumerate(settings):
+        out.append(Case(f"rising:{label}", (label,), _set(**sections), f"{sections}", 31101 + k,
+                        loads=3 if label == "stress_dependent_play" else 2, drive="rising"))
+    for k in range(3):
+        out.append(Case(f"rising:null#{k + 1}", (), _set(), "no missing physics", 31201 + k,
+                        loads=3 if k == 2 else 2, drive="rising"))
+    return out
+
+
+RISING_HOLDOUT_SEED = 20261131   # fixed before the set was first run; never changed to move a result
+
+
+def rising_holdout_cases() -> list[Case]:
+    """The rising-amplitude family's never-tuned set: each effect at a magnitude drawn from its range
+    (`EFFECT_RANGES`), two nulls and a pair, seeds drawn once from RISING_HOLDOUT_SEED. Quoted apart
+    from `rising_cases`, which the scoring was developed on."""
+    rng = np.random.default_rng(RISING_HOLDOUT_SEED)
+    out: list[Case] = []
+    for label in EFFECT_RANGES:
+        sec, values = _effect_drawn(label, rng)
+        out.append(Case(f"rising-holdout:{label}", (label,), _set(**{sec: values}), f"{sec} {values}",
+                        int(rng.integers(10_000, 99_999)), loads=3 if label == "stress_dependent_play" else 2,
+                        drive="rising"))
+    for k in range(2):
+        out.append(Case(f"rising-holdout:null#{k + 1}", (), _set(), "no missing physics",
+                        int(rng.integers(10_000, 99_999)), drive="rising"))
+    tau, zeta = float(np.round(rng.uniform(1.0, 3.0), 2)), float(np.round(rng.uniform(0.06, 0.2), 3))
+    out.append(Case("rising-holdout:eddy+dynamics", ("rate_dependence", "mechanical_dynamics"),
+                    _set(eddy={"enabled": True, "time_constant_ms": tau},
+                         dynamics={"enabled": True, "damping_ratio": zeta}),
+                    f"eddy tau {tau} ms with a resonance (zeta {zeta})", int(rng.integers(10_000, 99_999)),
+                    drive="rising"))
     return out
 
 
@@ -241,8 +291,53 @@ def diagnosis_drive(rng: np.random.Generator, peak: float, scale: float = 1.0,
     return t, i, mass
 
 
-def record(cfg: PlantConfig, t: np.ndarray, i: np.ndarray, mass: Any, name: str, seed: int) -> Recording:
-    out = GMAPlant(cfg, seed=seed).run(t, i, load_mass_kg=mass)
+def rising_drive(rng: np.random.Generator, peak: float, scale: float = 1.0,
+                 loads: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The standard identification experiment: sines whose amplitude grows from the drive's minimum
+    to its peak and decays back, at several frequencies, with a rest at the minimum in which the load
+    changes (with `loads` 3, a middle load first, changed in an extra rest after the first three)."""
+    segs: list[np.ndarray] = []
+    for f, dur in ((rng.uniform(3, 5), 8.0), (rng.uniform(15, 25), 6.0), (rng.uniform(50, 80), 6.0)):
+        t = np.arange(int(dur * scale * FS)) / FS
+        envelope = np.sin(np.pi * t / (dur * scale)) ** 2          # 0 at both ends, 1 in the middle
+        segs.append(peak * envelope * 0.5 * (1 - np.cos(2 * np.pi * f * t)))
+    first_rest = sum(x.size for x in segs)
+    if loads == 3:
+        segs.append(np.zeros(int(3 * scale * FS)))
+    rest = sum(x.size for x in segs)
+    segs.append(np.zeros(int(4 * scale * FS)))
+    t = np.arange(int(8 * scale * FS)) / FS
+    segs.append(peak * np.clip(t / (6 * scale), 0, 1) * 0.5 * (1 - np.cos(2 * np.pi * rng.uniform(8, 12) * t)))
+    i = np.concatenate(segs)
+    t = np.arange(i.size) / FS
+    m1, m2 = rng.uniform(0, 12), rng.uniform(28, 45)
+    if rng.random() < 0.5:
+        m1, m2 = m2, m1
+    mass0 = np.where(t < t[first_rest] + scale * rng.uniform(0.5, 1.5), rng.uniform(16, 24), m1) if loads == 3 \
+        else np.full(t.size, m1)
+    mass = np.where(t < t[rest] + scale * rng.uniform(0.5, 1.5), mass0, m2)
+    return t, i, mass
+
+
+PRECONDITION_S = 1.5   # a full-range cycle at 2 Hz and a second's rest at zero: the rig as a lab leaves it
+
+
+def record(cfg: PlantConfig, t: np.ndarray, i: np.ndarray, mass: Any, name: str, seed: int,
+           preconditioned: bool = False) -> Recording:
+    """A recording of the case's actuator. `preconditioned`: the rod was cycled over the drive
+    range and came to rest at zero before the recording began (as after any earlier run), not
+    demagnetised: hil_sim starts from a demagnetised rod, whose first rise is a virgin curve no
+    hysteresis state of a loop reproduces."""
+    if preconditioned:
+        n0 = int(PRECONDITION_S * FS)
+        t0 = np.arange(n0) / FS
+        pre = np.where(t0 < 0.5, 0.5 * float(np.max(i)) * (1 - np.cos(2 * np.pi * 2.0 * t0)), 0.0)
+        m = np.broadcast_to(np.asarray(mass, dtype=float), t.shape)
+        full = GMAPlant(cfg, seed=seed).run(np.r_[t0, t + PRECONDITION_S], np.r_[pre, i],
+                                            load_mass_kg=np.r_[np.full(n0, m[0]), m])
+        out = {k: v[n0:] for k, v in full.items()}
+    else:
+        out = GMAPlant(cfg, seed=seed).run(t, i, load_mass_kg=mass)
     return Recording({"time_s": t, "current_A": out["current_A"], "stress_MPa": out["stress_MPa"],
                       "displacement_um": out["displacement_um"]}, {}, name)
 
@@ -267,12 +362,15 @@ def make_case(case: Case, scale: float = 1.0, effect_free: bool = False) -> tupl
     if effect_free:
         cfg = cfg.with_effects(["noise"])
         cfg.magnetics.stress_dependent_width = False
-    # base model: separate quasi-static 3 Hz recordings at four loads, same actuator
+    # base model: separate quasi-static 3 Hz recordings at four loads, same actuator (the rising
+    # family's as labs identify: the amplitude growing from the drive's minimum and decaying to it)
+    rising = case.drive == "rising"
     ident_recs = []
     for k, m in enumerate((0.0, 15.0, 30.0, 50.0)):
-        t = np.arange(int(3 * FS)) / FS
-        i = 0.5 * case.id_max * (1 - np.cos(2 * np.pi * 3 * t))
-        ident_recs.append(record(cfg, t, i, m, f"id_{k}.csv", case.seed * 10 + k))
+        t = np.arange(int((4 if rising else 3) * FS)) / FS
+        envelope = np.sin(np.pi * t / 4.0) ** 2 if rising else 1.0
+        i = envelope * 0.5 * case.id_max * (1 - np.cos(2 * np.pi * 3 * t))
+        ident_recs.append(record(cfg, t, i, m, f"id_{k}.csv", case.seed * 10 + k, preconditioned=rising))
     if case.falling:
         ident_recs = [_variant(r, case) for r in ident_recs]
     model = SDPIIdentifier().fit(ident_recs).model_
@@ -280,8 +378,8 @@ def make_case(case: Case, scale: float = 1.0, effect_free: bool = False) -> tupl
         d = model.to_dict()
         d["drive_name"] = "voltage_V"
         model = type(model).from_dict(d)
-    t, i, mass = diagnosis_drive(rng, case.drive_max, scale, case.loads)
-    rec = _variant(record(cfg, t, i, mass, "recording.csv", case.seed), case)
+    t, i, mass = (rising_drive if rising else diagnosis_drive)(rng, case.drive_max, scale, case.loads)
+    rec = _variant(record(cfg, t, i, mass, "recording.csv", case.seed, preconditioned=rising), case)
     if case.start_s > 0:
         keep = rec.time_s >= rec.time_s[0] + case.start_s
         rec = Recording({k: v[keep] for k, v in rec.columns.items()}, dict(rec.metadata), rec.name)

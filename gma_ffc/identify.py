@@ -40,7 +40,7 @@ from scipy import optimize
 
 from . import operators as ops
 from .drive import loop_frequency_hz
-from .errors import InputError
+from .errors import FaultError, InputError
 from .initial_state import first_direction, monotone_play_state, resolve
 from .inverse import deadzone_inverse
 from .model import SDPIModel, rms
@@ -175,18 +175,44 @@ GMA's eddy-current and mechanical corner frequencies are tens to hundreds of Hz,
 identifies at 3 Hz."""
 
 W0_MIN_SHARE = 1e-3
-"""Share of all play weights below which the zero-threshold play's weight is held (`w0_floor`)."""
+"""The zero-threshold play's least share of all play weights, a constraint of every fit (not a
+check after it): Proposition 3.1 needs w_h0 > 0, and the inverse's gain just after a reversal is
+1/w_h0 times the loop's, so the share keeps it within 1000x the loop's mean gain. A wide, square
+loop (a ferroelectric driven beyond its coercive field) is flat just after each reversal and
+pulls w_h0 to its bound, wherever that is: a bound relative to the previous pass let it walk down
+by 1e-6 per pass to 1e-12, and the model failed its own invertibility check."""
+
+W0_MIN_GAIN = 1e-6
+"""...and w_h0 is at least this share of the data's mean gain (stroke over drive span), so it
+stays positive however the other weights fall: far below any real loop's slope (which the share
+above already holds it to), far above rounding in the weights' units, whatever the drive's unit."""
 
 
-def w0_floor(w_h: np.ndarray) -> float:
-    """Lower bound on w_h0 for an output-error pass: 1e-6 of its value before the pass, so a
-    well-posed fit is left alone, but never below W0_MIN_SHARE of all play weights once w_h0 is
-    that small. Proposition 3.1 needs w_h0 > 0, and the inverse's gain just after a reversal is
-    1/w_h0 times the loop's: the floor keeps it within 1000x the loop's mean gain. A bound relative
-    to the previous pass alone let a very wide (fast, lagging) loop walk w_h0 down 1e-6 per pass
-    to 1e-12, and the model then failed its own invertibility check."""
-    total = float(np.sum(w_h))
-    return 1e-6 * float(w_h[0]) if w_h[0] >= W0_MIN_SHARE * total else W0_MIN_SHARE * total
+class PlayWeights:
+    """Play weights as a fit's bounded variables: w_i = q_i for i >= 1 and
+    w_0 = q_0 + a sum_{i>=1} q_i with a = W0_MIN_SHARE / (1 - W0_MIN_SHARE), so bounds q >= lower
+    are exactly w_0 >= W0_MIN_SHARE sum(w) (plus q_0 >= the gain floor) and w_i >= 0: Proposition
+    3.1 and w_h0's floor as the bounds of a bounded least-squares problem."""
+
+    def __init__(self, n: int, gain: float) -> None:
+        a = W0_MIN_SHARE / (1.0 - W0_MIN_SHARE)
+        self.T = np.eye(n)
+        self.T[0, 1:] = a                       # w = T q
+        self.lower = np.r_[W0_MIN_GAIN * max(gain, 1e-300), np.zeros(n - 1)]
+
+    def weights(self, q: np.ndarray) -> np.ndarray:
+        return self.T @ q
+
+    def variables(self, w: np.ndarray) -> np.ndarray:
+        """The q of weights w, moved onto the bounds where w breaks them (a start for a fit)."""
+        return np.maximum(np.linalg.solve(self.T, w), self.lower)
+
+
+def _fewer_operators(n_samples: int, n_play: int) -> str:
+    """The part of the too-few-samples advice that fits fewer operators, when a model with at least
+    two plays and one dead-zone fits in `n_samples` (eight samples per operator): '' otherwise."""
+    plays = min(n_samples // 8 - 1, n_play - 1)
+    return f", or fit fewer operators (--plays {plays} --deadzones 1)" if plays >= 2 else ""
 
 
 def loop_rates_hz(recordings: Sequence[Recording]) -> list[float]:
@@ -272,6 +298,8 @@ class SDPIIdentifier:
         half = 0.5 * (x_hi - x_lo)
         if half <= 0:
             raise InputError("the drive is constant in every recording; a hysteresis model needs a swept drive")
+        y_all = np.concatenate([d.y for d in data])
+        self._gain = float(np.ptp(y_all)) / (x_hi - x_lo)     # the data's mean gain: the play weights' scale
         r_h = np.arange(self.n_play) * half / self.n_play
         # A recording whose burn-in sweep is a large share of it (one cycle, a cut-out window)
         # would lose much of its data to the unknown initial state: that state is estimated from
@@ -391,10 +419,10 @@ class SDPIIdentifier:
                                      "refine": self.refine, "zero": self.zero}, "notes": list(self.notes_)},
         )
         violations = self.model_.invertibility_violations()
-        if violations:  # cannot happen by construction; refuse rather than hand out a bad inverse
-            raise InputError("identified model violates Proposition 3.1 (no unique inverse): "
-                             + "; ".join(map(str, violations)) + ". Record the full drive range at every "
-                             "stress, or fit fewer dead-zones (--deadzones 5)")
+        if violations:  # the fits' bounds make this impossible: a defect, never a bad inverse handed out
+            raise FaultError("the identified model violates Proposition 3.1 although every fit is constrained "
+                             "to it (a defect in gma-ffc identify; please report it with the recordings): "
+                             + "; ".join(map(str, violations)))
         self.report_ = [self._score(d) for d in data]
         zero_note = zero_mismatch(self.report_) if self.zero == "shared" else ""
         if zero_note and zero_note not in self.notes_:
@@ -505,8 +533,9 @@ class SDPIIdentifier:
                 raise InputError(f"{r.source}: identification needs a displacement_um column")
             if len(r) < min_samples:
                 raise InputError(f"{r.source}: only {len(r)} samples; identifying {self.n_play} plays and "
-                                 f"{self.n_deadzone} dead-zones needs at least {min_samples}: record at least one "
-                                 "full drive cycle (min to max and back) with tens of samples per cycle")
+                                 f"{self.n_deadzone} dead-zones needs at least {min_samples}: record at least "
+                                 f"{min_samples} samples over at least one full drive cycle (min to max and back)"
+                                 + _fewer_operators(len(r), self.n_play))
             if np.ptp(r.drive) <= 0:
                 raise InputError(f"{r.source}: the drive is constant; a hysteresis model needs a swept drive")
             if not has_full_sweep(r.drive):
@@ -559,13 +588,14 @@ class SDPIIdentifier:
         others = [k for k in range(self.n_deadzone) if k != c]
         A = np.hstack([H, -Phi[:, others]])
         b = Phi[:, c]
+        plays = PlayWeights(self.n_play, self._gain)
+        A[:, : self.n_play] = A[:, : self.n_play] @ plays.T           # in the play weights' bounded variables
         scale = np.linalg.norm(A, axis=0)
         scale[scale == 0] = 1.0
-        eps_w = 1e-6
-        lower = np.r_[eps_w, np.zeros(self.n_play - 1), np.full(len(others), 1e-3)] * scale
+        lower = np.r_[plays.lower, np.full(len(others), 1e-3)] * scale
         res = optimize.lsq_linear(A / scale, b, bounds=(lower, np.inf), lsmr_tol="auto", max_iter=2000)
         theta = res.x / scale
-        w_h = theta[: self.n_play]
+        w_h = plays.weights(theta[: self.n_play])
         s_inv = np.ones(self.n_deadzone)
         s_inv[others] = theta[self.n_play:]
         # Forward dead-zones from the inverse ones, analytically: the inverse of the inverse.
@@ -599,27 +629,29 @@ class SDPIIdentifier:
         n_h, n_s = self.n_play, self.n_deadzone
         edges = np.r_[-np.inf, r_s[: (n_s - 1) // 2], r_s[(n_s + 1) // 2:], np.inf]
 
+        plays = PlayWeights(n_h, self._gain)
+        Hq = H @ plays.T                                   # the plays in the weights' bounded variables
+
         def unpack(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-            return theta[:n_h], theta[n_h: n_h + n_s], theta[-1]
+            return plays.weights(theta[:n_h]), theta[n_h: n_h + n_s], theta[-1]
 
         def resid(theta: np.ndarray) -> np.ndarray:
-            wh, s, yc = unpack(theta)
-            return yc + slope_basis(H @ wh, r_s) @ s - y
+            _, s, yc = unpack(theta)
+            return yc + slope_basis(Hq @ theta[:n_h], r_s) @ s - y
 
         def jac(theta: np.ndarray) -> np.ndarray:
-            wh, s, _ = unpack(theta)
-            z = H @ wh
+            _, s, _ = unpack(theta)
+            z = Hq @ theta[:n_h]
             seg = np.searchsorted(edges, z, side="right") - 1
             local_slope = s[np.clip(seg, 0, n_s - 1)]
-            return np.hstack([H * local_slope[:, None], slope_basis(z, r_s), np.ones((len(z), 1))])
+            return np.hstack([Hq * local_slope[:, None], slope_basis(z, r_s), np.ones((len(z), 1))])
 
-        theta0 = np.r_[w_h, slopes, y_c]
         s_floor = 1e-3 * float(np.max(slopes))
-        lower = np.r_[w0_floor(w_h), np.zeros(n_h - 1), np.full(n_s, s_floor), -np.inf]
-        theta0 = np.where(np.isfinite(lower), np.maximum(theta0, lower), theta0)
+        lower = np.r_[plays.lower, np.full(n_s, s_floor), -np.inf]
+        theta0 = np.r_[plays.variables(w_h), np.maximum(slopes, s_floor), y_c]
         res = optimize.least_squares(resid, theta0, jac=jac, bounds=(lower, np.inf), method="trf",
                                      x_scale="jac", max_nfev=200, tr_solver="lsmr")
-        if rms(res.fun) < rms(resid(np.r_[w_h, slopes, y_c])):
+        if rms(res.fun) < rms(resid(theta0)):
             return unpack(res.x)
         return w_h, slopes, y_c
 
@@ -670,7 +702,7 @@ class SDPIIdentifier:
         for _ in range(10):
             C = slope_rows(np.array(grid))
             if np.all(C @ theta_s >= eps * (1 - 1e-9)):
-                worst_u, worst_v = self._min_slope(theta_s * col_scale, degree, n_s)
+                worst_u, worst_v = self._min_slope(theta_s / col_scale, degree, n_s)
                 if worst_v >= eps * (1 - 1e-6):
                     break
                 grid.append(worst_u)
@@ -681,6 +713,9 @@ class SDPIIdentifier:
                 options={"maxiter": 500, "ftol": 1e-14})
             theta_s = res.x
         del first_slopes
+        if self._min_slope(theta_s / col_scale, degree, n_s)[1] < eps * (1 - 1e-6):
+            # the constrained solve did not converge to a feasible point: Proposition 3.1 as bounds
+            theta_s = _bernstein_fit(A, y, degree, n_s, eps) * col_scale
         theta = theta_s / col_scale
         slope_poly = theta[:n_coef].reshape(degree + 1, n_s)
         offset_poly = np.r_[theta[n_coef: n_coef + off_degree + 1], np.zeros(degree - off_degree)]
@@ -740,21 +775,22 @@ class SDPIIdentifier:
             return offset + np.einsum("ij,ij->i", slope_basis(z, r_s), slopes), slopes, z
 
         best = (rms(predict(w_h, coeffs, out_coeffs)[0] - y), w_h, coeffs, out_coeffs)
-        lower = np.r_[w0_floor(w_h), np.zeros(len(w_h) - 1)]
+        plays = PlayWeights(len(w_h), self._gain)
+        Hq = H @ plays.T                                   # the plays in the weights' bounded variables
         for _ in range(self.joint_passes):
             _, slopes, _ = predict(w_h, coeffs, out_coeffs)
             offset = out_coeffs[0] + sig * (out_coeffs[1] + sig * out_coeffs[2])
 
-            def resid(wh: np.ndarray) -> np.ndarray:
-                return offset + np.einsum("ij,ij->i", slope_basis(H @ wh, r_s), slopes) - y
+            def resid(q: np.ndarray) -> np.ndarray:
+                return offset + np.einsum("ij,ij->i", slope_basis(Hq @ q, r_s), slopes) - y
 
-            def jac(wh: np.ndarray) -> np.ndarray:
-                seg = np.clip(np.searchsorted(edges, H @ wh, side="right") - 1, 0, n_s - 1)
-                return H * slopes[np.arange(len(seg)), seg][:, None]
+            def jac(q: np.ndarray) -> np.ndarray:
+                seg = np.clip(np.searchsorted(edges, Hq @ q, side="right") - 1, 0, n_s - 1)
+                return Hq * slopes[np.arange(len(seg)), seg][:, None]
 
-            res = optimize.least_squares(resid, np.maximum(w_h, lower), jac=jac, bounds=(lower, np.inf),
+            res = optimize.least_squares(resid, plays.variables(w_h), jac=jac, bounds=(plays.lower, np.inf),
                                          method="trf", x_scale="jac", max_nfev=50, tr_solver="lsmr")
-            w_h = res.x
+            w_h = plays.weights(res.x)
             coeffs, out_coeffs = self._fit_stress(data, w_h, r_s, stress_range, n_levels)
             err = rms(predict(w_h, coeffs, out_coeffs)[0] - y)
             if err < best[0]:
@@ -772,6 +808,28 @@ class SDPIIdentifier:
         stroke = float(d.y.max() - d.y.min())
         stress = None if d.sigma is None else float(np.median(d.sigma))
         return RecordingFit(d.name, stress, rms(err), stroke, float(np.max(np.abs(err))), float(np.mean(err)))
+
+
+BERNSTEIN = {0: np.array([[1.0]]), 1: np.array([[1.0, -1.0], [1.0, 1.0]]),
+             2: np.array([[1.0, -1.0, 1.0], [1.0, 0.0, -1.0], [1.0, 1.0, 1.0]])}
+"""Per degree, the map from a polynomial's coefficients (a_0..a_d in u) to its Bernstein coefficients
+on u in [-1, 1]; the polynomial is a weighted mean of those there, so all of them >= eps keeps it >= eps."""
+
+
+def _bernstein_fit(A: np.ndarray, y: np.ndarray, degree: int, n_s: int, eps: float) -> np.ndarray:
+    """The stress step's least squares with every dead-zone slope's Bernstein coefficients >= eps:
+    Proposition 3.1 at every stress of the range as simple bounds, so a bounded least-squares solver
+    meets it exactly (a sufficient condition, so it may fit a little worse than the exact constraint;
+    used when that one's solver fails). Columns as `_fit_stress` builds them: slopes [p, k], then the rest."""
+    n_coef = (degree + 1) * n_s
+    to_poly = np.kron(np.linalg.inv(BERNSTEIN[degree]), np.eye(n_s))   # Bernstein [j, k] -> polynomial [p, k]
+    Ab = np.hstack([A[:, :n_coef] @ to_poly, A[:, n_coef:]])
+    scale = np.linalg.norm(Ab, axis=0)
+    scale[scale == 0] = 1.0
+    lower = np.r_[np.full(n_coef, eps), np.full(A.shape[1] - n_coef, -np.inf)] * scale
+    res = optimize.lsq_linear(Ab / scale, y, bounds=(lower, np.inf), lsmr_tol="auto")
+    b = res.x / scale
+    return np.r_[to_poly @ b[:n_coef], b[n_coef:]]
 
 
 ZERO_RATIO = 3.0   # a recording's mean error 3x the loops' own (shape) error: the level, not the loop, is off

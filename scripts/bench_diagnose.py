@@ -18,6 +18,8 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set holdout  # the never-tuned set, quoted apart
     .venv/bin/python scripts/bench_diagnose.py --set all      # both, each summarised on its own
     .venv/bin/python scripts/bench_diagnose.py --set sdp-variants  # stress-dependent play on six more recordings
+    .venv/bin/python scripts/bench_diagnose.py --set rising   # amplitude growing from the drive's minimum
+    .venv/bin/python scripts/bench_diagnose.py --set rising-holdout  # the same family, never tuned
 
 The never-tuned set (`benchmarks.cases.holdout_cases`, seed fixed before it was first run) also
 holds the families users bring: a recording cut mid-cycle, a drive labelled in volts and an
@@ -40,7 +42,8 @@ sys.path.insert(0, str(ROOT))      # benchmarks/ is a checkout folder, not part 
 from gma_ffc.diagnose.engine import diagnose
 from gma_ffc.initial_state import settled_index
 from benchmarks.cases import (FS, LABELS, Case, cases, holdout_cases, make_case,  # noqa: F401  (re-exported)
-                               OTHER_PLANTS_HOLDOUT_SEED, other_plant_cases, sdp_variant_cases)
+                               OTHER_PLANTS_HOLDOUT_SEED, other_plant_cases, rising_cases, rising_holdout_cases,
+                               sdp_variant_cases)
 
 def run_case(case: Case) -> dict[str, Any]:
     model, rec = make_case(case)
@@ -50,7 +53,8 @@ def run_case(case: Case) -> dict[str, Any]:
     elapsed = time.perf_counter() - t0
     return {"case": case.name, "truth": case.truth, "verdict": tuple(dg.verdict), "outcome": dg.outcome,
             "before": dg.rms_before_um, "after": dg.rms_after_um, "noise": dg.noise_um, "seconds": elapsed, "samples": t.size,
-            "conclusive": dg.conclusive, "floor": effect_free_floor(case)}
+            "conclusive": dg.conclusive, "floor": effect_free_floor(case),
+            "scored": sum(d.n_scored for d in dg.data)}
 
 
 def effect_free_floor(case: Case) -> float:
@@ -68,11 +72,14 @@ def effect_free_floor(case: Case) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--set", choices=("tuned", "holdout", "all", "sdp-variants", "plants", "plants-holdout"), default="tuned",
+    ap.add_argument("--set", choices=("tuned", "holdout", "all", "sdp-variants", "plants", "plants-holdout", "rising",
+                                      "rising-holdout"), default="tuned",
                     help="the development cases (default), the never-tuned set, both, six more "
                          "stress-dependent play cases on plain, voltage, falling and cut recordings, or "
                          "six other actuators (drawn Jiles-Atherton parameters, preload, rod, noise), "
-                         "each with nothing missing and with one effect (plants-holdout: six more, never tuned)")
+                         "each with nothing missing and with one effect (plants-holdout: six more, never tuned), "
+                         "or the rising-amplitude family (sines growing from the drive's minimum and decaying to "
+                         "it, the base identified the same way; rising-holdout: drawn once, never tuned)")
     ap.add_argument("--quick", action="store_true", help="middle magnitude of each effect, two nulls, one pair")
     ap.add_argument("--only", default="", help="comma-separated case-name prefixes")
     args = ap.parse_args(argv)
@@ -81,7 +88,10 @@ def main(argv: list[str] | None = None) -> int:
             "sdp-variants": [("stress-dependent play variants (development; quoted apart)", sdp_variant_cases())],
             "plants": [("other actuators (development: looked at, one fix made on it)", other_plant_cases())],
             "plants-holdout": [("other actuators, never tuned (seed fixed in advance; quoted apart)",
-                                other_plant_cases(seed=OTHER_PLANTS_HOLDOUT_SEED, prefix="unseen-plant"))]}
+                                other_plant_cases(seed=OTHER_PLANTS_HOLDOUT_SEED, prefix="unseen-plant"))],
+            "rising": [("rising-amplitude family (development; quoted apart)", rising_cases())],
+            "rising-holdout": [("rising-amplitude family, never tuned (seed fixed in advance; quoted apart)",
+                                rising_holdout_cases())]}
     chosen = sets["tuned"] + sets["holdout"] if args.set == "all" else sets[args.set]
     ok = True
     for title, todo in chosen:
@@ -99,14 +109,14 @@ def main(argv: list[str] | None = None) -> int:
 def summarise(todo: list[Case]) -> bool:
     results = []
     print(f"{'case':<26} {'truth':<40} {'verdict':<40} {'outcome':<14} {'RMS before':>10} {'after':>8} {'floor':>8} "
-          f"{'ok':>3} {'s':>5}")
+          f"{'scored':>6} {'ok':>3} {'s':>5}")
     for case in todo:
         r = run_case(case)
         r["ok"] = set(r["verdict"]) == set(r["truth"])
         results.append(r)
         print(f"{r['case']:<26} {','.join(r['truth']) or '-':<40} {','.join(r['verdict']) or '-':<40} "
               f"{r['outcome']:<14} {r['before']:>10.4f} {r['after']:>8.4f} {r['floor']:>8.4f} "
-              f"{'yes' if r['ok'] else 'NO':>3} {r['seconds']:>5.1f}",
+              f"{r['scored'] / r['samples']:>6.0%} {'yes' if r['ok'] else 'NO':>3} {r['seconds']:>5.1f}",
               flush=True)
     # confusion matrix over single-effect and null cases: true label x named labels (a case naming two
     # effects counts in two columns); two-effect cases are listed below it
@@ -160,6 +170,9 @@ def summarise(todo: list[Case]) -> bool:
             print(f"  not halved: {r['case']}: {r['before']:.3f} -> {r['after']:.3f} um{floor}")
     total_s = sum(r["seconds"] for r in results)
     n = sum(r["samples"] for r in results)
+    shares = np.array([r["scored"] / r["samples"] for r in results])
+    print(f"samples scored: {sum(r['scored'] for r in results) / max(n, 1):.1%} of all "
+          f"(per recording {shares.min():.0%}-{shares.max():.0%}, median {np.median(shares):.0%})")
     print(f"diagnosis time: {total_s:.1f} s for {n} samples ({total_s / max(len(results), 1):.1f} s per "
           f"{n / max(len(results), 1) / FS:.0f} s recording at {FS:.0f} Hz)")
     return correct == len(results)

@@ -2,8 +2,13 @@
 the real-time tests their retries."""
 
 import pytest
+from hypothesis import settings
 
 import gma_ffc  # noqa: F401  (sets OPENBLAS_NUM_THREADS before numpy loads)
+
+# `pytest --hypothesis-profile=slow`: a deeper run of the property tests that read it (the fuzz
+# test through the CLI draws 300 recordings instead of CI's few)
+settings.register_profile("slow", deadline=None)
 
 # A real-time test runs a controller, an emulated device and its physics against the wall clock.
 # A busy machine (the other xdist worker, another job on the CI host) can make one run late; a

@@ -1,12 +1,19 @@
-"""Recordings prepared for the diagnosis: arrays, time steps, stress, the held-out split.
+"""Recordings prepared for the diagnosis: arrays, time steps, stress, the held-out split, and
+which samples are scored.
 
 The split is by contiguous time blocks inside every recording (alternate blocks form the two
 folds). Models are always *simulated* over the whole recording from its inputs (drive, stress)
 only, so no measured output of a held-out block ever enters a fit; only the loss is masked.
+
+A sample is scored where what is known decides the model's output there: where the band the
+unknown initial state leaves (`gma_ffc.state_band`, the state the run starts from included) is
+no wider than the recording's noise floor. Elsewhere a residual may be the start-up transient, and
+no fit or score sees it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -14,6 +21,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..recordings import Recording
+from ..initial_state import InitialStateSpec
+from ..state_band import admissible_corners, output_band
 from .jumps import Jumps
 from .noise import second_difference_sigma
 
@@ -36,8 +45,36 @@ class RecData:
     clamped_fraction: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)
     start: Any = None         # the core's initial state, estimated from this recording (gma_ffc.initial_state)
-    settled: int = 0          # first sample the unknown initial state no longer affects: nothing before is scored
+    settled: int = 0          # first scored sample: nothing before it is scored (len(t) when none is)
     jumps: Jumps = field(default_factory=Jumps)   # steps of the sensor's zero (`jumps.py`), each fitted as an offset change
+    scored: np.ndarray | None = None   # per sample, is it scored (module doc); None: from `settled` on
+
+    def __post_init__(self) -> None:
+        if self.scored is None:
+            self.scored = np.arange(self.t.size) >= self.settled
+
+    @property
+    def mask(self) -> np.ndarray:
+        """The scored samples as a boolean array (never None after construction)."""
+        assert self.scored is not None
+        return self.scored
+
+    @property
+    def n_scored(self) -> int:
+        return int(np.count_nonzero(self.mask))
+
+    def scored_runs(self) -> list[slice]:
+        """The contiguous stretches of scored samples, in order."""
+        return _runs(self.mask)
+
+    @property
+    def unscored_s(self) -> float:
+        """How long the recording is not scored, s (each unscored sample for its time step)."""
+        return float(np.sum(self.dt[~self.mask])) if self.t.size > 1 else 0.0
+
+    def scored_only(self, r: np.ndarray) -> np.ndarray:
+        """`r` with the samples that are not scored set to zero."""
+        return np.where(self.mask, r, 0.0)
 
     @property
     def recorded_stress(self) -> np.ndarray:
@@ -77,10 +114,11 @@ def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "e
             clamped = float(np.mean(np.abs(s - s_raw) > 1e-6 * max(1.0, abs(srange[0]))))
         block = np.minimum((np.arange(n) * N_BLOCKS) // max(n, 1), N_BLOCKS - 1)
         core = getattr(model, "base", model)
-        start = core.resolve_initial_state(rec.drive, s if srange is not None else None, initial_state,
-                                           rec.displacement_um, t)
+        stress = s if srange is not None else None
+        start, scored = start_and_scored(core, rec.drive, stress, initial_state, rec.displacement_um, t)
         rows = np.arange(0, n, stride)
-        rows = rows[rows >= start.settled_index]
+        rows = rows[scored[rows]]
+        first = np.flatnonzero(scored)
         out.append(RecData(
             name=rec.name, t=t, dt=dt, dt_med=dt_med,
             u=np.ascontiguousarray(rec.drive, dtype=float),
@@ -89,8 +127,45 @@ def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "e
             rows=rows, clamped_fraction=clamped,
             extra={"temperature_C": rec.columns.get("temperature_C"),
                    "drive_symbol": "V" if rec.drive_name.endswith("_V") else "I"}, start=start,
-            settled=min(start.settled_index, n)))
+            settled=int(first[0]) if first.size else n, scored=scored))
     return out
+
+
+def start_and_scored(core: Any, drive: np.ndarray, stress: Any, rule: Any, measured_um: np.ndarray,
+                     time_s: np.ndarray) -> tuple[Any, np.ndarray]:
+    """The core's initial state by `rule`, and the samples to score (module doc): where the output
+    band over every admissible initial state, the state the run starts from included, is no wider
+    than the noise floor the measurement shows. There the unknown start moves the prediction by
+    less than the sensor's own noise, which no fit can tell from it; a start-up transient lies
+    outside by construction.
+
+    The estimate is fitted to the measurement moved onto the model's zero: by the mean difference
+    over the samples the drive alone decides (where any admissible state gives the same output,
+    the difference is the sensor's zero, not the state), so a sensor zeroed elsewhere changes
+    neither the state nor what is scored. An estimate outside the admissible box (a history
+    inside the drive range cannot leave it) is held at the box's nearest state when the
+    measurement cannot tell the two apart: they differ by less than the noise floor, as a mean
+    square, where they differ at all (the estimate had fitted the model's own error). When it can
+    (a demagnetised start's virgin curve, a history beyond the range), the estimate stays and
+    the band widens to hold it, so what it leaves unknown is not scored."""
+    y = np.asarray(measured_um, dtype=float)
+    floor = noise_floor(y)
+    box = output_band(core, drive, stress)
+    known = box.known(floor)
+    aligned = y - float(np.mean((y - box.lower)[known])) if known.any() else y
+    start = core.resolve_initial_state(drive, stress, rule, aligned, time_s)
+    scored = output_band(core, drive, stress, also=start.play_state).known(floor)
+    if InitialStateSpec.parse(rule).kind != "estimate" or np.array_equal(scored, known):
+        return start, scored                           # a rule the user chose, or an estimate inside the box
+    held = np.clip(start.play_state, *admissible_corners(core, drive))
+    runs = [np.asarray(core.simulate(None, drive, stress, initial_play_state=p), dtype=float)
+            for p in (start.play_state, held)]
+    matters = ~scored                                  # where the estimate's start still shows
+    gain = float(np.mean((aligned - runs[1])[matters] ** 2) - np.mean((aligned - runs[0])[matters] ** 2))
+    if gain > floor ** 2:
+        return start, scored
+    return dataclasses.replace(start, play_state=held, how=start.how + "; held within the states a history "
+                               "inside the drive range leaves, which the measurement does not tell from it"), known
 
 
 def stress_span(data: Sequence[RecData]) -> float:
@@ -126,10 +201,40 @@ def mean_stress(data: Sequence[RecData]) -> float:
 
 def noise_floor(y: np.ndarray) -> float:
     """Measurement noise std from the data (`noise.second_difference_sigma`); a quantised, nearly
-    constant signal falls back on the plain spread of its second differences."""
+    constant signal falls back on the plain spread of its second differences. Fewer than five
+    samples give no estimate, and none is assumed (0: such a recording is too short to score)."""
     if y.size < 5:
-        return float("nan")
+        return 0.0
     sigma = second_difference_sigma(y)
     if sigma == 0.0:
         sigma = float(np.std(np.diff(y, 2))) / np.sqrt(6.0)
     return sigma
+
+
+def unscored_note(d: RecData) -> str:
+    """What the user is told about a recording's samples that are not scored ('' when all are),
+    with the recording that would be scored whole."""
+    if d.n_scored == 0:
+        return (f"{d.name}: none of it is scored: everywhere the model's output still depends, by more than the "
+                "noise floor, on the hysteresis state the recording starts in, which the file does not show; "
+                "start a recording at rest at an end of the drive range (e.g. a sine whose amplitude grows from "
+                "the drive's minimum), or record at least one full drive cycle")
+    if d.n_scored == d.t.size:
+        return ""
+    runs = d.scored_runs()
+    where = (f"the first {d.t[d.settled] - d.t[0]:.3g} s" if len(runs) == 1 and runs[0].stop == d.t.size
+             else f"{d.unscored_s:.3g} s of it")
+    return (f"{d.name}: {where} are not scored: there the model's output still depends, by more than the noise "
+            "floor, on the unknown hysteresis state at the start (until the drive has moved far enough, or "
+            "reached an end of its range, for the model to forget it)")
+
+
+def unscored_spans(d: RecData) -> list[tuple[float, float]]:
+    """The time spans (first to last sample) of the stretches that are not scored."""
+    return [(float(d.t[r.start]), float(d.t[r.stop - 1])) for r in _runs(~d.mask)]
+
+
+def _runs(mask: np.ndarray) -> list[slice]:
+    """The contiguous stretches where `mask` is True, in order."""
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
+    return [slice(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]

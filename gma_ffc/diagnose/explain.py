@@ -38,9 +38,12 @@ def describe(c: Candidate, unit: str = "A") -> str:
     return c.effect if cls is None else cls.describe(c.params, unit)
 
 
-def physics(effect: str, unit: str) -> str:
+def physics(effect: str, unit: str, has_stress: bool = True) -> str:
+    """An effect's physics in the recording's words: for its drive (a voltage drive has no coil) and,
+    without a stress column, without a load cell or a stress to speak of."""
     cls = REGISTRY[effect]
-    return (cls.physics_voltage or cls.physics) if unit == "V" else cls.physics
+    unloaded = None if has_stress else getattr(cls, "physics_without_stress", None)
+    return unloaded or ((cls.physics_voltage or cls.physics) if unit == "V" else cls.physics)
 
 
 def residual_words(worst: Located, unit: str = "A") -> str:
@@ -71,7 +74,8 @@ def fit_rms_words(fit_rms_um: tuple[float, float]) -> str:
 def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[Located], rms_before: float,
             rms_null: float, rms_after: float, noise: float, too_little: bool, runner_note: str,
             outcome: str, unit: str, noise_factor: float, fit_rms_um: tuple[float, float] | None = None,
-            located_after: list[Located] | None = None, model_error_factor: float = 3.0) -> str:
+            located_after: list[Located] | None = None, model_error_factor: float = 3.0,
+            has_stress: bool = True) -> str:
     worst = max(located, key=lambda loc: loc.residual_rms_recalibrated_um)
     parts = [f"The base model misses the recordings by {rms_before:.4g} um RMS; a static recalibration "
              f"(gain/offset/curvature/loop width) leaves {rms_null:.4g} um on held-out data, against a noise floor of "
@@ -115,7 +119,7 @@ def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[
     parts.append(f"With {'it' if len(named) == 1 else 'them'} the held-out RMS falls to {rms_after:.4g} um "
                  f"({rms_after / max(rms_before, 1e-12):.0%} of before).")
     for c in named:
-        parts.append(f"{c.effect}: {physics(c.effect, unit)}.")
+        parts.append(f"{c.effect}: {physics(c.effect, unit, has_stress)}.")
     if located_after and rms_after > model_error_factor * noise:
         parts.append(left_words(located_after, rms_after, noise, fit_rms_um))
     if runner_note:

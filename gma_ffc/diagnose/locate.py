@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..effects import kernels as K
-from .data import RecData
+from .data import RecData, noise_floor
 from .jumps import Jumps, jump_words
 from .lines import Line, line_words, spectral_line
 
@@ -87,25 +87,42 @@ def condition_words(cond: dict[str, float], drive_symbol: str = "I", n: int = 2)
     return [f"{(up if v > 0 else down)[key]} (r = {a:.2f})" for a, key, v in strong[:n]]
 
 
+RATIO_FLOOR_SHARE = 1e-3   # a window's ratio is against at least this share of the largest window's RMS: a
+                           # residual 1000x larger in one window than the typical one is all a reader needs
+                           # to know, and beyond that the figure would measure rounding, not the recording
+
+
+def _windows(keep: np.ndarray, n_windows: int) -> list[np.ndarray]:
+    """The judged samples in `n_windows` runs of equal count, in time order (windows with no samples left out)."""
+    idx = np.flatnonzero(keep)
+    return [w for w in np.array_split(idx, min(n_windows, max(idx.size, 1))) if w.size]
+
+
 def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows: int = 10) -> Located:
-    """Locate the residual (after static recalibration) of one recording."""
+    """Locate the residual (after static recalibration) of one recording, over its scored samples
+    (over all of them when none is scored: the words then describe the transient, which
+    cannot_conclude says was not scored)."""
     n = residual.size
     t = d.t
-    bounds = np.linspace(0, n, n_windows + 1).astype(int)
-    rms_w = np.array([np.sqrt(np.mean(residual[a:b] ** 2)) if b > a else 0.0
-                      for a, b in zip(bounds[:-1], bounds[1:])])
+    keep = d.mask if d.n_scored else np.ones(n, bool)
+    windows = _windows(keep, n_windows)
+    rms_w = np.array([float(np.sqrt(np.mean(residual[w] ** 2))) for w in windows])
     k = int(np.argmax(rms_w))
-    win = (float(t[bounds[k]]), float(t[max(bounds[k + 1] - 1, bounds[k])]))
-    ratio = float(rms_w[k] / max(np.median(rms_w), 1e-12))
+    win = (float(t[windows[k][0]]), float(t[windows[k][-1]]))
+    # against a positive floor: the typical window's RMS, at least the sensor's noise (no window can be
+    # told quieter than that) and RATIO_FLOOR_SHARE of the largest
+    floor = max(float(np.median(rms_w)), noise_floor(d.y), RATIO_FLOOR_SHARE * float(rms_w[k]), 1e-300)
+    ratio = float(rms_w[k] / floor)
     shares = band_powers(residual, d.dt_med)
     b = int(np.argmax(shares))
     band = (BANDS_HZ[b], BANDS_HZ[b + 1])
 
-    # conditions, on a smoothed residual size (window ~ 1 % of the record, at least 5 samples)
+    # conditions, on a smoothed residual size (window ~ 1 % of the record, at least 5 samples), over
+    # the judged samples only (an unscored stretch is zeros, which would correlate with anything slow)
     width = max(5, n // 100)
     kern = np.ones(width) / width
     size = np.sqrt(np.convolve(residual ** 2, kern, mode="same"))
-    du = np.abs(np.gradient(d.u, t))
+    du = np.abs(np.gradient(d.u, t)) if n > 1 else np.zeros(n)
     span = max(float(np.ptp(d.u)), 1e-12)
     steps = np.flatnonzero(np.abs(np.diff(d.u)) > 0.1 * span) + 1
     since = np.full(n, np.inf)
@@ -115,18 +132,20 @@ def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows
         since[ok] = t[ok] - t[last[ok]]
     heat = K.lag_filter(d.u * d.u, d.dt, max(d.duration_s / 4, 1e-6), 0.0)
     cond = {
-        "drive_rate": _corr(size, np.convolve(du, kern, mode="same")),
-        "drive_amplitude": _corr(size, np.abs(d.u - np.median(d.u))),
-        "cumulative_heating": _corr(np.convolve(residual, kern, mode="same"), heat),
+        "drive_rate": _corr(size[keep], np.convolve(du, kern, mode="same")[keep]),
+        "drive_amplitude": _corr(size[keep], np.abs(d.u - np.median(d.u))[keep]),
+        "cumulative_heating": _corr(np.convolve(residual, kern, mode="same")[keep], heat[keep]),
     }
     if float(np.ptp(d.s)) > 0.5:
-        cond["stress"] = _corr(size, d.s)
+        cond["stress"] = _corr(size[keep], d.s[keep])
     if steps.size:
-        fin = np.isfinite(since)
+        fin = np.isfinite(since) & keep
         if fin.sum() > 10:
             cond["after_steps"] = _corr(size[fin], -np.log(since[fin] + d.dt_med))
     band_txt = (f"{band[0]:g}-{band[1]:g} Hz" if np.isfinite(band[1]) else f"above {band[0]:g} Hz")
     where = f"t = {win[0]:.4g}-{win[1]:.4g} s ({ratio:.1f}x the median window); {shares[b]:.0%} of its power at {band_txt}"
+    if not d.n_scored:
+        where += "; none of it is scored (the start-up transient may be all this is)"
     line = spectral_line(residual, d.u, d.dt_med)
     if line is not None:
         where += "; " + line_words(line)
@@ -136,5 +155,5 @@ def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows
     follows = condition_words(cond, d.extra.get("drive_symbol", "I"), 2)
     if follows:
         where += "; residual " + ", ".join(follows)
-    return Located(d.name, where, float(np.sqrt(np.mean(raw_residual ** 2))),
-                   float(np.sqrt(np.mean(residual ** 2))), win, band, float(shares[b]), cond, line, d.jumps)
+    return Located(d.name, where, float(np.sqrt(np.mean(raw_residual[keep] ** 2))),
+                   float(np.sqrt(np.mean(residual[keep] ** 2))), win, band, float(shares[b]), cond, line, d.jumps)

@@ -18,6 +18,8 @@ import numpy as np
 import yaml
 
 from ..atomic import atomic_write
+from ..errors import FaultError
+from .data import unscored_spans
 from .results import Diagnosis
 
 MODEL_FILE = "extended_model.yaml"
@@ -78,9 +80,8 @@ def plot_residuals(dg: Diagnosis, render: Any = None) -> Any:
         ax.plot(d.t[sl], (d.y - yf)[sl], lw=0.7, color="tab:blue",
                 label="base model (= extended: nothing accepted)" if same else "extended")
         ax.axvspan(*loc.window_s, color="tab:red", alpha=0.12, label="largest residual")
-        if d.settled > 0:
-            ax.axvspan(d.t[0], d.t[min(d.settled, d.t.size - 1)], color="0.85", alpha=0.6,
-                       label="not scored (initial state)")
+        for i, (a, b) in enumerate(unscored_spans(d)):
+            ax.axvspan(a, b, color="0.85", alpha=0.6, label="not scored (initial state)" if i == 0 else None)
         for i, jump in enumerate(d.jumps.found):
             ax.axvline(jump.t_s, color="tab:purple", ls="--", lw=0.9,
                        label="sensor's zero steps (allowed for in every fit)" if i == 0 else None)
@@ -326,25 +327,30 @@ def model_yaml(dg: Diagnosis) -> str:
     return header + yaml.safe_dump(d, sort_keys=False, default_flow_style=None, width=100)
 
 
-def _finite(v: Any) -> Any:
-    """JSON has no NaN/inf: non-finite numbers become null, numpy scalars plain numbers."""
+def finite_document(v: Any, where: str = "diagnosis.json") -> Any:
+    """The document in plain JSON types (numpy scalars as numbers), refusing any NaN or infinite
+    number: what a field cannot say is null by design (an effect never tried has no held-out RMS),
+    so a non-finite number is a defect, and nothing is written rather than a number that is none."""
     if isinstance(v, dict):
-        return {k: _finite(x) for k, x in v.items()}
+        return {k: finite_document(x, f"{where}.{k}") for k, x in v.items()}
     if isinstance(v, (list, tuple)):
-        return [_finite(x) for x in v]
+        return [finite_document(x, f"{where}[{i}]") for i, x in enumerate(v)]
     if isinstance(v, (bool, np.bool_)):
         return bool(v)
     if isinstance(v, (int, np.integer)):
         return int(v)
     if isinstance(v, (float, np.floating)):
-        return float(v) if math.isfinite(v) else None
+        if not math.isfinite(v):
+            raise FaultError(f"{where} would be {float(v)} (a defect in gma-ffc diagnose; nothing was written: "
+                             "please report it with the recordings)")
+        return float(v)
     return v
 
 
 def write_outputs(dg: Diagnosis, out_dir: str | Path) -> dict:
     """Render everything, then write the three files atomically; returns the JSON document."""
     out = Path(out_dir)
-    doc = _finite(dg.to_json(MODEL_FILE))
+    doc = finite_document(dg.to_json(MODEL_FILE))
     js = json.dumps(doc, indent=2, allow_nan=False)
     page = render_html(dg, doc)
     ym = model_yaml(dg)

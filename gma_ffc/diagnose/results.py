@@ -71,7 +71,7 @@ class Diagnosis:
     def initial_states(self) -> list[dict]:
         """Per recording: the rule, how its state was chosen, and how long it is not scored."""
         return [{"recording": d.name, "rule": self.initial_state, "how": d.start.how,
-                 "not_scored_s": _round(float(d.t[min(d.settled, d.t.size - 1)] - d.t[0]) if d.settled else 0.0)}
+                 "not_scored_s": _round(d.unscored_s), "scored_share": round(d.n_scored / max(d.t.size, 1), 4)}
                 for d in self.data]
 
     def to_json(self, model_file: str = "extended_model.yaml") -> dict:
@@ -95,6 +95,10 @@ class Diagnosis:
 
 
 def _round(v: float) -> float | None:
-    if v is None or not math.isfinite(v):
+    """Six significant digits; a non-finite value is passed on as it is, for the check on write
+    (`report.finite_document`) to refuse: every number the document must hold is a real one."""
+    if v is None:
         return None
+    if not math.isfinite(v):
+        return float(v)
     return float(f"{v:.6g}")

@@ -35,7 +35,7 @@ from ..drive import reversals
 from .checks import check_overlap
 from .anchor import anchor_data, anchor_words
 from .rebase import reidentify_through
-from .data import N_BLOCKS, RecData, noise_floor, prepare
+from .data import N_BLOCKS, RecData, noise_floor, prepare, unscored_note
 from .noise import mad_sigma
 from .jumps import jump_words, sensor_jumps
 from .explain import decider, drive_unit, explain, identification_rms, runner_up_note, validation_words
@@ -196,12 +196,8 @@ def _restarted(core: Any, data: Sequence[RecData], rule: Any) -> list[RecData]:
 
 
 def _scored(d: RecData, r: np.ndarray) -> np.ndarray:
-    """The residual with the samples before the initial state settles set to zero (not scored)."""
-    if d.settled <= 0:
-        return r
-    out = r.copy()
-    out[: d.settled] = 0.0
-    return out
+    """The residual with the samples that are not scored set to zero (`data.known_samples`)."""
+    return d.scored_only(r)
 
 
 class _Run:
@@ -233,17 +229,17 @@ class _Run:
         check_overlap(self.model, recordings)
         self.data = data = prepare(recordings, self.model, sel.initial_state)
         self.fitter = Fitter(self.model, data, anchor_data(self.model, min(d.dt_med for d in data)))
-        self.n_samples = sum(d.t.size - d.settled for d in data)   # samples scored: after the initial state settles
-        n_rev = sum(reversals(d.u[d.settled:]) for d in data if d.settled < d.t.size)
+        self.n_samples = sum(d.n_scored for d in data)   # samples scored: where the initial state is known
+        n_rev = sum(reversals(d.u[run]) for d in data for run in d.scored_runs())
         for d in data:
-            if d.settled >= d.t.size:
-                self.cannot.append(f"{d.name}: the drive never sweeps far enough for the model to forget its unknown "
-                                   "initial state, so none of it is scored; record at least one full drive cycle")
-            elif d.settled > 0:
-                d.extra["settled_note"] = (f"{d.name}: the first {d.t[d.settled] - d.t[0]:.3g} s are not scored: "
-                                           "until the drive has swept the model's full loop, the output still "
-                                           "depends on the unknown hysteresis state at the start")
-        self.too_little = self.n_samples < sel.min_samples or n_rev < MIN_REVERSALS
+            note = unscored_note(d)
+            if d.n_scored == 0:
+                self.cannot.append(note)
+            elif note:
+                d.extra["settled_note"] = note
+        # each fold needs scored rows to fit on: a fold without any would be fitted to nothing
+        self.too_little = (self.n_samples < sel.min_samples or n_rev < MIN_REVERSALS
+                           or min(self.fitter.n_a, self.fitter.y_rows.size - self.fitter.n_a) == 0)
         if self.too_little:
             self.cannot.append(
                 f"too little data to tell effects apart ({self.n_samples} samples, {n_rev} drive reversals in all): "
@@ -268,8 +264,14 @@ class _Run:
             d.jumps = sensor_jumps(d.y, yc, d.u, d.recorded_stress, d.t, d.dt_med, d.settled)
             if d.jumps.excess:
                 self.cannot.append(f"{d.name}: {jump_words(d.jumps)}")
-        self.rms_before = float(np.sqrt(sum(float(np.sum((d.y - yc)[d.settled:] ** 2))
-                                            for d, yc in zip(data, self.base_pred)) / max(self.n_samples, 1)))
+        # over the scored samples; over all of them when none is (the figure then says how far off the
+        # transient is, and cannot_conclude says that nothing was scored)
+        judged = [d.mask if self.n_samples else np.ones(d.t.size, bool) for d in data]
+        self.rms_before = float(np.sqrt(sum(float(np.sum((d.y - yc)[m] ** 2)) for d, yc, m
+                                            in zip(data, self.base_pred, judged)) / max(sum(map(np.sum, judged)), 1)))
+        if self.too_little:
+            self._nothing_to_fit()
+            return
         null_specs = (Spec(), Spec(), Spec())
         # Huber scale from the recalibrated base's held-out residual: bursts the core cannot follow at all
         # (e.g. a load change) then weigh in linearly, not quadratically, in fits and in the selection
@@ -287,6 +289,18 @@ class _Run:
         self.final = SearchResult(null_specs, self.null_loss, self.null_cv, null.all_mse,
                                   null.n_held_out, null.coef_all, null.names, 1)
 
+    def _nothing_to_fit(self) -> None:
+        """Too little scored data to fit anything and judge it on other blocks: the base as given is
+        the null and stays the model (a fit to a fold without rows has no coefficients, and one to a
+        few loops would be judged on the loops it was fitted to)."""
+        self.fitter.delta = max(2.0 * self.noise, 1e-12)
+        self.null_loss = self.null_cv = self.rms_before ** 2
+        self.null_pred = list(self.base_pred)
+        self.located = [locate(d, _scored(d, d.y - yb), _scored(d, d.y - yb)) for d, yb in zip(self.data, self.base_pred)]
+        self.current = (Spec(), Spec(), Spec())
+        self.cur_cv = self.cur_loss = self.null_cv
+        self.final = SearchResult(self.current, self.null_loss, self.null_cv, self.null_cv, 0, np.zeros(0), [], 0)
+
     # ------------------------------------------------------------------ step 3: what can be tested
     def open_candidates(self) -> None:
         fitter = self.fitter
@@ -300,7 +314,7 @@ class _Run:
                 if REGISTRY[name].slow and c.testable:
                     c.reason = (f"the longest recording lasts {fitter.duration_max:.3g} s: slow effects "
                                 "(heating, creep) with time constants beyond it are hard to separate; "
-                                "a run of several minutes with current on/off phases would decide")
+                                "a run of several minutes with drive on/off phases would decide")
         for c in self.candidates.values():
             if not c.testable and c.reason and c.reason not in self.cannot and not self.too_little:
                 self.cannot.append(f"{c.effect}: {c.reason}")
@@ -537,6 +551,9 @@ class _Run:
         """The extended model, unless it is worse than the base as given, does not generalise, or is
         fitted to a drive outside the model's class."""
         fitter, final, candidates = self.fitter, self.final, self.candidates
+        if self.too_little:              # nothing was fitted: the base as given
+            self._keep_base()
+            return
         # parameters of the accepted effects as they stand in the final model (later rounds may retune them)
         for name in self.accepted:
             candidates[name].params = params_of(fitter, name, final.specs[2], final.coef_all, final.names)
@@ -630,7 +647,7 @@ class _Run:
         explanation = explain(verdict, self.candidates, self.located, self.rms_before, math.sqrt(self.null_cv),
                               math.sqrt(self.cur_cv), self.noise, self.too_little, self.runner_note.strip(), outcome,
                               drive_unit(self.model), sel.noise_factor, identification_rms(self.model),
-                              after, sel.model_error_factor)
+                              after, sel.model_error_factor, any(d.s_raw is not None for d in self.data))
         if lead is not None:     # the fault to fix first, so it comes first
             explanation = (f"First, a fault in the columns: {lead.words()}"
                            + ("." if outcome == "unexplained" else "; what is named below may only compensate it.")

@@ -210,6 +210,8 @@ class Effect(Protocol):
     inverted: ClassVar[Mapping[str, str]]   # per block key: how the inverse undoes it (written to files)
     physics: ClassVar[str]                  # what it is, for a current-driven actuator
     physics_voltage: ClassVar[str | None]   # the same for a voltage-driven one, where it differs
+    physics_without_stress: ClassVar[str | None]   # the same for recordings without a stress column
+                                            # (no load cell), where it differs; wins over the two above
     candidate: ClassVar[bool]               # False: always present, never selected (the static map)
     n_params: ClassVar[int]                 # parameters the block adds (nonlinear + gains): the penalty
     slow: ClassVar[bool]                    # a slow effect (needs long recordings to separate)
@@ -329,6 +331,7 @@ class EffectBase:
     keys: ClassVar[tuple[str, ...]]
     inverted: ClassVar[Mapping[str, str]]
     physics_voltage: ClassVar[str | None] = None
+    physics_without_stress: ClassVar[str | None] = None
     candidate: ClassVar[bool] = True
     slow: ClassVar[bool] = False
     follows_drive: ClassVar[bool] = False

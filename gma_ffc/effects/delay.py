@@ -26,7 +26,7 @@ class Delay(EffectBase):
     n_params: ClassVar[int] = 1
     joint_with: ClassVar[str | None] = "rate_dependence"
     deciders: ClassVar[Mapping[str, str]] = {
-        "rate_dependence": "a delay's phase lag grows in proportion to frequency while an eddy-current lag's "
+        "rate_dependence": "a delay's phase lag grows in proportion to frequency while a first-order lag's (rate_dependence) "
                            "saturates at 90 degrees: record sine sweeps at several frequencies spanning "
                            "1/(2 pi tau) to decide"}
 

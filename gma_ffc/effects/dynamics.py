@@ -39,6 +39,10 @@ class Dynamics(EffectBase):
         "rod and load mass on the rod's stiffness with damping, driven by the actuator's free stroke: a "
         "second-order resonance whose frequency falls as the load mass (the static compressive stress the "
         "load cell reads, its inertial force filtered out) grows")
+    physics_without_stress: ClassVar[str | None] = (
+        "the moving mass (the actuator's own and its load's) on the actuator's stiffness with damping, driven "
+        "by its free stroke: a second-order resonance; the recordings carry no stress, so the load is taken "
+        "as one constant mass and the resonance as fixed")
     n_params: ClassVar[int] = 3
     transforms_stress: ClassVar[bool] = True     # the model sees the load's static stress (rod_load)
     # a sharp resonance needs its frequency, damping and load law to about a percent (steps halve per level)

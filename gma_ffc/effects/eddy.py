@@ -20,6 +20,10 @@ class EddyLag(EffectBase):
     physics: ClassVar[str] = (
         "eddy currents / magnetic diffusion: the field in the rod lags the coil current by a time constant "
         "(first-order lag), so loops widen and tilt as the drive gets faster")
+    physics_voltage: ClassVar[str | None] = (
+        "a first-order lag between the drive voltage and the actuator's response (the amplifier charging the "
+        "stack's capacitance through its output resistance, or a filter in the drive or sensor path), so "
+        "loops widen and tilt as the drive gets faster")
     n_params: ClassVar[int] = 1
     joint_with: ClassVar[str | None] = "time_delay"
 
@@ -57,7 +61,8 @@ class EddyLag(EffectBase):
 
     @staticmethod
     def describe(params: Mapping[str, float], unit: str) -> str:
-        return f"an eddy-current lag of tau = {params['tau_s'] * 1e3:.3g} ms"
+        what = "an eddy-current lag" if unit == "A" else "a first-order lag"   # a voltage drive has no coil
+        return f"{what} of tau = {params['tau_s'] * 1e3:.3g} ms"
 
 
 class _LagState:

@@ -140,6 +140,9 @@ class StressPlay(EffectBase):
     physics: ClassVar[str] = (
         "the play-operator weights and the loop width (the play thresholds, the 'coercive current') change "
         "with stress, which the SDPI assumes they do not")
+    physics_voltage: ClassVar[str | None] = (
+        "the play-operator weights and the loop width (the play thresholds, the 'coercive voltage') change "
+        "with stress, which the SDPI assumes they do not")
     n_params: ClassVar[int] = 5
     shapes_core: ClassVar[bool] = True
 
@@ -278,7 +281,8 @@ class StressPlay(EffectBase):
         k = params.get("loop_width_change_per_MPa", math.nan)
         if not math.isfinite(k):
             return "play weights (loop width) that change with stress"
-        return (f"play weights and a loop width (coercive current) that change with stress: the width "
+        coercive = "coercive current" if unit == "A" else "coercive voltage"
+        return (f"play weights and a loop width ({coercive}) that change with stress: the width "
                 f"{'grows' if k > 0 else 'shrinks'} by {abs(k) * 100:.2g} % per MPa of extra compression")
 
 

@@ -33,8 +33,8 @@ class Thermal(EffectBase):
     n_params: ClassVar[int] = 3
     slow: ClassVar[bool] = True
     deciders: ClassVar[Mapping[str, str]] = {
-        "creep": "heating follows the integral of I^2 and recovers at zero current, creep follows the direction "
-                 "of the last step: record steps up and down with long holds and a zero-current pause"}
+        "creep": "heating follows the integral of the drive squared and recovers at zero drive, creep follows the "
+                 "direction of the last step: record steps up and down with long holds and a pause at zero drive"}
 
     def __init__(self, block: Mapping[str, Any]) -> None:
         super().__init__(block)

@@ -1,0 +1,89 @@
+"""Advice in a refusal must work (issue 31): each test gets a refusal, does what its words say,
+and shows the outcome change. The rig is a Preisach actuator, not the model class fitted."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from gma_ffc.diagnose.engine import diagnose
+from gma_ffc.errors import InputError
+from gma_ffc.identify import SDPIIdentifier
+from gma_ffc.recordings import Recording
+from preisach import PreisachActuator
+
+FS = 1000.0
+RIG = PreisachActuator(noise_um=0.02, seed=4)
+
+
+def recording(drive: np.ndarray, name: str = "r.csv") -> Recording:
+    t = np.arange(drive.size) / FS
+    return Recording({"time_s": t, "current_A": drive, "displacement_um": RIG.run(drive, -11.3)}, {}, name)
+
+
+def cycles(freq_hz: float, seconds: float, amplitude: np.ndarray | float = 1.0) -> np.ndarray:
+    t = np.arange(int(seconds * FS)) / FS
+    return 1.5 * amplitude * (1 - np.cos(2 * np.pi * freq_hz * t))
+
+
+def test_too_few_samples_then_as_many_as_it_asks_for():
+    short = recording(cycles(10.0, 0.1))                      # one cycle in 100 samples
+    with pytest.raises(InputError) as err:
+        SDPIIdentifier().fit([short])
+    need = int(re.search(r"record at least (\d+) samples over at least one full drive cycle", str(err.value)).group(1))
+    fewer = re.search(r"--plays (\d+) --deadzones (\d+)", str(err.value))
+    assert fewer is not None
+    one_cycle = 1.5 * (1 - np.cos(2 * np.pi * np.arange(need) / need))              # `need` samples
+    model = SDPIIdentifier().fit([recording(one_cycle)]).model_
+    assert model.invertibility_violations() == []
+    model = SDPIIdentifier(n_play=int(fewer.group(1)), n_deadzone=int(fewer.group(2))).fit([short]).model_
+    assert model.n_play == int(fewer.group(1))
+
+
+def test_a_drive_that_never_comes_back_then_a_full_cycle():
+    up = recording(np.linspace(0.0, 3.0, 600))
+    with pytest.raises(InputError, match=r"record at least one full drive cycle \(min to max and back\)"):
+        SDPIIdentifier().fit([up])
+    model = SDPIIdentifier().fit([recording(cycles(1.0, 1.0))]).model_          # min to max and back
+    assert model.invertibility_violations() == []
+
+
+@pytest.fixture(scope="module")
+def model():
+    return SDPIIdentifier().fit([recording(cycles(3.0, 3.0), "id.csv")]).model_
+
+
+def test_too_little_data_then_the_recording_it_names(model):
+    dg = diagnose(model, [recording(cycles(3.0, 1.3), "short.csv")])
+    assert dg.outcome == "inconclusive"
+    advice = " ".join(dg.cannot_conclude)
+    m = re.search(r">= (\d+) full loops, >= (\d+) samples\) at two or more drive frequencies", advice)
+    assert m is not None, advice
+    loops, samples = int(m.group(1)), int(m.group(2))
+    # as asked: that many loops and samples, at two frequencies
+    drive = np.r_[cycles(3.0, loops / 2 / 3.0 + 1), cycles(7.0, loops / 2 / 7.0 + 1)]
+    assert drive.size >= samples
+    dg = diagnose(model, [recording(drive, "as_asked.csv")])
+    assert dg.conclusive and dg.outcome != "inconclusive", dg.cannot_conclude
+    assert not any("too little data" in c for c in dg.cannot_conclude)
+
+
+def test_nothing_scored_then_a_recording_that_starts_at_the_drives_minimum(model):
+    """A small oscillation in the middle of the range, from an unknown history: none of it is
+    scored. The advice: start at rest at an end of the drive range, e.g. a sine whose amplitude
+    grows from the drive's minimum; that recording, just as short, is scored (most of it: where the
+    measurement shows the model's start differing from the state a history in the range leaves, a
+    stretch at its start is not)."""
+    t = np.arange(400) / FS
+    cut = 1.5 + 0.2 * np.sin(2 * np.pi * 10.0 * t)
+    history = recording(np.r_[cycles(1.0, 0.8), cut])             # the rig's history, then the recording
+    dg = diagnose(model, [Recording({k: v[800:] for k, v in history.columns.items()}, {}, "cut.csv")])
+    assert dg.data[0].n_scored == 0
+    note = next(c for c in dg.cannot_conclude if "none of it is scored" in c)
+    assert "amplitude grows from the drive's minimum" in note
+    rising = cycles(5.0, cut.size / FS, amplitude=t / t[-1])
+    dg = diagnose(model, [recording(rising, "rising.csv")])
+    assert dg.data[0].n_scored >= 0.8 * cut.size
+    assert not any("none of it is scored" in c for c in dg.cannot_conclude)
