@@ -35,6 +35,8 @@ TOP = {
     "scheduler": Field("map", {}),
     "watchdog_s": Field("float", 0.5, min=0.0, min_exclusive=True),
     "learning": Field("map", {}, help="learning feedforward (off by default): {kind: repetitive}"),
+    "output_dirs": Field("list", [], help="the only folders the controller writes into (telemetry, learned "
+                                          "correction); default: the folders those paths name"),
 }
 
 STRESS = {
@@ -149,6 +151,7 @@ class ControllerConfig:
     scheduler: dict[str, Any]
     watchdog_s: float
     learning: LearningConfig = field(default_factory=LearningConfig)
+    output_dirs: tuple[str, ...] = ()      # empty: each output's own folder (gma_ffc.safe_files)
     source: str = "<memory>"
     raw: dict[str, Any] = field(default_factory=dict, repr=False)
 
@@ -216,6 +219,8 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
                           "learner cannot take its period from it")
     if learning.file is not None:
         learning = LearningConfig(**{**learning.to_dict(), "file": _resolve(learning.file, base)})
+    output_dirs = _output_dirs(top["output_dirs"], base, {"telemetry.path": telemetry["path"],
+                                                          "learning.file": learning.file})
 
     return ControllerConfig(
         rate_hz=top["rate_hz"],
@@ -231,9 +236,28 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
         scheduler=validate_section(top["scheduler"], SCHEDULER, "scheduler"),
         watchdog_s=top["watchdog_s"],
         learning=learning,
+        output_dirs=output_dirs,
         source=source,
         raw=dict(data),
     )
+
+
+def _output_dirs(named: list, base: Path | None, outputs: dict[str, str | None]) -> tuple[str, ...]:
+    """The folders the config names for output, resolved; every output path must lie in one."""
+    from ..safe_files import OutputRefused, area_of
+
+    dirs = []
+    for i, d in enumerate(named):
+        if not isinstance(d, str) or not d:
+            raise ConfigError(f"config key 'output_dirs[{i}]' must be a folder path, got {d!r}")
+        dirs.append(_resolve(d, base))
+    for key, path in outputs.items():
+        if path is not None and dirs:
+            try:
+                area_of(path, dirs)
+            except OutputRefused as exc:
+                raise ConfigError(f"config key '{key}': {exc}") from None
+    return tuple(dirs)
 
 
 def load_config(path: str | os.PathLike) -> ControllerConfig:

@@ -346,7 +346,7 @@ class Controller:
                  "current_A_is": "measured (commanded where a reading is missing)"
                  if CURRENT in self.driver.channels else "commanded"},
                 capacity=int(tcfg["buffer_s"] * self.cfg.rate_hz), flush_interval_s=tcfg["flush_interval_s"],
-                block_when_full=self.clock.simulated)
+                block_when_full=self.clock.simulated, output_dirs=self.cfg.output_dirs)
             if not self.clock.simulated and self.cfg.scheduler["realtime_priority"] > 1:
                 self.telemetry.realtime_priority = self.cfg.scheduler["realtime_priority"] - 1
             self.telemetry.start()
@@ -400,8 +400,8 @@ class Controller:
         if self.learner is None or path is None or self.learner.learned_periods == 0:
             return
         try:
-            save_learned(self.learner, path)
-        except OSError as exc:
+            save_learned(self.learner, path, self.cfg.output_dirs)
+        except (OSError, GmaError) as exc:
             self._raise_fault(safety.LEARNING_SAVE_FAILED, f"could not save the learned correction to {path}: {exc}")
 
     def _watchdog(self, stop: threading.Event) -> None:
@@ -733,12 +733,12 @@ def model_fingerprint(model: Model) -> str:
     return hashlib.sha256(json.dumps(model.to_dict(), sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def save_learned(learner: RepetitiveLearner, path: str) -> None:
+def save_learned(learner: RepetitiveLearner, path: str, output_dirs: tuple[str, ...] = ()) -> None:
     import yaml
 
-    from ..atomic import atomic_write
+    from .. import safe_files
 
-    with atomic_write(path) as fh:
+    with safe_files.replace(path, output_dirs, safe_files.LEARNED) as fh:
         fh.write("# gma-ffc learned feedforward correction: loaded by `gma-ffc run --learned FILE`\n")
         yaml.safe_dump(learner.to_dict(), fh, sort_keys=False)
 

@@ -10,7 +10,9 @@ a simulated clock `push` waits for the writer instead, so fast runs lose nothing
 
 One file, one writer: `start` takes an exclusive lock (flock on FILE.lock, which names the
 holder's pid) before it truncates anything, and a second controller pointed at the same file is
-refused with the other's pid. The header is written with the first rows, so it can carry the
+refused with the other's pid. Both files are opened by `gma_ffc.safe_files`: never through a
+link, never outside `output_dirs`, and an existing file is truncated only if it is this rig's
+telemetry (the same config). The header is written with the first rows, so it can carry the
 wall-clock time of the first tick (`start_unix_s`; a row's unix time is start_unix_s + time_s).
 """
 
@@ -26,7 +28,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError, FaultError
+from .. import safe_files
+from ..errors import ConfigError
 from ..recordings import _format_meta
 
 
@@ -34,8 +37,10 @@ class Telemetry:
     """Ring buffer plus writer thread for one run's recording."""
 
     def __init__(self, path: str | os.PathLike | None, columns: Sequence[str], metadata: dict[str, Any],
-                 capacity: int, flush_interval_s: float = 0.5, block_when_full: bool = False) -> None:
+                 capacity: int, flush_interval_s: float = 0.5, block_when_full: bool = False,
+                 output_dirs: Sequence[str] = ()) -> None:
         self.path = Path(path) if path is not None else None
+        self.output_dirs = tuple(output_dirs)
         self.columns = tuple(columns)
         self.metadata = metadata
         self.ncols = len(self.columns)
@@ -59,13 +64,13 @@ class Telemetry:
     def start(self) -> None:
         if self.path is None:
             return
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         self._lock()
         try:
-            self._fh = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        except OSError as exc:
+            self._fh = safe_files.open_for_writing(self.path, self.output_dirs,
+                                                   safe_files.telemetry_kind(str(self.metadata.get("config"))))
+        except BaseException:
             self._unlock()
-            raise FaultError(f"telemetry file {self.path}: cannot write ({exc.strerror})") from None
+            raise
         self._thread = threading.Thread(target=self._run, name="gma-ffc-telemetry", daemon=True)
         self._thread.start()
 
@@ -73,10 +78,7 @@ class Telemetry:
         """Exclusive, non-blocking lock on FILE.lock; refuse (naming the holder) if taken."""
         assert self.path is not None
         lock_path = self.path.with_name(self.path.name + ".lock")
-        try:
-            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise FaultError(f"telemetry file {self.path}: cannot create its lock {lock_path} ({exc.strerror})") from None
+        fd = safe_files.open_for_writing(lock_path, self.output_dirs, safe_files.TELEMETRY_LOCK, append=True)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

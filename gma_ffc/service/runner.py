@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from ..atomic import atomic_write
+from .. import safe_files
 from ..errors import FaultError, GmaError
 from .control_plane import ControlPlane
 from .control_socket import is_answering, jsonable
@@ -77,7 +77,7 @@ class Service:
                  load_config: ConfigLoader = _default_loader,
                  make_controller: ControllerFactory = _default_factory,
                  install_signal_handlers: bool = True) -> None:
-        self.config_path = Path(config_path)
+        self.config_path = Path(os.path.abspath(config_path))   # a telemetry file names its rig's config
         self.duration_s = duration_s
         self.stats_json = Path(stats_json) if stats_json else None
         self.runtime = runtime
@@ -166,6 +166,7 @@ class Service:
     def run(self) -> int:
         """Blocking; returns the exit code (0 stopped as asked, 1 the loop ended on a fault)."""
         cfg = self._load_config(self.config_path)
+        self._check_outputs(cfg)
         self.controller = self._make_controller(cfg)
         join_timeout_s = JOIN_TIMEOUT_S + _stop_ramp_s(cfg)
         previous_handlers: dict[int, Any] = {}
@@ -276,7 +277,7 @@ class Service:
                              f"{runtime.socket}); stop it first with 'gma-ffc stop'")
         self._plane = ControlPlane(runtime.socket, self.handle_request).start()
         self._publish()
-        with atomic_write(runtime.pid_file) as fh:
+        with safe_files.replace(runtime.pid_file, (runtime.directory,), safe_files.PID) as fh:
             fh.write(f"{os.getpid()}\n")
 
     def _close_runtime(self) -> None:
@@ -286,6 +287,20 @@ class Service:
             if self.runtime is not None and _read_pid(self.runtime.pid_file) == os.getpid():
                 with contextlib.suppress(FileNotFoundError):
                     self.runtime.pid_file.unlink()
+
+    def _check_outputs(self, cfg: Any) -> None:
+        """Refuse, before anything starts, a file this run would write unsafely: through a link,
+        outside the config's output_dirs, over a file that is not ours (one line, exit 2)."""
+        telemetry = getattr(cfg, "telemetry", {}).get("path")
+        learned = getattr(getattr(cfg, "learning", None), "file", None)
+        dirs = getattr(cfg, "output_dirs", ())
+        if telemetry:
+            safe_files.check_writable(telemetry, dirs, safe_files.telemetry_kind(str(self.config_path)))
+            safe_files.check_writable(telemetry + ".lock", dirs, safe_files.TELEMETRY_LOCK)
+        if learned:
+            safe_files.check_writable(learned, dirs, safe_files.LEARNED)
+        if self.stats_json is not None:
+            safe_files.check_writable(self.stats_json, (), safe_files.STATS)
 
     def _install_handlers(self) -> dict[int, Any]:
         def on_stop(signum: int, _frame: Any) -> None:
@@ -304,7 +319,7 @@ class Service:
         payload = {"status": final, "summary": self.summary}
         if self.stats_json is None:
             return
-        with atomic_write(self.stats_json) as fh:
+        with safe_files.replace(self.stats_json, (), safe_files.STATS) as fh:
             json.dump(payload, fh, indent=2, default=jsonable)
             fh.write("\n")
 
