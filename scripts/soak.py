@@ -2,7 +2,8 @@
 """Soak the controller service: hours at 1 kHz on the Modbus TCP emulator, with random faults.
 
 A real `gma-ffc run` (control socket, telemetry, its own process) talks Modbus TCP to the hil_sim
-emulator (another process). Random faults, from a seed: link drops and stalls (the emulator stops
+emulator (another process), or with --driver sim steps the simulated rig in-process (reloads and
+status polls only: there is no link to break). Random faults, from a seed: link drops and stalls (the emulator stops
 answering: the controller goes safe and reconnects), late answers, bad sensor values (NaN and
 absurd force readings, shorter than the config's fault threshold: the loop must ride over them),
 SIGHUP reloads, and a status poll every second. Every --report-min it prints the service's RSS,
@@ -58,14 +59,18 @@ def start_emulator(work: Path, nice: int) -> tuple[subprocess.Popen, int, str]:
     raise RuntimeError(f"the emulator did not start (see {work / 'emulator.log'})")
 
 
-def write_config(work: Path, port: int, rate_hz: int, priority: int) -> Path:
+def write_config(work: Path, port: int | None, rate_hz: int, priority: int) -> Path:
+    """config/modbus_tcp.yaml at the soak's rate and the emulator's port; the sim driver without a port."""
     cfg = yaml.safe_load((ROOT / "config" / "modbus_tcp.yaml").read_text())
     cfg.update(rate_hz=rate_hz, model=str(MODEL), watchdog_s=2.0,
                telemetry={"path": str(work / "soak.csv"), "flush_interval_s": 0.5},
                scheduler={"realtime_priority": priority},
                sensor={"bad_ticks": BAD_TICKS, "stale_ticks": 0},
                comms={"on_fault": "reconnect", "backoff_initial_s": 0.05, "backoff_max_s": 0.5, "max_attempts": 0})
-    cfg["driver"]["devices"]["amp"]["port"] = port
+    if port is None:
+        cfg["driver"] = {"kind": "sim", "load_mass_kg": 15.3}
+    else:
+        cfg["driver"]["devices"]["amp"]["port"] = port
     path = work / "soak.yaml"
     path.write_text(yaml.safe_dump(cfg, sort_keys=False))
     return path
@@ -80,9 +85,12 @@ def emulator(control: str, command: str) -> None:
 def proc_figures(pid: int) -> dict:
     """RSS (MB), open descriptors and threads of one process, from /proc."""
     status = Path(f"/proc/{pid}/status").read_text()
-    rss_kb = int(re.search(r"VmRSS:\s+(\d+)", status).group(1))
-    threads = int(re.search(r"Threads:\s+(\d+)", status).group(1))
-    return {"rss_mb": rss_kb / 1024, "fds": len(os.listdir(f"/proc/{pid}/fd")), "threads": threads}
+    rss = re.search(r"VmRSS:\s+(\d+)", status)
+    threads = re.search(r"Threads:\s+(\d+)", status)
+    if rss is None or threads is None:
+        raise RuntimeError(f"/proc/{pid}/status has no VmRSS or Threads line")
+    return {"rss_mb": int(rss.group(1)) / 1024, "fds": len(os.listdir(f"/proc/{pid}/fd")),
+            "threads": int(threads.group(1))}
 
 
 def child_pid(pid: int) -> int | None:
@@ -118,11 +126,12 @@ class FaultInjector:
 
     KINDS = ("drop", "stall", "late", "nan", "absurd")
 
-    def __init__(self, rng: random.Random, control: str, service_pid: int) -> None:
+    def __init__(self, rng: random.Random, control: str | None, service_pid: int) -> None:
         self.rng = rng
         self.control = control
         self.pid = service_pid
-        self.counts = {k: 0 for k in (*self.KINDS, "reload")}
+        self.kinds = self.KINDS if control else ()         # the sim driver: reloads and polls only
+        self.counts = {k: 0 for k in (*self.kinds, "reload")}
         now = time.monotonic()
         self.next_fault = now + rng.uniform(*FAULT_EVERY_S)
         self.next_reload = now + rng.uniform(*RELOAD_EVERY_S)
@@ -133,13 +142,14 @@ class FaultInjector:
             os.kill(self.pid, signal.SIGHUP)
             self.counts["reload"] += 1
             self.next_reload = now + self.rng.uniform(*RELOAD_EVERY_S)
-        if now >= self.next_fault:
-            kind = self.rng.choice(self.KINDS)
+        if now >= self.next_fault and self.kinds:
+            kind = self.rng.choice(self.kinds)
             getattr(self, kind)()
             self.counts[kind] += 1
             self.next_fault = time.monotonic() + self.rng.uniform(*FAULT_EVERY_S)
 
     def _for(self, spec: str, seconds: float) -> None:
+        assert self.control is not None
         emulator(self.control, f"fault {spec}")
         time.sleep(seconds)
         emulator(self.control, "clear")              # one fault at a time: clear them all
@@ -179,6 +189,9 @@ def main() -> int:
     parser.add_argument("--rate", type=int, default=1000, help="loop rate in Hz (default 1000)")
     parser.add_argument("--report-min", type=float, default=10.0, help="minutes between reports (default 10)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--driver", choices=("modbus", "sim"), default="modbus",
+                        help="modbus (default): the emulator, with link and sensor faults; sim: the in-process "
+                             "simulated rig, SIGHUP reloads and status polls only")
     parser.add_argument("--priority", type=int, default=None, help="SCHED_FIFO priority (default 50 as root, else 0)")
     parser.add_argument("--emulator-nice", type=int, default=0,
                         help="the emulator's niceness, absolute (default 0: a rig's device does not wait for the "
@@ -190,7 +203,7 @@ def main() -> int:
 
     priority = args.priority if args.priority is not None else (50 if os.geteuid() == 0 else 0)
     work = Path(tempfile.mkdtemp(prefix="gma-ffc-soak-"))
-    emu, port, control = start_emulator(work, args.emulator_nice)
+    emu, port, control = start_emulator(work, args.emulator_nice) if args.driver == "modbus" else (None, None, None)
     cfg = write_config(work, port, args.rate, priority)
     runtime = work / "run"
     log = open(work / "service.log", "w")
@@ -198,7 +211,8 @@ def main() -> int:
     service = subprocess.Popen([sys.executable, "-m", "gma_ffc.cli", "run", "--config", str(cfg),
                                 "--runtime-dir", str(runtime), "--stats-json", str(final_json)],
                                stdout=log, stderr=log, cwd=work)
-    print(f"soak: {args.hours:g} h at {args.rate} Hz on Modbus TCP (emulator port {port}), seed {args.seed}, "
+    where = f"Modbus TCP (emulator port {port})" if port else "the sim driver"
+    print(f"soak: {args.hours:g} h at {args.rate} Hz on {where}, seed {args.seed}, "
           f"SCHED_FIFO {priority or 'off'}; work folder {work}; service pid {service.pid}", flush=True)
     rng = random.Random(args.seed)
     rows = RowCounter(work / "soak.csv")
@@ -249,8 +263,9 @@ def main() -> int:
         if service.poll() is None:
             service.send_signal(signal.SIGTERM)
             service.wait(timeout=30)
-        emu.send_signal(signal.SIGTERM)
-        emu.wait(timeout=10)
+        if emu is not None:
+            emu.send_signal(signal.SIGTERM)
+            emu.wait(timeout=10)
         log.close()
     final_rows = rows.update()
     final = json.loads(final_json.read_text())["status"] if final_json.exists() else {}
@@ -275,7 +290,7 @@ def summary(samples: list[dict], final: dict, final_rows: int, exit_code: int | 
     rss_child = [s["child"]["rss_mb"] for s in samples if s["child"]]
     hours = b["h"] - a["h"]
     tel = final.get("telemetry") or {}
-    faults = {}
+    faults: dict[str, int] = {}
     for entry in final.get("fault_history", []):
         faults[entry["fault"]] = faults.get(entry["fault"], 0) + 1
     return "\n".join([

@@ -3,7 +3,8 @@
 The hot path copies one row into a preallocated ring (`push`, no allocation beyond Python
 floats); a writer thread appends the rows to a CSV recording (docs/recordings.md) and
 flushes + fsyncs at least every `flush_interval_s` (<= 1 s), so a killed process loses at most
-that much. Each flush writes whole lines in one call, so the file is always a valid recording.
+that much. Each flush writes whole lines in one call (the header with the first rows), so the
+file is always a valid recording, at worst with a torn last line that readers report and skip.
 
 With a real clock a full ring drops rows (counted in `dropped`, never blocking the loop); with
 a simulated clock `push` waits for the writer instead, so fast runs lose nothing.
@@ -95,8 +96,11 @@ class Telemetry:
             os.close(self._lock_fd)          # closing releases the flock
             self._lock_fd = None
 
+    def _header(self) -> str:
+        return _format_meta(self.metadata) + ",".join(self.columns) + "\n"
+
     def _write_header(self) -> None:
-        self._write_all((_format_meta(self.metadata) + ",".join(self.columns) + "\n").encode())
+        self._write_all(self._header().encode())
         self._header_written = True
 
     def push(self, row: np.ndarray) -> None:
@@ -136,16 +140,12 @@ class Telemetry:
         head, tail = self.head, self.tail
         if self._fh is None or head == tail:
             return
-        if not self._header_written:     # with the first rows: the loop has stamped start_unix_s by then
-            try:
-                self._write_header()
-            except OSError as exc:
-                self.error = f"telemetry write failed: {exc.strerror}"
-                return
         idx = np.arange(tail, head) % self.capacity
         block = self.buf[idx]
         self.tail = head
         out = io.StringIO()
+        if not self._header_written:     # in the first rows' write: the loop has stamped start_unix_s by then,
+            out.write(self._header())    # and a file killed then holds rows under its header or nothing
         fmt = ",".join(["%.9g"] * self.ncols) + "\n"
         write = out.write
         for values in block.tolist():      # short steps: the loop can take the GIL between rows
@@ -153,13 +153,15 @@ class Telemetry:
         try:
             self._write_all(out.getvalue().encode())
             os.fsync(self._fh)
+            self._header_written = True
             self.rows_written += len(block)
         except OSError as exc:   # disk full etc.: reported in status, the loop keeps control
             self.error = f"telemetry write failed: {exc.strerror}"
 
     def _write_all(self, data: bytes) -> None:
-        """One write() per flush, so a killed process leaves whole lines (a regular-file write is
-        not cut short by a signal); the loop only repeats on a short write (disk nearly full)."""
+        """One write() per flush, so a killed process leaves whole lines, but for the rare last
+        line cut where a page of a long write ends (SIGKILL stops a write between pages); readers
+        report that line and leave it out. The loop only repeats on a short write (disk nearly full)."""
         fd = self._fh
         assert fd is not None
         view = memoryview(data)
