@@ -260,8 +260,11 @@ def test_unit_file_verifies_and_install_script_renders_it(tmp_path):
     assert "would run: install -m 0644" in res.stderr              # dry run: nothing changed
     unit_text = res.stdout
     assert f"ExecStart={prefix}/bin/gma-ffc run --config /etc/gma-ffc/rig2.yaml\n" in unit_text
+    # A Python under a home directory (pyenv, conda) must stay visible, or the unit fails to exec.
+    home = str(Path(sys.executable).resolve()).startswith(("/home/", "/root/"))
+    assert ("ProtectHome=read-only" if home else "ProtectHome=yes") in unit_text
     for setting in ("Type=notify", "Restart=on-failure", "WatchdogSec=", "NoNewPrivileges=yes",
-                    "ProtectSystem=strict", "ProtectHome=yes", "PrivateTmp=yes", "ReadWritePaths=",
+                    "ProtectSystem=strict", "PrivateTmp=yes", "ReadWritePaths=",
                     "DeviceAllow=char-ttyUSB rw", "ExecReload=/bin/kill -HUP $MAINPID", "User=labuser"):
         assert setting in unit_text, setting
 
