@@ -39,9 +39,10 @@ def _on_term(_signum, _frame) -> None:
     _stopped = True
 
 
-def running() -> bool:
-    """True until the harness sends SIGTERM (it pauses the attack with SIGSTOP in between)."""
-    return not _stopped
+def running(rounds: int) -> bool:
+    """True until the harness sends SIGTERM (it pauses the attack with SIGSTOP in between); the
+    first round always runs, so a starved attacker still attacks once."""
+    return rounds == 0 or not _stopped
 
 
 def _connect(path: str, timeout: float = 2.0) -> socket.socket:
@@ -99,7 +100,7 @@ def _count_reply(reply: bytes, counts: dict) -> None:
 def attack_other_uid(path: str) -> dict:
     """Status and stop requests as fast as they go, from whatever uid this process has."""
     counts: dict = {}
-    while running():
+    while running(counts.get("requests", 0)):
         _exchange(path, STATUS, counts)
         _exchange(path, b'{"cmd": "stop", "reason": "attack"}\n', counts)
     return counts
@@ -109,7 +110,7 @@ def attack_oversize(path: str) -> dict:
     """10 MB requests, one after another."""
     counts: dict = {}
     blob = b'{"cmd": "status", "pad": "' + b"x" * OVERSIZE_BYTES + b'"}\n'
-    while running():
+    while running(counts.get("requests", 0)):
         _exchange(path, blob, counts)
     return counts
 
@@ -119,7 +120,7 @@ def attack_malformed(path: str) -> dict:
     counts: dict = {}
     rng = random.Random(1)
     i = 0
-    while running():
+    while running(i):
         if i % 3 == 2:
             payload = bytes(rng.getrandbits(8) for _ in range(rng.randint(1, 4096)))
         else:
@@ -132,7 +133,7 @@ def attack_malformed(path: str) -> dict:
 def attack_flood(path: str) -> dict:
     """A request every microsecond (as fast as a client can): connect, ask, read, again."""
     counts: dict = {}
-    while running():
+    while running(counts.get("requests", 0)):
         _exchange(path, STATUS, counts)
     return counts
 
@@ -155,7 +156,7 @@ def attack_idle_slow(path: str) -> dict:
     except OSError:
         counts["slow_connect_failed"] = 1
         slow = None
-    while slow is not None and running():
+    while slow is not None and running(sent):
         try:
             slow.sendall(STATUS[sent % len(STATUS):sent % len(STATUS) + 1])
             sent += 1
@@ -192,6 +193,7 @@ ATTACKS = {"other_uid": attack_other_uid, "oversize": attack_oversize, "malforme
 def _attacker_main(argv: list[str]) -> int:
     signal.signal(signal.SIGTERM, _on_term)
     kind, path = argv[0], argv[1]
+    print("ready", flush=True)              # the harness starts its segments from here
     print(json.dumps(ATTACKS[kind](path)), flush=True)
     return 0
 
@@ -208,6 +210,7 @@ import tempfile  # noqa: E402
 import threading  # noqa: E402
 from dataclasses import dataclass, field  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "config" / "models" / "sim_sdpi.yaml"
@@ -228,6 +231,7 @@ class Phase:
     status_failures: list[str] = field(default_factory=list)
     attacker: dict = field(default_factory=dict)
     jitter: dict = field(default_factory=dict)
+    jitter_us: Any = None                 # every interval's jitter, for pooling across attacks
 
 
 @dataclass
@@ -321,6 +325,8 @@ def _run_attack(poller: StatusPoller, kind: str, cycles: int, segment_s: float, 
         _loosen(runtime, sock_path)
     proc = _spawn_attacker(kind, sock_path)
     try:
+        assert proc.stdout is not None
+        proc.stdout.readline()                 # "ready": started, however busy the machine is
         for _ in range(cycles):
             proc.send_signal(signal.SIGSTOP)
             _segment(poller, quiet, segment_s)
@@ -342,6 +348,13 @@ def _run_attack(poller: StatusPoller, kind: str, cycles: int, segment_s: float, 
     return quiet, attacked
 
 
+def pooled_p99_us(phases: list[Phase]) -> float:
+    """p99 of every interval of several phases together (steadier than a median of their p99s)."""
+    import numpy as np
+
+    return float(np.percentile(np.concatenate([p.jitter_us for p in phases]), 99))
+
+
 def _jitter(time_s, start_unix: float, phase: Phase, period_s: float) -> dict:
     """Period jitter of the ticks that started within the phase's segments, pooled."""
     import numpy as np
@@ -355,6 +368,7 @@ def _jitter(time_s, start_unix: float, phase: Phase, period_s: float) -> dict:
         parts.append(np.abs(dt - k * period_s) * 1e6)
         overruns += int((k > 1).sum())
     jit = np.concatenate(parts) if parts else np.zeros(0)
+    phase.jitter_us = jit
     if jit.size == 0:
         return {"intervals": 0, "p50_us": math.nan, "p99_us": math.nan, "max_us": math.nan, "overruns": 0}
     return {"intervals": int(jit.size), "p50_us": float(np.percentile(jit, 50)),
@@ -453,6 +467,9 @@ def table(session: Session) -> str:
                          f"{j['overruns']:>8} {latency_ms(phase, 50):>8.1f} /{latency_ms(phase, 100):>7.1f} "
                          f"{len(phase.status_failures):>5}")
         lines.append(f"{'':<10} attacker: {json.dumps(attacked.attacker, sort_keys=True)}")
+    quiet = pooled_p99_us([q for q, _ in session.pairs])
+    attacked = pooled_p99_us([a for _, a in session.pairs])
+    lines.append(f"all attacks pooled: p99 quiet {quiet:.1f} us, attacked {attacked:.1f} us, ratio {attacked / quiet:.2f}")
     counters = session.final_status.get("control_socket")
     if counters:
         lines.append(f"the server's own tally: {json.dumps(counters, sort_keys=True)}")

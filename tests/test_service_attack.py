@@ -229,40 +229,50 @@ def _eventually(predicate, timeout_s: float = 5.0) -> bool:
 
 # ---- the whole service under attack ----------------------------------------------------------------
 
-# Margins a busy 2-core machine keeps: the loop's p99 jitter over all attacked segments within 2x
-# (+20 us) of the quiet segments interleaved with them (scripts/bench_socket_attack.py prints the
-# issue's 1.2x for a quiet machine; the design this replaced measured 2.7-5.6x for the flood and
-# the 10 MB requests under the same load). The owner's status within the 200 ms.
+# Margins a busy 2-core machine keeps: the loop's p99 jitter over all attacked segments pooled
+# within 2x (+20 us) of the quiet segments interleaved with them, pooled, and the owner's slowest status in the
+# attacked segments within 200 ms or 2x (+50 ms) the slowest in the quiet ones, whichever is
+# larger (scripts/bench_socket_attack.py prints the 1.2x and 200 ms for a quiet machine;
+# the design this replaced measured 2.7-5.6x for the flood and the 10 MB requests, and the owner's
+# status failed or took 1 s behind 200 idle connections). No status may fail (5 s timeout).
 JITTER_MARGIN = 2.0
 JITTER_SLACK_US = 20.0
 STATUS_LATENCY_S = 0.2
+LATENCY_MARGIN = 2.0
+LATENCY_SLACK_S = 0.05
 
 
 @pytest.mark.realtime
-def test_service_under_attack(capsys):
+def test_service_under_attack(capsys, monkeypatch):
     sys.path.insert(0, str(Path(__file__).parent))
-    from socket_attack import ATTACKS, can_switch_uid, run_session, table
+    import socket_attack
+    from socket_attack import ATTACKS, can_switch_uid, pooled_p99_us, run_session, table
 
-    session = run_session(list(ATTACKS), cycles=2, segment_s=0.5)
+    monkeypatch.setattr(socket_attack, "STATUS_TIMEOUT_S", 5.0)
+    session = run_session(list(ATTACKS), cycles=4, segment_s=0.25)
     with capsys.disabled():
         print("\n" + table(session))
     assert session.exit_code == 0, session.log[-2000:]
-    quiet = np.concatenate([[q.jitter["p99_us"]] for q, _ in session.pairs])
+    quiet = {q.name: q for q, _ in session.pairs}
     attacked = {a.name: a for _, a in session.pairs}
-    pooled_quiet = float(np.median(quiet))
-    pooled_attacked = float(np.median([a.jitter["p99_us"] for a in attacked.values()]))
+    pooled_quiet = pooled_p99_us(list(quiet.values()))
+    pooled_attacked = pooled_p99_us(list(attacked.values()))
     assert pooled_attacked <= JITTER_MARGIN * pooled_quiet + JITTER_SLACK_US, (pooled_attacked, pooled_quiet)
-    phases = [p for pair in session.pairs for p in pair]
+    phases = [*quiet.values(), *attacked.values()]
     assert all(not p.status_failures for p in phases), [p.status_failures for p in phases]
-    assert max(max(p.latencies_s) for p in phases) <= STATUS_LATENCY_S
-    assert attacked["oversize"].attacker.get("refused", 0) > 0 and "accepted" not in attacked["oversize"].attacker
-    assert attacked["malformed"].attacker.get("refused", 0) > 0 and "accepted" not in attacked["malformed"].attacker
-    assert attacked["flood"].attacker.get("accepted", 0) > 100
+    slowest_quiet = max(max(q.latencies_s) for q in quiet.values())
+    slowest_attacked = max(max(a.latencies_s) for a in attacked.values())
+    assert slowest_attacked <= max(STATUS_LATENCY_S, LATENCY_MARGIN * slowest_quiet + LATENCY_SLACK_S), \
+        (slowest_attacked, slowest_quiet)
+    # each attacker ran (a busy machine may let it send only a few), and each was answered as it deserved
+    for kind in ("oversize", "malformed"):
+        assert attacked[kind].attacker.get("refused", 0) >= 1 and "accepted" not in attacked[kind].attacker
+    assert attacked["flood"].attacker.get("accepted", 0) >= 1
     idle = attacked["idle_slow"].attacker
     assert idle["idle_opened"] == 200 and idle["idle_closed_by_server"] >= 200 - control_server.MAX_CONNECTIONS
     counters = session.final_status["control_socket"]
-    assert counters["too_long"] > 0 and counters["evicted"] > 0
+    assert counters["too_long"] >= 1 and counters["evicted"] >= 200 - control_server.MAX_CONNECTIONS
     if can_switch_uid():
         other = attacked["other_uid"].attacker
-        assert other.get("denied", 0) > 0 and other.get("accepted", 0) == 0, other
+        assert other.get("denied", 0) >= 1 and other.get("accepted", 0) == 0, other
         assert counters["refused_uid"] == other["denied"] + other.get("no_reply", 0)
