@@ -54,24 +54,15 @@ def run_refused(capsys, *args: str) -> str:
     return err[0]
 
 
-def test_telemetry_through_a_symlink_is_refused(tmp_path, victim, capsys):
+@pytest.mark.parametrize("link", ["tel.csv", "tel.csv.lock"])
+def test_telemetry_or_its_lock_through_a_symlink_is_refused(tmp_path, victim, capsys, link):
+    """The lock file was opened and truncated through any link: /etc/passwd, for a root service."""
     out = tmp_path / "out"
     out.mkdir()
-    (out / "tel.csv").symlink_to(victim)
+    (out / link).symlink_to(victim)
     cfg = write_config(tmp_path / "rig.yaml", str(out / "tel.csv"))
     line = run_refused(capsys, "--config", str(cfg))
-    assert f"{out / 'tel.csv'} is a symbolic link" in line
-    assert victim.read_text() == VICTIM_TEXT
-
-
-def test_the_telemetry_lock_through_a_symlink_is_refused(tmp_path, victim, capsys):
-    """The lock file was opened and truncated through any link: /etc/passwd as a root service."""
-    out = tmp_path / "out"
-    out.mkdir()
-    (out / "tel.csv.lock").symlink_to(victim)
-    cfg = write_config(tmp_path / "rig.yaml", str(out / "tel.csv"))
-    line = run_refused(capsys, "--config", str(cfg))
-    assert f"{out / 'tel.csv.lock'} is a symbolic link" in line
+    assert f"{out / link} is a symbolic link" in line
     assert victim.read_text() == VICTIM_TEXT
 
 

@@ -15,7 +15,6 @@ import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from gma_ffc.service import control_server
 from gma_ffc.service.control_plane import ControlPlane
 from gma_ffc.service.control_server import ControlServer
 from gma_ffc.service.control_socket import MAX_REQUEST, is_answering, request
+from test_service_runner import wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -172,7 +172,7 @@ def test_control_plane_serves_status_from_the_snapshot_and_forwards_commands(tmp
     try:
         assert request(path, {"cmd": "status"})["ok"] is False          # nothing published yet
         plane.publish({"state": "running", "ticks": 7})
-        assert _eventually(lambda: request(path, {"cmd": "status"}).get("ok"))
+        assert wait_for(lambda: request(path, {"cmd": "status"}).get("ok"))
         status = request(path, {"cmd": "status"})["status"]
         assert status["ticks"] == 7 and status["control_socket"]["served"] >= 1
         assert request(path, {"cmd": "reload"}) == {"ok": True, "did": "reload"}
@@ -180,7 +180,7 @@ def test_control_plane_serves_status_from_the_snapshot_and_forwards_commands(tmp
         assert [r["cmd"] for r in handled] == ["reload"]
         first = plane.child_pid
         os.kill(first, signal.SIGKILL)                                 # a crash of the socket's process
-        assert _eventually(lambda: plane.child_pid != first and is_answering(path), 10.0)
+        assert wait_for(lambda: plane.child_pid != first and is_answering(path), 10.0)
         assert request(path, {"cmd": "status"})["status"]["ticks"] == 7   # the snapshot survived
     finally:
         plane.close()
@@ -204,7 +204,7 @@ def test_the_socket_process_leaves_when_the_service_is_killed(tmp_path):
         child = int(proc.stdout.readline())
         proc.kill()                                  # kill -9: no clean-up code runs in the service
         proc.wait()
-        assert _eventually(lambda: not _alive(child), 5.0)
+        assert wait_for(lambda: not _alive(child), 5.0)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -216,15 +216,6 @@ def _alive(pid: int) -> bool:
     except OSError:
         return False
     return state != "Z"
-
-
-def _eventually(predicate, timeout_s: float = 5.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.05)
-    return bool(predicate())
 
 
 # ---- the whole service under attack ----------------------------------------------------------------
