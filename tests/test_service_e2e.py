@@ -57,9 +57,9 @@ def rig(tmp_path: Path):
     write_config(tmp_path / "sim.yaml", "model.yaml")
     runtime = tmp_path / "run"
     yield tmp_path, runtime
-    pid_file = runtime / "gma-ffc.pid"          # never leave a daemon behind
-    if pid_file.exists():
-        pid = int(pid_file.read_text())
+    # Never leave a daemon behind, even one whose pid file is not written yet (a start that timed
+    # out on a busy machine): every process started with this runtime directory.
+    for pid in _processes_naming(str(runtime)):
         try:
             os.kill(pid, signal.SIGTERM)
             deadline = time.monotonic() + 10
@@ -69,6 +69,18 @@ def rig(tmp_path: Path):
             os.kill(pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
+
+
+def _processes_naming(text: str) -> list[int]:
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and int(entry.name) != os.getpid():
+            try:
+                if text.encode() in (entry / "cmdline").read_bytes():
+                    pids.append(int(entry.name))
+            except OSError:
+                pass
+    return pids
 
 
 def cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:

@@ -257,7 +257,12 @@ def test_sighup_reload_good_then_bad_keeps_old(tmp_path, cfg_file):
             cfg_file.write_text("nonsense: true\n")
             os.kill(os.getpid(), signal.SIGHUP)
             assert wait_for(lambda: (svc.status()["service"]["last_reload"] or {}).get("ok") is False)
-            status = control_socket.request(runtime.socket, {"cmd": "status"})["status"]
+
+            def over_socket() -> dict:   # a snapshot published after the reload (at most 0.5 s old)
+                return control_socket.request(runtime.socket, {"cmd": "status"})["status"]
+
+            assert wait_for(lambda: over_socket()["service"]["last_reload"]["ok"] is False)
+            status = over_socket()
             assert status["gain"] == 2.5 and status["state"] == "running"
             assert "refused" in status["service"]["last_reload"]["message"]
             assert "gain" in status["service"]["last_reload"]["message"]

@@ -68,19 +68,41 @@ class ControlPlane:
         self._last_snapshot = b""
         self._thread = threading.Thread(target=self._carry_out_commands, name="gma-ffc-commands", daemon=True)
 
-    def start(self) -> "ControlPlane":
+    def start(self, wait: bool = True) -> "ControlPlane":
+        """Bind the socket and start its process; with `wait`, return once it serves (else call
+        `wait_ready`: the service starts it before building the controller, which takes longer)."""
         self._listener = bind_listener(self.path)
         try:
-            self._spawn()
+            self._launch()
         except OSError as exc:
-            self._listener.close()
-            with contextlib.suppress(FileNotFoundError):
-                self.path.unlink()
-            raise FaultError(f"cannot start the control socket's process: {exc.strerror or exc}") from None
-        self._thread.start()
+            self._give_up(exc)
+        if wait:
+            self.wait_ready()
         return self
 
+    def wait_ready(self) -> None:
+        assert self._link is not None and self._child is not None
+        try:
+            _wait_hello(self._link, self._child)
+        except OSError as exc:
+            self._give_up(exc)
+        self._thread.start()
+
+    def _give_up(self, exc: OSError) -> None:
+        if self._listener is not None:
+            self._listener.close()
+            self._listener = None
+        with contextlib.suppress(FileNotFoundError):
+            self.path.unlink()
+        raise FaultError(f"cannot start the control socket's process: {exc.strerror or exc}") from None
+
     def _spawn(self) -> None:
+        """Start the process again (the command thread, after a crash): launch, then wait for it."""
+        self._launch()
+        assert self._link is not None and self._child is not None
+        _wait_hello(self._link, self._child)
+
+    def _launch(self) -> None:
         assert self._listener is not None
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET | socket.SOCK_CLOEXEC)
         env = {k: v for k, v in os.environ.items()
@@ -92,7 +114,6 @@ class ControlPlane:
                 pass_fds=fds, stdin=subprocess.DEVNULL, cwd="/", env=env, close_fds=True)
         finally:
             theirs.close()
-        _wait_hello(ours, child)
         with self._lock:
             self._link, self._child = ours, child
             if self._last_snapshot:
@@ -276,7 +297,10 @@ class _Child:
                 self.server.complete(deferred, body[TOKEN:])
 
     def run(self) -> None:
-        self.link.send(HELLO)
+        try:
+            self.link.send(HELLO)
+        except OSError:                     # the service gave up before this process was up (a bad config)
+            return
         try:
             self.server.serve()
         finally:
@@ -297,7 +321,11 @@ def child_main(argv: list[str]) -> int:
     listen_fd, link_fd, owner_uid, main_pid = (int(a) for a in argv)
     listener = socket.socket(fileno=listen_fd)
     link = socket.socket(fileno=link_fd)
-    _Child(listener, link, owner_uid, main_pid).run()
+    try:
+        _Child(listener, link, owner_uid, main_pid).run()
+    except Exception as exc:                # one line in the service's log, never a traceback there
+        log.error("control socket process failed: %s: %s", type(exc).__name__, exc)
+        return 1
     return 0
 
 

@@ -105,7 +105,9 @@ class ControlServer:
     def serve(self) -> None:
         """Run until `close()` (or `stop()`) is called."""
         while not self._stop.is_set():
-            for key, events in self._sel.select(self._timeout()):
+            ready = self._sel.select(self._timeout())
+            ready.sort(key=lambda item: not callable(item[0].data))   # watched sockets (news) first
+            for key, events in ready:
                 self._dispatch(key, events)
             self._expire(time.monotonic())
             self._log_summary()

@@ -136,6 +136,7 @@ class Service:
             "stop_reason": self._stop_reason,
             "last_reload": self._last_reload.as_dict() if self._last_reload else None,
             "socket": str(self.runtime.socket) if self.runtime else None,
+            "status_at_unix": time.time(),      # the socket answers from a snapshot up to 0.5 s old
         }
         return snap
 
@@ -165,9 +166,15 @@ class Service:
     # ---- the run ----------------------------------------------------------------------------
     def run(self) -> int:
         """Blocking; returns the exit code (0 stopped as asked, 1 the loop ended on a fault)."""
-        cfg = self._load_config(self.config_path)
-        self._check_outputs(cfg)
-        self.controller = self._make_controller(cfg)
+        if self.runtime is not None:      # the socket's process starts while the controller is built
+            self._claim_runtime(self.runtime)
+        try:
+            cfg = self._load_config(self.config_path)
+            self._check_outputs(cfg)
+            self.controller = self._make_controller(cfg)
+        except BaseException:
+            self._close_runtime()
+            raise
         join_timeout_s = JOIN_TIMEOUT_S + _stop_ramp_s(cfg)
         previous_handlers: dict[int, Any] = {}
         try:
@@ -269,13 +276,19 @@ class Service:
             self._stop_reason = "control loop ended"
 
     # ---- runtime files and signals ------------------------------------------------------------
-    def _open_runtime(self, runtime: RuntimePaths) -> None:
+    def _claim_runtime(self, runtime: RuntimePaths) -> None:
+        """The private directory and the socket (nobody else's controller answers there); the
+        socket's process starts now and answers 'starting' until `_open_runtime`."""
         ensure_private_dir(runtime.directory)
         if is_answering(runtime.socket):
             pid = _read_pid(runtime.pid_file)
             raise FaultError(f"a controller is already running (pid {pid or '?'}, socket "
                              f"{runtime.socket}); stop it first with 'gma-ffc stop'")
-        self._plane = ControlPlane(runtime.socket, self.handle_request).start()
+        self._plane = ControlPlane(runtime.socket, self.handle_request).start(wait=False)
+
+    def _open_runtime(self, runtime: RuntimePaths) -> None:
+        assert self._plane is not None
+        self._plane.wait_ready()
         self._publish()
         with safe_files.replace(runtime.pid_file, (runtime.directory,), safe_files.PID) as fh:
             fh.write(f"{os.getpid()}\n")
