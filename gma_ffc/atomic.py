@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-import tempfile
+import secrets
 from pathlib import Path
 from typing import IO, Iterable, Iterator
 
@@ -14,33 +14,33 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", **kwargs) -> Iterator
     """Yield a temporary file beside `path`; rename it onto `path` only if the block succeeds."""
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    dir_fd = os.open(target.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
     try:
-        # mkstemp makes the file 0600; give it the mode an ordinary open() would (0666 & ~umask).
-        os.fchmod(fd, 0o666 & ~_umask())
+        with atomic_write_at(dir_fd, target.name, mode, **kwargs) as handle:
+            yield handle
+    finally:
+        os.close(dir_fd)
+
+
+@contextlib.contextmanager
+def atomic_write_at(dir_fd: int, name: str, mode: str = "w", **kwargs) -> Iterator[IO]:
+    """`atomic_write` inside an open directory: the temporary file is created there (exclusively,
+    never through a link), synced, renamed onto `name`, and the directory synced, so after a
+    crash at any moment `name` is either the old file or the whole new one."""
+    tmp = f".{name}.{secrets.token_hex(4)}.tmp"
+    # 0666: the kernel applies the umask, as for an ordinary open()
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666, dir_fd=dir_fd)
+    try:
         with os.fdopen(fd, mode, **kwargs) as handle:
             yield handle
             handle.flush()
             os.fsync(handle.fileno())
-        os.replace(tmp, target)
+        os.replace(tmp, name, src_dir_fd=dir_fd, dst_dir_fd=dir_fd)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
+            os.unlink(tmp, dir_fd=dir_fd)
         raise
-
-
-def _umask() -> int:
-    """The process umask, read without changing it (setting it is racy in threaded processes)."""
-    try:
-        with open("/proc/self/status", encoding="ascii") as fh:
-            for line in fh:
-                if line.startswith("Umask:"):
-                    return int(line.split()[1], 8)
-    except OSError:
-        pass
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
+    os.fsync(dir_fd)
 
 
 def refuse_overwrite(output: str | os.PathLike, inputs: "Iterable[str | os.PathLike]", what: str = "output") -> None:

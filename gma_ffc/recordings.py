@@ -44,6 +44,7 @@ class Recording:
     columns: dict[str, np.ndarray]
     metadata: dict[str, Any] = field(default_factory=dict)
     source: str = "<memory>"
+    notes: list[str] = field(default_factory=list)      # what reading it left out, said to the user
 
     def __post_init__(self) -> None:
         self.columns = {k: np.ascontiguousarray(v, dtype=float) for k, v in self.columns.items()}
@@ -225,17 +226,71 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
     if len(set(names)) != len(names):
         dup = next(n for n in names if names.count(n) > 1)
         raise RecordingError(f"{source}, line {header_line}: column '{dup}' appears twice")
-    columns = _parse_rows_fast(path, header_idx, names, delimiter, decimal)
+    meta = _parse_metadata(meta_lines, source)
+    torn = _torn_last_line(path, meta, len(names), delimiter, decimal)
+    data_source: Any = path
+    notes = []
+    if torn is not None:                 # read up to the last whole line, and say so
+        with open(path, "rb") as fh:
+            data_source = _arrow_buffer(fh.read(torn[0]))
+        notes.append(f"{source}: the last line (line {torn[1]}) is incomplete, as when its writer was cut off "
+                     "mid-line (a killed controller's last flush); it was left out")
+    columns = _parse_rows_fast(data_source, header_idx, names, delimiter, decimal)
     if columns is None:      # Arrow could not: the careful parser finds the line and says what is wrong
         try:
-            text = path.read_text(encoding="utf-8-sig")
+            raw = path.read_bytes()[:torn[0]] if torn is not None else path.read_bytes()
+            text = raw.decode("utf-8-sig")
         except (OSError, UnicodeDecodeError) as exc:
             raise RecordingError(f"{source}: cannot read ({exc})") from None
         body = text.splitlines()[header_idx + 1:]
         data = _parse_rows(body, len(names), source, header_line, delimiter, decimal)
         columns = {n: data[:, k] for k, n in enumerate(names)}
-    rec = Recording(columns, _parse_metadata(meta_lines, source), source)
+    rec = Recording(columns, meta, source, notes)
     return validate(rec, require, header_line)
+
+
+TORN_TAIL_BYTES = 65536      # a data line is far shorter than this
+
+
+def _torn_last_line(path: Path, meta: Mapping[str, Any], ncols: int, delimiter: str,
+                    decimal: str) -> tuple[int, int] | None:
+    """(bytes up to it, its line number) when the file's last line is torn: not ended by a newline,
+    and either written by gma-ffc (whose every line ends in one) or not a whole row. A spreadsheet
+    export that only lacks its final newline keeps its last row."""
+    with open(path, "rb") as fh:
+        size = fh.seek(0, 2)
+        start = max(0, size - TORN_TAIL_BYTES)
+        fh.seek(start)
+        tail = fh.read()
+    if not tail or tail.endswith(b"\n"):
+        return None
+    newline = tail.rfind(b"\n")
+    if newline < 0:
+        return None                      # one line only: the header's own problem, said elsewhere
+    last = tail[newline + 1:].decode("utf-8", "replace")
+    if not (str(meta.get("source", "")).startswith("gma-ffc") or not _whole_row(last, ncols, delimiter, decimal)):
+        return None
+    with open(path, "rb") as fh:
+        line_number = sum(chunk.count(b"\n") for chunk in iter(lambda: fh.read(1 << 20), b"")) + 1
+    return start + newline + 1, line_number
+
+
+def _whole_row(line: str, ncols: int, delimiter: str, decimal: str) -> bool:
+    cells = line.split(delimiter)
+    if len(cells) != ncols:
+        return False
+    try:
+        for cell in cells:
+            float(cell.replace(",", ".") if decimal == "," else cell)
+    except ValueError:
+        return False
+    return True
+
+
+def _arrow_buffer(data: bytes) -> Any:
+    import pyarrow as pa
+
+    return pa.BufferReader(data)
 
 
 def _dialect(header: str, first_row: str) -> tuple[str, str]:
@@ -245,7 +300,7 @@ def _dialect(header: str, first_row: str) -> tuple[str, str]:
     return ",", "."
 
 
-def _parse_rows_fast(path: Path, header_idx: int, names: list[str], delimiter: str,
+def _parse_rows_fast(path: Any, header_idx: int, names: list[str], delimiter: str,
                      decimal: str) -> dict[str, np.ndarray] | None:
     """The columns as float arrays via pyarrow.csv, or None if anything is not plainly numeric
     (empty cells, words, ragged rows, comment lines among the rows): the slow path explains.

@@ -79,11 +79,31 @@ unit="$rendered/gma-ffc.service"
 sed -e "s#^ExecStart=/usr/local/bin/gma-ffc run --config /etc/gma-ffc/config.yaml#ExecStart=$exe run --config $config#" \
     -e "s#^User=gma-ffc#User=$user#" -e "s#^Group=gma-ffc#Group=$user#" "$template" > "$unit"
 grep -q "^ExecStart=$exe run --config $config\$" "$unit" || die "could not fill in ExecStart (template changed?)" 1
-# ProtectHome=yes would hide a gma-ffc (or config) installed under a home directory.
-case "$prefix:$config" in
+# ProtectHome=yes would hide a gma-ffc, its Python (a venv made from a pyenv or conda Python keeps
+# its interpreter in a home directory: the service would fail with status=203/EXEC) or the config
+# under a home directory.
+interpreter=""
+if [ -f "$exe" ]; then
+    shebang=$(head -n1 "$exe" | sed -n 's/^#![[:space:]]*//p' | cut -d' ' -f1)
+    [ -n "$shebang" ] && interpreter=$(readlink -f "$shebang" 2>/dev/null || echo "$shebang")
+fi
+# The service user must be able to reach the interpreter (a pyenv Python under /root is not).
+blocked=""
+dir=$(dirname "${interpreter:-/}")
+while [ -n "$interpreter" ] && [ "$user" != root ] && [ "$dir" != / ]; do
+    perms=$(stat -c '%A' "$dir" 2>/dev/null || echo "")
+    [ "${perms:9:1}" = x ] || [ "${perms:9:1}" = t ] || { blocked=$dir; break; }
+    dir=$(dirname "$dir")
+done
+if [ -n "$blocked" ]; then
+    msg="user $user cannot reach $interpreter ($blocked is mode $(stat -c '%a' "$blocked")): build the venv from a Python it can run, e.g. '/usr/bin/python3 -m venv /opt/gma-ffc', or give $blocked o+x"
+    [ "$dry_run" = 1 ] && echo "warning: $msg" >&2 || die "$msg"
+fi
+case "$prefix:$config:$interpreter" in
     /home/*|/root/*|*:/home/*|*:/root/*)
         sed -i 's#^ProtectHome=yes#ProtectHome=read-only#' "$unit"
-        echo "note: $prefix or $config is under a home directory: using ProtectHome=read-only" >&2 ;;
+        echo "note: gma-ffc, its Python or its config is under /home or /root ($prefix," \
+             "${interpreter:-?}, $config): using ProtectHome=read-only" >&2 ;;
 esac
 
 if command -v systemd-analyze >/dev/null 2>&1 && [ -x "$exe" ]; then
@@ -114,8 +134,8 @@ run install -d -m 0755 "$(dirname "$config")"
 run install -d -m 0755 "$unit_dir"
 run install -m 0644 "$unit" "$unit_dir/gma-ffc.service"
 if [ ! -f "$config" ]; then
-    echo "note: $config does not exist yet: copy one of $here/config/*.yaml there and point" \
-         "'telemetry.path' into /var/lib/gma-ffc before starting" >&2
+    echo "note: $config does not exist yet: copy one of $here/config/*.yaml there, point" \
+         "'telemetry.path' into /var/lib/gma-ffc and set 'output_dirs: [/var/lib/gma-ffc]'" >&2
 fi
 if command -v systemctl >/dev/null 2>&1 && [ -d /run/systemd/system ]; then
     run systemctl daemon-reload

@@ -63,11 +63,12 @@ def test_telemetry_wall_clock_is_within_2_ms_at_start_and_after_60_s(tmp_path):
 
 
 def test_a_second_controller_on_the_same_telemetry_file_is_refused_naming_the_first(tmp_path):
-    first = Telemetry(tmp_path / "tel.csv", ["time_s", "x"], {}, capacity=64)
+    this_rig = {"source": "gma-ffc controller", "config": "<memory>"}    # the file stays this rig's telemetry
+    first = Telemetry(tmp_path / "tel.csv", ["time_s", "x"], this_rig, capacity=64)
     first.start()
     try:
         with pytest.raises(ConfigError, match=f"another controller \\(pid {os.getpid()}\\)"):
-            Telemetry(tmp_path / "tel.csv", ["time_s", "x"], {}, capacity=64).start()
+            Telemetry(tmp_path / "tel.csv", ["time_s", "x"], this_rig, capacity=64).start()
         cfg = cfg_for(tmp_path, clock="simulated")
         status = ControllerManager(cfg).run(duration_s=0.1)
         assert not status["ok"] and any("another controller" in m for m in status["fault_messages"].values())

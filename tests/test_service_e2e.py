@@ -57,9 +57,9 @@ def rig(tmp_path: Path):
     write_config(tmp_path / "sim.yaml", "model.yaml")
     runtime = tmp_path / "run"
     yield tmp_path, runtime
-    pid_file = runtime / "gma-ffc.pid"          # never leave a daemon behind
-    if pid_file.exists():
-        pid = int(pid_file.read_text())
+    # Never leave a daemon behind, even one whose pid file is not written yet (a start that timed
+    # out on a busy machine): every process started with this runtime directory.
+    for pid in _processes_naming(str(runtime)):
         try:
             os.kill(pid, signal.SIGTERM)
             deadline = time.monotonic() + 10
@@ -69,6 +69,18 @@ def rig(tmp_path: Path):
             os.kill(pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
+
+
+def _processes_naming(text: str) -> list[int]:
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and int(entry.name) != os.getpid():
+            try:
+                if text.encode() in (entry / "cmdline").read_bytes():
+                    pids.append(int(entry.name))
+            except OSError:
+                pass
+    return pids
 
 
 def cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess:
@@ -260,8 +272,11 @@ def test_unit_file_verifies_and_install_script_renders_it(tmp_path):
     assert "would run: install -m 0644" in res.stderr              # dry run: nothing changed
     unit_text = res.stdout
     assert f"ExecStart={prefix}/bin/gma-ffc run --config /etc/gma-ffc/rig2.yaml\n" in unit_text
+    # A Python under a home directory (pyenv, conda) must stay visible, or the unit fails to exec.
+    home = str(Path(sys.executable).resolve()).startswith(("/home/", "/root/"))
+    assert ("ProtectHome=read-only" if home else "ProtectHome=yes") in unit_text
     for setting in ("Type=notify", "Restart=on-failure", "WatchdogSec=", "NoNewPrivileges=yes",
-                    "ProtectSystem=strict", "ProtectHome=yes", "PrivateTmp=yes", "ReadWritePaths=",
+                    "ProtectSystem=strict", "PrivateTmp=yes", "ReadWritePaths=",
                     "DeviceAllow=char-ttyUSB rw", "ExecReload=/bin/kill -HUP $MAINPID", "User=labuser"):
         assert setting in unit_text, setting
 

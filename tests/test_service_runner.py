@@ -21,7 +21,7 @@ from typing import Any
 import pytest
 
 from gma_ffc.errors import ConfigError, FaultError
-from gma_ffc.service import control_socket
+from gma_ffc.service import control_server, control_socket
 from gma_ffc.service.notify import Notifier
 from gma_ffc.service.paths import RuntimePaths, ensure_private_dir
 from gma_ffc.service.runner import Service
@@ -257,7 +257,12 @@ def test_sighup_reload_good_then_bad_keeps_old(tmp_path, cfg_file):
             cfg_file.write_text("nonsense: true\n")
             os.kill(os.getpid(), signal.SIGHUP)
             assert wait_for(lambda: (svc.status()["service"]["last_reload"] or {}).get("ok") is False)
-            status = control_socket.request(runtime.socket, {"cmd": "status"})["status"]
+
+            def over_socket() -> dict:   # a snapshot published after the reload (at most 0.5 s old)
+                return control_socket.request(runtime.socket, {"cmd": "status"})["status"]
+
+            assert wait_for(lambda: over_socket()["service"]["last_reload"]["ok"] is False)
+            status = over_socket()
             assert status["gain"] == 2.5 and status["state"] == "running"
             assert "refused" in status["service"]["last_reload"]["message"]
             assert "gain" in status["service"]["last_reload"]["message"]
@@ -379,7 +384,7 @@ def test_server_refuses_a_peer_with_another_uid(tmp_path):
     """A server that believes it belongs to another uid must refuse us, and never call the handler."""
     calls: list = []
     path = tmp_path / "s.sock"
-    server = control_socket.ControlServer(path, lambda r: calls.append(r) or {"ok": True},
+    server = control_server.ControlServer(path, lambda r: calls.append(r) or {"ok": True},
                                           owner_uid=os.geteuid() + 12345).start()
     try:
         reply = control_socket.request(path, {"cmd": "status"})
@@ -397,7 +402,7 @@ def test_real_other_uid_is_refused(tmp_path):
     d = Path(tempfile.mkdtemp(prefix="gma-ffc-peer-"))    # under /tmp, which nobody can traverse
     os.chmod(d, 0o777)
     path = d / "s.sock"
-    server = control_socket.ControlServer(path, lambda r: calls.append(r) or {"ok": True}).start()
+    server = control_server.ControlServer(path, lambda r: calls.append(r) or {"ok": True}).start()
     os.chmod(path, 0o666)                          # simulate a loosened socket file
     read_fd, write_fd = os.pipe()
     pid = os.fork()
@@ -429,7 +434,7 @@ def test_real_other_uid_is_refused(tmp_path):
 STUBBORN = r"""
 import os, signal, sys, time, threading
 from pathlib import Path
-from gma_ffc.service.control_socket import ControlServer
+from gma_ffc.service.control_server import ControlServer
 rt = Path(sys.argv[1]); answer = sys.argv[2] == "answer"
 got_term = threading.Event()
 signal.signal(signal.SIGTERM, lambda *a: got_term.set())
@@ -481,7 +486,7 @@ def test_stop_refused_by_another_owner_never_signals(tmp_path):
     ensure_private_dir(runtime.directory)
     sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)  # gma_ffc"])
     runtime.pid_file.write_text(f"{sleeper.pid}\n")
-    server = control_socket.ControlServer(runtime.socket, lambda r: {"ok": True},
+    server = control_server.ControlServer(runtime.socket, lambda r: {"ok": True},
                                           owner_uid=os.geteuid() + 4242).start()
     try:
         with pytest.raises(FaultError, match="permission denied"):
@@ -548,5 +553,8 @@ def test_status_table_and_line_show_faults_and_reload():
     assert "REFUSED" in rows["last reload"] and rows["pid"].endswith("42")
     line = status_line(snap)
     assert line.startswith("fault:") and "comms_timeout" in line and "\n" not in line
+    assert "control socket" not in rows
+    attacked = format_table({**snap, "control_socket": {"served": 9, "refused_uid": 4, "evicted": 2}})
+    assert "4 connections from other users refused, 2 idle connections closed" in attacked
     empty = format_table({"state": "starting"})             # nothing measured yet: dashes
     assert "rate           -" in empty and "faults         none" in empty

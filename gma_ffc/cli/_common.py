@@ -29,8 +29,11 @@ def read_all(paths: Sequence[str], require: Sequence[str], group: str | None = N
 
 
 def note_gaps(recs: Sequence[Recording]) -> None:
-    """Say on stderr which recordings have dropouts in time (they run, bridged; the user should know)."""
+    """Say on stderr which recordings have dropouts in time (they run, bridged; the user should know)
+    and what reading them left out (a torn last line)."""
     for rec in recs:
+        for read_note in rec.notes:
+            print(f"note: {read_note}", file=sys.stderr)
         note = gap_note(rec)
         if note is not None:
             print(f"note: {note}", file=sys.stderr)

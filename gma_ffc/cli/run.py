@@ -89,6 +89,8 @@ def _with_learned_file(path: str):
             raise ConfigError(f"--learned {path}: learning is off in {config_path}; add "
                               f"'learning: {{kind: repetitive}}' to use a learned correction")
         cfg.learning = dataclasses.replace(cfg.learning, file=learned)
+        if cfg.output_dirs:      # named on the command line: its folder is named for output too
+            cfg.output_dirs = (*cfg.output_dirs, str(Path(learned).parent))
         return cfg
 
     return load

@@ -78,7 +78,7 @@ def _stop(args: argparse.Namespace) -> int:
 
 
 def _status(args: argparse.Namespace) -> int:
-    from ..service.control_socket import _jsonable, ask
+    from ..service.control_socket import ask, jsonable
     from ..service.paths import runtime_paths
     from ..service.status import format_table
 
@@ -95,7 +95,7 @@ def _status(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
         return 1
     if args.json:
-        json.dump(status, sys.stdout, indent=2, default=_jsonable)
+        json.dump(status, sys.stdout, indent=2, default=jsonable)
         sys.stdout.write("\n")
     else:
         print(format_table(status))

@@ -36,6 +36,8 @@ TOP = {
     "scheduler": Field("map", {}),
     "watchdog_s": Field("float", 0.5, min=0.0, min_exclusive=True),
     "learning": Field("map", {}, help="learning feedforward (off by default): {kind: repetitive}"),
+    "output_dirs": Field("list", [], help="the only folders the controller writes into (telemetry, learned "
+                                          "correction); default: the folders those paths name"),
 }
 
 STRESS = {
@@ -154,6 +156,7 @@ class ControllerConfig:
     scheduler: dict[str, Any]
     watchdog_s: float
     learning: LearningConfig = field(default_factory=LearningConfig)
+    output_dirs: tuple[str, ...] = ()      # empty: each output's own folder (gma_ffc.safe_files)
     source: str = "<memory>"
     raw: dict[str, Any] = field(default_factory=dict, repr=False)
 
@@ -186,11 +189,14 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
     if telemetry["path"] is not None:
         telemetry["path"] = _resolve(telemetry["path"], base)
     learning = _learning(top["learning"], reference, base)
+    output_dirs = _output_dirs(top["output_dirs"], base, {"telemetry.path": telemetry["path"],
+                                                          "learning.file": learning.file})
     return ControllerConfig(rate_hz=top["rate_hz"], clock=top["clock"], model=_resolve(top["model"], base),
                             driver=driver, reference=reference, stress=stress, limits=limits, sensor=sensor,
                             comms=comms, telemetry=telemetry,
                             scheduler=validate_section(top["scheduler"], SCHEDULER, "scheduler"),
-                            watchdog_s=top["watchdog_s"], learning=learning, source=source, raw=dict(data))
+                            watchdog_s=top["watchdog_s"], learning=learning, output_dirs=output_dirs,
+                            source=source, raw=dict(data))
 
 
 def _reference(raw: dict[str, Any], base: Path | None) -> dict[str, Any]:
@@ -255,6 +261,24 @@ def _learning(raw: Any, reference: dict[str, Any], base: Path | None) -> Learnin
     if learning.file is not None:
         learning = LearningConfig(**{**learning.to_dict(), "file": _resolve(learning.file, base)})
     return learning
+
+
+def _output_dirs(named: list, base: Path | None, outputs: dict[str, str | None]) -> tuple[str, ...]:
+    """The folders the config names for output, resolved; every output path must lie in one."""
+    from ..safe_files import OutputRefused, area_of
+
+    dirs = []
+    for i, d in enumerate(named):
+        if not isinstance(d, str) or not d:
+            raise ConfigError(f"config key 'output_dirs[{i}]' must be a folder path, got {d!r}")
+        dirs.append(_resolve(d, base))
+    for key, path in outputs.items():
+        if path is not None and dirs:
+            try:
+                area_of(path, dirs)
+            except OutputRefused as exc:
+                raise ConfigError(f"config key '{key}': {exc}") from None
+    return tuple(dirs)
 
 
 def load_config(path: str | os.PathLike) -> ControllerConfig:

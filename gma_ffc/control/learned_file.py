@@ -9,7 +9,8 @@ import hashlib
 import json
 import os
 
-from ..errors import ConfigError
+from .. import safe_files
+from ..errors import ConfigError, GmaError
 from ..protocols import Model
 from .learning import RepetitiveLearner
 
@@ -30,23 +31,22 @@ def load_learned(learner: RepetitiveLearner, path: str) -> None:
     learner.load_dict(read_yaml(path, "learned-correction file", ConfigError), path)
 
 
-def save_learned(learner: RepetitiveLearner, path: str) -> None:
-    """Write the correction whole or not at all (an interrupted save keeps the previous file)."""
+def save_learned(learner: RepetitiveLearner, path: str, output_dirs: tuple[str, ...] = ()) -> None:
+    """Write the correction whole or not at all (an interrupted save keeps the previous file), never
+    through a link and never outside `output_dirs` (`gma_ffc.safe_files`)."""
     import yaml
 
-    from ..atomic import atomic_write
-
-    with atomic_write(path) as fh:
+    with safe_files.replace(path, output_dirs, safe_files.LEARNED) as fh:
         fh.write(HEADER)
         yaml.safe_dump(learner.to_dict(), fh, sort_keys=False)
 
 
-def save_if_learned(learner: RepetitiveLearner | None, path: str | None) -> str:
+def save_if_learned(learner: RepetitiveLearner | None, path: str | None, output_dirs: tuple[str, ...] = ()) -> str:
     """At the end of a run: keep what was learned for the next one. Returns '' or what went wrong."""
     if learner is None or path is None or learner.learned_periods == 0:
         return ""
     try:
-        save_learned(learner, path)
-    except OSError as exc:
+        save_learned(learner, path, output_dirs)
+    except (OSError, GmaError) as exc:
         return f"could not save the learned correction to {path}: {exc}"
     return ""

@@ -185,7 +185,8 @@ class ControllerManager:
             self.hardware.deactivate()
         self.setup.law.deactivate(0.0, "the run ended", freeze_learning=False)
         self.watchdog.join()
-        error = save_if_learned(self.setup.law.learner, self.setup.cfg.learning.file)
+        error = save_if_learned(self.setup.law.learner, self.setup.cfg.learning.file,
+                                self.setup.cfg.output_dirs)
         if error:
             self.faults.raise_fault(safety.LEARNING_SAVE_FAILED, error)
         error = self.recorder.close()

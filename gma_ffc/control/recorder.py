@@ -45,6 +45,7 @@ class TelemetryRecorder(Broadcaster):
     def __init__(self, cfg: ControllerConfig, simulated: bool) -> None:
         self.section = cfg.telemetry
         self.rate_hz = cfg.rate_hz
+        self.output_dirs = cfg.output_dirs
         self.simulated = simulated
         self.writer_priority = 0 if simulated else max(0, cfg.scheduler["realtime_priority"] - 1)
         self.base_metadata = {"source": "gma-ffc controller", "sample_rate_hz": cfg.rate_hz,
@@ -64,7 +65,8 @@ class TelemetryRecorder(Broadcaster):
                     "current_A_is": "measured (commanded where a reading is missing)"
                     if CURRENT in channels else "commanded"}
         tel = Telemetry(self.section["path"], cols, metadata, capacity=int(self.section["buffer_s"] * self.rate_hz),
-                        flush_interval_s=self.section["flush_interval_s"], block_when_full=self.simulated)
+                        flush_interval_s=self.section["flush_interval_s"], block_when_full=self.simulated,
+                        output_dirs=self.output_dirs)
         if self.writer_priority > 0:          # just below the loop (0 when the loop runs without SCHED_FIFO)
             tel.realtime_priority = self.writer_priority
         self.telemetry = tel

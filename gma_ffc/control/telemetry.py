@@ -3,14 +3,17 @@
 The hot path copies one row into a preallocated ring (`push`, no allocation beyond Python
 floats); a writer thread appends the rows to a CSV recording (docs/recordings.md) and
 flushes + fsyncs at least every `flush_interval_s` (<= 1 s), so a killed process loses at most
-that much. Each flush writes whole lines in one call, so the file is always a valid recording.
+that much. Each flush writes whole lines in one call (the header with the first rows), so the
+file is always a valid recording, at worst with a torn last line that readers report and skip.
 
 With a real clock a full ring drops rows (counted in `dropped`, never blocking the loop); with
 a simulated clock `push` waits for the writer instead, so fast runs lose nothing.
 
 One file, one writer: `start` takes an exclusive lock (flock on FILE.lock, which names the
 holder's pid) before it truncates anything, and a second controller pointed at the same file is
-refused with the other's pid. The header is written with the first rows, so it can carry the
+refused with the other's pid. Both files are opened by `gma_ffc.safe_files`: never through a
+link, never outside `output_dirs`, and an existing file is truncated only if it is this rig's
+telemetry (the same config). The header is written with the first rows, so it can carry the
 wall-clock time of the first tick (`start_unix_s`; a row's unix time is start_unix_s + time_s).
 """
 
@@ -26,7 +29,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import ConfigError, FaultError
+from .. import safe_files
+from ..errors import ConfigError
 from ..recordings import _format_meta
 
 
@@ -34,8 +38,10 @@ class Telemetry:
     """Ring buffer plus writer thread for one run's recording."""
 
     def __init__(self, path: str | os.PathLike | None, columns: Sequence[str], metadata: dict[str, Any],
-                 capacity: int, flush_interval_s: float = 0.5, block_when_full: bool = False) -> None:
+                 capacity: int, flush_interval_s: float = 0.5, block_when_full: bool = False,
+                 output_dirs: Sequence[str] = ()) -> None:
         self.path = Path(path) if path is not None else None
+        self.output_dirs = tuple(output_dirs)
         self.columns = tuple(columns)
         self.metadata = metadata
         self.ncols = len(self.columns)
@@ -59,13 +65,13 @@ class Telemetry:
     def start(self) -> None:
         if self.path is None:
             return
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         self._lock()
         try:
-            self._fh = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        except OSError as exc:
+            self._fh = safe_files.open_for_writing(self.path, self.output_dirs,
+                                                   safe_files.telemetry_kind(str(self.metadata.get("config"))))
+        except BaseException:
             self._unlock()
-            raise FaultError(f"telemetry file {self.path}: cannot write ({exc.strerror})") from None
+            raise
         self._thread = threading.Thread(target=self._run, name="gma-ffc-telemetry", daemon=True)
         self._thread.start()
 
@@ -73,10 +79,7 @@ class Telemetry:
         """Exclusive, non-blocking lock on FILE.lock; refuse (naming the holder) if taken."""
         assert self.path is not None
         lock_path = self.path.with_name(self.path.name + ".lock")
-        try:
-            fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise FaultError(f"telemetry file {self.path}: cannot create its lock {lock_path} ({exc.strerror})") from None
+        fd = safe_files.open_for_writing(lock_path, self.output_dirs, safe_files.TELEMETRY_LOCK, append=True)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -93,8 +96,11 @@ class Telemetry:
             os.close(self._lock_fd)          # closing releases the flock
             self._lock_fd = None
 
+    def _header(self) -> str:
+        return _format_meta(self.metadata) + ",".join(self.columns) + "\n"
+
     def _write_header(self) -> None:
-        self._write_all((_format_meta(self.metadata) + ",".join(self.columns) + "\n").encode())
+        self._write_all(self._header().encode())
         self._header_written = True
 
     def push(self, row: np.ndarray) -> None:
@@ -134,16 +140,12 @@ class Telemetry:
         head, tail = self.head, self.tail
         if self._fh is None or head == tail:
             return
-        if not self._header_written:     # with the first rows: the loop has stamped start_unix_s by then
-            try:
-                self._write_header()
-            except OSError as exc:
-                self.error = f"telemetry write failed: {exc.strerror}"
-                return
         idx = np.arange(tail, head) % self.capacity
         block = self.buf[idx]
         self.tail = head
         out = io.StringIO()
+        if not self._header_written:     # in the first rows' write: the loop has stamped start_unix_s by then,
+            out.write(self._header())    # and a file killed then holds rows under its header or nothing
         fmt = ",".join(["%.9g"] * self.ncols) + "\n"
         write = out.write
         for values in block.tolist():      # short steps: the loop can take the GIL between rows
@@ -151,13 +153,15 @@ class Telemetry:
         try:
             self._write_all(out.getvalue().encode())
             os.fsync(self._fh)
+            self._header_written = True
             self.rows_written += len(block)
         except OSError as exc:   # disk full etc.: reported in status, the loop keeps control
             self.error = f"telemetry write failed: {exc.strerror}"
 
     def _write_all(self, data: bytes) -> None:
-        """One write() per flush, so a killed process leaves whole lines (a regular-file write is
-        not cut short by a signal); the loop only repeats on a short write (disk nearly full)."""
+        """One write() per flush, so a killed process leaves whole lines, but for the rare last
+        line cut where a page of a long write ends (SIGKILL stops a write between pages); readers
+        report that line and leave it out. The loop only repeats on a short write (disk nearly full)."""
         fd = self._fh
         assert fd is not None
         view = memoryview(data)

@@ -10,8 +10,10 @@ Use:
     scripts/install_service.sh --help   # install config/systemd/gma-ffc.service
 
 Modules: `notify` (systemd's protocol without libsystemd), `paths` (the private runtime
-directory), `control_socket` (server, client, peer-credential check), `runner` (the supervised
-foreground service), `daemon` (start/stop as a background process), `status` (presentation).
+directory), `control_socket` (protocol, client, peer-credential check), `control_server` (the
+bounded event-loop server), `control_plane` (that server in a process of its own, answering
+status from a snapshot), `runner` (the supervised foreground service), `daemon` (start/stop as
+a background process), `status` (presentation).
 
 From the controller the service needs only the contract in docs/ARCHITECTURE.md, plus two
 status keys: `ticks` (grows while the loop makes progress: READY and watchdog pings follow it)

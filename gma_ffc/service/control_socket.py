@@ -1,8 +1,10 @@
-"""The local control socket: newline-delimited JSON over a Unix stream socket, owner only.
+"""The local control socket's protocol and client: newline-delimited JSON over a Unix stream
+socket, owner only, one request per connection.
 
 Three layers keep other users out: the 0700 runtime directory, the 0600 socket file, and the
-peer's uid read with SO_PEERCRED on every connection (so a socket file with loosened
-permissions, or one passed to another process, still refuses strangers).
+peer's uid read with SO_PEERCRED on every connection before anything it sent is read (so a
+socket file with loosened permissions, or one passed to another process, still refuses
+strangers). The server is `control_server`, run in its own process by `control_plane`.
 
 Request:  {"cmd": "status"} | {"cmd": "stop", "reason": "..."} | {"cmd": "reload"} | {"cmd": "ping"}
 Response: {"ok": true, ...} or {"ok": false, "error": "one sentence"}
@@ -12,27 +14,20 @@ from __future__ import annotations
 
 import contextlib
 import json
-import logging
 import os
 import pwd
 import socket
 import stat
 import struct
-import threading
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from ..errors import ConfigError, FaultError, NotRunningError
 
-log = logging.getLogger(__name__)
-
-MAX_MESSAGE = 1 << 20
+MAX_REQUEST = 4096            # the longest request: {"cmd": "stop", "reason": <a sentence>} is ~100 bytes
+MAX_REPLY = 16 << 20          # a client's bound on a reply (a status is a few kB)
+MAX_SOCKET_PATH = 107         # sun_path is 108 bytes with the terminating NUL
 _UCRED = struct.Struct("3i")  # struct ucred {pid_t pid; uid_t uid; gid_t gid;}
-
-Handler = Callable[[dict[str, Any]], dict[str, Any]]
-
-
-MAX_SOCKET_PATH = 107   # sun_path is 108 bytes with the terminating NUL
 
 
 def check_socket_path(path: Path) -> None:
@@ -41,6 +36,28 @@ def check_socket_path(path: Path) -> None:
     if length > MAX_SOCKET_PATH:
         raise ConfigError(f"socket path {path} is {length} bytes, over the {MAX_SOCKET_PATH}-byte "
                           "limit of Unix sockets; choose a shorter --runtime-dir")
+
+
+def bind_listener(path: Path) -> socket.socket:
+    """A listening socket at `path`, bound with a 0177 umask so it is never, even briefly,
+    reachable by others; a stale socket file there is replaced (the caller made sure nobody
+    answers on it)."""
+    check_socket_path(path)
+    with contextlib.suppress(FileNotFoundError):
+        if stat.S_ISSOCK(path.lstat().st_mode):
+            path.unlink()
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
+    old = os.umask(0o177)
+    try:
+        sock.bind(str(path))
+    except OSError as exc:
+        sock.close()
+        raise FaultError(f"cannot create control socket {path}: {exc.strerror}") from None
+    finally:
+        os.umask(old)
+    os.chmod(path, 0o600)
+    sock.listen(socket.SOMAXCONN)
+    return sock
 
 
 def peer_credentials(conn: socket.socket) -> tuple[int, int, int]:
@@ -55,128 +72,59 @@ def peer_allowed(peer_uid: int, owner_uid: int) -> bool:
     return peer_uid == owner_uid
 
 
-class ControlServer:
-    """Serves requests on `path` in a background thread until `close()`."""
-
-    def __init__(self, path: Path, handler: Handler, owner_uid: int | None = None) -> None:
-        self.path = Path(path)
-        self.handler = handler
-        self.owner_uid = os.geteuid() if owner_uid is None else owner_uid
-        self._stop = threading.Event()
-        self._sock = self._bind(self.path)
-        self._thread = threading.Thread(target=self._serve, name="gma-ffc-control", daemon=True)
-
-    @staticmethod
-    def _bind(path: Path) -> socket.socket:
-        """Bind with a 0177 umask so the socket is never, even briefly, reachable by others."""
-        check_socket_path(path)
-        with contextlib.suppress(FileNotFoundError):
-            if stat.S_ISSOCK(path.lstat().st_mode):
-                path.unlink()  # stale: the caller has made sure nobody answers on it
-        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
-        old = os.umask(0o177)
-        try:
-            sock.bind(str(path))
-        except OSError as exc:
-            sock.close()
-            raise FaultError(f"cannot create control socket {path}: {exc.strerror}") from None
-        finally:
-            os.umask(old)
-        os.chmod(path, 0o600)
-        sock.listen(8)
-        sock.settimeout(0.2)
-        return sock
-
-    def start(self) -> "ControlServer":
-        self._thread.start()
-        return self
-
-    def _serve(self) -> None:
-        while not self._stop.is_set():
-            try:
-                conn, _ = self._sock.accept()
-            except (socket.timeout, BlockingIOError):
-                continue
-            except OSError:
-                if self._stop.is_set():
-                    return
-                continue
-            with conn:
-                try:
-                    self._handle(conn)
-                except Exception:  # one bad client must not take the service down
-                    log.exception("control socket: request failed")
-
-    def _handle(self, conn: socket.socket) -> None:
-        conn.settimeout(2.0)
-        _pid, uid, _gid = peer_credentials(conn)
-        if not peer_allowed(uid, self.owner_uid):
-            log.warning("control socket: refused uid %d (owner is uid %d)", uid, self.owner_uid)
-            owner = _user_name(self.owner_uid)
-            _send(conn, {"ok": False, "denied": True,
-                         "error": f"permission denied: uid {uid} is not the controller's owner "
-                                  f"(uid {self.owner_uid}); run as that user, e.g. "
-                                  f"'sudo -u {owner} gma-ffc ...'"})
-            return
-        try:
-            request = _receive(conn)
-        except (ValueError, socket.timeout) as exc:
-            _send(conn, {"ok": False, "error": f"bad request: {exc}"})
-            return
-        if not isinstance(request, dict) or not isinstance(request.get("cmd"), str):
-            _send(conn, {"ok": False, "error": "bad request: expected {\"cmd\": ...}"})
-            return
-        try:
-            reply = self.handler(request)
-        except Exception as exc:
-            log.exception("control socket: handler failed for %r", request.get("cmd"))
-            reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
-        _send(conn, reply)
-
-    def close(self) -> None:
-        """Stop serving and remove the socket file (only if it is still ours)."""
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout=2.0)
-        self._sock.close()
-        with contextlib.suppress(FileNotFoundError):
-            self.path.unlink()
+def refusal_for(uid: int, owner_uid: int) -> dict[str, Any]:
+    """The one-line answer to a peer that is not the owner."""
+    return {"ok": False, "denied": True,
+            "error": f"permission denied: uid {uid} is not the controller's owner (uid {owner_uid}); "
+                     f"run as that user, e.g. 'sudo -u {user_name(owner_uid)} gma-ffc ...'"}
 
 
-def _user_name(uid: int) -> str:
+def user_name(uid: int) -> str:
     try:
         return pwd.getpwuid(uid).pw_name
     except KeyError:
         return f"#{uid}"
 
 
-def _send(conn: socket.socket, message: dict[str, Any]) -> None:
-    with contextlib.suppress(OSError):
-        conn.sendall(json.dumps(message, default=_jsonable).encode() + b"\n")
+def parse_request(line: bytes) -> tuple[dict[str, Any] | None, str]:
+    """(request, "") for a well-formed request line, else (None, the one-sentence refusal)."""
+    if not line.strip():
+        return None, "bad request: empty message"
+    try:
+        request = json.loads(line)
+    except ValueError as exc:          # malformed JSON, cut-off JSON, bytes that are not UTF-8
+        return None, f"bad request: not JSON ({str(exc)[:120]})"
+    if not isinstance(request, dict) or not isinstance(request.get("cmd"), str):
+        return None, 'bad request: expected {"cmd": ...}'
+    return request, ""
 
 
-def _receive(conn: socket.socket) -> Any:
-    buf = bytearray()
-    while b"\n" not in buf:
-        chunk = conn.recv(65536)
-        if not chunk:
-            break
-        buf += chunk
-        if len(buf) > MAX_MESSAGE:
-            raise ValueError("message too long")
-    line = bytes(buf).split(b"\n", 1)[0]
-    if not line:
-        raise ValueError("empty message")
-    return json.loads(line)
+def encode_reply(message: dict[str, Any]) -> bytes:
+    return json.dumps(message, default=jsonable).encode() + b"\n"
 
 
-def _jsonable(value: Any) -> Any:
+def jsonable(value: Any) -> Any:
     """numpy scalars/arrays and paths in status dicts become plain JSON."""
     if hasattr(value, "tolist"):
         return value.tolist()
     if hasattr(value, "item"):
         return value.item()
     return str(value)
+
+
+def _receive_reply(conn: socket.socket) -> Any:
+    buf = bytearray()
+    while b"\n" not in buf:
+        chunk = conn.recv(65536)
+        if not chunk:
+            break
+        buf += chunk
+        if len(buf) > MAX_REPLY:
+            raise ValueError("reply too long")
+    line = bytes(buf).split(b"\n", 1)[0]
+    if not line:
+        raise ValueError("empty reply")
+    return json.loads(line)
 
 
 def request(path: Path, message: dict[str, Any], timeout_s: float = 5.0) -> dict[str, Any]:
@@ -203,7 +151,7 @@ def request(path: Path, message: dict[str, Any], timeout_s: float = 5.0) -> dict
                 sock.sendall(json.dumps(message).encode() + b"\n")
             except (BrokenPipeError, ConnectionResetError):
                 pass  # a refusing server may close first; its reason is still waiting to be read
-            reply = _receive(sock)
+            reply = _receive_reply(sock)
         except socket.timeout:
             raise FaultError(f"the controller did not answer within {timeout_s:g} s "
                              f"(socket {path})") from None

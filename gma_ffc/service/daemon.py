@@ -19,6 +19,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from .. import safe_files
 from ..errors import ConfigError, FaultError, GmaError, InputError
 from .control_socket import ask, check_socket_path, is_answering, request
 from .paths import RuntimePaths, ensure_private_dir
@@ -93,7 +94,8 @@ def start(config: Path, runtime: RuntimePaths, *, duration_s: float | None = Non
         env.pop(key, None)
     log_offset = runtime.log_file.stat().st_size if runtime.log_file.exists() else 0
     try:
-        fd = os.open(runtime.log_file, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_CLOEXEC, 0o600)
+        fd = safe_files.open_for_writing(runtime.log_file, (runtime.directory,), safe_files.LOG,
+                                         append=True, mode=0o600)
         with os.fdopen(fd, "ab") as log:
             child = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
                                      env=env, start_new_session=True, close_fds=True)

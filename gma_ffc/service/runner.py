@@ -2,8 +2,10 @@
 
 Threads: the controller's fixed-rate loop runs in its own thread and is never disturbed by
 service work; the main thread supervises it (systemd notifications, watchdog pings while the
-loop makes progress, SIGHUP reloads) and the control socket answers in a third. Signal handlers
-only set flags. Whatever happens, the controller is asked to stop and its thread joined before
+loop makes progress, SIGHUP reloads, the status snapshot the control socket answers from). The
+control socket itself is served by a child process (`control_plane`), so no client costs this
+process anything; a third thread only carries out the `stop` and `reload` the owner sends
+through it. Signal handlers only set flags. Whatever happens, the controller is asked to stop and its thread joined before
 the process leaves, so its own exit path puts the amplifier at the safe current.
 """
 
@@ -20,9 +22,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from ..atomic import atomic_write
+from .. import safe_files
 from ..errors import FaultError, GmaError
-from .control_socket import ControlServer, _jsonable, is_answering
+from .control_plane import ControlPlane
+from .control_socket import is_answering, jsonable
 from .notify import Notifier
 from .paths import RuntimePaths, ensure_private_dir
 from .status import faults_of, progress_count, status_line
@@ -33,7 +36,8 @@ ConfigLoader = Callable[[Path], Any]
 ControllerFactory = Callable[[Any], Any]
 
 SUPERVISE_PERIOD_S = 0.05
-STATUS_PERIOD_S = 1.0
+STATUS_PERIOD_S = 1.0      # systemd's STATUS= line, when it changes
+PUBLISH_PERIOD_S = 0.5     # the control socket's status is at most this old (and fresh after a command)
 JOIN_TIMEOUT_S = 10.0
 # While the controller reconnects (its own bounded backoff, amplifier at the safe current) no
 # ticks advance; the watchdog is still fed for this long, then stops so systemd restarts us.
@@ -73,7 +77,7 @@ class Service:
                  load_config: ConfigLoader = _default_loader,
                  make_controller: ControllerFactory = _default_factory,
                  install_signal_handlers: bool = True) -> None:
-        self.config_path = Path(config_path)
+        self.config_path = Path(os.path.abspath(config_path))   # a telemetry file names its rig's config
         self.duration_s = duration_s
         self.stats_json = Path(stats_json) if stats_json else None
         self.runtime = runtime
@@ -91,7 +95,7 @@ class Service:
         self.controller: Any = None
         self.summary: Any = None
         self._error: BaseException | None = None
-        self._server: ControlServer | None = None
+        self._plane: ControlPlane | None = None
 
     # ---- requests from signals and the socket --------------------------------------------
     def request_stop(self, reason: str) -> None:
@@ -118,7 +122,8 @@ class Service:
                 log.info("%s", result.message)
             self._last_reload = result
             self.notifier.ready(status=result.message)
-            return result
+        self._publish()
+        return result
 
     def status(self) -> dict[str, Any]:
         """The controller's snapshot plus what the service adds (pid, reloads, stop reason)."""
@@ -131,11 +136,18 @@ class Service:
             "stop_reason": self._stop_reason,
             "last_reload": self._last_reload.as_dict() if self._last_reload else None,
             "socket": str(self.runtime.socket) if self.runtime else None,
+            "status_at_unix": time.time(),      # the socket answers from a snapshot up to 0.5 s old
         }
         return snap
 
+    def _publish(self, snapshot: dict[str, Any] | None = None) -> None:
+        """Hand the control socket's process the status it answers from."""
+        if self._plane is not None:
+            self._plane.publish(self.status() if snapshot is None else snapshot)
+
     def handle_request(self, request: dict[str, Any]) -> dict[str, Any]:
-        """The control socket's commands."""
+        """The control socket's commands (`stop` and `reload` reach this process; the socket's
+        own process answers `status` and `ping` itself)."""
         cmd = request.get("cmd")
         if cmd == "ping":
             return {"ok": True, "pid": os.getpid()}
@@ -143,6 +155,7 @@ class Service:
             return {"ok": True, "status": self.status()}
         if cmd == "stop":
             self.request_stop(str(request.get("reason") or "stop requested over the socket"))
+            self._publish()
             return {"ok": True, "pid": os.getpid()}
         if cmd == "reload":
             result = self.reload()
@@ -153,8 +166,15 @@ class Service:
     # ---- the run ----------------------------------------------------------------------------
     def run(self) -> int:
         """Blocking; returns the exit code (0 stopped as asked, 1 the loop ended on a fault)."""
-        cfg = self._load_config(self.config_path)
-        self.controller = self._make_controller(cfg)
+        if self.runtime is not None:      # the socket's process starts while the controller is built
+            self._claim_runtime(self.runtime)
+        try:
+            cfg = self._load_config(self.config_path)
+            self._check_outputs(cfg)
+            self.controller = self._make_controller(cfg)
+        except BaseException:
+            self._close_runtime()
+            raise
         join_timeout_s = JOIN_TIMEOUT_S + _stop_ramp_s(cfg)
         previous_handlers: dict[int, Any] = {}
         try:
@@ -203,14 +223,16 @@ class Service:
             log.error("control loop crashed: %s", exc)
 
     def _supervise(self, thread: threading.Thread) -> None:
-        """Notify READY once ticks advance, ping the watchdog only while they keep advancing.
+        """Notify READY once ticks advance, ping the watchdog only while they keep advancing,
+        and publish the status snapshot the control socket answers from.
 
-        `status()` computes percentiles over the controller's stats window (milliseconds of CPU
-        at 1 kHz), so it is polled fast only until READY, then at the watchdog interval or once
-        a second, whichever is shorter; reloads and the loop's end are still seen within 50 ms.
+        `status()` costs a few hundred microseconds of the interpreter (percentiles over the
+        loop's statistics), so it is taken fast only until READY, then every PUBLISH_PERIOD_S or
+        at the watchdog interval, whichever is shorter, whatever clients ask; reloads and the
+        loop's end are still seen within 50 ms.
         """
         interval = self.notifier.watchdog_interval_s
-        poll_s = min(STATUS_PERIOD_S, interval) if interval else STATUS_PERIOD_S
+        poll_s = min(PUBLISH_PERIOD_S, interval) if interval else PUBLISH_PERIOD_S
         last_count = -1
         next_poll = 0.0
         reconnecting_since: float | None = None
@@ -222,7 +244,8 @@ class Service:
                 self.reload()
             now = time.monotonic()
             if now >= next_poll:
-                snap = self.controller.status()
+                snap = self.status()
+                self._publish(snap)
                 count = progress_count(snap)
                 progressed = last_count >= 0 and count > last_count
                 last_count = count
@@ -234,6 +257,7 @@ class Service:
                     alive = progressed
                 if not self._ready and count > 0:
                     self._ready = True
+                    self._publish()                 # with ready: true, before READY=1 goes out
                     text = status_line(snap)
                     log.info("ready: %s", text)
                     self.notifier.ready(status=text)
@@ -252,23 +276,44 @@ class Service:
             self._stop_reason = "control loop ended"
 
     # ---- runtime files and signals ------------------------------------------------------------
-    def _open_runtime(self, runtime: RuntimePaths) -> None:
+    def _claim_runtime(self, runtime: RuntimePaths) -> None:
+        """The private directory and the socket (nobody else's controller answers there); the
+        socket's process starts now and answers 'starting' until `_open_runtime`."""
         ensure_private_dir(runtime.directory)
         if is_answering(runtime.socket):
             pid = _read_pid(runtime.pid_file)
             raise FaultError(f"a controller is already running (pid {pid or '?'}, socket "
                              f"{runtime.socket}); stop it first with 'gma-ffc stop'")
-        self._server = ControlServer(runtime.socket, self.handle_request).start()
-        with atomic_write(runtime.pid_file) as fh:
+        self._plane = ControlPlane(runtime.socket, self.handle_request).start(wait=False)
+
+    def _open_runtime(self, runtime: RuntimePaths) -> None:
+        assert self._plane is not None
+        self._plane.wait_ready()
+        self._publish()
+        with safe_files.replace(runtime.pid_file, (runtime.directory,), safe_files.PID) as fh:
             fh.write(f"{os.getpid()}\n")
 
     def _close_runtime(self) -> None:
-        if self._server is not None:
-            self._server.close()
-            self._server = None
+        if self._plane is not None:
+            self._plane.close()
+            self._plane = None
             if self.runtime is not None and _read_pid(self.runtime.pid_file) == os.getpid():
                 with contextlib.suppress(FileNotFoundError):
                     self.runtime.pid_file.unlink()
+
+    def _check_outputs(self, cfg: Any) -> None:
+        """Refuse, before anything starts, a file this run would write unsafely: through a link,
+        outside the config's output_dirs, over a file that is not ours (one line, exit 2)."""
+        telemetry = getattr(cfg, "telemetry", {}).get("path")
+        learned = getattr(getattr(cfg, "learning", None), "file", None)
+        dirs = getattr(cfg, "output_dirs", ())
+        if telemetry:
+            safe_files.check_writable(telemetry, dirs, safe_files.telemetry_kind(str(self.config_path)))
+            safe_files.check_writable(telemetry + ".lock", dirs, safe_files.TELEMETRY_LOCK)
+        if learned:
+            safe_files.check_writable(learned, dirs, safe_files.LEARNED)
+        if self.stats_json is not None:
+            safe_files.check_writable(self.stats_json, (), safe_files.STATS)
 
     def _install_handlers(self) -> dict[int, Any]:
         def on_stop(signum: int, _frame: Any) -> None:
@@ -287,8 +332,8 @@ class Service:
         payload = {"status": final, "summary": self.summary}
         if self.stats_json is None:
             return
-        with atomic_write(self.stats_json) as fh:
-            json.dump(payload, fh, indent=2, default=_jsonable)
+        with safe_files.replace(self.stats_json, (), safe_files.STATS) as fh:
+            json.dump(payload, fh, indent=2, default=jsonable)
             fh.write("\n")
 
 

@@ -95,6 +95,9 @@ def fields(status: Mapping[str, Any]) -> list[tuple[str, str]]:
             rows.append(("learning event", str(learning["last_event"])))
     elif "learning" in status:
         rows.append(("learning", "off"))
+    socket_row = _socket_trouble(status.get("control_socket") or {})
+    if socket_row:
+        rows.append(("control socket", socket_row))
     reload = svc.get("last_reload")
     if reload:
         when = _dt.datetime.fromtimestamp(reload.get("at_unix", 0)).strftime("%H:%M:%S")
@@ -103,6 +106,16 @@ def fields(status: Mapping[str, Any]) -> list[tuple[str, str]]:
     if svc.get("config"):
         rows.append(("config", str(svc["config"])))
     return rows
+
+
+_SOCKET_TROUBLE = (("refused_uid", "connections from other users refused"), ("bad", "bad requests"),
+                   ("too_long", "requests too long"), ("timed_out", "clients cut off at their deadline"),
+                   ("evicted", "idle connections closed to make room"))
+
+
+def _socket_trouble(counters: Mapping[str, Any]) -> str:
+    """What clients have tried since the start, when anything went wrong ('' when nothing did)."""
+    return ", ".join(f"{counters[key]} {words}" for key, words in _SOCKET_TROUBLE if counters.get(key))
 
 
 def format_table(status: Mapping[str, Any]) -> str:

@@ -1,0 +1,190 @@
+"""Files the service writes (issue 33): never through a symbolic link, never over a file that is
+not its own, never outside the folders the config names. Each refusal is one line naming the
+path, exit 2, and the file it would have hit is unchanged."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from gma_ffc import safe_files
+from gma_ffc.cli import main
+from gma_ffc.control.learned_file import save_learned
+from gma_ffc.control.telemetry import Telemetry
+from gma_ffc.safe_files import OutputRefused
+
+ROOT = Path(__file__).resolve().parents[1]
+MODEL = ROOT / "config" / "models" / "sim_sdpi.yaml"
+VICTIM_TEXT = "precious: not the controller's\n"
+
+
+def write_config(path: Path, telemetry: str, extra: str = "") -> Path:
+    path.write_text(f"""\
+rate_hz: 200
+clock: simulated
+model: {MODEL}
+driver: {{kind: sim, load_mass_kg: 15.3}}
+reference: {{kind: sine, frequency_hz: 3.0, amplitude_um: 5.0, offset_um: 6.0}}
+limits: {{current_min_A: 0.0, current_max_A: 2.0, slew_A_per_s: 200.0}}
+telemetry: {{path: {telemetry}}}
+{extra}""")
+    return path
+
+
+@pytest.fixture
+def victim(tmp_path: Path) -> Path:
+    """A file someone else cares about, outside every folder the service may write."""
+    outside = tmp_path / "elsewhere"
+    outside.mkdir()
+    path = outside / "victim.txt"
+    path.write_text(VICTIM_TEXT)
+    return path
+
+
+def run_refused(capsys, *args: str) -> str:
+    """`gma-ffc run ...` in this process: exit 2 and one line on stderr, which is returned."""
+    code = main(["run", *args, "--no-socket", "--duration", "0.2"])
+    err = capsys.readouterr().err.strip().splitlines()
+    err = [line for line in err if ": error: " in line or "Traceback" in line]
+    assert code == 2 and len(err) == 1 and "Traceback" not in err[0], (code, err)
+    return err[0]
+
+
+@pytest.mark.parametrize("link", ["tel.csv", "tel.csv.lock"])
+def test_telemetry_or_its_lock_through_a_symlink_is_refused(tmp_path, victim, capsys, link):
+    """The lock file was opened and truncated through any link: /etc/passwd, for a root service."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / link).symlink_to(victim)
+    cfg = write_config(tmp_path / "rig.yaml", str(out / "tel.csv"))
+    line = run_refused(capsys, "--config", str(cfg))
+    assert f"{out / link} is a symbolic link" in line
+    assert victim.read_text() == VICTIM_TEXT
+
+
+def test_an_existing_file_that_is_not_this_rigs_telemetry_is_kept(tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    recording = out / "tel.csv"
+    recording.write_text("# source: hil_sim recorder\ntime_s,current_A,displacement_um\n0,0,0\n")
+    cfg = write_config(tmp_path / "rig.yaml", str(recording))
+    line = run_refused(capsys, "--config", str(cfg))
+    assert f"{recording} exists and is not a telemetry file of this rig" in line and "move it away" in line
+    assert recording.read_text().startswith("# source: hil_sim recorder")
+    # another rig's telemetry (another config) is not this rig's either
+    recording.write_text(f"# source: gma-ffc controller\n# config: {tmp_path / 'other_rig.yaml'}\ntime_s\n0\n")
+    assert "is not a telemetry file of this rig" in run_refused(capsys, "--config", str(cfg))
+
+
+def test_this_rigs_own_telemetry_is_overwritten(tmp_path):
+    cfg = write_config(tmp_path / "rig.yaml", "tel.csv")
+    for _ in range(2):
+        assert main(["run", "--config", str(cfg), "--no-socket", "--duration", "0.2"]) == 0
+    assert (tmp_path / "tel.csv").read_text().count("# source: gma-ffc controller") == 1
+
+
+def test_telemetry_outside_the_named_output_dirs_is_refused(tmp_path, capsys):
+    cfg = write_config(tmp_path / "rig.yaml", str(tmp_path / "elsewhere" / "tel.csv"),
+                       f"output_dirs: [{tmp_path / 'data'}]\n")
+    line = run_refused(capsys, "--config", str(cfg))
+    assert "telemetry.path" in line and f"{tmp_path / 'elsewhere' / 'tel.csv'} is outside" in line
+    assert not (tmp_path / "elsewhere").exists()
+
+
+def test_a_linked_folder_leading_out_of_the_output_dirs_is_refused(tmp_path, victim, capsys):
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "runs").symlink_to(victim.parent)            # data/runs -> elsewhere
+    cfg = write_config(tmp_path / "rig.yaml", str(data / "runs" / "victim.txt"), f"output_dirs: [{data}]\n")
+    line = run_refused(capsys, "--config", str(cfg))
+    assert f"{data / 'runs' / 'victim.txt'} is outside" in line
+    assert victim.read_text() == VICTIM_TEXT
+
+
+def test_a_hard_link_to_another_file_is_refused(tmp_path, victim, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    os.link(victim, out / "tel.csv")
+    cfg = write_config(tmp_path / "rig.yaml", str(out / "tel.csv"))
+    assert "hard links" in run_refused(capsys, "--config", str(cfg))
+    assert victim.read_text() == VICTIM_TEXT
+
+
+def test_stats_snapshot_through_a_symlink_or_over_another_file_is_refused(tmp_path, victim, capsys):
+    cfg = write_config(tmp_path / "rig.yaml", "tel.csv")
+    link = tmp_path / "stats.json"
+    link.symlink_to(victim)
+    assert f"{link} is a symbolic link" in run_refused(capsys, "--config", str(cfg), "--stats-json", str(link))
+    assert "is not a stats snapshot" in run_refused(capsys, "--config", str(cfg), "--stats-json", str(victim))
+    assert victim.read_text() == VICTIM_TEXT
+
+
+def test_learned_file_through_a_symlink_is_refused(tmp_path, victim, capsys):
+    learned = tmp_path / "learned.yaml"
+    learned.symlink_to(victim)
+    cfg = write_config(tmp_path / "rig.yaml", "tel.csv", f"learning: {{kind: repetitive, file: {learned}}}\n")
+    assert f"{learned} is a symbolic link" in run_refused(capsys, "--config", str(cfg))
+    assert victim.read_text() == VICTIM_TEXT
+
+
+def test_the_refusal_is_one_line_and_exit_2_from_the_installed_command(tmp_path, victim):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "tel.csv").symlink_to(victim)
+    cfg = write_config(tmp_path / "rig.yaml", str(out / "tel.csv"))
+    res = subprocess.run([sys.executable, "-m", "gma_ffc.cli", "run", "--config", str(cfg), "--duration", "1",
+                          "--no-socket"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert res.stderr.startswith("gma-ffc run: error: ") and f"{out / 'tel.csv'} is a symbolic link" in res.stderr
+
+
+# ---- the module itself: the same refusals where the writers open their files -------------------
+
+def test_writers_refuse_at_open_time_too(tmp_path, victim):
+    """Telemetry and the learned-file save go through safe_files when they open, not only in the
+    service's check before the start (a link can appear in between)."""
+    (tmp_path / "tel.csv").symlink_to(victim)
+    tel = Telemetry(tmp_path / "tel.csv", ["time_s"], {"source": "gma-ffc controller", "config": "x"}, capacity=16)
+    with pytest.raises(OutputRefused, match="is a symbolic link"):
+        tel.start()
+    assert not (tmp_path / "tel.csv.lock").is_symlink()
+
+    class Learner:
+        def to_dict(self):
+            return {"format": "gma-ffc-learned-correction"}
+
+    (tmp_path / "learned.yaml").symlink_to(victim)
+    with pytest.raises(OutputRefused, match="is a symbolic link"):
+        save_learned(Learner(), str(tmp_path / "learned.yaml"))
+    victim.write_text("not a learned file\n")
+    with pytest.raises(OutputRefused, match="is not a learned-correction file"):
+        save_learned(Learner(), str(victim), (str(victim.parent),))
+    save_learned(Learner(), str(tmp_path / "fresh.yaml"))                   # a new one is fine
+    save_learned(Learner(), str(tmp_path / "fresh.yaml"))                   # and replacing our own
+    assert "gma-ffc-learned-correction" in (tmp_path / "fresh.yaml").read_text()
+
+
+def test_a_folder_swapped_for_a_link_after_the_check_is_not_followed(tmp_path, victim, monkeypatch):
+    data = tmp_path / "data"
+    (data / "runs").mkdir(parents=True)
+    checked = safe_files.area_of(data / "runs" / "victim.txt", [data])      # (data, runs): fine then
+    (data / "runs").rmdir()
+    (data / "runs").symlink_to(victim.parent)                              # ... then swapped
+    monkeypatch.setattr(safe_files, "area_of", lambda path, roots: checked)
+    with pytest.raises(OutputRefused, match="became a link or is not a folder"):
+        safe_files.open_for_writing(data / "runs" / "victim.txt", [data], safe_files.LEARNED)
+    assert victim.read_text() == VICTIM_TEXT
+
+
+def test_a_file_of_another_owner_is_refused(tmp_path):
+    if os.geteuid() != 0:
+        pytest.skip("needs root to create a file owned by another uid")
+    path = tmp_path / "tel.csv"
+    path.write_text("")
+    os.chown(path, 65534, 65534)
+    with pytest.raises(OutputRefused, match="belongs to uid 65534"):
+        safe_files.open_for_writing(path, (), safe_files.TELEMETRY_LOCK)
