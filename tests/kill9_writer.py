@@ -52,8 +52,8 @@ def writer(ctrl, cfg, model, work: Path) -> None:
 
     def save_forever() -> None:
         while True:
-            if ctrl.learner is not None:
-                save_learned(ctrl.learner, cfg.learning.file, cfg.output_dirs)
+            if ctrl.setup.law.learner is not None:
+                save_learned(ctrl.setup.law.learner, cfg.learning.file, cfg.output_dirs)
             save_model(model, work / "model.yaml")
 
     threading.Thread(target=save_forever, daemon=True).start()
