@@ -397,7 +397,10 @@ class Controller:
     def _save_learned(self) -> None:
         """Keep what was learned for the next run (`learning.file`, `gma-ffc run --learned`)."""
         path = self.cfg.learning.file
-        if self.learner is None or path is None or self.learner.learned_periods == 0:
+        if self.learner is None or path is None:
+            return
+        if not self.learner.saveable:       # never a correction that was not measured better
+            self.learner.note(math.nan, f"not saved to {path}: no correction measured better than feedforward")
             return
         try:
             save_learned(self.learner, path)
@@ -500,10 +503,9 @@ class Controller:
                         learner.observe(t, ref_now, inputs.displacement_um, stress, False, "stopping")
                     elif stress != stress:
                         learner.observe(t, ref_now, inputs.displacement_um, stress, False, "no valid stress yet")
-                    elif cmd != u:
-                        learner.observe(t, ref_now, inputs.displacement_um, stress, False,
-                                        "command limited (ramp, slew or current limit)")
                     else:
+                        if cmd != self.law.raw:    # a limit cut the command: learning holds there only
+                            learner.limited(t, self.limiter.clipped or safety.LIMIT_MODEL_RANGE, cmd - self.law.raw)
                         learner.observe(t, ref_now, inputs.displacement_um, stress, True)
             except Exception as exc:   # the one fault path: the table says what happens
                 name, message, reason = _classify(exc)

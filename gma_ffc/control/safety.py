@@ -49,6 +49,11 @@ EXIT_FAULTS = frozenset({SAFE_WRITE_FAILED, RECONNECT_FAILED, DEACTIVATE_FAILED,
 REALTIME_REFUSED = "realtime_priority_refused"
 WARNINGS = frozenset({REALTIME_REFUSED})      # reported, never a fault exit
 
+# What cut a command short (`Limiter.clipped`, the learner's status). A ramp is the slew limit
+# while the command still heads for its target after a start or a reconnect.
+LIMIT_NONE, LIMIT_CURRENT_MIN, LIMIT_CURRENT_MAX, LIMIT_SLEW, LIMIT_RAMP, LIMIT_MODEL_RANGE = range(6)
+LIMIT_NAMES = ("none", "current_min", "current_max", "slew", "ramp", "model_range")
+
 OUTPUTS = ("immediate", "ramp", "none")
 THENS = ("stop", "reconnect", "continue")
 EXIT_STATES = ("fault", "stopped")
@@ -108,39 +113,59 @@ def fault_actions(cfg: Any) -> dict[str, FaultAction]:
 
 
 class Limiter:
-    """Clamp to [lo, hi] and limit the step per tick to slew*dt; NaN commands hold the last."""
+    """Clamp to [lo, hi] and limit the step per tick to slew*dt; NaN commands hold the last.
 
-    __slots__ = ("lo", "hi", "max_step", "last")
+    `clipped` says what cut the last command (a LIMIT_* code; the slew limit wins when both
+    acted). From construction and from `force` (a safe-current write) the command ramps: slew
+    clipping counts as LIMIT_RAMP until the first tick it does not clip, or at the latest after
+    the time the slew limit needs to cross the whole current range (after that, what clips is
+    the target, not the start).
+    """
+
+    __slots__ = ("lo", "hi", "max_step", "last", "clipped", "_ramp_ticks", "_max_ramp_ticks")
 
     def __init__(self, lo: float, hi: float, slew_A_per_s: float, period_s: float, initial: float) -> None:
         self.lo = lo
         self.hi = hi
         self.max_step = slew_A_per_s * period_s
         self.last = min(max(initial, lo), hi)
+        self.clipped = LIMIT_NONE
+        span = (hi - lo) / self.max_step if self.max_step > 0 else 0.0
+        self._max_ramp_ticks = int(math.ceil(span)) if math.isfinite(span) else 0
+        self._ramp_ticks = self._max_ramp_ticks
 
     def apply(self, target: float) -> float:
+        clipped = LIMIT_NONE
         if target != target:            # NaN: hold (the caller raises the fault)
             target = self.last
         if target > self.hi:
             target = self.hi
+            clipped = LIMIT_CURRENT_MAX
         elif target < self.lo:
             target = self.lo
+            clipped = LIMIT_CURRENT_MIN
         step = target - self.last
-        if step > self.max_step:
-            target = self.last + self.max_step
-        elif step < -self.max_step:
-            target = self.last - self.max_step
+        if step > self.max_step or step < -self.max_step:
+            target = self.last + (self.max_step if step > 0 else -self.max_step)
+            clipped = LIMIT_RAMP if self._ramp_ticks > 0 else LIMIT_SLEW
+        if clipped != LIMIT_RAMP:
+            self._ramp_ticks = 0
+        elif self._ramp_ticks > 0:
+            self._ramp_ticks -= 1
         # Rounding can put last+max_step a hair outside the box when last sits on a bound.
         if target > self.hi:
             target = self.hi
         elif target < self.lo:
             target = self.lo
         self.last = target
+        self.clipped = clipped
         return target
 
     def force(self, value: float) -> None:
-        """The amplifier was put at `value` outside the limiter (a safe-current write)."""
+        """The amplifier was put at `value` outside the limiter (a safe-current write); the next
+        commands ramp from there."""
         self.last = min(max(value, self.lo), self.hi)
+        self._ramp_ticks = self._max_ramp_ticks
 
 
 class SensorMonitor:
