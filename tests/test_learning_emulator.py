@@ -87,3 +87,44 @@ def test_two_second_stall_freezes_learning_goes_safe_and_tracking_returns(tmp_pa
         assert s["learning"]["learned_periods"] > learned_before
     finally:
         bench.emu.stop()
+
+
+# ---- the emulator's random latency (issue 32: timing jitter over Modbus) --------------------------
+
+def test_a_latency_the_emulator_cannot_have_is_refused():
+    from gma_ffc.errors import FaultError
+    from hil_sim.emulators.modbus import check_latency
+
+    assert check_latency(None) is None and check_latency((0.001, 0.002)) == (0.001, 0.002)
+    for bad in ((0.002, 0.001), (-0.001, 0.001), (0.0, 5.0), ("a", 1)):
+        with pytest.raises(FaultError, match="latency"):
+            check_latency(bad)
+
+
+@pytest.mark.realtime
+def test_the_modbus_emulator_holds_every_request_for_its_seeded_random_latency():
+    from pymodbus.client import ModbusTcpClient
+
+    from gma_ffc.registers import load_register_map
+    from hil_sim.emulators import DEFAULT_MAP, EmulatedRig, ModbusEmulator, make_plant
+
+    def session(seed):
+        rig = EmulatedRig(make_plant(seed=0))
+        with ModbusEmulator(rig, load_register_map(DEFAULT_MAP), latency_s=(1e-3, 2e-3), seed=seed) as emu:
+            host, port = emu.host_port
+            client = ModbusTcpClient(host, port=port, timeout=2, retries=0)
+            client.connect()
+            trips = []
+            for _ in range(40):
+                t0 = time.perf_counter()
+                assert not client.read_input_registers(0, count=5, device_id=1).isError()
+                trips.append(time.perf_counter() - t0)
+            client.close()
+            return np.array(emu.latencies_s), np.array(trips)
+
+    lat, trips = session(7)
+    assert len(lat) >= 40 and lat.min() >= 1e-3 and lat.max() <= 2e-3
+    assert lat.max() - lat.min() > 0.5e-3                 # spread over the range, not one value
+    assert np.median(trips) >= 1e-3                       # the client waits for it (no upper bound: busy machine)
+    again, _ = session(7)
+    assert np.array_equal(lat[:40], again[:40])           # seeded: a session can be run again
