@@ -388,10 +388,10 @@ def test_two_thousand_periods_without_growth():
 
 # ---- the command line -----------------------------------------------------------------------------
 
-def write_config(tmp_path, learning):
+def write_config(tmp_path, learning, **extra):
     cfg = base_cfg(driver={"kind": "sim", "load_mass_kg": 15.3,
                            "plant_config": str(tmp_path / "plant.yaml")},
-                   telemetry={"path": str(tmp_path / "tel.csv")}, learning=learning)
+                   telemetry={"path": str(tmp_path / "tel.csv")}, learning=learning, **extra)
     (tmp_path / "plant.yaml").write_text(yaml.safe_dump({"delay": {"enabled": True, "delay_ms": 1.0},
                                                           "noise": {"enabled": True}}))
     path = tmp_path / "cfg.yaml"
@@ -449,6 +449,31 @@ def test_a_correction_never_measured_better_is_not_saved(tmp_path):
     texts = [e["text"] for e in status["events"]]
     assert any("backed off" in t for t in texts) and any("not saved" in t for t in texts), texts
     assert status["backoffs"] >= 1
+
+
+def test_a_reference_to_the_current_floor_is_said_once_at_start_and_learned_around(tmp_path):
+    """The issue 32 case: the sine's bottom asks for less than 0 A. The log says once, before
+    learning starts, where in the phase and which limit; learning goes on around it, and the
+    status and its table show the share of the period that was limited."""
+    import json
+
+    from gma_ffc.service.status import format_table
+
+    floor_ref = {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 12.0}
+    cfg = write_config(tmp_path, {"kind": "repetitive"}, reference=floor_ref)
+    stats = tmp_path / "s.json"
+    out = gma("run", "--config", cfg, "--duration", 5, "--no-socket", "--stats-json", stats)
+    assert out.returncode == 0, out.stderr
+    said = [line for line in out.stderr.splitlines() if "cannot follow" in line]
+    assert len(said) == 1 and "current_min" in said[0] and "phase 0.9" in said[0], out.stderr
+    baseline = [line for line in out.stderr.splitlines() if "feedforward baseline" in line]
+    assert baseline and out.stderr.index(baseline[0]) <= out.stderr.index(said[0])   # before learning starts
+    status = json.loads(stats.read_text())["status"]
+    learning = status["learning"]
+    assert learning["learned_periods"] >= 8 and learning["backoffs"] == 0
+    assert 0.01 < learning["limited"]["share"] < 0.2 and set(learning["limited"]["by"]) == {"current_min"}
+    assert learning["rms_trend_um"][-1] < 0.5 * learning["baseline_rms_um"]
+    assert re.search(r"learning limits +\d+\.\d % of the last period limited: current_min at phase", format_table(status))
 
 
 def test_run_learned_without_learning_in_the_config_is_refused(tmp_path):

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from .learning_kernels import filter_coefficient, learn_period, lowpass_circular, period_difference
-from .learning_watch import BaselineWatch
+from .learning_watch import BACK_OFF, HOLD, BaselineWatch
 from .safety import LIMIT_NAMES, LIMIT_NONE, LIMIT_RAMP
 
 _lowpass_circular = lowpass_circular     # the name the tests and earlier code know
@@ -71,7 +71,7 @@ class LearningConfig:
     stale_ticks: int = 50               # an unchanged displacement reading this long: freeze
     reset_gain_change: float = 0.2      # relative plant-gain change (with stress) that resets c
     baseline_periods: int = 3           # feedforward periods measured before learning: 2 differences for the noise
-    watch_periods: int = 2              # W: periods judged together against feedforward (a back-off within W+1)
+    watch_periods: int = 3              # W: a back-off needs the median of W periods worse (one bad period cannot)
     max_backoffs: int = 3               # back-offs (gain halved each time) before learning stops
     file: str | None = None             # learned buffer: loaded at start if present, saved at stop
 
@@ -204,6 +204,7 @@ class RepetitiveLearner:
         self.stage = BASELINE
         self.gain = cfg.gain                   # halves at each back-off
         self.backoffs = 0
+        self.held_periods = 0                  # periods beyond the noise band, not learned from
         self.best_r2 = math.nan                # mean square of the period `_best` was applied in
         self.best_period = 0
         self.reference_limits: list[dict[str, Any]] | None = None    # said once, when the baseline ends
@@ -330,14 +331,17 @@ class RepetitiveLearner:
             return
         if self.stage == FEEDFORWARD:
             return
-        if self.watch.worse(r2, self.gain, self.cfg.forgetting):
+        verdict = self.watch.judge(r2, self.gain, self.cfg.forgetting)
+        if verdict == BACK_OFF:
             self._back_off(t)
             return
         if r2 < self.best_r2:
             self._best[:] = self.correction_um          # the correction this period ran with
             self.best_r2 = r2
             self.best_period = self.periods
-        if self.stage == LEARNING:
+        if verdict == HOLD:
+            self.held_periods += 1                      # a stall or a knock: not the repeating error
+        elif self.stage == LEARNING:
             self._learn()
 
     def _learn(self) -> None:
@@ -374,9 +378,9 @@ class RepetitiveLearner:
         half the gain; the last allowed back-off stops learning, holding that correction."""
         w = self.watch
         self.backoffs += 1
-        why = (f"periods {self.periods - w.window + 1}-{self.periods} at {w.window_rms():.3g} um RMS, worse than "
-               f"feedforward {math.sqrt(w.B2):.3g} um by more than the noise (limit "
-               f"{math.sqrt(w.threshold(self.gain, self.cfg.forgetting)):.3g} um)")
+        why = (f"periods {self.periods - w.window + 1}-{self.periods}: median {w.window_rms():.3g} um RMS, worse "
+               f"than feedforward {math.sqrt(w.B2):.3g} um by more than the noise (limit "
+               f"{math.sqrt(w.threshold(self.gain, self.cfg.forgetting, w.window)):.3g} um)")
         best = "feedforward alone" if self.best_r2 >= w.B2 else \
             f"the correction of period {self.best_period} ({math.sqrt(self.best_r2):.3g} um)"
         if self.stage == HOLDING:
@@ -429,7 +433,7 @@ class RepetitiveLearner:
     def note(self, t: float, text: str) -> None:
         """Record an event (rare: a baseline, a back-off, a reset); the service logs each once."""
         self.event_count += 1
-        self.events.append({"seq": self.event_count, "t_s": round(float(t), 3), "text": text})
+        self.events.append({"seq": self.event_count, "t_s": round(float(t), 3) if t == t else None, "text": text})
         del self.events[:-EVENTS_KEPT]
 
     @property
@@ -459,6 +463,7 @@ class RepetitiveLearner:
                 "frozen_since_s": self.frozen_since_s if self.frozen_reason else None,
                 "rms_trend_um": trend, "correction_rms_um": float(np.sqrt(np.mean(self.correction_um ** 2))),
                 "cutoff_hz": self.cutoff_hz, "gain": self.gain, "backoffs": self.backoffs,
+                "held_periods": self.held_periods,
                 "baseline_rms_um": _root(w.B2) if measured else None,
                 "nonrepeatable_um": _root(w.nr2) if measured else None,
                 "worse_above_um": _root(w.threshold(self.gain, self.cfg.forgetting)) if measured else None,

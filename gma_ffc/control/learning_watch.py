@@ -6,7 +6,7 @@ no I/O, no clock, and no allocation after construction (it runs at period ends, 
 
 The baseline is a few feedforward periods (no correction applied). From them:
 
-* `B2`, the feedforward mean square error per period (their mean);
+* `B2`, the feedforward mean square error per period (their median);
 * `nr2`, the non-repeatable error variance per sample: half the mean square of the difference
   of two consecutive periods, phase by phase (what repeats cancels, noise and jitter stay);
 * `q2`, the part of `nr2` inside the robustness filter's band: the noise learning passes into
@@ -14,13 +14,17 @@ The baseline is a few feedforward periods (no correction applied). From them:
 * `s`, the spread of one period's mean square: the larger of the spread seen across the
   baseline periods and what white noise of variance `nr2` alone would give.
 
-A window of `W` learning periods is worse than feedforward when its mean square exceeds
+Learning is judged period by period. With `extra` the noise learning itself adds (the
+correction's own variance in steady state, `L^2 q2 / (1 - (f - L)^2)`; for f = 1 that is
+`L / (2 - L) * q2`), a mean square beyond
 
-    B2 + extra + Z * s * sqrt(1/W + 1/P)
+    B2 + extra + Z * s * sqrt(v + 1/P)
 
-`extra` is the noise the learning itself adds: the correction's own variance in steady state,
-`L^2 q2 / (1 - (f - L)^2)` (for f = 1 that is `L / (2 - L) * q2`). The last term allows for the
-uncertainty of both means (the window's W periods, the baseline's P).
+is worse than feedforward by more than the noise (`v` the variance factor of what is compared:
+1 for one period, pi / (2 W) for the median of W). One such period is not learned from (a stall,
+a burst of late ticks, a knock on the rig: its error is not the repeating one); the median of
+the last `W` periods beyond its own limit means the learning itself made things worse, and the
+learner backs off. A median, so that one bad period cannot force a back-off on its own.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ import numpy as np
 from .learning_kernels import lowpass_circular, period_difference
 
 WORSE_SIGMAS = 3.0      # Z: a false alarm about once in 700 windows when learning only matches feedforward
+FINE, HOLD, BACK_OFF = 0, 1, 2     # verdicts on a learning period
 
 
 class BaselineWatch:
@@ -49,6 +54,7 @@ class BaselineWatch:
         self._prev_seen = np.zeros(n, dtype=np.bool_)
         self._diff = np.zeros(n)
         self._recent = np.zeros(window)
+        self._sorted = np.zeros(window)      # scratch for the median, sorted in place (no allocation)
         self.reset()
 
     def reset(self) -> None:
@@ -99,7 +105,7 @@ class BaselineWatch:
 
     def _finish(self) -> None:
         r2 = self._r2[:self.count]
-        self.B2 = float(r2.mean())
+        self.B2 = float(np.median(r2))       # a median: one baseline period with a stall does not set it
         self.nr2 = self._nr2_sum / self._pairs if self._pairs else 0.0
         self.q2 = self._q2_sum / self._pairs if self._pairs else 0.0
         # White noise of variance nr2 on a repeating error of mean square B2 - nr2 gives one
@@ -109,24 +115,34 @@ class BaselineWatch:
         self.s = math.sqrt(max(white, seen_spread))
 
     # ---- judging learning ---------------------------------------------------------------------
-    def threshold(self, gain: float, forgetting: float) -> float:
-        """The window mean square beyond which learning counts as worse than feedforward."""
+    def threshold(self, gain: float, forgetting: float, periods: int = 0) -> float:
+        """The mean square beyond which learning counts as worse than feedforward: for one
+        period, or (`periods` = W) for the median of the window."""
         extra = gain * gain * self.q2 / max(1.0 - (forgetting - gain) ** 2, 1e-12)
-        return self.B2 + extra + WORSE_SIGMAS * self.s * math.sqrt(1.0 / self.window + 1.0 / self.count)
+        spread = math.pi / (2.0 * periods) if periods else 1.0
+        return self.B2 + extra + WORSE_SIGMAS * self.s * math.sqrt(spread + 1.0 / self.count)
 
     def clearly_better(self, r2: float) -> bool:
         """One period's mean square below feedforward's by more than the noise (what may be saved)."""
         return self.done and r2 < self.B2 - WORSE_SIGMAS * self.s * math.sqrt(1.0 + 1.0 / self.count)
 
-    def worse(self, r2: float, gain: float, forgetting: float) -> bool:
-        """Add one learning period's mean square; True when the last `window` of them, taken
-        together, are worse than feedforward by more than the noise."""
+    def judge(self, r2: float, gain: float, forgetting: float) -> int:
+        """FINE, HOLD (this period is beyond the noise band: do not learn from it) or BACK_OFF
+        (the median of the last `window` periods is: the learning made things worse)."""
         self._recent[:-1] = self._recent[1:]
         self._recent[-1] = r2
         self._filled += 1
-        if self._filled < self.window:
-            return False
-        return float(self._recent.mean()) > self.threshold(gain, forgetting)
+        if self._filled >= self.window and self._median() > self.threshold(gain, forgetting, self.window):
+            return BACK_OFF
+        return HOLD if r2 > self.threshold(gain, forgetting) else FINE
+
+    def _median(self) -> float:
+        x = self._sorted
+        x[:] = self._recent
+        x.sort()
+        m = self.window // 2
+        return float(x[m]) if self.window % 2 else 0.5 * float(x[m - 1] + x[m])
 
     def window_rms(self) -> float:
-        return math.sqrt(float(self._recent.mean())) if self._filled >= self.window else math.nan
+        """RMS of the median period of the window."""
+        return math.sqrt(self._median()) if self._filled >= self.window else math.nan
