@@ -31,7 +31,7 @@ REGISTER_MAP = ROOT / "hil_sim" / "configs" / "devices" / "amplifier_int16.yaml"
 TUNING_SEEDS = tuple(range(20))
 HELD_OUT_SEEDS = tuple(range(1000, 1020))
 LATENCY_S = (1e-3, 2e-3)          # on every request, uniform: the 1-2 ms
-MODBUS_RATE_HZ = 250.0            # two requests a tick at up to 2 ms each: 500 Hz cannot be held
+MODBUS_RATE_HZ = 200.0            # two requests a tick, 1-2 ms each, plus ~0.5 ms of protocol work: 250 Hz overruns
 FLOOR_A = 0.0
 SLEW_A_PER_S = 50.0               # the rig
 

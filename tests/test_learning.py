@@ -45,7 +45,8 @@ def test_learning_is_off_by_default_and_kind_alone_turns_it_on():
 @pytest.mark.parametrize("section,key", [({"kind": "repetitive", "gain": 1.5}, "learning.gain"),
                                          ({"kind": "repetitive", "gainn": 0.5}, "learning.gainn"),
                                          ({"kind": "ilc"}, "learning.kind"),
-                                         ({"kind": "repetitive", "lead_samples": -1}, "learning.lead_samples"),
+                                         ({"kind": "repetitive", "lead_samples": 0.5}, "learning.lead_samples"),
+                                         ({"kind": "repetitive", "cutoff_harmonics": 0}, "learning.cutoff_harmonics"),
                                          ({"kind": "repetitive", "forgetting": 0.1}, "learning.forgetting")])
 def test_bad_learning_keys_are_refused_by_name(section, key):
     with pytest.raises(ConfigError, match=f"'{key}'"):
@@ -437,7 +438,7 @@ def test_run_learned_saves_and_a_second_run_starts_where_the_first_left_off(tmp_
 def test_a_correction_never_measured_better_is_not_saved(tmp_path):
     """A learning that can only make things worse (its phase lead half a period wrong turns the
     fundamental's sign): it backs off, says so, and the file is not written."""
-    cfg = write_config(tmp_path, {"kind": "repetitive", "lead_samples": 167})
+    cfg = write_config(tmp_path, {"kind": "repetitive", "lead_samples": 166})
     learned = tmp_path / "learned.yaml"
     stats = tmp_path / "s.json"
     out = gma("run", "--config", cfg, "--duration", 8, "--no-socket", "--learned", learned, "--stats-json", stats)

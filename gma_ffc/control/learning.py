@@ -63,8 +63,9 @@ class LearningConfig:
     period_s: float | None = None       # None: from the periodic reference
     gain: float = 0.5                   # L: error halves per period where P ~ 1; margin for |P| up to 2
     filter: str = "zero_phase"          # Q: "zero_phase" (no lag) or "causal" (first order)
-    cutoff_hz: float | None = None      # Q's -3 dB point; None: 10 harmonics, at most rate/10
-    lead_samples: int = 0               # m: latency the controller's lead_s does not cover
+    cutoff_hz: float | None = None      # Q's -3 dB point; None: cutoff_harmonics of the reference, at most rate/10
+    cutoff_harmonics: float = 10.0      # phase margin for an uncovered delay up to ~1/(5 f0 * 10): docs/learning.md
+    lead_samples: int = 0               # m: latency lead_s leaves uncovered (negative: lead_s covers too much)
     forgetting: float = 1.0             # f: < 1 lets an old correction fade when the error is gone
     max_correction_um: float = 5.0      # bound on |c|
     max_error_um: float = 50.0          # |r - y| beyond this is an absurd reading: freeze
@@ -116,12 +117,13 @@ class LearningConfig:
         number("period_s", 0.0, 3600.0, lo_open=True, optional=True)
         number("gain", 0.0, 1.0, lo_open=True)
         number("cutoff_hz", 0.0, 1e6, lo_open=True, optional=True)
+        number("cutoff_harmonics", 0.0, 1e4, lo_open=True)
         number("forgetting", 0.5, 1.0)
         number("max_correction_um", 0.0, 1e4, lo_open=True)
         number("max_error_um", 0.0, 1e6, lo_open=True)
         number("reset_gain_change", 0.0, 10.0, lo_open=True)
-        for key, lo in (("lead_samples", 0), ("stale_ticks", 0), ("baseline_periods", 2), ("watch_periods", 1),
-                        ("max_backoffs", 1)):
+        for key, lo in (("lead_samples", -1_000_000), ("stale_ticks", 0), ("baseline_periods", 2),
+                        ("watch_periods", 1), ("max_backoffs", 1)):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise bad(key, f"must be a whole number >= {lo}")
@@ -191,7 +193,10 @@ class RepetitiveLearner:
         self._push = np.zeros(n, dtype=np.int8)        # sign of (limited - asked) there
         self._last_limit = np.zeros(n, dtype=np.int8)  # of the last complete period
         self._base_limit = np.zeros(n, dtype=np.int8)  # any limit met while measuring the baseline
-        cutoff = cfg.cutoff_hz if cfg.cutoff_hz is not None else min(10.0 / period_s, rate_hz / 10.0)
+        if 2 * abs(cfg.lead_samples) >= n:
+            raise ConfigError(f"config key 'learning.lead_samples' is {cfg.lead_samples}, but a period has only {n} "
+                              f"samples: a lead of half a period or more turns the learning's sign")
+        cutoff = cfg.cutoff_hz if cfg.cutoff_hz is not None else min(cfg.cutoff_harmonics / period_s, rate_hz / 10.0)
         self.cutoff_hz = cutoff
         self._zero_phase = cfg.filter == "zero_phase"
         self._a = filter_coefficient(cutoff, rate_hz, self._zero_phase)
@@ -543,6 +548,7 @@ def warm_up_kernels() -> None:
     seen = np.ones(8, dtype=np.bool_)
     learn_period(c, e, seen, push, 0.5, 1.0, 0, 0.5, True, 1.0)
     period_difference(e, seen, c, seen, np.zeros(8))
+    lowpass_circular(c, 0.5, True)
 
 
 def model_gain_table(model: Model, n: int = 33) -> Callable[[float], float] | None:
