@@ -169,3 +169,83 @@ def run_sim(session: Session, *, learning: dict | None, periods: int, limits: di
 
 def without_latency(session: Session) -> Session:
     return replace(session, latency_s=None)
+
+
+# ---- the emulator's latency in simulated time ----------------------------------------------------
+def latency_sim_driver(cfg: dict, period_s: float, latency_s: tuple[float, float], seed: int) -> Any:
+    """The `sim` driver with the Modbus emulator's timing: each request waits a random latency
+    (uniform in `latency_s`) before it acts. The tick's read samples the plant `l_r` after the
+    deadline; its write takes effect `l_w` after that read, and the plant holds the previous
+    command until then. Simulated time: no machine load, every seed repeats exactly, so settings
+    can be compared that the real-time emulator (whose own deadline misses add jitter on a
+    shared machine) cannot tell apart."""
+    from gma_ffc.drivers.sim import SimDriver
+
+    class LatencySimDriver(SimDriver):
+        def open(self) -> None:
+            super().open()
+            self.rng = np.random.default_rng(seed)
+            self.deadline = 0.0          # the current tick's nominal time
+            self.plant_t = 0.0           # the instant the plant state is at
+            self.held = 0.0              # the command the amplifier holds
+            self.read_t = 0.0
+
+        def _advance(self, to: float) -> None:
+            if to > self.plant_t:
+                self.plant.step(self.held, to - self.plant_t)
+                self.plant_t = to
+
+        def read(self, inputs: Any) -> None:
+            self._advance(self.deadline + self.rng.uniform(*latency_s))
+            self.read_t = self.plant_t
+            super().read(inputs)
+
+        def write(self, current_A: float) -> None:
+            self._advance(max(self.read_t, self.deadline) + self.rng.uniform(*latency_s))
+            self.held = current_A
+            self.last_written_A = current_A
+            self.deadline += self.period_s
+            self.t = self.deadline
+
+        def safe(self, current_A: float) -> None:
+            self.write(current_A)
+
+    return LatencySimDriver(cfg, period_s)
+
+
+def run_latency_sim(session: Session, *, learning: dict | None, periods: int, rate_hz: float = MODBUS_RATE_HZ,
+                    limits: dict | None = None, lead_s: float | None = None) -> SessionRun:
+    """A session as `run_modbus_session` runs it (same reference, lead, limits and latency), with
+    the latency in simulated time (`latency_sim_driver`). `lead_s`: the command lead a user set
+    (default 1.5 ticks, as `run_modbus_session`)."""
+    from gma_ffc.control.config import validate_config
+    from gma_ffc.control.controller import Controller
+    from gma_ffc.control.scheduler import SimulatedClock
+    from gma_ffc.modelio import load_model
+    from gma_ffc.recordings import read_recording
+
+    pcfg = plant_config(session)
+    with tempfile.TemporaryDirectory() as tmp:
+        plant_yaml = Path(tmp) / "plant.yaml"
+        import yaml
+
+        plant_yaml.write_text(yaml.safe_dump(pcfg.to_dict()))
+        tel = Path(tmp) / "tel.csv"
+        data = {
+            "rate_hz": rate_hz, "clock": "simulated", "model": str(MODEL),
+            "driver": {"kind": "sim", "plant_config": str(plant_yaml), "seed": session.seed,
+                       "load_mass_kg": pcfg.mass_for_stress(session.stress_MPa)},
+            "reference": {"kind": "sine", "frequency_hz": session.frequency_hz, "amplitude_um": session.amplitude_um,
+                          "offset_um": session.offset_um, "lead_s": 1.5 / rate_hz if lead_s is None else lead_s},
+            "limits": {"current_min_A": FLOOR_A, "current_max_A": 3.0, "slew_A_per_s": SLEW_A_PER_S, **(limits or {})},
+            "telemetry": {"path": str(tel), "flush_interval_s": 0.5},
+        }
+        if learning is not None:
+            data["learning"] = dict(learning)
+        cfg = validate_config(data)
+        driver = latency_sim_driver(cfg.driver, 1.0 / rate_hz, session.latency_s or (0.0, 0.0), session.seed)
+        ctrl = Controller(cfg, model=load_model(MODEL), driver=driver, clock=SimulatedClock())
+        status = ctrl.run(duration_s=periods / session.frequency_hz)
+        rec = read_recording(tel)
+        err = rec.columns["reference_um"] - rec.displacement_um
+        return SessionRun(session, learning is not None, period_rms(rec.time_s, err, session.frequency_hz), status)

@@ -42,7 +42,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.learning_rigs import (  # noqa: E402
-    HELD_OUT_RIG, HELD_OUT_SEEDS, MODEL, TUNING_SEEDS, Session, SessionRun, draw_session, run_modbus_session)
+    HELD_OUT_RIG, HELD_OUT_SEEDS, MODEL, TUNING_SEEDS, Session, SessionRun, draw_session, run_latency_sim,
+    run_modbus_session)
 from gma_ffc.sil import run_tracking  # noqa: E402
 
 STEP_MASS_KG = 30.6     # -19.1 MPa on the paper's rig
@@ -159,10 +160,18 @@ def sessions_of(which: str, count: int) -> list[Session]:
     return [draw_session(s) for s in seeds[:count]]
 
 
-def session_pair(session: Session, learning: dict[str, Any]) -> dict[str, Any]:
+RUNNERS = {"emulator": run_modbus_session, "latency-sim": run_latency_sim}
+_FEEDFORWARD: dict[tuple, SessionRun] = {}     # latency-sim repeats exactly: one feedforward run per session
+
+
+def session_pair(session: Session, learning: dict[str, Any], transport: str = "emulator") -> dict[str, Any]:
     t0 = time.monotonic()
-    ff: SessionRun = run_modbus_session(session, learning=None, periods=PERIODS)
-    ln: SessionRun = run_modbus_session(session, learning=learning, periods=PERIODS)
+    run = RUNNERS[transport]
+    key = (transport, session)
+    ff: SessionRun = _FEEDFORWARD.get(key) or run(session, learning=None, periods=PERIODS)
+    if transport == "latency-sim":
+        _FEEDFORWARD[key] = ff
+    ln: SessionRun = run(session, learning=learning, periods=PERIODS)
     st = ln.status["learning"]
     end_ff, end_ln = ff.window(PERIODS - 4, PERIODS), ln.window(PERIODS - 4, PERIODS)
     own = st["baseline_rms_um"]
@@ -175,16 +184,18 @@ def session_pair(session: Session, learning: dict[str, Any]) -> dict[str, Any]:
             "feedforward_um": ff.period_rms_um.tolist(), "learning_um": ln.period_rms_um.tolist()}
 
 
-def sessions_section(which: str, count: int, learning: dict[str, Any], out: dict[str, Any]) -> list[dict]:
+def sessions_section(which: str, count: int, learning: dict[str, Any], out: dict[str, Any],
+                     transport: str = "emulator") -> list[dict]:
     chosen = sessions_of(which, count)
-    print(f"\n== sessions through the Modbus TCP emulator ({which} seeds, {len(chosen)}): reference to the 0 A floor, "
+    where = "through the Modbus TCP emulator" if transport == "emulator" else "with the emulator's latency in simulated time"
+    print(f"\n== sessions {where} ({which} seeds, {len(chosen)}): reference to the 0 A floor, "
           f"1-2 ms latency, 50 A/s; {PERIODS} periods each; ratio = learning / feedforward, mean RMS of the last "
           f"5 periods ==")
     print(f"{'session':<52}{'ff':>8}{'learn':>8}{'ratio':>7}{'own':>6}{'16-20':>7}  stage        bo held "
           f"limited        Hz  load")
     rows = []
     for s in chosen:
-        r = session_pair(s, learning)
+        r = session_pair(s, learning, transport)
         rows.append(r)
         print(f"{r['session']:<52}{r['ff_end_um']:>8.3f}{r['learn_end_um']:>8.3f}{r['ratio_end']:>7.2f}"
               f"{r['ratio_own_baseline'] or float('nan'):>6.2f}{r['ratio_16_20']:>7.2f}  {r['stage']:<12}"
@@ -200,13 +211,24 @@ def sessions_section(which: str, count: int, learning: dict[str, Any], out: dict
     return rows
 
 
-def sweep(spec: str, which: str, count: int, out: dict[str, Any]) -> None:
+def sweep(spec: str, which: str, count: int, out: dict[str, Any], transport: str) -> None:
     key, _, values = spec.partition("=")
+    summary = []
     for raw in values.split(","):
         value: Any = json.loads(raw) if raw not in ("null", "None") else None
         learning = {"kind": "repetitive", key: value}
         print(f"\n#### sweep {key} = {value}")
-        sessions_section(which, count, learning, out.setdefault("sweep", {}).setdefault(f"{key}={value}", {}))
+        rows = sessions_section(which, count, learning, out.setdefault("sweep", {}).setdefault(f"{key}={value}", {}),
+                                transport)
+        summary.append((value, rows))
+    print(f"\n#### sweep {key} ({transport}, {which} seeds): ratio of the median of the last 10 periods to the "
+          f"median feedforward period; first period at <= {TARGET}x")
+    for value, rows in summary:
+        r = [np.median(x["learning_um"][-10:]) / np.median(x["feedforward_um"][1:]) for x in rows]
+        first = [next((i + 1 for i, y in enumerate(x["learning_um"]) if y <= TARGET * np.median(x["feedforward_um"][1:])),
+                      99) for x in rows]
+        print(f"  {key} = {value!s:<6} median {np.median(r):.3f}x, worst {max(r):.3f}x, first period at <= {TARGET}x: "
+              f"median {np.median(first):.0f}, worst {max(first)}")
 
 
 def main() -> int:
@@ -217,6 +239,9 @@ def main() -> int:
     ap.add_argument("--periods", type=int, default=40, help="classic: periods at 3 Hz (20 Hz runs 3x as many)")
     ap.add_argument("--learning", default="{}", metavar="JSON", help="extra learning keys, e.g. '{\"gain\": 0.3}'")
     ap.add_argument("--sweep", metavar="KEY=V1,V2", help="sessions for each value of one learning key")
+    ap.add_argument("--transport", default="emulator", choices=tuple(RUNNERS),
+                    help="sessions: through the Modbus TCP emulator in real time (default), or its latency in "
+                         "simulated time (repeatable, free of the machine's load)")
     ap.add_argument("--plot", metavar="PNG", help="classic: save the per-period RMS figure")
     ap.add_argument("--json", metavar="FILE", help="write every figure to FILE")
     args = ap.parse_args()
@@ -224,7 +249,7 @@ def main() -> int:
     out: dict[str, Any] = {"learning": learning, "load_at_start": os.getloadavg()}
     print(f"gma-ffc learning benchmark; {load()} on {os.cpu_count()} cores")
     if args.sweep:
-        sweep(args.sweep, args.seeds, args.count, out)
+        sweep(args.sweep, args.seeds, args.count, out, args.transport)
     else:
         parts = set(args.only.split(","))
         if "classic" in parts:
@@ -233,7 +258,7 @@ def main() -> int:
             limits_section(learning, out)
         if "sessions" in parts:
             for which in (("tuning", "held-out", "rig") if args.seeds == "all" else (args.seeds,)):
-                sessions_section(which, args.count, learning, out)
+                sessions_section(which, args.count, learning, out, args.transport)
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1, default=float) + "\n")
         print(f"figures: {args.json}")
