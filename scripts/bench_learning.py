@@ -16,9 +16,10 @@ Sections (`--only`, default: classic and limits):
              `--seeds tuning` (the defaults were chosen on these), `held-out` (never looked at while
              choosing), `rig` (another plant: every hil_sim effect on); quote them apart.
 
-Every learning run is paired with a feedforward run of the same seed, in the same process, one
-after the other. Real-time sections print the load average beside the figures: on a shared
-machine the loop misses deadlines, which is timing jitter of its own.
+Every learning run is paired with a feedforward run of the same seed. Through the emulator the two
+run at the same time in two processes, so the machine's load hits both alike; real-time sections
+print the load average beside the figures (on a shared machine the loop misses deadlines, which
+is timing jitter of its own).
 
     python scripts/bench_learning.py [--only classic,limits,sessions] [--seeds tuning] [--count 20]
     python scripts/bench_learning.py --only sessions --seeds held-out --json out.json
@@ -129,8 +130,7 @@ def limits_section(learning: dict[str, Any], out: dict[str, Any]) -> None:
         report_limits(label, ff.period_rms_um, ln.period_rms_um, ln.status["learning"], out)
     label = (f"modbus: 3 Hz 6-30 um, 0 A floor, 50 A/s, 1-2 ms latency per request, "
              f"{MODBUS_REF.stress_MPa:g} MPa (real time, {load()})")
-    ff_run = run_modbus_session(MODBUS_REF, learning=None, periods=PERIODS)
-    ln_run = run_modbus_session(MODBUS_REF, learning=learning, periods=PERIODS)
+    ff_run, ln_run = side_by_side(MODBUS_REF, learning)
     report_limits(label, ff_run.period_rms_um, ln_run.period_rms_um, ln_run.status["learning"], out,
                   f"latency {ln_run.extra['latency_ms'][0]:.2f}-{ln_run.extra['latency_ms'][1]:.2f} ms, "
                   f"achieved {ln_run.status['achieved_rate_hz']:.0f} Hz, {ln_run.status['missed_deadlines']} "
@@ -160,18 +160,38 @@ def sessions_of(which: str, count: int) -> list[Session]:
     return [draw_session(s) for s in seeds[:count]]
 
 
-RUNNERS = {"emulator": run_modbus_session, "latency-sim": run_latency_sim}
+TRANSPORTS = ("emulator", "latency-sim")
 _FEEDFORWARD: dict[tuple, SessionRun] = {}     # latency-sim repeats exactly: one feedforward run per session
+
+
+_POOL: Any = None
+
+
+def side_by_side(session: Session, learning: dict[str, Any]) -> tuple[SessionRun, SessionRun]:
+    """The feedforward and the learning run of a session at the same time, in two processes, each
+    with its own emulator: whatever load the machine has then, it hits both alike."""
+    global _POOL
+    if _POOL is None:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        _POOL = ProcessPoolExecutor(max_workers=2, mp_context=multiprocessing.get_context("spawn"))
+    ff = _POOL.submit(run_modbus_session, session, learning=None, periods=PERIODS)
+    ln = _POOL.submit(run_modbus_session, session, learning=learning, periods=PERIODS)
+    return ff.result(), ln.result()
 
 
 def session_pair(session: Session, learning: dict[str, Any], transport: str = "emulator") -> dict[str, Any]:
     t0 = time.monotonic()
-    run = RUNNERS[transport]
-    key = (transport, session)
-    ff: SessionRun = _FEEDFORWARD.get(key) or run(session, learning=None, periods=PERIODS)
-    if transport == "latency-sim":
+    ff: SessionRun
+    ln: SessionRun
+    if transport == "emulator":
+        ff, ln = side_by_side(session, learning)
+    else:
+        key = (transport, session)
+        ff = _FEEDFORWARD.get(key) or run_latency_sim(session, learning=None, periods=PERIODS)
         _FEEDFORWARD[key] = ff
-    ln: SessionRun = run(session, learning=learning, periods=PERIODS)
+        ln = run_latency_sim(session, learning=learning, periods=PERIODS)
     st = ln.status["learning"]
     end_ff, end_ln = ff.window(PERIODS - 4, PERIODS), ln.window(PERIODS - 4, PERIODS)
     own = st["baseline_rms_um"]
@@ -239,7 +259,7 @@ def main() -> int:
     ap.add_argument("--periods", type=int, default=40, help="classic: periods at 3 Hz (20 Hz runs 3x as many)")
     ap.add_argument("--learning", default="{}", metavar="JSON", help="extra learning keys, e.g. '{\"gain\": 0.3}'")
     ap.add_argument("--sweep", metavar="KEY=V1,V2", help="sessions for each value of one learning key")
-    ap.add_argument("--transport", default="emulator", choices=tuple(RUNNERS),
+    ap.add_argument("--transport", default="emulator", choices=TRANSPORTS,
                     help="sessions: through the Modbus TCP emulator in real time (default), or its latency in "
                          "simulated time (repeatable, free of the machine's load)")
     ap.add_argument("--plot", metavar="PNG", help="classic: save the per-period RMS figure")
