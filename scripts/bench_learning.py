@@ -13,8 +13,8 @@ Sections (`--only`, default: classic and limits):
   sessions   seeded sessions through the Modbus TCP emulator, reference to the current floor, latency
              1-2 ms, 0 A floor, 50 A/s slew (benchmarks/learning_rigs.py draws frequency, amplitude and
              load from the seed). Targets: none ends worse than feedforward, median at most 0.4x.
-             `--seeds tuning` (the defaults were chosen on these), `held-out` (never looked at while
-             choosing), `rig` (another plant: every hil_sim effect on); quote them apart.
+             `--seeds tuning` (the defaults were chosen on these), `held-out` and `fresh` (never used
+             to choose), `rig` (another plant: every hil_sim effect on); quote them apart.
 
 Every learning run is paired with a feedforward run of the same seed. Through the emulator the two
 run at the same time in two processes, so the machine's load hits both alike; real-time sections
@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.learning_rigs import (  # noqa: E402
-    HELD_OUT_RIG, HELD_OUT_SEEDS, MODEL, TUNING_SEEDS, Session, SessionRun, draw_session, run_latency_sim,
+    FRESH_SEEDS, HELD_OUT_RIG, HELD_OUT_SEEDS, MODEL, TUNING_SEEDS, Session, SessionRun, draw_session, run_latency_sim,
     run_modbus_session)
 from gma_ffc.sil import run_tracking  # noqa: E402
 
@@ -156,7 +156,7 @@ def report_limits(label: str, ff: np.ndarray, ln: np.ndarray, learning: dict, ou
 def sessions_of(which: str, count: int) -> list[Session]:
     if which == "rig":
         return list(HELD_OUT_RIG[:count])
-    seeds = TUNING_SEEDS if which == "tuning" else HELD_OUT_SEEDS
+    seeds = {"tuning": TUNING_SEEDS, "held-out": HELD_OUT_SEEDS, "fresh": FRESH_SEEDS}[which]
     return [draw_session(s) for s in seeds[:count]]
 
 
@@ -254,7 +254,7 @@ def sweep(spec: str, which: str, count: int, out: dict[str, Any], transport: str
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", default="classic,limits", help="comma-separated: classic, limits, sessions")
-    ap.add_argument("--seeds", default="tuning", choices=("tuning", "held-out", "rig", "all"))
+    ap.add_argument("--seeds", default="tuning", choices=("tuning", "held-out", "fresh", "rig", "all"))
     ap.add_argument("--count", type=int, default=20, help="sessions per seed set (default 20)")
     ap.add_argument("--periods", type=int, default=40, help="classic: periods at 3 Hz (20 Hz runs 3x as many)")
     ap.add_argument("--learning", default="{}", metavar="JSON", help="extra learning keys, e.g. '{\"gain\": 0.3}'")
@@ -277,7 +277,7 @@ def main() -> int:
         if "limits" in parts:
             limits_section(learning, out)
         if "sessions" in parts:
-            for which in (("tuning", "held-out", "rig") if args.seeds == "all" else (args.seeds,)):
+            for which in (("tuning", "held-out", "fresh", "rig") if args.seeds == "all" else (args.seeds,)):
                 sessions_section(which, args.count, learning, out, args.transport)
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1, default=float) + "\n")

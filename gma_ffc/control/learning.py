@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping
 import numpy as np
 
 from ..errors import ConfigError
-from .learning_kernels import filter_coefficient, learn_period, lowpass_circular, period_difference
+from .learning_kernels import filter_coefficient, highpass_change, learn_period, lowpass_circular, period_difference
 from .learning_watch import BACK_OFF, HOLD, BaselineWatch
 from .safety import LIMIT_NAMES, LIMIT_NONE, LIMIT_RAMP
 
@@ -336,7 +336,7 @@ class RepetitiveLearner:
             return
         if self.stage == FEEDFORWARD:
             return
-        verdict = self.watch.judge(r2, self.gain, self.cfg.forgetting)
+        verdict = self.watch.judge(self._err, self._seen, r2, self.gain, self.cfg.forgetting)
         if verdict == BACK_OFF:
             self._back_off(t)
             return
@@ -472,6 +472,7 @@ class RepetitiveLearner:
                 "baseline_rms_um": _root(w.B2) if measured else None,
                 "nonrepeatable_um": _root(w.nr2) if measured else None,
                 "worse_above_um": _root(w.threshold(self.gain, self.cfg.forgetting)) if measured else None,
+                "noise_ratio": round(w.rho, 3) if measured else None,
                 "best_rms_um": _root(self.best_r2) if measured else None,
                 "limited": {"share": round(float(np.count_nonzero(limited)) / self.n, 4), "by": share,
                             "where": limit_spans(limited, self._ref)},
@@ -549,6 +550,7 @@ def warm_up_kernels() -> None:
     learn_period(c, e, seen, push, 0.5, 1.0, 0, 0.5, True, 1.0)
     period_difference(e, seen, c, seen, np.zeros(8))
     lowpass_circular(c, 0.5, True)
+    highpass_change(e, seen, 0.5, True, np.zeros(8), np.zeros(8), seen.copy(), np.zeros(8))
 
 
 def model_gain_table(model: Model, n: int = 33) -> Callable[[float], float] | None:

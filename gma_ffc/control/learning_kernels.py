@@ -87,3 +87,37 @@ def filter_coefficient(cutoff_hz: float, rate_hz: float, zero_phase: bool) -> fl
     if wc >= math.pi:
         return 1.0
     return 1.0 - math.exp(-wc)
+
+
+@njit(cache=True, nogil=True)
+def highpass_change(err: np.ndarray, seen: np.ndarray, a: float, zero_phase: bool, hp: np.ndarray,
+                    prev_hp: np.ndarray, prev_seen: np.ndarray, scratch: np.ndarray) -> tuple[float, int]:
+    """The error above the robustness filter's band (err - Q err), against the previous period's:
+    returns the sum of squared differences over the phases both saw, and how many there were;
+    keeps this period's for the next call. Unseen phases hold the last seen value first.
+
+    Above the band the learning does not act, and what repeats cancels in the difference: what is
+    left is the non-repeatable error there, whatever the learning does below it."""
+    n = err.shape[0]
+    last = 0.0
+    for j in range(n):                       # the value a circular hold starts from
+        if seen[j]:
+            last = err[j]
+    for j in range(n):
+        if seen[j]:
+            last = err[j]
+        hp[j] = last
+        scratch[j] = last
+    if a < 1.0:
+        lowpass_circular(scratch, a, zero_phase)
+    total = 0.0
+    both = 0
+    for j in range(n):
+        hp[j] -= scratch[j]
+        if seen[j] and prev_seen[j]:
+            d = hp[j] - prev_hp[j]
+            total += d * d
+            both += 1
+        prev_hp[j] = hp[j]
+        prev_seen[j] = seen[j]
+    return total, both
