@@ -244,23 +244,23 @@ def test_missed_ticks_do_not_stop_learning():
 
 def test_the_limiter_says_which_limit_cut_the_command():
     lim = safety.Limiter(0.0, 3.0, 100.0, 1e-3, 0.0)         # 0.1 A per tick
-    assert lim.apply(1.0) == pytest.approx(0.1) and lim.clipped == safety.LIMIT_RAMP   # the start-up ramp
+    assert lim.apply(1.0) == pytest.approx(0.1) and lim.clipped == safety.RAMP   # the start-up ramp
     for _ in range(9):
         lim.apply(1.0)
-    assert lim.apply(1.0) == 1.0 and lim.clipped == safety.LIMIT_NONE                 # caught up: no ramp
-    assert lim.apply(1.5) == pytest.approx(1.1) and lim.clipped == safety.LIMIT_SLEW
+    assert lim.apply(1.0) == 1.0 and lim.clipped == safety.NOT_LIMITED                 # caught up: no ramp
+    assert lim.apply(1.5) == pytest.approx(1.1) and lim.clipped == safety.SLEW
     lim.apply(1.1)
     lim.force(0.0)                                             # a safe-current write: ramps again
-    assert lim.apply(0.5) == pytest.approx(0.1) and lim.clipped == safety.LIMIT_RAMP
-    assert lim.apply(-1.0) == 0.0 and lim.clipped == safety.LIMIT_CURRENT_MIN
+    assert lim.apply(0.5) == pytest.approx(0.1) and lim.clipped == safety.RAMP
+    assert lim.apply(-1.0) == 0.0 and lim.clipped == safety.CURRENT_MIN
     lim.force(2.95)
     lim.apply(2.95)
-    assert lim.apply(9.0) == 3.0 and lim.clipped == safety.LIMIT_CURRENT_MAX
-    assert lim.apply(2.0) == pytest.approx(2.9) and lim.clipped == safety.LIMIT_SLEW
+    assert lim.apply(9.0) == 3.0 and lim.clipped == safety.CURRENT_MAX
+    assert lim.apply(2.0) == pytest.approx(2.9) and lim.clipped == safety.SLEW
     # a ramp ends at the latest after the time the slew limit takes to cross the whole range
     slow = safety.Limiter(0.0, 1.0, 1.0, 0.1, 0.0)            # 0.1 A per tick: 10 ticks across
     kinds = [(slow.apply(5.0 if i % 2 else -5.0) and slow.clipped) for i in range(40)]
-    assert safety.LIMIT_RAMP not in kinds[12:]
+    assert safety.RAMP not in kinds[12:]
 
 
 def test_frozen_ticks_teach_nothing_and_say_why():

@@ -505,7 +505,7 @@ class Controller:
                         learner.observe(t, ref_now, inputs.displacement_um, stress, False, "no valid stress yet")
                     else:
                         if cmd != self.law.raw:    # a limit cut the command: learning holds there only
-                            learner.limited(t, self.limiter.clipped or safety.LIMIT_MODEL_RANGE, cmd - self.law.raw)
+                            learner.limited(t, self.limiter.clipped or safety.MODEL_RANGE, cmd - self.law.raw)
                         learner.observe(t, ref_now, inputs.displacement_um, stress, True)
             except Exception as exc:   # the one fault path: the table says what happens
                 name, message, reason = _classify(exc)

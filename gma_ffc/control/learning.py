@@ -45,7 +45,7 @@ import numpy as np
 from ..errors import ConfigError
 from .learning_kernels import filter_coefficient, highpass_change, learn_period, lowpass_circular, period_difference
 from .learning_watch import BACK_OFF, HOLD, BaselineWatch
-from .safety import LIMIT_NAMES, LIMIT_NONE, LIMIT_RAMP
+from .safety import LIMITS, RAMP
 
 _lowpass_circular = lowpass_circular     # the name the tests and earlier code know
 
@@ -154,6 +154,10 @@ def reference_period_s(section: Mapping[str, Any]) -> float | None:
 MIN_SEEN_SHARE = 0.5       # a period with fewer phases observed is a stall, not jitter: its RMS says little
 EVENTS_KEPT = 20           # learning events kept for the status (the service logs each once)
 MAX_SPANS = 6              # limited stretches of the period listed in the status, longest first
+LIMIT_NAMES = ("none",) + LIMITS                           # by the code kept per phase
+LIMIT_CODES = {name: code for code, name in enumerate(LIMIT_NAMES)}
+LIMIT_CODES[""] = 0
+RAMP_CODE = LIMIT_CODES[RAMP]
 
 # Stages of a learner's life (status "stage").
 BASELINE = "baseline"          # measuring the feedforward alone, nothing applied
@@ -189,7 +193,7 @@ class RepetitiveLearner:
         self._err = np.zeros(n)                # this period's error, by phase
         self._seen = np.zeros(n, dtype=np.bool_)
         self._ref = np.zeros(n)                # the reference, by phase (for the status's words)
-        self._limit = np.zeros(n, dtype=np.int8)       # LIMIT_* of the latest command for each phase
+        self._limit = np.zeros(n, dtype=np.int8)       # LIMIT_CODES of the latest command for each phase
         self._push = np.zeros(n, dtype=np.int8)        # sign of (limited - asked) there
         self._last_limit = np.zeros(n, dtype=np.int8)  # of the last complete period
         self._base_limit = np.zeros(n, dtype=np.int8)  # any limit met while measuring the baseline
@@ -242,21 +246,21 @@ class RepetitiveLearner:
         the feedforward baseline is measured or after learning gave up."""
         k = self.phase(t_target)
         self._cmd_phase = k
-        self._limit[k] = LIMIT_NONE
+        self._limit[k] = 0
         self._push[k] = 0
         c = self.correction_um[k] if self.stage == LEARNING or self.stage == HOLDING else 0.0
         self.last_correction_um = c
         return c
 
-    def limited(self, t: float, limit: int, push: float) -> None:
-        """The command asked for at the last `correction` was cut by `limit` (a safety.LIMIT_*
-        code); `push` = limited - asked. Learning goes on elsewhere in the period; at this phase
-        c may not grow towards the limit. A ramp after a start or a reconnect is a transient:
-        the period teaches nothing."""
+    def limited(self, t: float, limit: str, push: float) -> None:
+        """The command asked for at the last `correction` was cut by `limit` (one of
+        `safety.LIMITS`); `push` = limited - asked. Learning goes on elsewhere in the period; at
+        this phase c may not grow towards the limit. A ramp after a start or a reconnect is a
+        transient: the period teaches nothing."""
         k = self._cmd_phase
-        self._limit[k] = limit
+        self._limit[k] = LIMIT_CODES.get(limit, 0)
         self._push[k] = 1 if push > 0.0 else (-1 if push < 0.0 else 0)
-        if limit == LIMIT_RAMP:
+        if limit == RAMP:
             self._freeze(t, "command ramping from the safe current (start or reconnect): a transient")
 
     def observe(self, t: float, reference_um: float, displacement_um: float, stress_MPa: float,
@@ -363,7 +367,7 @@ class RepetitiveLearner:
         first, last = self.periods - w.count + 1, self.periods
         self.note(t, f"feedforward baseline {math.sqrt(w.B2):.4g} um RMS (periods {first}-{last}; non-repeatable "
                      f"{math.sqrt(w.nr2):.3g} um); learning {'applies the loaded correction' if self._loaded else 'starts'}")
-        np.copyto(self._base_limit, 0, where=self._base_limit == LIMIT_RAMP)
+        np.copyto(self._base_limit, 0, where=self._base_limit == RAMP_CODE)
         if np.any(self._base_limit):
             self.reference_limits = limit_spans(self._base_limit, self._ref)
             share = np.count_nonzero(self._base_limit) / self.n

@@ -49,10 +49,17 @@ EXIT_FAULTS = frozenset({SAFE_WRITE_FAILED, RECONNECT_FAILED, DEACTIVATE_FAILED,
 REALTIME_REFUSED = "realtime_priority_refused"
 WARNINGS = frozenset({REALTIME_REFUSED})      # reported, never a fault exit
 
-# What cut a command short (`Limiter.clipped`, the learner's status). A ramp is the slew limit
-# while the command still heads for its target after a start or a reconnect.
-LIMIT_NONE, LIMIT_CURRENT_MIN, LIMIT_CURRENT_MAX, LIMIT_SLEW, LIMIT_RAMP, LIMIT_MODEL_RANGE = range(6)
-LIMIT_NAMES = ("none", "current_min", "current_max", "slew", "ramp", "model_range")
+# What cut a command short (`Limiter.clipped`, the learner's status). A ramp is the command
+# heading for, or coming from, the safe current rather than following the law: the slew limit
+# after a start or a reconnect. MODEL_RANGE is the law's clamp to the model's drive range.
+# Interned strings: recording one allocates nothing.
+NOT_LIMITED = ""
+CURRENT_MIN = "current_min"
+CURRENT_MAX = "current_max"
+SLEW = "slew"
+RAMP = "ramp"
+MODEL_RANGE = "model_range"
+LIMITS = (CURRENT_MIN, CURRENT_MAX, SLEW, RAMP, MODEL_RANGE)
 
 OUTPUTS = ("immediate", "ramp", "none")
 THENS = ("stop", "reconnect", "continue")
@@ -115,9 +122,9 @@ def fault_actions(cfg: Any) -> dict[str, FaultAction]:
 class Limiter:
     """Clamp to [lo, hi] and limit the step per tick to slew*dt; NaN commands hold the last.
 
-    `clipped` says what cut the last command (a LIMIT_* code; the slew limit wins when both
+    `clipped` names what cut the last command (NOT_LIMITED if nothing; the slew limit wins when both
     acted). From construction and from `force` (a safe-current write) the command ramps: slew
-    clipping counts as LIMIT_RAMP until the first tick it does not clip, or at the latest after
+    clipping counts as RAMP until the first tick it does not clip, or at the latest after
     the time the slew limit needs to cross the whole current range (after that, what clips is
     the target, not the start).
     """
@@ -129,26 +136,26 @@ class Limiter:
         self.hi = hi
         self.max_step = slew_A_per_s * period_s
         self.last = min(max(initial, lo), hi)
-        self.clipped = LIMIT_NONE
+        self.clipped = NOT_LIMITED
         span = (hi - lo) / self.max_step if self.max_step > 0 else 0.0
         self._max_ramp_ticks = int(math.ceil(span)) if math.isfinite(span) else 0
         self._ramp_ticks = self._max_ramp_ticks
 
     def apply(self, target: float) -> float:
-        clipped = LIMIT_NONE
+        clipped = NOT_LIMITED
         if target != target:            # NaN: hold (the caller raises the fault)
             target = self.last
         if target > self.hi:
             target = self.hi
-            clipped = LIMIT_CURRENT_MAX
+            clipped = CURRENT_MAX
         elif target < self.lo:
             target = self.lo
-            clipped = LIMIT_CURRENT_MIN
+            clipped = CURRENT_MIN
         step = target - self.last
         if step > self.max_step or step < -self.max_step:
             target = self.last + (self.max_step if step > 0 else -self.max_step)
-            clipped = LIMIT_RAMP if self._ramp_ticks > 0 else LIMIT_SLEW
-        if clipped != LIMIT_RAMP:
+            clipped = RAMP if self._ramp_ticks > 0 else SLEW
+        if clipped != RAMP:
             self._ramp_ticks = 0
         elif self._ramp_ticks > 0:
             self._ramp_ticks -= 1
