@@ -113,8 +113,10 @@ class LoopRun:
 def run_tracking(model_path: str | Path, frequency_hz: float, periods: int, *, learning: dict | None = None,
                  rate_hz: float = 1000.0, amplitude_um: float = 12.0, offset_um: float = 20.0,
                  load_schedule: Sequence[Sequence[float]] = ((0.0, 0.0),), lead_s: float = 0.001,
-                 plant_effects: dict | None = None, seed: int = 0, workdir: str | Path | None = None) -> LoopRun:
-    """Track a sine for `periods` periods on the simulated rig through the real controller."""
+                 plant_effects: dict | None = None, seed: int = 0, workdir: str | Path | None = None,
+                 limits: dict | None = None) -> LoopRun:
+    """Track a sine for `periods` periods on the simulated rig through the real controller
+    (`limits` overrides keys of the default current and slew limits)."""
     from .control.config import validate_config
     from .control.manager import ControllerManager
     from .recordings import read_recording
@@ -132,7 +134,7 @@ def run_tracking(model_path: str | Path, frequency_hz: float, periods: int, *, l
                        "load_schedule": [[float(a), float(b)] for a, b in load_schedule[1:]]},
             "reference": {"kind": "sine", "frequency_hz": frequency_hz, "amplitude_um": amplitude_um,
                           "offset_um": offset_um, "lead_s": lead_s},
-            "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
+            "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0, **(limits or {})},
             "telemetry": {"path": str(folder / f"{tag}.csv"), "flush_interval_s": 0.5},
         }
         if learning:

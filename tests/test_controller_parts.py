@@ -16,6 +16,7 @@ from gma_ffc.control import safety
 from gma_ffc.control.config import validate_config
 from gma_ffc.control.envelope import DriveRange
 from gma_ffc.control.law import FeedforwardController, carried_play_state
+from gma_ffc.control.learning import RAMPING
 from gma_ffc.control.manager import ControllerManager
 from gma_ffc.control.reference import Sine
 from gma_ffc.control.tick import Broadcaster
@@ -119,10 +120,13 @@ class Ear:
     """A learner that only listens: records what the law tells it."""
 
     def __init__(self):
-        self.heard: list[tuple[bool, str]] = []
+        self.heard: list[tuple] = []
 
     def correction(self, t):
         return 0.0
+
+    def limited(self, t, limit, push):
+        self.heard.append(("limited", limit, math.copysign(1.0, push)))
 
     def observe(self, t, r, y, stress, ok, why_not=""):
         self.heard.append((ok, why_not))
@@ -131,19 +135,28 @@ class Ear:
         self.heard.append((False, "frozen: " + reason))
 
 
-def test_the_learner_learns_only_from_ticks_whose_command_was_the_laws():
+def test_the_learner_learns_from_the_laws_ticks_and_hears_where_a_limit_cut_them():
     model = load_model(MODEL)
     ear = Ear()
     law = FeedforwardController(model, Sine(3.0, 12.0, 20.0), model.inverse_stepper(1e-3), ear)  # type: ignore[arg-type]
-    for limit in (safety.NOT_LIMITED, safety.CURRENT_MIN, safety.CURRENT_MAX, safety.SLEW, safety.RAMP):
-        law.observe(0.0, 1.0, 1.0, -15.0, limit)
-    law.observe(0.0, 1.0, 1.0, math.nan, safety.NOT_LIMITED)
-    law.observe(0.0, 1.0, 1.0, math.nan, safety.RAMP)
-    law.deactivate(0.0, "comms_error: at the safe current")
-    assert ear.heard == [(True, ""), (False, "command limited (limits.current_min_A)"),
-                         (False, "command limited (limits.current_max_A)"),
-                         (False, "command limited (limits.slew_A_per_s)"), (False, "stopping"),
-                         (False, "no valid stress yet"), (False, "stopping"),
+    law.activate(0.0)
+    t = 0.0
+    for limit, cut in ((safety.NOT_LIMITED, 0.0), (safety.CURRENT_MIN, 0.1), (safety.CURRENT_MAX, -0.1),
+                       (safety.SLEW, -0.05), (safety.RAMP, 0.05), (safety.NOT_LIMITED, -0.2)):
+        t += 1e-3
+        raw = law.update(t, -15.0)
+        law.observe(t, 1.0, 1.0, -15.0, limit, raw + cut)
+    law.observe(t + 1e-3, 1.0, 1.0, -15.0, safety.RAMP, 0.0)           # the runner's safe current (stopping)
+    law.observe(t + 2e-3, 1.0, 1.0, math.nan, safety.NOT_LIMITED, 0.0)  # no stress yet
+    law.deactivate(t, "comms_error: at the safe current")
+    learned = (True, "")
+    assert ear.heard == [learned,
+                         ("limited", safety.CURRENT_MIN, 1.0), learned,
+                         ("limited", safety.CURRENT_MAX, -1.0), learned,
+                         ("limited", safety.SLEW, -1.0), learned,
+                         ("limited", safety.RAMP, 1.0), (False, RAMPING),          # a transient: frozen
+                         ("limited", safety.MODEL_RANGE, -1.0), learned,   # a cut the runner did not name: the law's clamp
+                         (False, "stopping"), (False, "no valid stress yet"),
                          (False, "frozen: comms_error: at the safe current")]
     assert not law.active
 

@@ -36,19 +36,24 @@ def test_two_second_stall_freezes_learning_goes_safe_and_tracking_returns(tmp_pa
                         learning={"kind": "repetitive"})
         ctrl = ControllerManager(cfg, model=model)
         result = {}
-        th = threading.Thread(target=lambda: result.setdefault("s", ctrl.run(duration_s=16.0)))
+        stop = threading.Event()
+        th = threading.Thread(target=lambda: result.setdefault("s", ctrl.run(stop, duration_s=60.0)))
         th.start()
         frozen_during_stall = None
         try:
-            wait_ticks(ctrl, th, int(6.0 * RATE), limit_s=30.0)     # 15 periods of learning
+            wait_ticks(ctrl, th, int(6.0 * RATE), limit_s=30.0)     # 15 periods: 4 of baseline, then learning
             learned_before = ctrl.setup.law.learner.learned_periods
             bench.rig.faults.set("silent")
             time.sleep(2.0)
             during = ctrl.status()
             frozen_during_stall = during["learning"]
             n_before_clear = len(bench.rig.history("setpoint"))
+            ticks_at_clear = ctrl.stats.count
             bench.rig.faults.clear()
+            # 10 periods of ticks after the link is back (counted, not timed: a busy machine misses deadlines)
+            wait_ticks(ctrl, th, ticks_at_clear + int(10 * RATE / FREQ) + RATE, limit_s=40.0)
         finally:
+            stop.set()
             th.join(timeout=40.0)
         assert not th.is_alive()
         s = result["s"]
@@ -87,3 +92,76 @@ def test_two_second_stall_freezes_learning_goes_safe_and_tracking_returns(tmp_pa
         assert s["learning"]["learned_periods"] > learned_before
     finally:
         bench.emu.stop()
+
+
+# ---- the emulator's random latency (issue 32: timing jitter over Modbus) --------------------------
+
+def test_a_latency_the_emulator_cannot_have_is_refused():
+    from gma_ffc.errors import FaultError
+    from hil_sim.emulators.modbus import check_latency
+
+    assert check_latency(None) is None and check_latency((0.001, 0.002)) == (0.001, 0.002)
+    for bad in ((0.002, 0.001), (-0.001, 0.001), (0.0, 5.0), ("a", 1)):
+        with pytest.raises(FaultError, match="latency"):
+            check_latency(bad)
+
+
+@pytest.mark.realtime
+def test_the_modbus_emulator_holds_every_request_for_its_seeded_random_latency():
+    from pymodbus.client import ModbusTcpClient
+
+    from gma_ffc.registers import load_register_map
+    from hil_sim.emulators import DEFAULT_MAP, EmulatedRig, ModbusEmulator, make_plant
+
+    def session(seed):
+        rig = EmulatedRig(make_plant(seed=0))
+        with ModbusEmulator(rig, load_register_map(DEFAULT_MAP), latency_s=(1e-3, 2e-3), seed=seed) as emu:
+            host, port = emu.host_port
+            client = ModbusTcpClient(host, port=port, timeout=2, retries=0)
+            client.connect()
+            trips = []
+            for _ in range(40):
+                t0 = time.perf_counter()
+                assert not client.read_input_registers(0, count=5, device_id=1).isError()
+                trips.append(time.perf_counter() - t0)
+            client.close()
+            return np.array(emu.latencies_s), np.array(trips)
+
+    lat, trips = session(7)
+    assert len(lat) >= 40 and lat.min() >= 1e-3 and lat.max() <= 2e-3
+    assert lat.max() - lat.min() > 0.5e-3                 # spread over the range, not one value
+    assert np.median(trips) >= 1e-3                       # the client waits for it (no upper bound: busy machine)
+    again, _ = session(7)
+    assert np.array_equal(lat[:40], again[:40])           # seeded: a session can be run again
+
+
+# ---- seeded sessions to the current floor, latency on (issue 32; the benchmark runs twenty) -----
+
+@pytest.mark.realtime
+def test_seeded_sessions_to_the_floor_through_modbus_with_latency_end_no_worse_than_feedforward(tmp_path):
+    """A smaller `scripts/bench_learning.py --only sessions`: two of its seeded sessions (a sine
+    from the current floor up, 1-2 ms latency on every request, 0 A floor, 50 A/s) through the
+    Modbus TCP emulator. At 100 Hz, not the benchmark's 200 Hz: the loop keeps its deadlines
+    on a busy machine. Feedforward is the run's own first periods (periods 2-4, before any
+    correction), read from the telemetry, not from the learner's bookkeeping.
+
+    Margins a busy machine keeps: a burst of late ticks costs a period 2-3x its RMS, so the end
+    is judged on the median of the last 5 periods, worse-than-feedforward at 1.1x, and the
+    median ratio at 0.6x (the benchmark's target, 0.4x, is met quiet and quoted there)."""
+    from benchmarks.learning_rigs import draw_session, run_modbus_session
+
+    ratios = []
+    for seed in (0, 1):
+        run = run_modbus_session(draw_session(seed), learning={"kind": "repetitive"}, periods=20, rate_hz=100.0,
+                                 workdir=tmp_path)
+        st = run.status["learning"]
+        assert st["learned_periods"] >= 8, st
+        feedforward = float(np.median(run.period_rms_um[1:4]))
+        end = float(np.median(run.period_rms_um[-5:]))
+        assert end <= 1.1 * feedforward, (seed, run.period_rms_um)          # never worse than feedforward
+        ratios.append(end / feedforward)
+        # the status shows the limited share and where the reference asks beyond the floor
+        assert 0.0 < st["limited"]["share"] < 0.3 and "current_min" in st["limited"]["by"], st["limited"]
+        assert any(s["limit"] == "current_min" for s in st["reference_beyond_limits"])
+        assert not any(s["limit"] == "ramp" for s in st["reference_beyond_limits"])
+    assert float(np.median(ratios)) <= 0.6, ratios

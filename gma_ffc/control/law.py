@@ -31,7 +31,8 @@ import numpy as np
 from ..model import InverseStepper as SDPIInverseStepper
 from ..model import SDPIModel
 from .envelope import DriveRange
-from .safety import CURRENT_MAX, CURRENT_MIN, RAMP, SLEW
+from .learning import RAMPING
+from .safety import MODEL_RANGE, RAMP
 
 if TYPE_CHECKING:
     from ..protocols import InverseStepper, Model
@@ -41,9 +42,6 @@ if TYPE_CHECKING:
 # Why a tick teaches the learner nothing (constants: a tick allocates no message).
 STOPPING = "stopping"
 NO_STRESS = "no valid stress yet"
-LIMITED = {CURRENT_MIN: "command limited (limits.current_min_A)",
-           CURRENT_MAX: "command limited (limits.current_max_A)",
-           SLEW: "command limited (limits.slew_A_per_s)"}
 
 
 class FeedforwardController:
@@ -51,12 +49,12 @@ class FeedforwardController:
 
     After each update: `beyond` says whether the inverse asked for a drive outside the model's
     identified range, `raw` is that request before the policy, `correction` what the learner
-    added. With policy "clamp" the returned drive is held inside the range; with "warn" and
+    added, `updated_t` the tick's time (so `observe` knows the tick's command was asked by the law). With policy "clamp" the returned drive is held inside the range; with "warn" and
     "fault" it is returned as asked and the runner decides (a fault stops the run).
     """
 
     __slots__ = ("model", "reference", "stepper", "learner", "drive", "lo", "hi", "clamp", "beyond", "raw",
-                 "correction", "active", "initial_state")
+                 "correction", "active", "initial_state", "updated_t")
 
     def __init__(self, model: Model, reference: Reference, stepper: InverseStepper,
                  learner: RepetitiveLearner | None = None, drive: DriveRange | None = None) -> None:
@@ -71,6 +69,7 @@ class FeedforwardController:
         self.correction = 0.0
         self.active = False
         self.initial_state = ""
+        self.updated_t = math.nan
 
     # ---- lifecycle ---------------------------------------------------------------------------
     def activate(self, drive_A: float) -> str:
@@ -110,28 +109,36 @@ class FeedforwardController:
             ref += self.correction
         u = self.stepper.step(ref, stress)
         self.raw = u
+        self.updated_t = t
         self.beyond = u < self.lo or u > self.hi
         if self.beyond and self.clamp:
             u = self.lo if u < self.lo else self.hi
         return u
 
     def observe(self, t: float, reference_um: float, displacement_um: float, stress: float,
-                limited_by: str) -> None:
-        """The tick's outcome, after the write: the learner learns only from a tick whose command
-        was the law's own. `limited_by` names the limit that changed it (`safety.CURRENT_MIN`,
-        `CURRENT_MAX`, `SLEW`; `RAMP` when the runner commanded the safe current instead) or is
-        `safety.NOT_LIMITED`."""
+                limited_by: str, command_A: float) -> None:
+        """The tick's outcome, after the write of `command_A`. The learner learns from every tick
+        whose command the law asked for (`update` ran at `t`). Where a limit cut it, the learner
+        hears which and in which direction, so that phase holds (anti-windup) while the rest of
+        the period learns: `limited_by` names the runner's limit (`safety.CURRENT_MIN`,
+        `CURRENT_MAX`, `SLEW`, `RAMP`); a cut it does not name is the law's own clamp to the
+        model's range (`safety.MODEL_RANGE`). A RAMP (to or from the safe current) freezes the
+        period, and a tick whose command the runner chose (stopping, no valid stress yet)
+        teaches nothing."""
         learner = self.learner
         if learner is None:
             return
-        if limited_by == RAMP:
-            learner.observe(t, reference_um, displacement_um, stress, False, STOPPING)
-        elif stress != stress:
+        if stress != stress:
             learner.observe(t, reference_um, displacement_um, stress, False, NO_STRESS)
-        elif limited_by:
-            learner.observe(t, reference_um, displacement_um, stress, False, LIMITED[limited_by])
+        elif self.updated_t != t:                      # the runner's safe current, not the law's
+            learner.observe(t, reference_um, displacement_um, stress, False, STOPPING)
         else:
-            learner.observe(t, reference_um, displacement_um, stress, True)
+            if command_A != self.raw:
+                learner.limited(t, limited_by or MODEL_RANGE, command_A - self.raw)
+            if limited_by == RAMP:                     # to or from the safe current: a transient
+                learner.observe(t, reference_um, displacement_um, stress, False, RAMPING)
+            else:
+                learner.observe(t, reference_um, displacement_um, stress, True)
 
 
 def start_stepper(stepper: InverseStepper, model: Model, safe_A: float) -> str:

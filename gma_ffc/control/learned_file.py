@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 
 from .. import safe_files
@@ -42,8 +43,12 @@ def save_learned(learner: RepetitiveLearner, path: str, output_dirs: tuple[str, 
 
 
 def save_if_learned(learner: RepetitiveLearner | None, path: str | None, output_dirs: tuple[str, ...] = ()) -> str:
-    """At the end of a run: keep what was learned for the next one. Returns '' or what went wrong."""
-    if learner is None or path is None or learner.learned_periods == 0:
+    """At the end of a run: keep the best correction for the next one, and only one measured better
+    than feedforward (the learner's events say when there was none). Returns '' or what went wrong."""
+    if learner is None or path is None:
+        return ""
+    if not learner.saveable:
+        learner.note(math.nan, f"not saved to {path}: no correction measured better than feedforward")
         return ""
     try:
         save_learned(learner, path, output_dirs)

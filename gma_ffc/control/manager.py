@@ -313,7 +313,7 @@ class ControllerManager:
         self.driver.write(cmd)
         limited = RAMP if self._mode != RUNNING else s.limiter.clipped
         if law.learner is not None:         # the tick's outcome, to the law's learner
-            law.observe(t, ref_now, inputs.displacement_um, stress, limited)
+            law.observe(t, ref_now, inputs.displacement_um, stress, limited, cmd)
         tick.reference_um = ref_now
         tick.command_A = cmd
         meas = inputs.current_A
@@ -387,7 +387,7 @@ class ControllerManager:
             return FLAGGED
         if reason is None:
             reason = self.faults.active.get(name, name)
-        if action.output == "ramp":      # the stopping ticks observe with RAMP: learning frozen
+        if action.output == "ramp":      # stopping ticks are not the law's: they teach nothing
             self.exit_reason = reason
             self.state = State.STOPPING
             if self._mode == RUNNING:

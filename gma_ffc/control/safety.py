@@ -49,6 +49,18 @@ EXIT_FAULTS = frozenset({SAFE_WRITE_FAILED, RECONNECT_FAILED, DEACTIVATE_FAILED,
 REALTIME_REFUSED = "realtime_priority_refused"
 WARNINGS = frozenset({REALTIME_REFUSED})      # reported, never a fault exit
 
+# What cut a command short (`Limiter.clipped`, the learner's status). A ramp is the command
+# heading for, or coming from, the safe current rather than following the law: the slew limit
+# after a start or a reconnect. MODEL_RANGE is the law's clamp to the model's drive range.
+# Interned strings: recording one allocates nothing.
+NOT_LIMITED = ""
+CURRENT_MIN = "current_min"
+CURRENT_MAX = "current_max"
+SLEW = "slew"
+RAMP = "ramp"
+MODEL_RANGE = "model_range"
+LIMITS = (CURRENT_MIN, CURRENT_MAX, SLEW, RAMP, MODEL_RANGE)
+
 OUTPUTS = ("immediate", "ramp", "none")
 THENS = ("stop", "reconnect", "continue")
 EXIT_STATES = ("fault", "stopped")
@@ -107,14 +119,18 @@ def fault_actions(cfg: Any) -> dict[str, FaultAction]:
     return table
 
 
-# Which limit changed the tick's command (`Limiter.clipped`; RAMP is set by the runner when it
-# commands the safe current instead of the law). Interned strings: recording one allocates nothing.
+# Which limit changed the tick's command (`Limiter.clipped`, `Tick.limited_by`, the learner's
+# status). RAMP is the command heading for, or coming from, the safe current rather than following
+# the law: set by the runner while it stops, and by the limiter for the slew ramp after a start or
+# a reconnect. MODEL_RANGE is the law's clamp to the model's drive range (`limits.beyond_model:
+# clamp`). Interned strings: recording one allocates nothing.
 NOT_LIMITED = ""
 CURRENT_MIN = "current_min"
 CURRENT_MAX = "current_max"
 SLEW = "slew"
 RAMP = "ramp"
-LIMITS = (CURRENT_MIN, CURRENT_MAX, SLEW, RAMP)
+MODEL_RANGE = "model_range"
+LIMITS = (CURRENT_MIN, CURRENT_MAX, SLEW, RAMP, MODEL_RANGE)
 
 
 class Limiter:
@@ -122,9 +138,13 @@ class Limiter:
 
     After each `apply`, `clipped` names the limit that changed the command (the last one to
     bind: a target beyond `hi` that the slew limit then holds back is SLEW), or NOT_LIMITED.
+    From construction and from `force` (a safe-current write) the command ramps: slew clipping
+    counts as RAMP until the first tick it does not clip, or at the latest after the time the
+    slew limit needs to cross the whole current range (after that, what clips is the target,
+    not the start).
     """
 
-    __slots__ = ("lo", "hi", "max_step", "last", "clipped")
+    __slots__ = ("lo", "hi", "max_step", "last", "clipped", "_ramp_ticks", "_max_ramp_ticks")
 
     def __init__(self, lo: float, hi: float, slew_A_per_s: float, period_s: float, initial: float) -> None:
         self.lo = lo
@@ -132,6 +152,9 @@ class Limiter:
         self.max_step = slew_A_per_s * period_s
         self.last = min(max(initial, lo), hi)
         self.clipped = NOT_LIMITED
+        span = (hi - lo) / self.max_step if self.max_step > 0 else 0.0
+        self._max_ramp_ticks = int(math.ceil(span)) if math.isfinite(span) else 0
+        self._ramp_ticks = self._max_ramp_ticks
 
     def apply(self, target: float) -> float:
         clipped = NOT_LIMITED
@@ -144,12 +167,13 @@ class Limiter:
             target = self.lo
             clipped = CURRENT_MIN
         step = target - self.last
-        if step > self.max_step:
-            target = self.last + self.max_step
-            clipped = SLEW
-        elif step < -self.max_step:
-            target = self.last - self.max_step
-            clipped = SLEW
+        if step > self.max_step or step < -self.max_step:
+            target = self.last + (self.max_step if step > 0 else -self.max_step)
+            clipped = RAMP if self._ramp_ticks > 0 else SLEW
+        if clipped != RAMP:
+            self._ramp_ticks = 0
+        elif self._ramp_ticks > 0:
+            self._ramp_ticks -= 1
         # Rounding can put last+max_step a hair outside the box when last sits on a bound.
         if target > self.hi:
             target = self.hi
@@ -160,8 +184,10 @@ class Limiter:
         return target
 
     def force(self, value: float) -> None:
-        """The amplifier was put at `value` outside the limiter (a safe-current write)."""
+        """The amplifier was put at `value` outside the limiter (a safe-current write); the next
+        commands ramp from there."""
         self.last = min(max(value, self.lo), self.hi)
+        self._ramp_ticks = self._max_ramp_ticks
 
 
 class SensorMonitor:

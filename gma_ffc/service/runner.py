@@ -238,6 +238,7 @@ class Service:
         reconnecting_since: float | None = None
         last_status_t = 0.0
         last_status_text = ""
+        logged_event = 0
         while thread.is_alive():
             if self._reload_flag.is_set():
                 self._reload_flag.clear()
@@ -246,6 +247,7 @@ class Service:
             if now >= next_poll:
                 snap = self.status()
                 self._publish(snap)
+                logged_event = _log_learning_events(snap, logged_event)
                 count = progress_count(snap)
                 progressed = last_count >= 0 and count > last_count
                 last_count = count
@@ -272,6 +274,8 @@ class Service:
                     last_status_t = now
                 next_poll = now + (poll_s if self._ready else SUPERVISE_PERIOD_S)
             thread.join(timeout=SUPERVISE_PERIOD_S)
+        if self.controller is not None:
+            _log_learning_events(self.controller.status(), logged_event)     # the last ones (e.g. not saved)
         if self._stop_reason is None:
             self._stop_reason = "control loop ended"
 
@@ -335,6 +339,17 @@ class Service:
         with safe_files.replace(self.stats_json, (), safe_files.STATS) as fh:
             json.dump(payload, fh, indent=2, default=jsonable)
             fh.write("\n")
+
+
+def _log_learning_events(status: dict[str, Any], logged: int) -> int:
+    """Log each learning event once (a baseline, the reference beyond the limits, a back-off): the
+    loop keeps them in its status and never logs itself. Returns the last event logged."""
+    for event in (status.get("learning") or {}).get("events") or ():
+        if event["seq"] > logged:
+            at = f" at t={event['t_s']:.2f} s" if event.get("t_s") is not None else ""
+            log.info("learning%s: %s", at, event["text"])
+            logged = event["seq"]
+    return logged
 
 
 def _stop_ramp_s(cfg: Any) -> float:

@@ -88,9 +88,17 @@ def fields(status: Mapping[str, Any]) -> list[tuple[str, str]]:
     if learning.get("enabled"):
         trend = " ".join(f"{v:.3f}" for v in learning.get("rms_trend_um", [])[-5:]) or "-"
         state = f"FROZEN since t={learning.get('frozen_since_s', 0):.2f} s: {learning['frozen_reason']}" \
-            if learning.get("frozen") else "learning"
+            if learning.get("frozen") else str(learning.get("stage", "learning"))
         rows.append(("learning", f"{state}; {learning.get('learned_periods', 0)} periods learned; "
                                  f"RMS per period (um, last 5): {trend}"))
+        if learning.get("baseline_rms_um") is not None:
+            rows.append(("learning vs ff", f"feedforward {learning['baseline_rms_um']:.3f} um, best "
+                                           f"{learning.get('best_rms_um') or 0:.3f} um; gain {learning.get('gain')}, "
+                                           f"{learning.get('backoffs', 0)} back-offs"))
+        limited = learning.get("limited") or {}
+        if limited.get("share"):
+            where = ", ".join(f"{s['limit']} at phase {s['from']:.2f}-{s['to']:.2f}" for s in limited.get("where", []))
+            rows.append(("learning limits", f"{100 * limited['share']:.1f} % of the last period limited: {where}"))
         if learning.get("last_event"):
             rows.append(("learning event", str(learning["last_event"])))
     elif "learning" in status:

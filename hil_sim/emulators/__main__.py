@@ -62,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     def modbus_common(p: argparse.ArgumentParser) -> None:
         p.add_argument("--map", default=str(DEFAULT_MAP), metavar="YAML",
                        help=f"register map (default {DEFAULT_MAP.name}; examples in {DEVICE_CONFIGS})")
+        p.add_argument("--latency-ms", metavar="LO-HI", type=_latency_ms,
+                       help="hold every request a random LO-HI ms (uniform, seeded by --seed) before it takes "
+                            "effect, e.g. 1-2: the timing jitter of a busy network (default: none)")
 
     epilog = FAULTS_DOC
     tcp = sub.add_parser("modbus-tcp", help="Modbus TCP server", epilog=epilog,
@@ -85,6 +88,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _latency_ms(text: str) -> tuple[float, float]:
+    lo, sep, hi = text.partition("-")
+    try:
+        pair = (float(lo) * 1e-3, float(hi if sep else lo) * 1e-3)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}': give LO-HI in milliseconds, e.g. 1-2") from None
+    if not 0.0 <= pair[0] <= pair[1] <= 1.0:
+        raise argparse.ArgumentTypeError(f"'{text}': need 0 <= LO <= HI <= 1000 ms")
+    return pair
+
+
 def run(args: argparse.Namespace) -> int:
     if args.kind == "control":
         reply = send_control(args.socket, " ".join(args.command))
@@ -105,7 +119,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         device = ModbusEmulator(rig, register_map, transport="tcp" if args.kind == "modbus-tcp" else "rtu",
                                 host=getattr(args, "host", "127.0.0.1"), port=getattr(args, "port", 0),
-                                baudrate=getattr(args, "baudrate", 115200), seed=args.seed)
+                                baudrate=getattr(args, "baudrate", 115200), seed=args.seed,
+                                latency_s=args.latency_ms)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -120,6 +135,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"control: {control.path}", flush=True)
         if faults:
             print(f"faults: {', '.join(map(str, faults))}", flush=True)
+        if getattr(args, "latency_ms", None):
+            print(f"latency: {1e3 * args.latency_ms[0]:g}-{1e3 * args.latency_ms[1]:g} ms on every request", flush=True)
         stop.wait(args.duration)
     print("stopped", flush=True)
     return 0

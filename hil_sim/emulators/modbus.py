@@ -16,6 +16,7 @@ import math
 import random
 import socket
 import threading
+import time
 from typing import Sequence, cast
 
 from pymodbus.constants import ExcCodes
@@ -184,6 +185,7 @@ class FaultyRequestHandler(ServerRequestHandler):
             return
         if faults.has("silent"):
             return
+        emulator.wait_latency()
         delay = faults.get("delay")
         if delay is not None:
             await asyncio.sleep(delay.value)
@@ -208,6 +210,19 @@ class _RtuServer(ModbusSerialServer):
         return FaultyRequestHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
 
 
+def check_latency(latency_s: tuple[float, float] | None) -> tuple[float, float] | None:
+    """(lo, hi) seconds with 0 <= lo <= hi <= 1, or None; a FaultError naming the fix otherwise."""
+    if latency_s is None:
+        return None
+    try:
+        lo, hi = (float(v) for v in latency_s)
+    except (TypeError, ValueError):
+        raise FaultError(f"modbus emulator: latency {latency_s!r} must be two numbers (lo, hi) in seconds") from None
+    if not (0.0 <= lo <= hi <= 1.0):
+        raise FaultError(f"modbus emulator: latency {lo:g}-{hi:g} s must satisfy 0 <= lo <= hi <= 1 s")
+    return lo, hi
+
+
 def _check_bindable(host: str, port: int) -> None:
     """FaultError naming the reason (address in use, no such interface...) before pymodbus tries."""
     try:
@@ -227,9 +242,13 @@ class ModbusEmulator:
     """
 
     def __init__(self, rig: EmulatedRig, register_map: RegisterMap, *, transport: str = "tcp",
-                 host: str = "127.0.0.1", port: int = 0, baudrate: int = 115200, seed: int = 0) -> None:
+                 host: str = "127.0.0.1", port: int = 0, baudrate: int = 115200, seed: int = 0,
+                 latency_s: tuple[float, float] | None = None) -> None:
         if transport not in ("tcp", "rtu"):
             raise ConfigError(f"modbus emulator: transport '{transport}' is not tcp or rtu")
+        self.latency_s = check_latency(latency_s)
+        self._latency_rng = random.Random(seed + 1)   # its own stream: the garbage bytes stay as they were
+        self.latencies_s: list[float] = []            # every latency applied, in order (for benchmarks)
         self.rig = rig
         self.map = register_map
         self.transport = transport
@@ -268,6 +287,18 @@ class ModbusEmulator:
     def connections(self) -> int:
         """Open client connections (TCP)."""
         return len(self._server.active_connections) if self._server is not None else 0
+
+    def wait_latency(self) -> None:
+        """Hold the request for a random latency (uniform in `latency_s`) before it takes effect:
+        a write acts, and a read samples the plant, that much later, as over a busy network.
+        It blocks the server's loop on purpose: a small device answers one request at a time,
+        and asyncio's timers are 1 ms coarse, too coarse for a 1-2 ms latency."""
+        if self.latency_s is None:
+            return
+        lo, hi = self.latency_s
+        wait = self._latency_rng.uniform(lo, hi)
+        self.latencies_s.append(wait)
+        time.sleep(wait)
 
     def garbage(self) -> bytes:
         """Bytes that are not a valid reply (seeded, so runs repeat)."""
