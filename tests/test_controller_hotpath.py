@@ -63,15 +63,18 @@ class Quiet(SimDriver):
         self.last_written_A = current_A
 
 
-@pytest.mark.parametrize("learning", [False, True])
-def test_ticks_and_their_broadcasts_keep_nothing(model, learning):
+@pytest.mark.parametrize("learning, floor_A", [(False, 0.0), (True, 0.0), (True, 0.5)],
+                         ids=["feedforward", "learning", "learning at the floor"])
+def test_ticks_and_their_broadcasts_keep_nothing(model, learning, floor_A):
     """Ticks as the loop runs them (read, stress, law, limits, write, the learner's observation,
     telemetry row, status values), driven by hand so nothing but the tick is traced: ten
     thousand more of them retain no more memory than a thousand (counters replace their ints,
-    buffers were sized at start)."""
+    buffers were sized at start). A 0.5 A floor cuts the bottom ~16 % of every period: the
+    learner hears each cut (issue 32) and keeps nothing for it either."""
     cfg = validate_config({"rate_hz": 1000, "clock": "simulated", "model": "unused.yaml", "driver": {"kind": "sim"},
                            "reference": {"kind": "sine", "frequency_hz": 3, "amplitude_um": 8, "offset_um": 15},
-                           "limits": {"current_min_A": 0, "current_max_A": 3, "slew_A_per_s": 500},
+                           "limits": {"current_min_A": floor_A, "current_max_A": 3, "slew_A_per_s": 500,
+                                      "safe_current_A": floor_A},
                            "telemetry": {"path": None},      # no writer thread: tracemalloc counts every thread
                            "learning": {"kind": "repetitive"} if learning else {}})
     ctrl = ControllerManager(cfg, model=model, driver=Quiet({}, 1e-3))
@@ -98,6 +101,8 @@ def test_ticks_and_their_broadcasts_keep_nothing(model, learning):
     assert long - short < 1024, (short, long)
     learner = ctrl.setup.law.learner
     assert (learner is not None) == learning and (learner is None or learner.learned_periods > 20)
+    if learner is not None:
+        assert (learner.status()["limited"]["share"] > 0.05) == (floor_A > 0)   # the floor was touched, and heard
 
 
 def test_sine_leads_by_the_configured_latency():
