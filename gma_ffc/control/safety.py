@@ -49,18 +49,6 @@ EXIT_FAULTS = frozenset({SAFE_WRITE_FAILED, RECONNECT_FAILED, DEACTIVATE_FAILED,
 REALTIME_REFUSED = "realtime_priority_refused"
 WARNINGS = frozenset({REALTIME_REFUSED})      # reported, never a fault exit
 
-# What cut a command short (`Limiter.clipped`, the learner's status). A ramp is the command
-# heading for, or coming from, the safe current rather than following the law: the slew limit
-# after a start or a reconnect. MODEL_RANGE is the law's clamp to the model's drive range.
-# Interned strings: recording one allocates nothing.
-NOT_LIMITED = ""
-CURRENT_MIN = "current_min"
-CURRENT_MAX = "current_max"
-SLEW = "slew"
-RAMP = "ramp"
-MODEL_RANGE = "model_range"
-LIMITS = (CURRENT_MIN, CURRENT_MAX, SLEW, RAMP, MODEL_RANGE)
-
 OUTPUTS = ("immediate", "ramp", "none")
 THENS = ("stop", "reconnect", "continue")
 EXIT_STATES = ("fault", "stopped")
