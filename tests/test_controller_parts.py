@@ -106,7 +106,7 @@ def test_the_limiter_names_the_limit_that_changed_the_command(lo, span, slew, ra
         out = lim.apply(target)
         bound = lim.clipped
         assert (bound == safety.NOT_LIMITED) == (out == target)
-        if bound == safety.SLEW:
+        if bound in (safety.SLEW, safety.RAMP):      # RAMP: the slew limit on the way from a safe-current write
             assert abs(min(max(target, lo), hi) - prev) > lim.max_step
             assert abs(out - prev) == pytest.approx(lim.max_step, rel=1e-9, abs=1e-12) or out in (lo, hi)
         elif bound == safety.CURRENT_MAX:
