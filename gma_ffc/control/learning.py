@@ -170,8 +170,9 @@ FEEDFORWARD = "feedforward"    # even the held correction turned worse: nothing 
 class RepetitiveLearner:
     """The learned correction of one period, indexed by phase; see the module docstring.
 
-    Per tick the controller calls `correction(t + lead)` (for the command), then `limited(...)`
-    when a limit cut that command, then `observe(t, ...)` with what the sensors saw.
+    Per tick the law that owns it (`law.FeedforwardController`) calls `correction(t + lead)` (for
+    the command), then `limited(...)` when a limit cut that command, then `observe(t, ...)` with
+    what the sensors saw; a fault that deactivates the law calls `freeze`.
     `gain_of_stress` maps a stress (MPa) to the plant's gain (um per unit of reference, from the
     model); it is evaluated once per period, never in a tick.
     """
