@@ -35,6 +35,8 @@ TOP = {
     "scheduler": Field("map", {}),
     "watchdog_s": Field("float", 0.5, min=0.0, min_exclusive=True),
     "learning": Field("map", {}, help="learning feedforward (off by default): {kind: repetitive}"),
+    "monitor": Field("map", {}, help="the model-fit monitor (docs/monitor.md)"),
+    "metrics": Field("map", None, nullable=True, help="serve Prometheus metrics (docs/monitor.md): {port: 9464}"),
 }
 
 STRESS = {
@@ -82,6 +84,29 @@ SCHEDULER = {
                                help="SCHED_FIFO priority of the loop thread (0 = normal scheduling)"),
     "gil_switch_interval_us": Field("float", 100.0, min=10.0, max=5000.0,
                                     help="how soon the loop gets the GIL back from other threads"),
+}
+
+# The model-fit monitor (gma_ffc/control/fit_monitor.py, docs/monitor.md).
+MONITOR = {
+    "enabled": Field("bool", True, help="predict the displacement beside the command and watch the residual"),
+    # 30 s: ten periods of a 0.3 Hz reference, and long enough for the background diagnosis to see
+    # a heating time constant's first part; a drift shows within a fraction of it (the mean square
+    # passes 9x the expected one long before the window has turned over).
+    "window_s": Field("float", 30.0, min=0.5, max=600.0, help="the residual's RMS is taken over this much"),
+    "trigger_s": Field("float", 10.0, min=0.0, help="drifting this long starts a background diagnosis"),
+    "on_drift": Field("choice", "diagnose", choices=("warn", "diagnose"),
+                      help="warn (status and log only) or diagnose (also run gma-ffc diagnose in the background)"),
+    "max_per_hour": Field("int", 2, min=0, max=60, help="background diagnoses at most this often (0: never)"),
+    "state_dir": Field("str", None, nullable=True,
+                       help="where diagnoses are written (default: $STATE_DIRECTORY, else "
+                            "$XDG_STATE_HOME/gma-ffc, else ~/.local/state/gma-ffc)"),
+}
+
+# Prometheus metrics (gma_ffc/service/metrics.py). Loopback by default: the figures say what the
+# rig is doing, which is nobody else's business unless the lab says so.
+METRICS = {
+    "host": Field("str", "127.0.0.1", help="address to serve on (0.0.0.0: every interface)"),
+    "port": Field("int", 9464, min=1, max=65535),
 }
 
 REFERENCE_KINDS = ("sine", "triangle", "multisine", "playback")
@@ -149,6 +174,8 @@ class ControllerConfig:
     scheduler: dict[str, Any]
     watchdog_s: float
     learning: LearningConfig = field(default_factory=LearningConfig)
+    monitor: dict[str, Any] = field(default_factory=lambda: validate_section({}, MONITOR, "monitor"))
+    metrics: dict[str, Any] | None = None
     source: str = "<memory>"
     raw: dict[str, Any] = field(default_factory=dict, repr=False)
 
@@ -217,6 +244,7 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
     if learning.file is not None:
         learning = LearningConfig(**{**learning.to_dict(), "file": _resolve(learning.file, base)})
 
+    monitor = _monitor_section(top["monitor"], top["rate_hz"], base)
     return ControllerConfig(
         rate_hz=top["rate_hz"],
         clock=top["clock"],
@@ -231,9 +259,21 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
         scheduler=validate_section(top["scheduler"], SCHEDULER, "scheduler"),
         watchdog_s=top["watchdog_s"],
         learning=learning,
+        monitor=monitor,
+        metrics=None if top["metrics"] is None else validate_section(top["metrics"], METRICS, "metrics"),
         source=source,
         raw=dict(data),
     )
+
+
+def _monitor_section(raw: Any, rate_hz: float, base: Path | None) -> dict[str, Any]:
+    monitor = validate_section(raw, MONITOR, "monitor")
+    if monitor["window_s"] * rate_hz < 16:
+        raise ConfigError(f"config key 'monitor.window_s' ({monitor['window_s']:g} s) must hold at least 16 ticks "
+                          f"at {rate_hz:g} Hz: make it at least {16 / rate_hz:g} s")
+    if monitor["state_dir"] is not None:
+        monitor["state_dir"] = _resolve(monitor["state_dir"], base)
+    return monitor
 
 
 def load_config(path: str | os.PathLike) -> ControllerConfig:
