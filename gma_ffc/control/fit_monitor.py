@@ -219,7 +219,8 @@ class FitMonitor:
             "noise_floor_um": _finite(noise),
             "reference": self.reference_words,
             "thresholds": {"drifting_above": DRIFT_RATIO, "ok_below": CLEAR_RATIO},
-            "window": {"ticks": n, "of": self.window_n, "seconds": n * self.period_s},
+            "window": {"ticks": n, "of": self.window_n, "seconds": n * self.period_s,
+                       "window_s": self.window_n * self.period_s},
             "tracking_rms_um": _finite(math.sqrt(self.pub_tracking_sq)) if self.published else None,
             "where": self.where(),
         }

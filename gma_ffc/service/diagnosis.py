@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from .daemon import _last_error as last_error_line
+from .status import summary_words
 
 log = logging.getLogger("gma_ffc.service")
 
@@ -164,18 +165,6 @@ class BackgroundDiagnosis:
                          "finished_unix": self.now()}
             self.last.pop("pid", None)
         self.child = self.current = None
-
-
-def summary_words(d: dict[str, Any]) -> str:
-    """One line for the log and the status table."""
-    outcome = d.get("outcome", "?")
-    if outcome in ("failed", "stopped"):
-        return f"{outcome}: {d.get('error', '')}"
-    effects = ", ".join(d.get("effects") or []) or "no effect named"
-    rms = ""
-    if d.get("rms_before_um") is not None and d.get("rms_after_um") is not None:
-        rms = f" (held-out RMS {d['rms_before_um']:.3g} -> {d['rms_after_um']:.3g} um)"
-    return f"{outcome}: {effects}{rms}"
 
 
 def _read_outcome(folder: Path) -> dict[str, Any]:
