@@ -36,6 +36,7 @@ from . import safety
 from .law import FeedforwardController
 from .learning import RepetitiveLearner, model_gain_table, reference_period_s
 from .config import ControllerConfig
+from .model_watch import COLUMNS as WATCH_COLUMNS, ModelWatch
 from .reference import Reference, build_reference
 from .scheduler import MonotonicClock, Scheduler, SimulatedClock, TickStats
 from .telemetry import Telemetry
@@ -140,6 +141,8 @@ class Controller:
         self._heartbeat = math.nan
         self._watchdog_tripped = False
         self._at_safe = False
+        self.fault_counts: collections.Counter[str] = collections.Counter()
+        self.watch: ModelWatch | None = None       # the model-fit monitor's part, built with the run's columns
 
     # ---- construction helpers ------------------------------------------------------------
     @staticmethod
@@ -185,6 +188,7 @@ class Controller:
             from ..modelio import load_model
 
             model = load_model(new_cfg.model)
+        watched = self.watch.prepare(model, new_cfg.model, new_cfg.monitor) if self.watch is not None else None
         reference = (build_reference(new_cfg.reference, model.preview_s),
                      build_reference({**new_cfg.reference, "lead_s": 0.0}))
         rng = model.stress_range_MPa
@@ -196,7 +200,7 @@ class Controller:
         if learner is not None:
             learner.last_event = "reset: configuration reloaded"
         with self._lock:
-            self._pending = (new_cfg, model, reference, stepper, monitor, learner)
+            self._pending = (new_cfg, model, reference, stepper, monitor, learner, watched)
         if self.state in (State.IDLE, State.STOPPED, State.FAULT):
             self._apply_pending()
 
@@ -205,7 +209,7 @@ class Controller:
             pending, self._pending = self._pending, None
         if pending is None:
             return
-        cfg, model, reference, stepper, monitor, learner = pending
+        cfg, model, reference, stepper, monitor, learner, watched = pending
         lim = cfg.limits
         last = self.limiter.last
         # Bumpless: the new inverse starts relaxed at the current command; limits keep `last`.
@@ -221,11 +225,14 @@ class Controller:
         self.learner = learner
         self._set_stress_range(model)
         self.law = self._make_law()
+        if self.watch is not None:
+            self.watch.adopt(watched)
 
     # ---- faults ----------------------------------------------------------------------------
     def _raise_fault(self, name: str, message: str) -> None:
         with self._lock:
             self.active_faults[name] = message
+            self.fault_counts[name] += 1
             self.fault_history.append({"fault": name, "message": message, "at_unix_s": time.time(),
                                        "tick": self.stats.count})
 
@@ -264,6 +271,8 @@ class Controller:
         ch = self.driver.channels
         if DISPLACEMENT in ch:
             cols.append(DISPLACEMENT)
+            if self.cfg.monitor["enabled"]:
+                cols += WATCH_COLUMNS          # right after the displacement they are about
         if FORCE in ch:
             cols.append(FORCE)
         if self.learner is not None:
@@ -347,6 +356,9 @@ class Controller:
                  if CURRENT in self.driver.channels else "commanded"},
                 capacity=int(tcfg["buffer_s"] * self.cfg.rate_hz), flush_interval_s=tcfg["flush_interval_s"],
                 block_when_full=self.clock.simulated)
+            self.watch = ModelWatch(self.cfg.monitor, self.driver.channels, cols, self.period_s)
+            self.watch.metadata = self.telemetry.metadata
+            self.watch.start(self.model, self.safe_A, initial_play_state(self.stepper, self.model, self.safe_A))
             if not self.clock.simulated and self.cfg.scheduler["realtime_priority"] > 1:
                 self.telemetry.realtime_priority = self.cfg.scheduler["realtime_priority"] - 1
             self.telemetry.start()
@@ -426,6 +438,8 @@ class Controller:
         row = np.zeros(ncols)
         has_current = CURRENT in driver.channels
         disp_col = tel.columns.index(DISPLACEMENT) if DISPLACEMENT in tel.columns else -1
+        watch = self.watch
+        assert watch is not None
         force_col = tel.columns.index(FORCE) if FORCE in tel.columns else -1
         self.law = self._make_law()          # configure: the law from what the controller holds now
         sched = Scheduler(clock, self.period_s)
@@ -505,8 +519,10 @@ class Controller:
                                         "command limited (ramp, slew or current limit)")
                     else:
                         learner.observe(t, ref_now, inputs.displacement_um, stress, True)
+                watch.on_tick(t, inputs.displacement_um, ref_now, cmd, stress, mode == RUNNING)
             except Exception as exc:   # the one fault path: the table says what happens
                 name, message, reason = _classify(exc)
+                watch.interrupt(self.safe_A, self.monitor.stress)
                 if read_ok:   # a tick whose read failed has no data to log
                     self._record_row(row, t_start - t0, ref_or_nan(self), self.limiter.last, inputs, has_current,
                                      disp_col, force_col, tel, safe=True)
@@ -580,6 +596,9 @@ class Controller:
         row[4] = self.monitor.stress
         if disp_col >= 0:
             row[disp_col] = inputs.displacement_um
+            if self.watch is not None and self.watch.enabled:
+                row[disp_col + 1] = self.watch.predicted_um
+                row[disp_col + 2] = self.watch.residual_um
         if force_col >= 0:
             row[force_col] = inputs.force_N
         if self.learner is not None:
@@ -588,6 +607,8 @@ class Controller:
         self.last_current_A = row[3]
         self.last_displacement_um = inputs.displacement_um
         tel.push(row)
+        if self.watch is not None:
+            self.watch.push(row)
 
     def _beyond_drive(self, u: float) -> None:
         """Flag a command outside the model's identified drive range (the law clamps it if configured)."""
@@ -632,6 +653,7 @@ class Controller:
             "displacement_um": _finite(self.last_displacement_um),
             "faults": sorted(faults),
             "fault_messages": faults,
+            "fault_counts": dict(self.fault_counts),
             "fault_history": history,
             "stress_clamped_ticks": self.stress_clamped_ticks,
             "outside_model": {"drive_ticks": self.drive_outside_ticks, "stress_ticks": self.stress_clamped_ticks,
@@ -643,11 +665,19 @@ class Controller:
             "model_kind": self.model.kind,
             "initial_state": self.initial_state,
             "learning": {"enabled": False} if self.learner is None else self.learner.status(),
+            **({} if self.watch is None else {"monitor": self.watch.status()}),
             "driver": self.driver.health(),
             "telemetry": None if tel is None else {"path": str(tel.path) if tel.path else None,
                                                    "rows": tel.head, "rows_written": tel.rows_written,
                                                    "dropped": tel.dropped},
         }
+
+    def model_window(self, seconds: float) -> tuple[Any, Model]:
+        """The last `seconds` of telemetry as a recording, and the model running now (for the
+        service's background diagnosis; off the loop)."""
+        if self.watch is None:
+            raise GmaError("the controller has not started: there is no telemetry to take")
+        return self.watch.window(seconds)
 
     def _summary(self) -> dict[str, Any]:
         snap = self.status()
@@ -692,6 +722,16 @@ def _warm_up(model: Model, dt: float, lo: float, hi: float) -> None:
     """Call a throwaway stepper once so JIT compilation / cache loading happens before tick 1."""
     mid = 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else -11.3
     model.inverse_stepper(dt, initial_drive=0.0).step(0.0, mid)
+
+
+def initial_play_state(stepper: InverseStepper, model: Model, safe_A: float) -> Any:
+    """The play state `start_stepper` starts an SDPI/MPI inverse in (None for other steppers):
+    the forward prediction starts in the same one."""
+    if not isinstance(stepper, SDPIInverseStepper):
+        return None
+    lo, hi = model.drive_range
+    target = 0.5 * (lo + hi) if math.isfinite(lo) and math.isfinite(hi) else safe_A + 1.0
+    return model.resolve_initial_state(np.array([safe_A, target if target != safe_A else safe_A + 1.0])).play_state
 
 
 def start_stepper(stepper: InverseStepper, model: Model, safe_A: float) -> str:
