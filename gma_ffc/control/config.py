@@ -106,7 +106,7 @@ MONITOR = {
 # rig is doing, which is nobody else's business unless the lab says so.
 METRICS = {
     "host": Field("str", "127.0.0.1", help="address to serve on (0.0.0.0: every interface)"),
-    "port": Field("int", 9464, min=1, max=65535),
+    "port": Field("int", 9464, min=0, max=65535, help="0: any free port (the status says which)"),
 }
 
 REFERENCE_KINDS = ("sine", "triangle", "multisine", "playback")
