@@ -26,6 +26,7 @@ allocate no containers and do no I/O. Everything else (`status`) runs off the lo
 from __future__ import annotations
 
 import math
+from array import array
 from typing import Any
 
 OK, DRIFTING, OFF, UNKNOWN = "ok", "drifting", "off", "unknown"
@@ -86,7 +87,7 @@ class FitMonitor:
         self.lo = lo if math.isfinite(lo) else 0.0
         self.band_scale = DRIVE_BANDS / span
         self.rate_scale = 1.0 / (span * period_s * RATE_EDGES[0])    # |du| per tick -> multiples of the first edge
-        self.ring = [0.0] * self.window_n
+        self.ring = array("d", bytes(8 * self.window_n))     # raw doubles: no float object kept per sample
         # the bands of the window being filled, and of the last whole one (swapped at each wrap)
         self.band_sq, self.pub_band_sq = [0.0] * DRIVE_BANDS, [0.0] * DRIVE_BANDS
         self.band_n, self.pub_band_n = [0] * DRIVE_BANDS, [0] * DRIVE_BANDS
