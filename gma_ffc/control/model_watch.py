@@ -1,10 +1,12 @@
 """The controller watching its own model (issue 30, docs/monitor.md): the per-tick part.
 
 Each tick, after the write: the residual of this tick's displacement reading against the model's
-prediction (`prediction.Prediction`, one write behind), fed to the fit monitor
-(`fit_monitor.FitMonitor`); then the prediction steps with the drive just written. The telemetry
-row gains `predicted_um` and `residual_um`, and is kept in a ring (`recent.RecentRows`) so the
-service can take the last `monitor.window_s` as a recording while the loop runs.
+prediction (`prediction.Prediction`, one write behind; NaN on ticks not judged: stopping, no
+valid stress), then the prediction steps with the drive just written. The telemetry row gains
+`predicted_um` and `residual_um` and is kept in a ring (`recent.RecentRows`). That is all the
+loop does. Off the loop, `status` feeds the rows pushed since its last call to the fit monitor
+(`fit_monitor.FitMonitor`) as one block, and the service takes the last `monitor.window_s` of
+the ring as a recording for a background diagnosis.
 
 A new model (a reload) is prepared off the loop: its prediction is brought to the present by
 replaying history through it (hysteresis, heating and creep states included): the recording a
@@ -17,6 +19,7 @@ model is judged on ticks it was not fitted on.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -63,7 +66,6 @@ class ModelWatch:
                            "the driver has no displacement channel: nothing to compare the model with")
         self.predicted_um = math.nan
         self.residual_um = math.nan
-        self.last_drive = math.nan
         self.model: Model | None = None
         self.prediction: Prediction | None = None
         self.fit: FitMonitor | None = None
@@ -73,6 +75,9 @@ class ModelWatch:
         self.rows = RecentRows(keep, len(self.columns), max(CATCH_UP_MARGIN, int(1.0 / period_s))) \
             if self.enabled else None
         self._col = {name: self.columns.index(name) for name in self.columns}
+        self._fed = 0                     # rows of the ring the fit monitor has seen
+        self._fed_drive = math.nan        # the command of the last row it saw (the next residual answers it)
+        self._lock = threading.Lock()
 
     # ---- set-up (off the loop) -----------------------------------------------------------------
     def start(self, model: Model, drive: float, play_state: Any = None) -> None:
@@ -83,7 +88,7 @@ class ModelWatch:
         self.prediction = Prediction(model, self.period_s, drive, play_state)
         self.fit = self._fit_monitor(model)
         self.replay = "started with the run, at the inverse's initial state"
-        self.last_drive = drive
+        self._fed = self.rows.head if self.rows is not None else 0
 
     def _fit_monitor(self, model: Model) -> FitMonitor:
         return FitMonitor(max(16, int(round(self.cfg["window_s"] / self.period_s))), self.period_s,
@@ -97,7 +102,7 @@ class ModelWatch:
         head = self.rows.head
         retained = self.rows.last(head)
         history, how = self._history(model_path, retained)
-        drive0 = float(history[0, self._col["current_cmd_A"]]) if len(history) else self.last_drive
+        drive0 = float(history[0, self._col["current_cmd_A"]]) if len(history) else 0.0
         prediction = Prediction(model, self.period_s, drive0 if drive0 == drive0 else 0.0)
         self._replay(prediction, history)
         return Prepared(model, prediction, self._fit_monitor(model), head, how)
@@ -151,40 +156,35 @@ class ModelWatch:
         missed = self.rows.head - prepared.head
         if missed > 0:
             self._replay(prepared.prediction, self.rows.last(missed))
-        self.model, self.prediction, self.fit, self.replay = \
-            prepared.model, prepared.prediction, prepared.fit, prepared.replay
+        with self._lock:
+            self.model, self.prediction, self.fit, self.replay = \
+                prepared.model, prepared.prediction, prepared.fit, prepared.replay
+            self._fed = self.rows.head            # the new model is judged on the ticks after it
 
     # ---- hot path ------------------------------------------------------------------------------
     def on_tick(self, t: float, displacement_um: float, reference_um: float, drive: float, stress_MPa: float,
                 running: bool) -> None:
         """After the write: this tick's residual, then the prediction for the next reading."""
-        prediction, fit = self.prediction, self.fit
-        if prediction is None or fit is None:
+        prediction = self.prediction
+        if prediction is None:
             return
         predicted = prediction.next_um
-        residual = displacement_um - predicted
         self.predicted_um = predicted
-        self.residual_um = residual
-        if running and residual == residual:
-            fit.update(t, residual, self.last_drive, reference_um - displacement_um)
-        else:
-            fit.skip()
+        self.residual_um = displacement_um - predicted if running else math.nan
         if stress_MPa == stress_MPa:
             prediction.after_write(drive, stress_MPa)
         else:
             prediction.forget()
-        self.last_drive = drive
 
     def interrupt(self, drive: float, stress_MPa: float) -> None:
         """The fault path wrote `drive` outside the loop's writes: the model sees it, the next
         reading is not judged (it may follow a stall of any length)."""
-        if self.prediction is None or self.fit is None:
+        if self.prediction is None:
             return
         if stress_MPa == stress_MPa:
             self.prediction.after_write(drive, stress_MPa)
         self.prediction.forget()
-        self.fit.skip()
-        self.last_drive = drive
+        self.predicted_um = self.residual_um = math.nan
 
     def push(self, row: np.ndarray) -> None:
         """The tick's telemetry row, kept for snapshots and replays."""
@@ -192,11 +192,28 @@ class ModelWatch:
             self.rows.push(row)
 
     # ---- reporting and snapshots (off the loop) ---------------------------------------------------
+    def evaluate(self) -> None:
+        """Feed the fit monitor the rows pushed since the last call (any thread but the loop's)."""
+        with self._lock:
+            if self.fit is None or self.rows is None:
+                return
+            head = self.rows.head
+            new = self.rows.last(head - self._fed)
+            self._fed = head
+            if not len(new):
+                return
+            c = self._col
+            cmd = new[:, c["current_cmd_A"]]
+            answered = np.concatenate([[self._fed_drive], cmd[:-1]])      # the drive each residual answers
+            self._fed_drive = float(cmd[-1])
+            self.fit.feed(float(new[-1, c["time_s"]]), new[:, c[RESIDUAL]], answered,
+                          new[:, c["reference_um"]] - new[:, c[DISPLACEMENT]])
+
     def status(self) -> dict[str, Any]:
         if self.fit is None or self.model is None:
             return {"state": OFF, "reason": self.off_reason}
+        self.evaluate()
         out = self.fit.status()
-        out["t_s"] = _finite(self.fit.last_t)
         out["drive_unit"] = self.model.drive_name.rsplit("_", 1)[-1]
         out["prediction"] = self.replay
         return out
@@ -216,6 +233,3 @@ class ModelWatch:
                 "rows_left_out": int((~keep).sum())}
         return Recording(cols, meta, "window.csv"), self.model
 
-
-def _finite(x: float) -> float | None:
-    return x if math.isfinite(x) else None
