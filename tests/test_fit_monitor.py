@@ -194,3 +194,15 @@ def test_recent_rows_last_is_in_order_and_bounded():
     assert got[:, 0].tolist() == list(range(15, 25))
     assert rows.last(100).shape == (10, 2)
     assert RecentRows(10, 2, 3).last(5).shape == (0, 2)
+
+
+def test_a_model_that_never_fit_says_so_from_the_start():
+    """Drifting at the first judgement is the conditions (small loops the model fits worse than its
+    identification loops), not a change during the run: the status says which."""
+    mon = FitMonitor(500, 1 / RATE, 0.1)
+    feed(mon, 0.0, np.full(600, 1.0))
+    assert mon.state == DRIFTING and mon.status()["from_start"] is True
+    later = FitMonitor(500, 1 / RATE, 0.1)
+    t = feed(later, 0.0, np.zeros(600))
+    feed(later, t, np.full(600, 1.0))
+    assert later.state == DRIFTING and later.status()["from_start"] is False

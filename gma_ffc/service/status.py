@@ -133,6 +133,9 @@ def model_fit_rows(status: Mapping[str, Any]) -> list[tuple[str, str]]:
             f"noise floor {_num(m.get('noise_floor_um'), '.3g')} um, over {_num(window.get('seconds'), '.0f')} s; "
             f"drifting above {_num((m.get('thresholds') or {}).get('drifting_above'), 'g')}x)")
     rows = [("model fit", text)]
+    if m.get("from_start"):
+        rows.append(("", "since the first window: these conditions are farther from the identification's "
+                         "than the model fits, not a change during the run"))
     where = m.get("where") or {}
     parts = []
     du = m.get("drive_unit") or ""
