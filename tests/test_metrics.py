@@ -1,8 +1,9 @@
-"""Prometheus metrics (issue 30): the text format a scraper reads, from a status snapshot.
-The scrape while a real loop runs is in tests/test_model_watch_service.py."""
+"""Prometheus metrics (issue 30): the text format a scraper reads, from a status snapshot handed to
+the metrics process. The scrape while a real loop runs is in tests/test_model_watch_service.py."""
 
 from __future__ import annotations
 
+import time
 import urllib.request
 
 import pytest
@@ -23,9 +24,15 @@ STATUS = {
 
 
 def scrape(port):
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as reply:
-        assert reply.headers["Content-Type"].startswith("text/plain")
-        text = reply.read().decode()
+    """One scrape, once the child has the first snapshot (it is handed over a pipe)."""
+    end = time.monotonic() + 20
+    while True:
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as reply:
+            assert reply.headers["Content-Type"].startswith("text/plain")
+            text = reply.read().decode()
+        if "gma_ffc_controller_state" in text or time.monotonic() > end:
+            break
+        time.sleep(0.05)
     return {s.name: s.value for f in text_string_to_metric_families(text) for s in f.samples
             if not s.labels}, {(s.name, tuple(sorted(s.labels.items()))): s.value
                                for f in text_string_to_metric_families(text) for s in f.samples if s.labels}
@@ -71,3 +78,11 @@ def test_missing_sections_are_left_out_not_faked():
         server.close()
     assert "gma_ffc_model_residual_ratio" not in plain and "gma_ffc_rate_hertz" not in plain
     assert labelled[("gma_ffc_controller_state", (("state", "starting"),))] == 1
+
+
+def test_the_server_process_leaves_with_the_service():
+    server = MetricsServer(lambda: STATUS, "127.0.0.1", 0)
+    server.start()
+    child = server.child
+    server.close()
+    assert child.poll() is not None

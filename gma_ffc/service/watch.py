@@ -43,6 +43,8 @@ class ServiceWatch:
             m = snapshot.get("monitor") or {}
             self.diagnosis.poll(str(m.get("state")), m.get("since_s"), m.get("t_s"))
         self._last = {**snapshot, **self.status()}
+        if self.metrics is not None:
+            self.metrics.publish()
 
     def last_snapshot(self) -> dict[str, Any]:
         """What a metrics scrape reads: the last snapshot the service took (the loop pays nothing)."""
