@@ -3,8 +3,9 @@
 real clock, in three variants interleaved in one process, round after round:
 
   off      monitor.enabled: false, no metrics
-  on       the monitor (prediction, fit monitor, recent rows), and a real `gma-ffc diagnose` child
-           running throughout (nice 19, SCHED_OTHER, as the service starts it)
+  monitor  the monitor (prediction, fit monitor, recent rows), nothing else
+  on       the monitor, and a real `gma-ffc diagnose` child running throughout (nice 19,
+           SCHED_OTHER, as the service starts it)
   scraped  as `on`, with the metrics endpoint scraped over HTTP 10 times a second (a Prometheus
            server scrapes every 15 s by default)
 
@@ -32,7 +33,7 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-VARIANTS = ("off", "on", "scraped")
+VARIANTS = ("off", "monitor", "on", "scraped")
 
 
 def _config(variant: str, duration: float, priority: int) -> Any:
@@ -85,17 +86,38 @@ class DiagnosisChild:
         self.thread.join(timeout=10)
 
 
+SCRAPER = """
+import sys, time, urllib.request
+url, n = sys.argv[1], 0
+while True:
+    try:
+        with urllib.request.urlopen(url, timeout=5) as reply:
+            reply.read()
+        n += 1
+        print(n, flush=True)
+    except OSError:
+        if n:
+            break
+    time.sleep(0.1)
+"""
+
+
 def _scrape(url_of: Any, stop: threading.Event, counts: list[int]) -> None:
-    """Scrape at 10 Hz from this process (a separate scraper would only be kinder to the loop)."""
-    while not stop.wait(0.1):
-        url = url_of()
-        if url:
-            try:
-                with urllib.request.urlopen(url, timeout=5) as reply:
-                    reply.read()
-                counts[0] += 1
-            except OSError:          # the server goes as the variant's service stops
-                pass
+    """Scrape at 10 Hz from a process of its own, as a Prometheus server would (from elsewhere)."""
+    while not stop.wait(0.05) and not url_of():
+        pass
+    if stop.is_set():
+        return
+    proc = subprocess.Popen([sys.executable, "-c", SCRAPER, url_of()], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            counts[0] = int(line)
+            if stop.is_set():
+                break
+    finally:
+        proc.kill()
+        proc.wait()
 
 
 def run_variant(variant: str, model: Any, duration: float, priority: int, child_files: tuple[Path, Path, Path]) -> dict:
@@ -112,7 +134,7 @@ def run_variant(variant: str, model: Any, duration: float, priority: int, child_
     if variant == "scraped":
         scraper.start()
     try:
-        if variant == "off":
+        if variant in ("off", "monitor"):
             svc.run()
             runs = 0
         else:

@@ -4,8 +4,9 @@
 
 Before anything else it asks the kernel for SIGKILL when its parent goes (PR_SET_PDEATHSIG), and
 checks that the parent is still the service (it may have died before the request was made); then
-it drops to SCHED_OTHER at nice 19, so it only ever takes CPU the control loop leaves. Doing
-this in the child itself keeps `subprocess`'s thread-unsafe `preexec_fn` out of a threaded service.
+it drops to SCHED_OTHER at nice 19, so it only ever takes CPU the control loop leaves, and execs
+`python -m gma_ffc.cli ...` (all three survive the exec). Doing this in the child itself keeps
+`subprocess`'s thread-unsafe `preexec_fn` out of a threaded service.
 
 The kernel sends the signal when the *thread* that forked the child exits: the service starts it
 from its main thread, which lives as long as the service does.
@@ -44,9 +45,8 @@ def main(argv: Sequence[str]) -> int:
         return 2
     bind_to_parent(int(argv[0]))
     lower_priority()
-    from ..cli import main as cli_main
-
-    return cli_main(list(argv[2:]))
+    os.execv(sys.executable, [sys.executable, "-m", "gma_ffc.cli", *argv[2:]])
+    return 1      # not reached: execv replaces this process
 
 
 if __name__ == "__main__":
