@@ -206,3 +206,20 @@ def test_a_model_that_never_fit_says_so_from_the_start():
     t = feed(later, 0.0, np.zeros(600))
     feed(later, t, np.full(600, 1.0))
     assert later.state == DRIFTING and later.status()["from_start"] is False
+
+
+def test_switching_the_monitor_on_or_off_needs_a_restart():
+    from pathlib import Path
+
+    from gma_ffc.control.model_watch import ModelWatch
+    from gma_ffc.errors import ConfigError
+    from gma_ffc.modelio import load_model
+
+    model = load_model(Path(__file__).resolve().parents[1] / "config" / "models" / "sim_sdpi.yaml")
+    cols = ["time_s", "reference_um", "current_cmd_A", "current_A", "stress_MPa", "displacement_um",
+            "predicted_um", "residual_um", "outside_model"]
+    watch = ModelWatch({"enabled": True, "window_s": 1.0}, ("current_A", "displacement_um"), cols, 1e-3)
+    watch.start(model, 0.0)
+    with pytest.raises(ConfigError, match="monitor.enabled"):
+        watch.prepare(model, None, {"enabled": False, "window_s": 1.0})
+    assert watch.prepare(model, None, {"enabled": True, "window_s": 2.0}) is not None

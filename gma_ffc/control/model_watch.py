@@ -96,6 +96,11 @@ class ModelWatch:
 
     def prepare(self, model: Model, model_path: str | None, monitor_cfg: dict[str, Any]) -> Prepared | None:
         """A reload's model, its prediction replayed up to the rows pushed so far (caller's thread)."""
+        if bool(monitor_cfg.get("enabled")) != bool(self.cfg.get("enabled")):
+            from ..errors import ConfigError
+
+            raise ConfigError("config key 'monitor.enabled' changed: that needs a restart, not a reload "
+                              "(the telemetry's columns follow it; the running configuration is kept)")
         if not self.enabled or self.rows is None:
             return None
         self.cfg = {**monitor_cfg, "enabled": True}         # the ring keeps the size the run started with
