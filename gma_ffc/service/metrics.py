@@ -184,8 +184,8 @@ def serve(parent_pid: int, host: str, port: int) -> int:
     except OSError as exc:
         print(f"{exc.strerror}", flush=True)
         return 1
-    bound = server.server_address
-    print(f"serving {bound[0]}:{bound[1]}", flush=True)
+    bound_host, bound_port = server.server_address[:2]
+    print(f"serving {bound_host!s}:{bound_port}", flush=True)
     for line in sys.stdin.buffer:
         with contextlib.suppress(ValueError):
             snapshot = json.loads(line)
