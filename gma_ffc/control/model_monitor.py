@@ -76,6 +76,7 @@ class ModelMonitor(Broadcaster):
         if pending is not None and pending[0] is setup and self.watch is not None:
             self.watch.adopt(pending[1])
         self._setup = setup
+        self.cfg = setup.cfg.monitor           # the next run's window (monitor.enabled cannot change)
 
     # ---- hot path ----------------------------------------------------------------------------
     def on_tick(self, tick: Tick) -> None:
