@@ -145,3 +145,15 @@ def _alive(pid):
     except OSError:
         return False
     return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def test_a_state_dir_outside_output_dirs_refuses_the_diagnosis_not_the_run(tmp_path):
+    """output_dirs are the only folders the service writes into: a diagnosis that would write
+    elsewhere fails with the reason in the status, and writes nothing."""
+    monitor = {"window_s": 6.0, "trigger_s": 5.0, "on_drift": "diagnose", "max_per_hour": 2,
+               "state_dir": str(tmp_path / "state")}
+    bg = BackgroundDiagnosis(monitor, lambda s: Window(window_recording(), load_model(MODEL)),
+                             output_dirs=(str(tmp_path / "out"),))
+    bg.poll("drifting", 10.0, 16.0)
+    assert bg.child is None and bg.last is not None and bg.last["outcome"] == "failed"
+    assert "output_dirs" in bg.last["error"] and not (tmp_path / "state").exists()

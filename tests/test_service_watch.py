@@ -73,3 +73,16 @@ def test_status_screen_while_the_window_fills_and_without_displacement():
     assert "unknown: 12 of 30 s" in format_table(unknown)
     off = {"state": "running", "monitor": {"state": "off", "reason": "the driver has no displacement channel"}}
     assert "off: the driver has no displacement channel" in format_table(off)
+
+
+def test_monitor_state_dir_must_lie_in_output_dirs(tmp_path):
+    from gma_ffc.control.config import validate_config
+
+    base = {"rate_hz": 250.0, "clock": "simulated", "model": "m.yaml", "driver": {"kind": "sim"},
+            "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 5.0, "offset_um": 10.0},
+            "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
+            "telemetry": {"path": None}, "output_dirs": [str(tmp_path / "out")]}
+    with pytest.raises(ConfigError, match="monitor.state_dir"):
+        validate_config({**base, "monitor": {"state_dir": str(tmp_path / "elsewhere")}})
+    inside = validate_config({**base, "monitor": {"state_dir": str(tmp_path / "out")}})   # the folder itself is fine
+    assert inside.monitor["state_dir"] == str(tmp_path / "out")

@@ -219,7 +219,7 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
     monitor = _monitor_section(top["monitor"], top["rate_hz"], base)
     output_dirs = _output_dirs(top["output_dirs"], base, {"telemetry.path": telemetry["path"],
                                                           "learning.file": learning.file,
-                                                          "monitor.state_dir": monitor["state_dir"]})
+                                                          "monitor.state_dir": _diagnoses_of(monitor["state_dir"])})
     return ControllerConfig(rate_hz=top["rate_hz"], clock=top["clock"], model=_resolve(top["model"], base),
                             driver=driver, reference=reference, stress=stress, limits=limits, sensor=sensor,
                             comms=comms, telemetry=telemetry,
@@ -320,6 +320,11 @@ def _monitor_section(raw: Any, rate_hz: float, base: Path | None) -> dict[str, A
     if monitor["state_dir"] is not None:
         monitor["state_dir"] = _resolve(monitor["state_dir"], base)
     return monitor
+
+
+def _diagnoses_of(state_dir: str | None) -> str | None:
+    """Where background diagnoses write inside `monitor.state_dir` (what output_dirs must hold)."""
+    return None if state_dir is None else str(Path(state_dir) / "diagnoses")
 
 
 def load_config(path: str | os.PathLike) -> ControllerConfig:

@@ -61,8 +61,10 @@ class BackgroundDiagnosis:
     """Starts, watches and reports the diagnosis child; see the module doc."""
 
     def __init__(self, monitor_cfg: dict[str, Any], take_window: Callable[[float], Window], *,
-                 python: str = sys.executable, now: Callable[[], float] = time.time) -> None:
+                 python: str = sys.executable, now: Callable[[], float] = time.time,
+                 output_dirs: tuple[str, ...] = ()) -> None:
         self.cfg = monitor_cfg
+        self.output_dirs = output_dirs          # the config's: a diagnosis writes only inside them
         self.take_window = take_window
         self.python = python
         self.now = now
@@ -120,6 +122,10 @@ class BackgroundDiagnosis:
         from ..modelio import save_model
         from ..recordings import write_recording
 
+        if self.output_dirs:        # refused (the run goes on, the status says why) outside output_dirs
+            from ..safe_files import area_of
+
+            area_of(self.state_dir / "diagnoses" / "window.csv", self.output_dirs)
         window = self.take_window(self.cfg["window_s"])
         folder = _new_folder(self.state_dir / "diagnoses", now)
         write_recording(folder / "window.csv", window.recording)

@@ -24,7 +24,7 @@ class ServiceWatch:
         self.diagnosis: BackgroundDiagnosis | None = None
         monitor = getattr(cfg, "monitor", None)
         if monitor and monitor.get("enabled") and self.part is not None:
-            self.diagnosis = BackgroundDiagnosis(monitor, self._window)
+            self.diagnosis = BackgroundDiagnosis(monitor, self._window, output_dirs=tuple(getattr(cfg, "output_dirs", ())))
         metrics = getattr(cfg, "metrics", None)
         self.metrics = MetricsServer(self.last_snapshot, metrics["host"], metrics["port"]) if metrics else None
         self.metrics_address: tuple[str, int] | None = None
