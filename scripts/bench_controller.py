@@ -363,6 +363,13 @@ def compare(baseline: Path, rates: list[float], duration: float, repeats: int) -
 
 
 def main(argv: list[str] | None = None) -> int:
+    if argv is None:
+        argv = sys.argv[1:]
+    if "--monitor" in argv:      # issue 30: the model-fit monitor on and off, interleaved (scripts/bench_monitor.py)
+        sys.path.insert(0, str(ROOT / "scripts"))
+        import bench_monitor
+
+        return bench_monitor.main([a for a in argv if a != "--monitor"])
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--duration", type=float, default=10.0, help="seconds per case (default 10; 60 for the issue)")
     ap.add_argument("--probe", type=float, default=3.0, help="seconds per Modbus rate probe (default 3)")

@@ -79,6 +79,8 @@ def test_ticks_and_their_broadcasts_keep_nothing(model, learning, floor_A):
                            "learning": {"kind": "repetitive"} if learning else {}})
     ctrl = ControllerManager(cfg, model=model, driver=Quiet({}, 1e-3))
     ctrl.recorder.start(ctrl.driver.channels, ctrl.setup, 0.0)
+    for b in ctrl.broadcasters:          # the plugged-in parts too (the model-fit monitor's prediction and ring)
+        b.on_start(ctrl.setup)
     ctrl._start_schedule()
 
     def ticks(first, n):
@@ -99,6 +101,7 @@ def test_ticks_and_their_broadcasts_keep_nothing(model, learning, floor_A):
         tracemalloc.stop()
         ctrl.recorder.close()
     assert long - short < 1024, (short, long)
+    assert math.isfinite(ctrl.tick.residual_um)       # the monitor ran in those ticks
     learner = ctrl.setup.law.learner
     assert (learner is not None) == learning and (learner is None or learner.learned_periods > 20)
     if learner is not None:

@@ -1,4 +1,4 @@
-"""`gma-ffc start` / `stop` / `status`: the controller as a background service."""
+"""`gma-ffc start` / `stop` / `status` / `reload`: the controller as a background service."""
 
 from __future__ import annotations
 
@@ -50,6 +50,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_runtime_dir(p)
     p.set_defaults(func=_status)
 
+    p = sub.add_parser("reload", help="re-read the running controller's config and model",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       description="Ask the running controller to re-read its config file (as SIGHUP does), "
+                                   "or to run another model with it (--model). The new model and config get "
+                                   "every check a start does; a refused one leaves the running one in place. "
+                                   "The switch is bumpless: the new inverse starts at the current command.",
+                       epilog="examples:\n"
+                              "  gma-ffc reload                       # after editing the config file\n"
+                              "  gma-ffc reload --model /var/lib/gma-ffc/diagnoses/20260301-101500/extended_model.yaml\n"
+                              "                                       # adopt what a background diagnosis found")
+    p.add_argument("--model", metavar="MODEL.yaml",
+                   help="run this model instead of the config's (kept by later reloads until the config's "
+                        "model key changes; a restart runs the config's model)")
+    add_runtime_dir(p)
+    p.set_defaults(func=_reload)
+
 
 def _start(args: argparse.Namespace) -> int:
     from pathlib import Path
@@ -99,4 +115,24 @@ def _status(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
     else:
         print(format_table(status))
+    return 0
+
+
+def _reload(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..errors import InputError
+    from ..service.control_socket import request
+    from ..service.paths import runtime_paths
+
+    message: dict[str, str] = {"cmd": "reload"}
+    if args.model is not None:
+        model = Path(args.model).expanduser().resolve()      # the service's working directory is not ours
+        if not model.is_file():
+            raise InputError(f"--model {args.model}: no such file")
+        message["model"] = str(model)
+    reply = request(runtime_paths(args.runtime_dir).socket, message, timeout_s=60.0)
+    if not reply.get("ok"):
+        raise InputError(str(reply.get("error") or reply.get("message") or "the controller refused the reload"))
+    print(reply.get("message", "reloaded"))
     return 0

@@ -13,7 +13,8 @@ The parts, named after ros2_control's (docs/ARCHITECTURE.md has the table):
 `manager` (the controller manager: the fixed-rate loop and the fault-table interpreter),
 `law` (the controller: `update()`, its learner, its lifecycle), `hardware` (the driver
 supervisor: resource manager and hardware lifecycle), `recorder` and `state_broadcaster`
-(broadcasters: telemetry and status, fed a `tick.Tick` each tick), `builder` (config to parts),
+(broadcasters: telemetry and status, fed a `tick.Tick` each tick), `model_monitor` (a broadcaster:
+the model's prediction beside the command and the model-fit monitor), `builder` (config to parts),
 `setup` (what a reload swaps), `envelope` (the model's drive and stress ranges and their
 policies), `safety` (limits, sensor plausibility, the fault table), `faults` (fault bookkeeping),
 `watchdog`, `realtime` (SCHED_FIFO, GC, GIL interval), `learned_file`, `learning`, `config`,

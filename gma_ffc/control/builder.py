@@ -24,12 +24,13 @@ from .hardware import DriverSupervisor
 from .law import FeedforwardController
 from .learned_file import load_learned, model_fingerprint
 from .learning import RepetitiveLearner, model_gain_table, reference_period_s
+from .model_monitor import ModelMonitor
 from .recorder import TelemetryRecorder
 from .reference import Reference, build_reference
 from .scheduler import Clock, MonotonicClock, SimulatedClock, TickStats
 from .setup import RESTART_KEYS, Setup
 from .state_broadcaster import StateBroadcaster
-from .tick import Tick
+from .tick import Broadcaster, Tick
 from .watchdog import Watchdog
 
 
@@ -47,6 +48,7 @@ class Parts:
     recorder: TelemetryRecorder
     state: StateBroadcaster
     watchdog: Watchdog
+    plugins: list[Broadcaster]       # parts the config plugs in, ticked before the recorder (their columns)
 
 
 def build(cfg: ControllerConfig, *, model: Model | None = None, driver: DriverProtocol | None = None,
@@ -63,7 +65,8 @@ def build(cfg: ControllerConfig, *, model: Model | None = None, driver: DriverPr
     tick = Tick(Inputs())
     state = StateBroadcaster(cfg.rate_hz, tick, stats, faults, hardware, recorder)
     watchdog = Watchdog(cfg.watchdog_s, clock, faults, cfg.scheduler["realtime_priority"])
-    return Parts(cfg, clock, setup, tick, stats, faults, hardware, recorder, state, watchdog)
+    plugins: list[Broadcaster] = [ModelMonitor(cfg.monitor, cfg.period_s, recorder)]   # its status says when it is off
+    return Parts(cfg, clock, setup, tick, stats, faults, hardware, recorder, state, watchdog, plugins)
 
 
 def load_model(cfg: ControllerConfig) -> Model:

@@ -37,7 +37,9 @@ TOP = {
     "watchdog_s": Field("float", 0.5, min=0.0, min_exclusive=True),
     "learning": Field("map", {}, help="learning feedforward (off by default): {kind: repetitive}"),
     "output_dirs": Field("list", [], help="the only folders the controller writes into (telemetry, learned "
-                                          "correction); default: the folders those paths name"),
+                                          "correction, background diagnoses); default: the folders those paths name"),
+    "monitor": Field("map", {}, help="the model-fit monitor (docs/monitor.md)"),
+    "metrics": Field("map", None, nullable=True, help="serve Prometheus metrics (docs/monitor.md): {port: 9464}"),
 }
 
 STRESS = {
@@ -89,6 +91,29 @@ SCHEDULER = {
                                help="SCHED_FIFO priority of the loop thread (0 = normal scheduling)"),
     "gil_switch_interval_us": Field("float", 100.0, min=10.0, max=5000.0,
                                     help="how soon the loop gets the GIL back from other threads"),
+}
+
+# The model-fit monitor (gma_ffc/control/fit_monitor.py, docs/monitor.md).
+MONITOR = {
+    "enabled": Field("bool", True, help="predict the displacement beside the command and watch the residual"),
+    # 30 s: ten periods of a 0.3 Hz reference, and long enough for the background diagnosis to see
+    # a heating time constant's first part; a drift shows within a fraction of it (the mean square
+    # passes 9x the expected one long before the window has turned over).
+    "window_s": Field("float", 30.0, min=0.5, max=600.0, help="the residual's RMS is taken over this much"),
+    "trigger_s": Field("float", 10.0, min=0.0, help="drifting this long starts a background diagnosis"),
+    "on_drift": Field("choice", "diagnose", choices=("warn", "diagnose"),
+                      help="warn (status and log only) or diagnose (also run gma-ffc diagnose in the background)"),
+    "max_per_hour": Field("int", 2, min=0, max=60, help="background diagnoses at most this often (0: never)"),
+    "state_dir": Field("str", None, nullable=True,
+                       help="where diagnoses are written (default: $STATE_DIRECTORY, else "
+                            "$XDG_STATE_HOME/gma-ffc, else ~/.local/state/gma-ffc)"),
+}
+
+# Prometheus metrics (gma_ffc/service/metrics.py). Loopback by default: the figures say what the
+# rig is doing, which is nobody else's business unless the lab says so.
+METRICS = {
+    "host": Field("str", "127.0.0.1", help="address to serve on (0.0.0.0: every interface)"),
+    "port": Field("int", 9464, min=0, max=65535, help="0: any free port (the status says which)"),
 }
 
 REFERENCE_KINDS = ("sine", "triangle", "multisine", "playback")
@@ -157,6 +182,8 @@ class ControllerConfig:
     watchdog_s: float
     learning: LearningConfig = field(default_factory=LearningConfig)
     output_dirs: tuple[str, ...] = ()      # empty: each output's own folder (gma_ffc.safe_files)
+    monitor: dict[str, Any] = field(default_factory=lambda: validate_section({}, MONITOR, "monitor"))
+    metrics: dict[str, Any] | None = None
     source: str = "<memory>"
     raw: dict[str, Any] = field(default_factory=dict, repr=False)
 
@@ -189,13 +216,17 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
     if telemetry["path"] is not None:
         telemetry["path"] = _resolve(telemetry["path"], base)
     learning = _learning(top["learning"], reference, base)
+    monitor = _monitor_section(top["monitor"], top["rate_hz"], base)
     output_dirs = _output_dirs(top["output_dirs"], base, {"telemetry.path": telemetry["path"],
-                                                          "learning.file": learning.file})
+                                                          "learning.file": learning.file,
+                                                          "monitor.state_dir": _diagnoses_of(monitor["state_dir"])})
     return ControllerConfig(rate_hz=top["rate_hz"], clock=top["clock"], model=_resolve(top["model"], base),
                             driver=driver, reference=reference, stress=stress, limits=limits, sensor=sensor,
                             comms=comms, telemetry=telemetry,
                             scheduler=validate_section(top["scheduler"], SCHEDULER, "scheduler"),
                             watchdog_s=top["watchdog_s"], learning=learning, output_dirs=output_dirs,
+                            monitor=monitor,
+                            metrics=None if top["metrics"] is None else validate_section(top["metrics"], METRICS, "metrics"),
                             source=source, raw=dict(data))
 
 
@@ -279,6 +310,21 @@ def _output_dirs(named: list, base: Path | None, outputs: dict[str, str | None])
             except OutputRefused as exc:
                 raise ConfigError(f"config key '{key}': {exc}") from None
     return tuple(dirs)
+
+
+def _monitor_section(raw: Any, rate_hz: float, base: Path | None) -> dict[str, Any]:
+    monitor = validate_section(raw, MONITOR, "monitor")
+    if monitor["window_s"] * rate_hz < 16:
+        raise ConfigError(f"config key 'monitor.window_s' ({monitor['window_s']:g} s) must hold at least 16 ticks "
+                          f"at {rate_hz:g} Hz: make it at least {16 / rate_hz:g} s")
+    if monitor["state_dir"] is not None:
+        monitor["state_dir"] = _resolve(monitor["state_dir"], base)
+    return monitor
+
+
+def _diagnoses_of(state_dir: str | None) -> str | None:
+    """Where background diagnoses write inside `monitor.state_dir` (what output_dirs must hold)."""
+    return None if state_dir is None else str(Path(state_dir) / "diagnoses")
 
 
 def load_config(path: str | os.PathLike) -> ControllerConfig:

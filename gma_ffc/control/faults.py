@@ -39,10 +39,12 @@ class FaultLog:
         self._lock = threading.Lock()
         self.active: dict[str, str] = {}
         self.history: collections.deque[dict[str, Any]] = collections.deque(maxlen=FAULT_HISTORY)
+        self.counts: collections.Counter[str] = collections.Counter()     # raised since the start, by name (metrics)
 
     def raise_fault(self, name: str, message: str) -> None:
         with self._lock:
             self.active[name] = message
+            self.counts[name] += 1
             self.history.append({"fault": name, "message": message, "at_unix_s": time.time(),
                                  "tick": self._stats.count})
 
@@ -54,6 +56,11 @@ class FaultLog:
         """Copies of the active faults and the history, for a status."""
         with self._lock:
             return dict(self.active), list(self.history)
+
+    def counted(self) -> dict[str, int]:
+        """How often each fault was raised since the start (a copy)."""
+        with self._lock:
+            return dict(self.counts)
 
 
 def classify(exc: Exception) -> tuple[str, str, str]:

@@ -76,7 +76,7 @@ class ControllerManager:
         self.stats, self.faults, self.watchdog = parts.stats, parts.faults, parts.watchdog
         self.hardware, self.recorder, self.state_broadcaster = parts.hardware, parts.recorder, parts.state
         self.driver: DriverProtocol = parts.hardware.driver
-        self.broadcasters: list[Broadcaster] = [parts.recorder]
+        self.broadcasters: list[Broadcaster] = [*parts.plugins, parts.recorder]   # plugins fill the row's columns
         self.tick, self.inputs = parts.tick, parts.tick.inputs
         self.state = State.IDLE
         self.exit_reason = ""
@@ -113,6 +113,8 @@ class ControllerManager:
         on any error the old configuration keeps running and the error propagates.
         """
         setup = build_reload(self.setup.cfg, new_cfg, model)
+        for b in self.broadcasters:           # their slow part of the reload, here (any may refuse it)
+            b.prepare(setup)
         with self._lock:
             self._pending = setup
         if self.state in (State.IDLE, State.STOPPED, State.FAULT):
@@ -120,7 +122,10 @@ class ControllerManager:
 
     def status(self) -> dict[str, Any]:
         """Thread-safe snapshot for the service, the CLI and tests (`state_broadcaster`)."""
-        return self.state_broadcaster.status(self.setup, self.state.value, self.exit_reason, self.started_unix_s)
+        snap = self.state_broadcaster.status(self.setup, self.state.value, self.exit_reason, self.started_unix_s)
+        for b in self.broadcasters:
+            snap.update(b.status_fields())
+        return snap
 
     def summary(self) -> dict[str, Any]:
         snap = self.status()
@@ -165,6 +170,8 @@ class ControllerManager:
         channels = self.driver.channels
         self._has_current = CURRENT in channels
         self.recorder.start(channels, self.setup, self.started_unix_s or time.time())
+        for b in self.broadcasters:
+            b.on_start(self.setup)
         if self.clock.simulated:
             self.hardware.activate()      # output on just before the first command, never by a write
             self._loop(duration_s)

@@ -9,7 +9,7 @@ docs/recordings.md; `reference_um` is the reference for the tick's own instant, 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
@@ -24,11 +24,17 @@ if TYPE_CHECKING:
 FIXED = ("time_s", "reference_um", "current_cmd_A", "current_A", "stress_MPa")
 CORRECTION = "correction_um"
 OUTSIDE = "outside_model"       # 1: drive beyond the identified range, 2: stress beyond it, 3: both
+PREDICTED, RESIDUAL = "predicted_um", "residual_um"      # the model-fit monitor's (docs/monitor.md)
 
 
-def columns(channels: Sequence[str], learning: bool) -> list[str]:
-    """The recording's columns for a driver with these channels."""
-    cols = list(FIXED) + [ch for ch in (DISPLACEMENT, FORCE) if ch in channels]
+def columns(channels: Sequence[str], learning: bool, monitor: bool = False) -> list[str]:
+    """The recording's columns for a driver with these channels (the monitor's prediction and
+    residual right after the displacement they are about, when there is one to judge)."""
+    cols = list(FIXED)
+    if DISPLACEMENT in channels:
+        cols += [DISPLACEMENT, PREDICTED, RESIDUAL] if monitor else [DISPLACEMENT]
+    if FORCE in channels:
+        cols.append(FORCE)
     if learning:
         cols.append(CORRECTION)
     cols.append(OUTSIDE)
@@ -47,6 +53,7 @@ class TelemetryRecorder(Broadcaster):
         self.rate_hz = cfg.rate_hz
         self.output_dirs = cfg.output_dirs
         self.simulated = simulated
+        self.monitor = bool(cfg.monitor["enabled"])
         self.writer_priority = 0 if simulated else max(0, cfg.scheduler["realtime_priority"] - 1)
         self.base_metadata = {"source": "gma-ffc controller", "sample_rate_hz": cfg.rate_hz,
                               "driver": cfg.driver["kind"], "config": cfg.source}
@@ -56,10 +63,16 @@ class TelemetryRecorder(Broadcaster):
         self._push = _not_started
         self._safe_A = 0.0
         self._disp = self._force = self._corr = -1
+        self._predicted = False
+        self.columns: list[str] = []
+        # Another consumer of each packed row, on the hot path after the writer's push (the
+        # model-fit monitor's ring of recent rows): it must allocate nothing.
+        self.tap: Callable[[np.ndarray], None] | None = None
 
     def start(self, channels: Sequence[str], setup: Setup, started_unix_s: float) -> None:
         """Open the recording (the writer refuses a file another controller holds)."""
-        cols = columns(channels, setup.law.learner is not None)
+        cols = columns(channels, setup.law.learner is not None, self.monitor)
+        self.columns = cols
         metadata = {**self.base_metadata, "start_unix_s": started_unix_s,
                     "command_lead_s": setup.law.reference.lead_s, "model_kind": setup.model.kind,
                     "current_A_is": "measured (commanded where a reading is missing)"
@@ -75,6 +88,7 @@ class TelemetryRecorder(Broadcaster):
         self._row = np.zeros(len(cols))
         self._disp, self._force, self._corr = (cols.index(c) if c in cols else -1
                                                for c in (DISPLACEMENT, FORCE, CORRECTION))
+        self._predicted = PREDICTED in cols
         tel.start()
 
     def on_setup(self, setup: Setup) -> None:
@@ -95,12 +109,18 @@ class TelemetryRecorder(Broadcaster):
         row[4] = tick.stress_MPa
         if self._disp >= 0:
             row[self._disp] = tick.displacement_um
+            if self._predicted:
+                row[self._disp + 1] = tick.predicted_um
+                row[self._disp + 2] = tick.residual_um
         if self._force >= 0:
             row[self._force] = tick.inputs.force_N
         if self._corr >= 0:
             row[self._corr] = tick.correction_um
         row[-1] = tick.outside_model
         self._push(row)
+        tap = self.tap
+        if tap is not None:
+            tap(row)
 
     def close(self) -> str:
         """Write what is left and close the file; returns the writer's error ('' when none)."""

@@ -54,6 +54,7 @@ class StateBroadcaster:
             "displacement_um": _finite(tick.displacement_um),
             "faults": sorted(faults),
             "fault_messages": faults,
+            "fault_counts": self.faults.counted(),
             "fault_history": history,
             "stress_clamped_ticks": self.stress_outside_ticks,
             "outside_model": {"drive_ticks": self.drive_outside_ticks, "stress_ticks": self.stress_outside_ticks,

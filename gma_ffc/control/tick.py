@@ -2,11 +2,14 @@
 
 The runner fills one preallocated `Tick` per tick, after the write (and on a fault tick, with
 the safe current as the command), then hands it to each `Broadcaster` in turn: the telemetry
-recorder, and any part plugged in with `ControllerManager.attach` (a model-fit monitor, say),
-without a change to the loop; the state broadcaster reads the same record when a status is
+recorder, and any part plugged in: by the builder (`Parts.plugins`, ticked before the recorder so
+the columns they fill are in the row, as the model-fit monitor's prediction) or with
+`ControllerManager.attach` after it, without a change to the loop; the state broadcaster reads the same record when a status is
 asked for, so it costs the loop nothing. A broadcaster's `on_tick` runs on the hot path:
 it reads the record, allocates nothing and logs nothing. `on_setup` runs off it, at the start
-and after every reload, with the setup (model, law, limits) the ticks that follow will use.
+and after every reload, with the setup (model, law, limits) the ticks that follow will use;
+`prepare` before that, in the reloading thread (the loop's work of a reload, done off the loop);
+`on_start` as each run starts; `status_fields` adds to the controller's status.
 """
 
 from __future__ import annotations
@@ -26,7 +29,8 @@ class Tick:
     values (what the state broadcaster reports)."""
 
     __slots__ = ("time_s", "t", "inputs", "reference_um", "command_A", "current_A", "stress_MPa",
-                 "displacement_um", "correction_um", "outside_model", "limited_by", "faulted")
+                 "displacement_um", "correction_um", "outside_model", "limited_by", "faulted", "predicted_um",
+                 "residual_um")
 
     def __init__(self, inputs: Inputs) -> None:
         self.inputs = inputs            # the driver's reading this tick (force, current, displacement)
@@ -41,6 +45,8 @@ class Tick:
         self.outside_model = 0          # OUTSIDE_DRIVE | OUTSIDE_STRESS
         self.limited_by = ""            # safety.NOT_LIMITED or the limit that changed the command
         self.faulted = False            # the tick ended on the fault path
+        self.predicted_um = math.nan    # the model's prediction of this tick's reading (model-fit monitor)
+        self.residual_um = math.nan     # the reading minus it (NaN where not judged, or without a monitor)
 
 
 class Broadcaster:
@@ -48,6 +54,17 @@ class Broadcaster:
 
     def on_setup(self, setup: Any) -> None:
         """The setup (`builder.Setup`) the next ticks use: at the start, and after every reload."""
+
+    def prepare(self, setup: Any) -> None:
+        """A reload's setup, before the loop adopts it, in the reloading thread: do the slow part
+        here (`on_setup` then runs between two ticks). Raise a GmaError to refuse the reload."""
+
+    def on_start(self, setup: Any) -> None:
+        """A run starts: the driver is open and the recorder has its columns; off the loop."""
+
+    def status_fields(self) -> dict[str, Any]:
+        """Keys this part adds to the controller's status (any thread)."""
+        return {}
 
     def on_tick(self, tick: Tick) -> None:  # pragma: no cover - interface
         raise NotImplementedError

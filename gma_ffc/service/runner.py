@@ -29,6 +29,7 @@ from .control_socket import is_answering, jsonable
 from .notify import Notifier
 from .paths import RuntimePaths, ensure_private_dir
 from .status import faults_of, progress_count, status_line
+from .watch import ModelOverride, ServiceWatch
 
 log = logging.getLogger("gma_ffc.service")
 
@@ -96,6 +97,8 @@ class Service:
         self.summary: Any = None
         self._error: BaseException | None = None
         self._plane: ControlPlane | None = None
+        self._watch: ServiceWatch | None = None
+        self._model_override = ModelOverride()
 
     # ---- requests from signals and the socket --------------------------------------------
     def request_stop(self, reason: str) -> None:
@@ -106,19 +109,24 @@ class Service:
             self.controller.request_stop(reason)
         self._stop_event.set()
 
-    def reload(self) -> ReloadResult:
-        """Re-read the config (and with it the model); refuse a bad one and keep the old."""
+    def reload(self, model: str | None = None) -> ReloadResult:
+        """Re-read the config (and with it the model, or `model` instead: `gma-ffc reload --model`);
+        refuse a bad one and keep the old."""
         with self._reload_lock:
             self.notifier.reloading()
             try:
-                new_cfg = self._load_config(self.config_path)
+                new_cfg = self._model_override.apply(self._load_config(self.config_path), model)
                 self.controller.reload(new_cfg)
             except Exception as exc:  # any failure: the running config stays
                 message = str(exc) if isinstance(exc, GmaError) else f"{type(exc).__name__}: {exc}"
                 result = ReloadResult(False, f"reload refused, old config kept: {message}")
                 log.error("%s", result.message)
             else:
-                result = ReloadResult(True, f"reloaded {self.config_path}")
+                self._model_override.commit()
+                if self._watch is not None:
+                    self._watch.reconfigure(new_cfg)
+                with_model = f" with model {new_cfg.model}" if self._model_override.path else ""
+                result = ReloadResult(True, f"reloaded {self.config_path}{with_model}")
                 log.info("%s", result.message)
             self._last_reload = result
             self.notifier.ready(status=result.message)
@@ -137,7 +145,10 @@ class Service:
             "last_reload": self._last_reload.as_dict() if self._last_reload else None,
             "socket": str(self.runtime.socket) if self.runtime else None,
             "status_at_unix": time.time(),      # the socket answers from a snapshot up to 0.5 s old
+            "model_override": self._model_override.status(),
         }
+        if self._watch is not None:
+            snap.update(self._watch.status())
         return snap
 
     def _publish(self, snapshot: dict[str, Any] | None = None) -> None:
@@ -158,7 +169,8 @@ class Service:
             self._publish()
             return {"ok": True, "pid": os.getpid()}
         if cmd == "reload":
-            result = self.reload()
+            model = request.get("model")
+            result = self.reload(model if isinstance(model, str) and model else None)
             return {"ok": result.ok, "message": result.message,
                     **({} if result.ok else {"error": result.message})}
         return {"ok": False, "error": f"unknown command {cmd!r} (status, stop, reload, ping)"}
@@ -177,7 +189,9 @@ class Service:
             raise
         join_timeout_s = JOIN_TIMEOUT_S + _stop_ramp_s(cfg)
         previous_handlers: dict[int, Any] = {}
+        self._watch = ServiceWatch(cfg, self.controller)
         try:
+            self._watch.start()
             if self.runtime is not None:
                 self._open_runtime(self.runtime)
             if self._install_signals:
@@ -194,6 +208,7 @@ class Service:
                 thread_alive = thread.is_alive()
             for signum, handler in previous_handlers.items():
                 signal.signal(signum, handler)
+            self._watch.close()          # the diagnosis child never outlives the service
             final = self.status()
             self._close_runtime()
             if self.stats_json is not None:
@@ -246,6 +261,9 @@ class Service:
             now = time.monotonic()
             if now >= next_poll:
                 snap = self.status()
+                if self._watch is not None:      # may start or finish a background diagnosis
+                    self._watch.poll(snap)
+                    snap.update(self._watch.status())
                 self._publish(snap)
                 logged_event = _log_learning_events(snap, logged_event)
                 count = progress_count(snap)

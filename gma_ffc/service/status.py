@@ -106,6 +106,8 @@ def fields(status: Mapping[str, Any]) -> list[tuple[str, str]]:
     socket_row = _socket_trouble(status.get("control_socket") or {})
     if socket_row:
         rows.append(("control socket", socket_row))
+    rows += model_fit_rows(status)
+    rows += diagnosis_rows(status.get("diagnosis") or {})
     reload = svc.get("last_reload")
     if reload:
         when = _dt.datetime.fromtimestamp(reload.get("at_unix", 0)).strftime("%H:%M:%S")
@@ -126,6 +128,85 @@ def _socket_trouble(counters: Mapping[str, Any]) -> str:
     return ", ".join(f"{counters[key]} {words}" for key, words in _SOCKET_TROUBLE if counters.get(key))
 
 
+def _clock(status: Mapping[str, Any], t: Any) -> str:
+    """A loop time as the wall-clock time it happened at (the run's start plus t)."""
+    start = status.get("started_unix_s")
+    if not isinstance(t, (int, float)) or not isinstance(start, (int, float)):
+        return ""
+    return _dt.datetime.fromtimestamp(start + t).strftime("%H:%M:%S")
+
+
+def model_fit_rows(status: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """The model-fit monitor (docs/monitor.md): state, since when, the ratio and its parts, where."""
+    m = status.get("monitor")
+    if not m:
+        return []
+    state = str(m.get("state", "-"))
+    if state == "off":
+        return [("model fit", f"off: {m.get('reason', 'no displacement channel')}")]
+    window = m.get("window") or {}
+    if state == "unknown":
+        return [("model fit", f"unknown: {_num(window.get('seconds'), '.0f')} of {_num(window.get('window_s'), '.0f')} s "
+                              "of residual so far (a whole window decides)")]
+    since = f" since t={_num(m.get('since_s'), '.1f')} s ({_clock(status, m.get('since_s'))})"
+    text = (f"{state.upper() if state == 'drifting' else state}{since}: residual {_num(m.get('residual_rms_um'), '.3g')} um RMS "
+            f"= {_num(m.get('ratio'), '.2f')}x expected (identification {_num(m.get('identification_rms_um'), '.3g')} um, "
+            f"noise floor {_num(m.get('noise_floor_um'), '.3g')} um, over {_num(window.get('seconds'), '.0f')} s; "
+            f"drifting above {_num((m.get('thresholds') or {}).get('drifting_above'), 'g')}x)")
+    rows = [("model fit", text)]
+    if m.get("from_start"):
+        rows.append(("", "since the first window: these conditions are farther from the identification's "
+                         "than the model fits, not a change during the run"))
+    where = m.get("where") or {}
+    parts = []
+    du = m.get("drive_unit") or ""
+    for key, what, unit in (("drive", "at drive", f" {du}"), ("drive_rate_per_s", "at drive rates", f" {du}/s")):
+        band = where.get(key)
+        if band:
+            lo, hi = band["range"]
+            hi_text = "up" if hi is None else f"{hi:.3g}"
+            parts.append(f"{what} {lo:.3g}-{hi_text}{unit} ({band['rms_um']:.3g} um RMS, {100 * band['share']:.0f}% of ticks)")
+    if parts:
+        rows.append(("residual largest", "; ".join(parts)))
+    if m.get("tracking_rms_um") is not None:
+        rows.append(("tracking", f"{m['tracking_rms_um']:.3g} um RMS over the last window"))
+    return rows
+
+
+def diagnosis_rows(d: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """The background diagnosis: running, its outcome, the report, how to adopt the extended model."""
+    rows: list[tuple[str, str]] = []
+    if d.get("running"):
+        run = d["running"]
+        rows.append(("diagnosis", f"running since {_stamp(run.get('started_unix'))} on {run.get('recording')}"))
+    last = d.get("last")
+    if last:
+        rows.append(("last diagnosis", f"{summary_words(last)} (finished {_stamp(last.get('finished_unix'))})"))
+        if last.get("report"):
+            rows.append(("report", str(last["report"])))
+        if last.get("extended_model") and last.get("effects"):
+            rows.append(("adopt with", f"gma-ffc reload --model {last['extended_model']}"))
+    if d.get("note"):
+        rows.append(("diagnosis note", str(d["note"])))
+    return rows
+
+
+def summary_words(d: Mapping[str, Any]) -> str:
+    """A diagnosis' outcome in one line: for the status and the log."""
+    outcome = d.get("outcome", "?")
+    if outcome in ("failed", "stopped"):
+        return f"{outcome}: {d.get('error', '')}"
+    effects = ", ".join(d.get("effects") or []) or "no effect named"
+    rms = ""
+    if d.get("rms_before_um") is not None and d.get("rms_after_um") is not None:
+        rms = f" (held-out RMS {d['rms_before_um']:.3g} -> {d['rms_after_um']:.3g} um)"
+    return f"{outcome}: {effects}{rms}"
+
+
+def _stamp(unix: Any) -> str:
+    return _dt.datetime.fromtimestamp(unix).strftime("%H:%M:%S") if isinstance(unix, (int, float)) else "-"
+
+
 def format_table(status: Mapping[str, Any]) -> str:
     rows = fields(status)
     width = max(len(label) for label, _ in rows)
@@ -139,5 +220,7 @@ def status_line(status: Mapping[str, Any]) -> str:
     stress = _num(_get(status, "stress_MPa", "last_stress_MPa"), ".1f", " MPa")
     faults = ", ".join(faults_of(status)) or "none"
     state = _get(status, "state") or "-"
+    fit = _get(status, "monitor.state")
+    fit_text = f", model {fit} ({_num(_get(status, 'monitor.ratio'), '.1f')}x)" if fit in ("ok", "drifting") else ""
     return (f"{state}: {rate}, jitter p99 {p99}, overruns "
-            f"{_num(_get(status, 'overruns'), '.0f')}, stress {stress}, faults: {faults}")
+            f"{_num(_get(status, 'overruns'), '.0f')}, stress {stress}, faults: {faults}{fit_text}")

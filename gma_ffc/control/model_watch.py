@@ -1,0 +1,240 @@
+"""The controller watching its own model (issue 30, docs/monitor.md): the per-tick part.
+
+Each tick, after the write: the residual of this tick's displacement reading against the model's
+prediction (`prediction.Prediction`, one write behind; NaN on ticks not judged: stopping, no
+valid stress), then the prediction steps with the drive just written. The telemetry row gains
+`predicted_um` and `residual_um` and is kept in a ring (`recent.RecentRows`). That is all the
+loop does. Off the loop, `status` feeds the rows pushed since its last call to the fit monitor
+(`fit_monitor.FitMonitor`) as one block, and the service takes the last `monitor.window_s` of
+the ring as a recording for a background diagnosis.
+
+A new model (a reload) is prepared off the loop: its prediction is brought to the present by
+replaying history through it (hysteresis, heating and creep states included): the recording a
+background diagnosis fitted it on when the model comes from one (its folder holds `window.csv`),
+then the retained rows after it; else the retained rows alone. The loop then adopts it between
+two ticks, stepping only the few rows pushed since. Its monitor starts afresh (`unknown`): the new
+model is judged on ticks it was not fitted on.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..drivers.base import DISPLACEMENT
+from ..protocols import Model
+from .fit_monitor import OFF, FitMonitor, identification_error_um
+from .prediction import Prediction
+from .recent import RecentRows
+
+PREDICTED, RESIDUAL = "predicted_um", "residual_um"
+COLUMNS = (PREDICTED, RESIDUAL)
+# History kept beyond the window: a background diagnosis takes tens of seconds to a few minutes
+# (scripts/bench_diagnose.py: ~9 s per recording, at nice 19 longer on a busy machine), and the
+# replay that brings an adopted model to the present needs the rows since its recording ended.
+EXTRA_HISTORY_S = 180.0
+MAX_HISTORY_ROWS = 400_000      # ~35 MB of 11-column rows: a 5 kHz loop keeps 80 s, not 210
+CATCH_UP_MARGIN = 64            # rows pushed while a reload is prepared, stepped in the loop at adoption
+
+
+@dataclass
+class Prepared:
+    """A model's prediction and monitor, brought to the present off the loop, waiting to be adopted."""
+
+    model: Model
+    prediction: Prediction
+    fit: FitMonitor
+    head: int               # rows of the ring it has seen
+    replay: str             # how its state was brought to the present (for the status)
+
+
+class ModelWatch:
+    """Prediction beside the command, the fit monitor and the recent rows; see the module doc."""
+
+    def __init__(self, monitor_cfg: dict[str, Any], channels: Sequence[str], columns: Sequence[str],
+                 period_s: float) -> None:
+        self.cfg = monitor_cfg
+        self.period_s = period_s
+        self.columns = list(columns)
+        self.enabled = bool(monitor_cfg.get("enabled")) and DISPLACEMENT in channels
+        self.off_reason = ("monitor.enabled is false" if not monitor_cfg.get("enabled") else
+                           "the driver has no displacement channel: nothing to compare the model with")
+        self.predicted_um = math.nan
+        self.residual_um = math.nan
+        self.model: Model | None = None
+        self.prediction: Prediction | None = None
+        self.fit: FitMonitor | None = None
+        self.replay = ""
+        self.metadata: dict[str, Any] = {}
+        keep = min(int((monitor_cfg["window_s"] + EXTRA_HISTORY_S) / period_s), MAX_HISTORY_ROWS)
+        self.rows = RecentRows(keep, len(self.columns), max(CATCH_UP_MARGIN, int(1.0 / period_s))) \
+            if self.enabled else None
+        self._col = {name: self.columns.index(name) for name in self.columns}
+        self._fed = 0                     # rows of the ring the fit monitor has seen
+        self._fed_drive = math.nan        # the command of the last row it saw (the next residual answers it)
+        self._lock = threading.Lock()
+
+    # ---- set-up (off the loop) -----------------------------------------------------------------
+    def start(self, model: Model, drive: float, play_state: Any = None) -> None:
+        """A run starts: the prediction at the inverse's start, a fresh monitor."""
+        if not self.enabled:
+            return
+        self.model = model
+        self.prediction = Prediction(model, self.period_s, drive, play_state)
+        self.fit = self._fit_monitor(model)
+        self.replay = "started with the run, at the inverse's initial state"
+        self._fed = self.rows.head if self.rows is not None else 0
+
+    def _fit_monitor(self, model: Model) -> FitMonitor:
+        return FitMonitor(max(16, int(round(self.cfg["window_s"] / self.period_s))), self.period_s,
+                          identification_error_um(model), model.drive_range)
+
+    def prepare(self, model: Model, model_path: str | None, monitor_cfg: dict[str, Any]) -> Prepared | None:
+        """A reload's model, its prediction replayed up to the rows pushed so far (caller's thread)."""
+        if bool(monitor_cfg.get("enabled")) != bool(self.cfg.get("enabled")):
+            from ..errors import ConfigError
+
+            raise ConfigError("config key 'monitor.enabled' changed: that needs a restart, not a reload "
+                              "(the telemetry's columns follow it; the running configuration is kept)")
+        if not self.enabled or self.rows is None:
+            return None
+        self.cfg = {**monitor_cfg, "enabled": True}         # the ring keeps the size the run started with
+        head = self.rows.head
+        retained = self.rows.last(head)
+        history, how = self._history(model_path, retained)
+        drive0 = float(history[0, self._col["current_cmd_A"]]) if len(history) else 0.0
+        prediction = Prediction(model, self.period_s, drive0 if drive0 == drive0 else 0.0)
+        self._replay(prediction, history)
+        return Prepared(model, prediction, self._fit_monitor(model), head, how)
+
+    def _history(self, model_path: str | None, retained: np.ndarray) -> tuple[np.ndarray, str]:
+        """The rows to replay: the diagnosis' window, then the retained rows after it, when both
+        are of this run and the retained rows reach back to its end; else the retained rows."""
+        d, s, t = self._col["current_cmd_A"], self._col["stress_MPa"], self._col["time_s"]
+        window = self._window_of(model_path)
+        if window is not None and len(retained) and retained[0, t] <= window.time_s[-1] < retained[-1, t]:
+            after = retained[retained[:, t] > window.time_s[-1]]
+            fitted = np.column_stack([window.columns["current_cmd_A"], window.columns["stress_MPa"]])
+            return self._as_history(np.vstack([fitted, after[:, [d, s]]])), \
+                "replayed from the start of the recording it was fitted on"
+        span = float(retained[-1, t] - retained[0, t]) if len(retained) else 0.0
+        return self._as_history(retained[:, [d, s]]), f"replayed over the last {span:.0f} s of retained telemetry"
+
+    def _window_of(self, model_path: str | None) -> Any:
+        """The monitor window a background diagnosis fitted `model_path` on, if it is this run's."""
+        window = Path(model_path).parent / "window.csv" if model_path else None
+        if window is None or not window.is_file():
+            return None
+        from ..errors import RecordingError
+        from ..recordings import read_recording
+
+        try:
+            rec = read_recording(window)
+        except RecordingError:
+            return None
+        same_run = abs(float(rec.metadata.get("start_unix_s", math.nan)) - float(self.metadata.get("start_unix_s", math.inf))) < 1e-3
+        usable = same_run and all(c in rec.columns for c in ("time_s", "current_cmd_A", "stress_MPa")) and len(rec.time_s)
+        return rec if usable else None
+
+    def _as_history(self, drive_stress: np.ndarray) -> np.ndarray:
+        """Rows of the full column layout holding only drive and stress (what a replay reads)."""
+        out = np.full((len(drive_stress), len(self.columns)), np.nan)
+        out[:, self._col["current_cmd_A"]] = drive_stress[:, 0]
+        out[:, self._col["stress_MPa"]] = drive_stress[:, 1]
+        return out
+
+    def _replay(self, prediction: Prediction, rows: np.ndarray) -> None:
+        d, s = self._col["current_cmd_A"], self._col["stress_MPa"]
+        for drive, stress in zip(rows[:, d].tolist(), rows[:, s].tolist()):
+            if drive == drive and stress == stress:
+                prediction.after_write(drive, stress)
+
+    def adopt(self, prepared: Prepared | None) -> None:
+        """Between two ticks (the loop's thread): step the rows pushed since `prepare`, then swap."""
+        if prepared is None or self.rows is None:
+            return
+        missed = self.rows.head - prepared.head
+        if missed > 0:
+            self._replay(prepared.prediction, self.rows.last(missed))
+        with self._lock:
+            self.model, self.prediction, self.fit, self.replay = \
+                prepared.model, prepared.prediction, prepared.fit, prepared.replay
+            self._fed = self.rows.head            # the new model is judged on the ticks after it
+
+    # ---- hot path ------------------------------------------------------------------------------
+    def on_tick(self, t: float, displacement_um: float, reference_um: float, drive: float, stress_MPa: float,
+                running: bool) -> None:
+        """After the write: this tick's residual, then the prediction for the next reading."""
+        prediction = self.prediction
+        if prediction is None:
+            return
+        predicted = prediction.next_um
+        self.predicted_um = predicted
+        self.residual_um = displacement_um - predicted if running else math.nan
+        if stress_MPa == stress_MPa:
+            prediction.after_write(drive, stress_MPa)
+        else:
+            prediction.forget()
+
+    def interrupt(self, drive: float, stress_MPa: float) -> None:
+        """The fault path wrote `drive` outside the loop's writes: the model sees it, the next
+        reading is not judged (it may follow a stall of any length)."""
+        if self.prediction is None:
+            return
+        if stress_MPa == stress_MPa:
+            self.prediction.after_write(drive, stress_MPa)
+        self.prediction.forget()
+        self.predicted_um = self.residual_um = math.nan
+
+    def push(self, row: np.ndarray) -> None:
+        """The tick's telemetry row, kept for snapshots and replays."""
+        if self.rows is not None:
+            self.rows.push(row)
+
+    # ---- reporting and snapshots (off the loop) ---------------------------------------------------
+    def evaluate(self) -> None:
+        """Feed the fit monitor the rows pushed since the last call (any thread but the loop's)."""
+        with self._lock:
+            if self.fit is None or self.rows is None:
+                return
+            head = self.rows.head
+            new = self.rows.last(head - self._fed)
+            self._fed = head
+            if not len(new):
+                return
+            c = self._col
+            cmd = new[:, c["current_cmd_A"]]
+            answered = np.concatenate([[self._fed_drive], cmd[:-1]])      # the drive each residual answers
+            self._fed_drive = float(cmd[-1])
+            self.fit.feed(float(new[-1, c["time_s"]]), new[:, c[RESIDUAL]], answered,
+                          new[:, c["reference_um"]] - new[:, c[DISPLACEMENT]])
+
+    def status(self) -> dict[str, Any]:
+        if self.fit is None or self.model is None:
+            return {"state": OFF, "reason": self.off_reason}
+        self.evaluate()
+        out = self.fit.status()
+        out["drive_unit"] = self.model.drive_name.rsplit("_", 1)[-1]
+        out["prediction"] = self.replay
+        return out
+
+    def window(self, seconds: float) -> tuple[Any, Model]:
+        """The last `seconds` of telemetry as a recording (rows without a finite displacement, drive
+        or time left out), and the model running now."""
+        from ..recordings import Recording
+
+        if self.rows is None or self.model is None:
+            raise RuntimeError("the model-fit monitor is off: there is no window to take")
+        rows = self.rows.last(int(round(seconds / self.period_s)))
+        keep = np.isfinite(rows[:, [self._col[c] for c in ("time_s", "current_A", DISPLACEMENT)]]).all(axis=1)
+        rows = rows[keep]
+        cols = {name: np.ascontiguousarray(rows[:, k]) for name, k in self._col.items()}
+        meta = {**self.metadata, "source": "gma-ffc controller: the model-fit monitor's window",
+                "rows_left_out": int((~keep).sum())}
+        return Recording(cols, meta, "window.csv"), self.model
+
