@@ -84,7 +84,7 @@ def _contract_target(b: Block) -> object | None:
         return None
     module, _, name = spec.partition(":")
     obj: object = importlib.import_module(module)
-    for part in name.split("."):
+    for part in filter(None, name.split(".")):          # `contract=module` alone: the module's functions
         obj = getattr(obj, part)
     return obj
 
