@@ -1,13 +1,14 @@
 """The figures the README quotes, kept in one file that the benchmark scripts write.
 
 `docs/figures.json` maps a key to one measured figure: the sentence the README shows, the
-command that measured it, the date and the target. A benchmark run with `--record` updates its
-own keys (`record`); `python scripts/figures.py` rewrites the README's generated blocks from the
-file; `tests/test_docs.py` fails when the README and the file disagree. So a figure in the
-README is always one that a script printed, with the command beside it.
+command that measured it, the date and the target. After a benchmark prints a figure, `set`
+stores it (or a script calls `record`); `python scripts/figures.py` rewrites the README's
+generated blocks from the file; `tests/test_docs.py` fails when the README and the file
+disagree. So a figure in the README always has its command beside it.
 
     python scripts/figures.py            # rewrite README.md's generated blocks from docs/figures.json
     python scripts/figures.py --check    # exit 1 and name the block when README.md is out of date
+    python scripts/figures.py set KEY --text "..." --command "..." [--target "..."] [--table NAME]
 """
 
 from __future__ import annotations
@@ -69,6 +70,9 @@ def stale_blocks(text: str, figures: dict[str, dict[str, Any]]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["set"]:
+        return _set(argv[1:])
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="only check; exit 1 naming any stale block")
     args = ap.parse_args(argv)
@@ -82,6 +86,18 @@ def main(argv: list[str] | None = None) -> int:
         README.write_text(refresh(text, figures))
     print(f"README.md: {len(stale)} block(s) rewritten from docs/figures.json")
     return 0
+
+
+def _set(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="figures.py set", description="store one measured figure, then refresh README.md")
+    ap.add_argument("key", help="the figure's key; rows sort by it")
+    ap.add_argument("--text", required=True, help="what the README shows")
+    ap.add_argument("--command", required=True, help="the command that printed the figure")
+    ap.add_argument("--target", default="-", help="the target it is judged against")
+    ap.add_argument("--table", default="figures", help="the README block the row belongs to (default figures)")
+    args = ap.parse_args(argv)
+    record(args.key, args.text, args.command, args.target, table=args.table)
+    return main([])
 
 
 if __name__ == "__main__":
