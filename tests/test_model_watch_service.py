@@ -107,6 +107,7 @@ def start_service(cfg, ctrl, runtime):
 
 
 @pytest.mark.slow
+@pytest.mark.realtime   # the Modbus requests have a 0.5 s wall-clock timeout: a busy machine can fault a tick
 def test_heating_rig_drifts_diagnosis_names_it_and_the_extended_model_fits_again(tmp_path, model):
     plant = noisy_plant()
     heating_at = 60.0
