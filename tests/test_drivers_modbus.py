@@ -179,7 +179,7 @@ def test_rtu_timeout_reconnects_and_resumes_without_a_jump(models, bench_factory
         wait_ticks(ctrl, th, 80)
         # go silent while it drives (the command follows a sine and rests at 0 A near its troughs)
         end = time.monotonic() + 1.0
-        while not ctrl.state_broadcaster.last_cmd_A > 1.0 and th.is_alive() and time.monotonic() < end:
+        while not ctrl.tick.command_A > 1.0 and th.is_alive() and time.monotonic() < end:
             time.sleep(0.002)
         bench.rig.faults.set("silent")
         time.sleep(0.4)

@@ -65,6 +65,8 @@ class ControlPlane:
         self._child: subprocess.Popen | None = None
         self._lock = threading.Lock()
         self._closing = threading.Event()
+        self._idle = threading.Event()      # no command between its handler and its reply
+        self._idle.set()
         self._last_snapshot = b""
         self._thread = threading.Thread(target=self._carry_out_commands, name="gma-ffc-commands", daemon=True)
 
@@ -164,14 +166,18 @@ class ControlPlane:
                 self._carry_out(message[1:1 + TOKEN], message[1 + TOKEN:])
 
     def _carry_out(self, token: bytes, raw: bytes) -> None:
+        self._idle.clear()
         try:
-            request = json.loads(raw)
-            reply = self.handler(request)
-        except Exception as exc:          # the command failed; the service runs on
-            log.exception("control socket: command failed")
-            reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
-        with self._lock:
-            self._send(REPLY + token + encode_reply(reply), 2.0)
+            try:
+                request = json.loads(raw)
+                reply = self.handler(request)
+            except Exception as exc:          # the command failed; the service runs on
+                log.exception("control socket: command failed")
+                reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+            with self._lock:
+                self._send(REPLY + token + encode_reply(reply), 2.0)
+        finally:
+            self._idle.set()
 
     def _restart_child(self) -> None:
         code = self._child.poll() if self._child is not None else None
@@ -196,7 +202,11 @@ class ControlPlane:
         return self._child.pid if self._child is not None else None
 
     def close(self) -> None:
-        """Stop the child (it leaves when its link closes), then remove the socket file."""
+        """Stop the child (it leaves when its link closes), then remove the socket file. A command
+        being carried out (a `stop` that ended the run) gets its reply out first: closing under it
+        would tell its client "the controller is stopping" instead of its answer."""
+        if threading.current_thread() is not self._thread:
+            self._idle.wait(timeout=2.0)
         self._closing.set()
         with self._lock:
             if self._link is not None:
