@@ -14,7 +14,6 @@ medians over the rounds and as ratios against `off`. The load average is printed
 the machine is shared, so only the interleaved ratios mean anything.
 
     .venv/bin/python scripts/bench_monitor.py --rounds 5 --duration 10 [--realtime-priority 50]
-    .venv/bin/python scripts/bench_controller.py --monitor ...     # the same
 """
 
 from __future__ import annotations
