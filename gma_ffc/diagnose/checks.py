@@ -1,4 +1,4 @@
-"""Checks before any fit: do the recordings overlap the model's range, and are there enough loops."""
+"""Checks before any fit: do the recordings overlap the model's range, and is there enough to score."""
 
 from __future__ import annotations
 
@@ -7,8 +7,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..drive import reversals
 from ..errors import InputError
 from ..recordings import Recording
+from .data import N_BLOCKS, RecData
+
+MIN_REVERSALS = 2 * N_BLOCKS   # drive turning points in all: on average a full drive cycle per time block, or a
+                               # held-out block is a piece of one branch that the neighbouring training blocks
+                               # interpolate, and blocked cross-validation tests interpolation, not prediction
 
 
 def check_overlap(model: Any, recordings: Sequence[Recording]) -> None:
@@ -32,3 +38,31 @@ def check_overlap(model: Any, recordings: Sequence[Recording]) -> None:
         raise InputError(
             f"cannot conclude anything: every recording's stress lies outside the model's range "
             f"({srange[0]:.3g}..{srange[1]:.3g} MPa); record at loads inside that range, or identify an SDPI that covers these stresses")
+
+
+def enough_data(data: Sequence[RecData], min_samples: int) -> tuple[int, bool, list[str]]:
+    """Scored samples in all, whether that is too little to tell effects apart, and what cannot be
+    concluded from the recordings as they are (a recording never scored, too little data, stresses
+    outside the model's range). Notes which recordings start unscored (`extra["settled_note"]`)."""
+    cannot = []
+    n_samples = sum(d.t.size - d.settled for d in data)   # samples scored: after the initial state settles
+    n_rev = sum(reversals(d.u[d.settled:]) for d in data if d.settled < d.t.size)
+    for d in data:
+        if d.settled >= d.t.size:
+            cannot.append(f"{d.name}: the drive never sweeps far enough for the model to forget its unknown "
+                          "initial state, so none of it is scored; record at least one full drive cycle")
+        elif d.settled > 0:
+            d.extra["settled_note"] = (f"{d.name}: the first {d.t[d.settled] - d.t[0]:.3g} s are not scored: "
+                                       "until the drive has swept the model's full loop, the output still "
+                                       "depends on the unknown hysteresis state at the start")
+    too_little = n_samples < min_samples or n_rev < MIN_REVERSALS
+    if too_little:
+        cannot.append(
+            f"too little data to tell effects apart ({n_samples} samples, {n_rev} drive reversals in all): "
+            "any effect would be fitted to the same few loops it is judged on; record at least a few cycles "
+            f"(>= {MIN_REVERSALS // 2} full loops, >= {min_samples} samples) at two or more drive frequencies")
+    for d in data:
+        if d.clamped_fraction > 0.01:
+            cannot.append(f"{d.name}: {d.clamped_fraction:.0%} of the samples are at stresses outside the "
+                          "model's range; they were compared at the nearest stress of the range")
+    return n_samples, too_little, cannot

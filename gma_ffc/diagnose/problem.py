@@ -1,0 +1,77 @@
+"""The first step of a diagnosis: the recordings prepared, checked, and the null model fitted.
+
+`setup` returns a frozen `state.Problem`: the prepared recordings (arrays, held-out folds, what is
+not scored), the fitter over them held by the anchor (the base's own loops), the noise floor
+from the data, what cannot be concluded before any fit, and the null model every effect must
+beat (the base with a static recalibration). Steps after it only read it. Pure maths: no I/O.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..errors import InputError
+from ..recordings import Recording
+from .anchor import anchor_data
+from .checks import check_overlap, enough_data
+from .data import RecData, noise_floor, prepare
+from .fitting import Fitter, SearchResult, Spec
+from .jumps import jump_words, sensor_jumps
+from .locate import locate
+from .noise import mad_sigma
+from .state import NullFit, Problem
+
+
+def setup(model: Any, recordings: Sequence[Recording], initial_state: Any, min_samples: int, huber_k: float,
+          say: Callable[[str], None]) -> Problem:
+    """Prepare the recordings, check them, and fit the null model."""
+    if not recordings:
+        raise InputError("give at least one recording to compare with the model")
+    check_overlap(model, recordings)
+    data = prepare(recordings, model, initial_state)
+    fitter = Fitter(model, data, anchor_data(model, min(d.dt_med for d in data)))
+    n_samples, too_little, cannot = enough_data(data, min_samples)
+    noise = float(np.median([noise_floor(d.y) for d in data]))
+    fitter.use_anchor(fallback_tolerance_um=noise)
+    null, jumps = _null_model(fitter, data, n_samples, noise, huber_k, say)
+    return Problem(model, model, tuple(data), fitter, noise, n_samples, too_little, tuple(cannot + jumps), null)
+
+
+def scored(d: RecData, r: np.ndarray) -> np.ndarray:
+    """The residual with the samples before the initial state settles set to zero (not scored)."""
+    if d.settled <= 0:
+        return r
+    out = r.copy()
+    out[: d.settled] = 0.0
+    return out
+
+
+def _null_model(fitter: Fitter, data: list[RecData], n_samples: int, noise: float, huber_k: float,
+                say: Callable[[str], None]) -> tuple[NullFit, list[str]]:
+    """The base as given (rms_before) and recalibrated (the null every effect must beat); the
+    sensor's jumps found on the base's residual (each a column of every design from here on)."""
+    say("simulating the base model")
+    base_pred = tuple(yc for _, yc in fitter.core(Spec()))
+    _ = fitter.yc_center          # computed once, before any threads share the fitter
+    notes = []
+    for d, yc in zip(data, base_pred):     # before any fit: each jump is a column of every design
+        d.jumps = sensor_jumps(d.y, yc, d.u, d.recorded_stress, d.t, d.dt_med, d.settled)
+        if d.jumps.excess:
+            notes.append(f"{d.name}: {jump_words(d.jumps)}")
+    rms_before = float(np.sqrt(sum(float(np.sum((d.y - yc)[d.settled:] ** 2))
+                                   for d, yc in zip(data, base_pred)) / max(n_samples, 1)))
+    null_specs = (Spec(), Spec(), Spec())
+    # Huber scale from the recalibrated base's held-out residual: bursts the core cannot follow at all
+    # (e.g. a load change) then weigh in linearly, not quadratically, in fits and in the selection
+    r0 = fitter.test_residuals(null_specs)
+    fitter.delta = max(huber_k * mad_sigma(r0), 2.0 * noise, 1e-12)
+    null = fitter.score(null_specs, want_coef=True)
+    assert null.coef_all is not None
+    null_pred = tuple(fitter.predict_full(Spec(), null.coef_all))
+    located = tuple(locate(d, scored(d, d.y - yb), scored(d, d.y - yn))
+                    for d, yb, yn in zip(data, base_pred, null_pred))
+    fit = SearchResult(null_specs, null.held_out_loss, null.held_out_mse, null.all_mse, null.n_held_out,
+                       null.coef_all, null.names, 1)
+    return NullFit(base_pred, rms_before, fit, null_pred, located), notes
