@@ -32,6 +32,8 @@ def candidates(sel: Selection) -> dict[str, Candidate]:
         if t is not None:
             c.result, c.cv_mse, c.cv_loss, c.params, c.round = t.result, t.cv_mse, t.cv_loss, dict(t.params), t.round
             c.loglik_gain, c.evidence = t.loglik_gain, t.evidence
+            if t.leave_one_out is not None:
+                c.leave_one_out_mse = t.leave_one_out.mse
         c.accepted = name in sel.accepted
         out[name] = c
     return out
@@ -54,6 +56,9 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
     else:
         outcome = "unexplained"
     cannot = list(final.cannot) + [d.extra["settled_note"] for d in problem.data if "settled_note" in d.extra]
+    if not problem.identification.given:      # what the effects could not do without those recordings
+        lost = [(cls.name, cls.lost_without_identification(problem.fitter)) for cls in effect_registry.candidates()]
+        cannot += [f"{name}: {why}" for name, why in lost if why]
     lead = displacement_lead(problem.data, problem.null.base_pred)
     if lead is not None:     # a column-timing fault: effects fitted to it would be confidently wrong
         cannot.append(lead.words())
@@ -80,9 +85,18 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
     validation = validation_words(fitter, null.fit.cv_mse, selector.min_mse_ratio, selector.min_loglik_gain)
     if not final.base_kept:
         validation += sel.rebase_note
+    loo = leave_one_out_figures(problem, final)
+    if loo["applies"]:
+        validation += (f" With {len(problem.data)} recordings, each was also left out in turn: every effect's law "
+                       "(its parameters chosen and its gains fitted on the other recordings) had to lower the "
+                       "error on the recording left out, or it was not accepted; leave-one-recording-out RMS "
+                       f"{loo['rms_recalibrated_um']} um for the recalibrated base, "
+                       f"{loo['rms_after_um'] if loo['rms_after_um'] is not None else 'unchanged'} um for the "
+                       "final model (its nonlinear parameters as selected, its gains fitted without the recording).")
     if fitter.anchor_on:
         validation += anchor_words(problem.model, [] if final.base_kept else
-                                   fitter.anchor_deviation(sel.fit.specs[2], sel.fit.coef_all))
+                                   fitter.anchor_deviation(sel.fit.specs[2], sel.fit.coef_all),
+                                   measured=bool(fitter.identification))
     ordered = sorted(cands.values(), key=lambda c: (not c.accepted, not c.testable,
                                                     c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
     rounds = [r.as_dict() for r in sel.rounds]
@@ -90,5 +104,30 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
                      math.sqrt(null.fit.cv_mse), math.sqrt(final.cv_mse), noise, validation, conclusive,
                      cannot, final.extended, list(problem.data), list(null.base_pred), list(null.null_pred),
                      list(final.final_pred), rounds, rounds[0]["n_eff"] if rounds else float("nan"),
-                     str(selector.initial_state), after)
+                     str(selector.initial_state), after, problem.identification.to_json(), loo)
 
+
+def leave_one_out_figures(problem: Problem, final: Final) -> dict[str, Any]:
+    """diagnosis.json's leave-one-recording-out figures: per recording, the null's and the final
+    model's RMS when that recording was left out of the fit (its own zero fitted on it)."""
+    null, after = final.selection.null_leave_one_out, final.leave_one_out
+    if null is None:
+        why = ("too little data" if problem.too_little else
+               "one recording: give recordings at other loads, rates or drive shapes to test the laws on "
+               "conditions they were not fitted on")
+        return {"applies": False, "why": why}
+    after = after or null                       # nothing kept beyond the base: as the null
+    if final.base_kept:
+        after = None
+    rows = []
+    for k, d in enumerate(problem.data):
+        rows.append({"recording": d.name, "rms_recalibrated_um": _rms(null.sse[k], null.n[k]),
+                     "rms_after_um": _rms(after.sse[k], after.n[k]) if after is not None else None})
+    return {"applies": True, "rms_recalibrated_um": _rms(sum(null.sse), sum(null.n)),
+            "rms_after_um": _rms(sum(after.sse), sum(after.n)) if after is not None else None,
+            "per_recording": rows}
+
+
+def _rms(sse: float, n: int) -> float | None:
+    v = math.sqrt(sse / n) if n > 0 else math.nan
+    return float(f"{v:.6g}") if math.isfinite(v) else None

@@ -14,29 +14,37 @@ import numpy as np
 
 from ..errors import InputError
 from ..recordings import Recording
-from .anchor import anchor_data
+from .anchor import anchor_data, measured_loops
 from .checks import check_overlap, enough_data
 from .data import RecData, noise_floor, prepare
-from .fitting import Fitter, SearchResult, Spec
+from .fitting import Fitter, FitSettings, SearchResult, Spec
+from .identification import IdentificationCheck, check
 from .jumps import jump_words, sensor_jumps
 from .locate import locate
 from .noise import mad_sigma
 from .state import NullFit, Problem
 
 
-def setup(model: Any, recordings: Sequence[Recording], initial_state: Any, min_samples: int, huber_k: float,
-          say: Callable[[str], None]) -> Problem:
-    """Prepare the recordings, check them, and fit the null model."""
+def setup(selector: Any, model: Any, recordings: Sequence[Recording], say: Callable[[str], None],
+          identification: Sequence[Recording] = (), checked: IdentificationCheck | None = None) -> Problem:
+    """Prepare the recordings, check them, and fit the null model. With the identification
+    recordings, the anchor is those measured loops (`anchor.measured_loops`), else the base's own
+    output on loops like them (`anchor.anchor_data`)."""
     if not recordings:
         raise InputError("give at least one recording to compare with the model")
-    check_overlap(model, recordings)
-    data = prepare(recordings, model, initial_state)
-    fitter = Fitter(model, data, anchor_data(model, min(d.dt_med for d in data)))
-    n_samples, too_little, cannot = enough_data(data, min_samples)
+    check_overlap(model, recordings, selector.range_margin, selector.min_overlap)
+    data = prepare(recordings, model, selector.initial_state)
+    anchor = (measured_loops(model, list(identification)) if identification else
+              anchor_data(model, min(d.dt_med for d in data)))
+    fitter = Fitter(model, data, anchor, FitSettings(selector.min_stress_span_MPa,
+                                                     tuple(selector.recalibration_plays)))
+    n_samples, too_little, cannot = enough_data(data, selector.min_samples, selector.clamped_share)
     noise = float(np.median([noise_floor(d.y) for d in data]))
     fitter.use_anchor(fallback_tolerance_um=noise)
-    null, jumps = _null_model(fitter, data, n_samples, noise, huber_k, say)
-    return Problem(model, model, tuple(data), fitter, noise, n_samples, too_little, tuple(cannot + jumps), null)
+    null, jumps = _null_model(fitter, data, n_samples, noise, selector.huber_k, say)
+    checked = checked or check(model, [r.name for r in identification])
+    return Problem(model, model, tuple(data), fitter, noise, n_samples, too_little, tuple(cannot + jumps), null,
+                   checked)
 
 
 def scored(d: RecData, r: np.ndarray) -> np.ndarray:
@@ -66,6 +74,7 @@ def _null_model(fitter: Fitter, data: list[RecData], n_samples: int, noise: floa
     # Huber scale from the recalibrated base's held-out residual: bursts the core cannot follow at all
     # (e.g. a load change) then weigh in linearly, not quadratically, in fits and in the selection
     r0 = fitter.test_residuals(null_specs)
+    # (never below twice the noise floor: Gaussian noise alone must stay in the quadratic part)
     fitter.delta = max(huber_k * mad_sigma(r0), 2.0 * noise, 1e-12)
     null = fitter.score(null_specs, want_coef=True)
     assert null.coef_all is not None

@@ -31,28 +31,36 @@ def loglik_gain(n_eff: float, loss_without: float, loss: float, n_params: int) -
 
 
 def effective_samples(resid: np.ndarray, lengths: Sequence[int]) -> float:
-    """Independent samples in a residual (per recording: length / integrated correlation time)."""
+    """Independent samples in a residual: per recording, its length over the integrated
+    autocorrelation time, by Geyer's initial monotone sequence (the sums of neighbouring pairs of
+    autocorrelations, taken while they stay positive and falling: no cut-off to choose, the data
+    say where the correlation has died out)."""
     total = 0.0
     start = 0
     for n in lengths:
         r = resid[start:start + n]
         start += n
-        if r.size < 8:
-            total += r.size
-            continue
-        r = r - r.mean()
-        var = float(r @ r) / r.size
-        if var <= 0:
-            total += r.size
-            continue
-        tau = 1.0
-        for lag in range(1, min(r.size // 4, 2000)):
-            rho = float(r[:-lag] @ r[lag:]) / (r.size * var)
-            if rho < 0.05:
-                break
-            tau += 2 * rho
-        total += r.size / tau
+        total += r.size / max(correlation_time(r), 1.0)
     return max(total, 1.0)
+
+
+def correlation_time(r: np.ndarray) -> float:
+    """Integrated autocorrelation time 1 + 2 sum_k rho_k of a series (Geyer 1992, initial monotone
+    sequence estimator); 1 for a series too short or flat to say."""
+    if r.size < 8:
+        return 1.0
+    x = r - r.mean()
+    var = float(x @ x)
+    if var <= 0:
+        return 1.0
+    m = 1 << int(np.ceil(np.log2(2 * x.size)))
+    f = np.fft.rfft(x, m)
+    rho = np.fft.irfft(f * np.conj(f), m)[: x.size // 2] / var
+    pairs = rho[: 2 * (rho.size // 2)].reshape(-1, 2).sum(axis=1)     # Gamma_k = rho_2k + rho_2k+1
+    stop = np.flatnonzero(pairs <= 0)
+    pairs = pairs[: stop[0] if stop.size else pairs.size]
+    pairs = np.minimum.accumulate(pairs)
+    return float(-1.0 + 2.0 * pairs.sum())
 
 
 def params_of(fitter: Fitter, effect: str, spec: Spec, coef: np.ndarray, names: list[str]) -> dict[str, float]:
@@ -114,7 +122,7 @@ def score_round(fitter: Fitter, base: Specs, loss_without: float, names: list[st
     leader = min(names, key=lambda n: results[n].cv_loss)
     # effective sample count of the noise, from the best candidate's held-out residual
     n_eff = effective_samples(fitter.test_residuals(results[leader].specs), fitter.segment_lengths)
-    gains = [loglik_gain(n_eff, loss_without, results[n].cv_loss, REGISTRY[n].n_params) for n in names]
+    gains = [loglik_gain(n_eff, loss_without, results[n].cv_loss, REGISTRY[n].count_params(fitter)) for n in names]
     top = max(0.0, max(gains))
     weights = np.exp(np.clip(np.array(gains) - top, -700, 0))
     norm = math.exp(-top) + float(weights.sum())

@@ -25,15 +25,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from .. import effects as effect_registry
 from ..effects import REGISTRY
-from ..effects.base import SignatureCheck
+from ..effects.base import SignatureCheck, SignatureFailure
 from ..extended import ExtendedModel
 from ..recordings import Recording
 from .explain import decider, runner_up_note
-from .fitting import Fitter, SearchResult
+from .fitting import Fitter, LeaveOneOut, SearchResult, Spec, leave_one_out_search
+from .identification import check
 from .outcome import assemble
 from .problem import setup
 from .rebase import reidentify_through
@@ -74,6 +75,30 @@ class EffectSelector:
         model can follow (a load change) weigh in linearly, Gaussian noise never reaches it.
     min_samples (400)
         Scored samples needed at all; below, any effect is fitted to the loops it is judged on.
+    min_removed_noise (0.5)
+        An accepted effect takes at least half the noise floor off the held-out RMS: a smaller gain,
+        however significant on many samples, is not a residual anyone could see above the noise.
+    min_stress_span_MPa (1.0)
+        Stress terms (the recalibration's stress gain, stress_dependent_play) are fitted only when
+        the recordings' loads span at least this, and loads closer than this count as one level:
+        the SDPI loop moves by a few % of its stroke per MPa (the paper's rig: about a micrometre
+        over 13 MPa), so across less a stress term fits noise and drift, not the load.
+    recalibration_plays ((0.1, 0.25, 0.45))
+        The recalibration's own play thresholds, as fractions of the drive span: a narrow, a middle
+        and the widest play a 10-play core has (0.45 of the span), so the loop's width can be
+        corrected at every scale with three columns.
+    range_margin (0.02)
+        A drive or stress within 2 % of the model's range counts as inside it: the range was taken
+        from noisy recordings, to about that.
+    min_overlap (0.05)
+        Unless at least 5 % of the samples lie inside the model's drive (and stress) range, nothing
+        can be compared and the recordings are refused with the experiment to make instead.
+    clamped_share (0.01)
+        More than 1 % of samples at stresses outside the model's range is said (they are compared at
+        the nearest stress of the range): beyond that the comparison there is an extrapolation.
+    slow_duration_s (20.0)
+        A longest recording shorter than this gets a caveat on slow effects: heating and creep have
+        time constants of tens of seconds, and below that they look alike.
     workers (2)
         Candidate searches in parallel threads (numba kernels and BLAS release the GIL).
     initial_state ("estimate")
@@ -88,6 +113,9 @@ class EffectSelector:
     def __init__(self, max_effects: int = 3, *, min_mse_ratio: float = 0.75, min_loglik_gain: float = 6.0,
                  noise_factor: float = 1.5, model_error_factor: float = 3.0, slow_ratio_max: float = 0.8,
                  ambiguous_nats: float = 3.0, huber_k: float = 3.0, min_samples: int = 400,
+                 min_removed_noise: float = 0.5, min_stress_span_MPa: float = 1.0,
+                 recalibration_plays: tuple[float, ...] = (0.1, 0.25, 0.45), range_margin: float = 0.02,
+                 min_overlap: float = 0.05, clamped_share: float = 0.01, slow_duration_s: float = 20.0,
                  workers: int = 2, initial_state: Any = "estimate") -> None:
         self.max_effects = max_effects
         self.min_mse_ratio = min_mse_ratio
@@ -98,14 +126,26 @@ class EffectSelector:
         self.ambiguous_nats = ambiguous_nats
         self.huber_k = huber_k
         self.min_samples = min_samples
+        self.min_removed_noise = min_removed_noise
+        self.min_stress_span_MPa = min_stress_span_MPa
+        self.recalibration_plays = recalibration_plays
+        self.range_margin = range_margin
+        self.min_overlap = min_overlap
+        self.clamped_share = clamped_share
+        self.slow_duration_s = slow_duration_s
         self.workers = workers
         self.initial_state = initial_state
 
-    def fit(self, model: Any, recordings: Sequence[Recording],
-            progress: Callable[[str], None] | None = None) -> "EffectSelector":
-        """Run the whole diagnosis (no I/O) and keep its results in the trailing-underscore attributes."""
+    def fit(self, model: Any, recordings: Sequence[Recording], progress: Callable[[str], None] | None = None,
+            identification: Sequence[Recording] = (),
+            fingerprints: Sequence[Mapping[str, Any]] | None = None) -> "EffectSelector":
+        """Run the whole diagnosis (no I/O) and keep its results in the trailing-underscore attributes.
+        `identification`: the recordings the model was identified on (checked against its record, by
+        their files' `fingerprints` when given, else by name), which every fit is then held to and on
+        which an effect may identify the core again."""
         say = progress or (lambda _msg: None)
-        problem = setup(model, recordings, self.initial_state, self.min_samples, self.huber_k, say)
+        checked = check(model, [r.name for r in identification], fingerprints)
+        problem = setup(self, model, recordings, say, identification, checked)
         sel = self._open(problem)
         for rnd in range(1, self.max_effects + 1):
             if math.sqrt(sel.cur_cv) <= self.noise_factor * problem.noise:
@@ -133,7 +173,7 @@ class EffectSelector:
         """Does an effect that takes the held-out loss from `loss_without` to `loss` (with that
         log-likelihood gain, its parameters paid for) earn its place in the model?"""
         return (loss < self.min_mse_ratio * loss_without and loglik_gain > self.min_loglik_gain
-                and math.sqrt(loss_without) - math.sqrt(loss) > 0.5 * noise)
+                and math.sqrt(loss_without) - math.sqrt(loss) > self.min_removed_noise * noise)
 
     # ------------------------------------------------------------------ what can be tested
     def _open(self, problem: Problem) -> Selection:
@@ -144,7 +184,7 @@ class EffectSelector:
             ok, why = cls.testable(fitter)
             if problem.too_little:
                 ok, why = False, why or "too little data"
-            elif ok and cls.slow and fitter.duration_max < 20.0:
+            elif ok and cls.slow and fitter.duration_max < self.slow_duration_s:
                 why = (f"the longest recording lasts {fitter.duration_max:.3g} s: slow effects "
                        "(heating, creep) with time constants beyond it are hard to separate; "
                        "a run of several minutes with current on/off phases would decide")
@@ -153,7 +193,9 @@ class EffectSelector:
             elif why and not problem.too_little:
                 cannot.append(f"{cls.name}: {why}")
             reasons[cls.name] = why
-        return Selection(problem.null.fit, frozenset(testable), reasons, cannot=tuple(cannot))
+        loo = fitter_loo(problem, problem.null.fit.specs[2])
+        return Selection(problem.null.fit, frozenset(testable), reasons, cannot=tuple(cannot), leave_one_out=loo,
+                         null_leave_one_out=loo)
 
     # ------------------------------------------------------------------ one forward round
     def _round(self, problem: Problem, sel: Selection, rnd: int,
@@ -174,7 +216,12 @@ class EffectSelector:
                 SignatureCheck(problem.fitter, problem.model, sel.fit.specs, best.result, dict(best.params),
                                problem.noise, self.slow_ratio_max, self.model_error_factor))
             if failure is None:
-                break
+                best, why = self._carries_over(problem, sel, best)
+                trials = [best] + trials[1:]
+                sel = dataclasses.replace(sel, trials={**sel.trials, best.effect: best})
+                if not why:
+                    break
+                failure = SignatureFailure(why)
             sel = sel.with_reason(best.effect, failure.reason, testable=False)
             if failure.outside_class:
                 sel = dataclasses.replace(sel, outside_class=failure.reason)
@@ -195,7 +242,25 @@ class EffectSelector:
             ambiguous += ((best.effect, trials[1].effect),)
         runner = runner_up_note(best, trials[1]) if rnd == 1 and len(trials) > 1 else sel.runner_note
         return dataclasses.replace(sel, accepted=sel.accepted + (best.effect,), fit=best.result,
-                                   ambiguous=ambiguous, runner_note=runner), True
+                                   ambiguous=ambiguous, runner_note=runner,
+                                   leave_one_out=fitter_loo(problem, best.result.specs[2])), True
+
+    def _carries_over(self, problem: Problem, sel: Selection, best: Trial) -> tuple[Trial, str]:
+        """With two or more recordings: does the effect's law, fitted on the other recordings,
+        improve each recording left out (pooled)? The trial with its leave-one-out figures, and why
+        not ('' when it does, or when there is one recording)."""
+        if sel.leave_one_out is None:
+            return best, ""
+        cls = REGISTRY[best.effect]
+        loo = leave_one_out_search(problem.fitter, sel.fit.specs[2], lambda s, p: s.with_(best.effect, p),
+                                   cls.grid(problem.fitter), cls.refine, getattr(cls, "zoom_levels", 3))
+        best = dataclasses.replace(best, leave_one_out=loo)
+        before, after = sel.leave_one_out.loss_per_sample, loo.loss_per_sample
+        if after < before:
+            return best, ""
+        return best, (f"fitted on the other recordings, it does not improve the one left out (leave-one-recording-"
+                      f"out RMS {math.sqrt(loo.mse):.4g} um against {math.sqrt(sel.leave_one_out.mse):.4g} um "
+                      "without it): its law does not carry to the conditions it was not fitted on")
 
     # ------------------------------------------------------------------ the swap pass
     def _swap_pass(self, problem: Problem, sel: Selection, say: Callable[[str], None]) -> Selection:
@@ -251,7 +316,9 @@ class EffectSelector:
         # the same recordings and scored rows (the anchor's: the base's loops and tolerances), each
         # with the new core's own initial state
         data = _restarted(core, problem.data, self.initial_state)
-        refit = Fitter(core, data, _restarted(core, fitter.anchor, "relaxed"))
+        refit = Fitter(core, data, [dataclasses.replace(d, start=core.resolve_initial_state(
+            d.u, d.s if core.stress_range_MPa is not None else None, d.extra.get("anchor_rule", "relaxed"), d.y,
+            d.t)) for d in fitter.anchor], fitter.settings)
         refit.use_anchor(fallback_tolerance_um=problem.noise)
         refit.delta = fitter.delta
         sc = refit.score(final.specs, want_coef=True)
@@ -282,7 +349,7 @@ class EffectSelector:
             assert sc.coef_all is not None
             if n_eff is None:
                 n_eff = effective_samples(fitter.test_residuals(sel.fit.specs), fitter.segment_lengths)
-            gain = loglik_gain(n_eff, sc.held_out_loss, sel.cur_loss, REGISTRY[name].n_params)
+            gain = loglik_gain(n_eff, sc.held_out_loss, sel.cur_loss, REGISTRY[name].count_params(fitter))
             if self.earns_place(sel.cur_loss, gain, sc.held_out_loss, problem.noise):
                 continue
             reason = (f"named against the core before it was identified again through {through}; on the new "
@@ -310,8 +377,8 @@ class EffectSelector:
         sel = dataclasses.replace(sel, trials=trials)
         cannot = list(problem.cannot + sel.cannot)
         base = Final(sel, ExtendedModel(problem.model, {}, []), null.base_pred, null.rms_before ** 2, True, ())
-        final = Final(sel, build_extended(problem.core, fitter, fit.specs[2], fit.coef_all, fit.names,
-                                          list(sel.accepted)),
+        final = Final(sel, build_extended(fitter.plain_core(fit.specs[2]), fitter, fit.specs[2], fit.coef_all,
+                                          fit.names, list(sel.accepted)),
                       tuple(fitter.predict_full(fit.specs[2], fit.coef_all)), sel.cur_cv, False, ())
         if final.cv_mse > null.rms_before ** 2:
             # Worse than the base model as given, on held-out data: never the verdict. The extended
@@ -346,7 +413,8 @@ class EffectSelector:
             final = dataclasses.replace(base, selection=sel)
         if sel.outside_class:
             cannot.insert(0, f"outside the model's class: {sel.outside_class}")
-        return dataclasses.replace(final, selection=sel, cannot=tuple(cannot))
+        loo = None if final.base_kept else fitter_loo(problem, sel.fit.specs[2])
+        return dataclasses.replace(final, selection=sel, cannot=tuple(cannot), leave_one_out=loo)
 
 
 def _swapped(fitter: Fitter, sel: Selection, name: str, by: str, res: SearchResult) -> Selection:
@@ -385,3 +453,10 @@ def _restarted(core: Any, data: Sequence[Any], rule: Any) -> list[Any]:
     return [dataclasses.replace(d, start=core.resolve_initial_state(
         d.u, d.s if core.stress_range_MPa is not None else None, rule, d.y, d.t)) for d in data]
 
+
+def fitter_loo(problem: Problem, spec: Spec) -> LeaveOneOut | None:
+    """The spec, each recording predicted by its gains fitted on the others; None with one recording
+    (nothing to leave out) or too little data."""
+    if len(problem.data) < 2 or problem.too_little:
+        return None
+    return LeaveOneOut.of(problem.fitter.left_out(spec))

@@ -21,7 +21,8 @@ import numpy as np
 
 from ..extended import ExtendedModel
 from .data import RecData
-from .fitting import Fitter, SearchResult
+from .fitting import Fitter, LeaveOneOut, SearchResult
+from .identification import IdentificationCheck
 from .locate import Located
 
 
@@ -50,6 +51,7 @@ class Problem:
     too_little: bool                      # too little data for blocked cross-validation
     cannot: tuple[str, ...]               # what cannot be concluded, found before any fit
     null: NullFit
+    identification: IdentificationCheck   # the identification recordings given, against the model's record
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,7 @@ class Trial:
     round: int
     loglik_gain: float = math.nan
     evidence: float = 0.0
+    leave_one_out: LeaveOneOut | None = None     # its law judged on each recording it was not fitted on
 
     @property
     def cv_mse(self) -> float:
@@ -103,6 +106,8 @@ class Selection:
     outside_class: str = ""                         # a drive the model's class cannot follow (named nothing)
     rebase_note: str = ""
     cannot: tuple[str, ...] = ()                    # what cannot be concluded, found by the selection's steps
+    leave_one_out: LeaveOneOut | None = None        # the current model, each recording fitted without it
+    null_leave_one_out: LeaveOneOut | None = None   # the null model's (None: one recording, or too little data)
 
     @property
     def cur_cv(self) -> float:
@@ -129,3 +134,4 @@ class Final:
     cv_mse: float                         # the extended model's held-out MSE (the base's as given when kept)
     base_kept: bool
     cannot: tuple[str, ...]               # what cannot be concluded, in the order found
+    leave_one_out: LeaveOneOut | None = None    # the final model, each recording fitted without it
