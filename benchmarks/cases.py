@@ -7,6 +7,7 @@ judge diagnose on exactly the same cases; the truth stays in `Case.truth`, never
 from __future__ import annotations
 
 import copy
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -356,6 +357,14 @@ def make_case(case: Case, scale: float = 1.0, effect_free: bool = False) -> tupl
     `effect_free`: the case's twin with the plant's switchable effects off in every recording (the
     identification ones too) and the same drives, loads and noise: the base model's error on it is
     the floor of the model class on this experiment, what an extended model can at best reach."""
+    model, _, rec = case_recordings(case, scale, effect_free)
+    return model, rec
+
+
+def case_recordings(case: Case, scale: float = 1.0,
+                    effect_free: bool = False) -> tuple[Any, list[Recording], Recording]:
+    """`make_case`, with the identification recordings the base model was made from (what a user
+    gives `diagnose --ident`)."""
     rng = np.random.default_rng(case.seed)
     cfg = case_plant(case)
     cfg.magnetics = copy.deepcopy(cfg.magnetics)
@@ -383,7 +392,9 @@ def make_case(case: Case, scale: float = 1.0, effect_free: bool = False) -> tupl
     if case.start_s > 0:
         keep = rec.time_s >= rec.time_s[0] + case.start_s
         rec = Recording({k: v[keep] for k, v in rec.columns.items()}, dict(rec.metadata), rec.name)
-    return model, rec
+    if case.voltage:
+        ident_recs = [_variant(r, dataclasses.replace(case, falling=False)) for r in ident_recs]
+    return model, ident_recs, rec
 
 
 def _variant(rec: Recording, case: Case) -> Recording:

@@ -255,6 +255,12 @@ class SDPIIdentifier:
         initial_state         the fit's start of each recording's plays, and the model file's
                               stepper rule: "descending" (as if the drive came down to its first
                               value) or "relaxed"
+        loop_width            None (the paper's SDPI), or (kappa per MPa, reference stress MPa): every
+                              play threshold scaled by g(sigma) = max(1 + kappa (sigma_ref - sigma), 0.05)
+                              at each sample's stress, a loop width (coercive current) that follows
+                              stress; the fitted core then runs as `core_` (the widened core of
+                              `gma_ffc.effects.stress_play`, with its exact inverse), `model_` being its
+                              plain SDPI part
         progress              optional callback(stage: str) for long fits
     Learned:
         model_, report_ (list of RecordingFit), stress_levels_MPa_, notes_ (what was assumed),
@@ -271,6 +277,7 @@ class SDPIIdentifier:
     threshold_grid: str = "intermediate"
     initial_state: str = "descending"
     zero: str = "shared"
+    loop_width: tuple[float, float] | None = None
     progress: Callable[[str], None] | None = None
 
     def _say(self, stage: str) -> None:
@@ -314,14 +321,13 @@ class SDPIIdentifier:
                 y0 = monotone_play_state(r_h, d.x[0] - x_c, first_direction(d.x), x_lo - x_c, x_hi - x_c)
                 d.start = 0
             d.plays = np.empty((len(d.x), self.n_play))
-            ops.play_outputs(np.ascontiguousarray(d.x - x_c), r_h, np.ascontiguousarray(y0, dtype=float), d.plays)
+            self._play_outputs(d, r_h, x_c, y0)
         self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c, (x_lo, x_hi))
         if short:
             for d in short:
                 start = resolve(self.model_, d.x, d.sigma, "estimate", self.output_sign_ * d.y)
                 d.start = 0
-                ops.play_outputs(np.ascontiguousarray(d.x - x_c), r_h,
-                                 np.ascontiguousarray(start.play_state), d.plays)
+                self._play_outputs(d, r_h, x_c, start.play_state)
             self.notes_.append(f"{len(short)} recording(s) start with a large share of unknown hysteresis "
                                "history: their initial state was estimated and all their samples fitted")
             self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c, (x_lo, x_hi))
@@ -331,6 +337,27 @@ class SDPIIdentifier:
                                                     (x_lo, x_hi)), data)
         self._check_degenerate(data, fast)
         return self
+
+    def _play_outputs(self, d: _Data, r_h: np.ndarray, x_c: float, y0: np.ndarray) -> None:
+        """The recording's play outputs (the regressors) into d.plays, from play states y0; with a
+        loop width, each sample's thresholds scaled by its stress's width factor."""
+        x = np.ascontiguousarray(d.x - x_c)
+        y0 = np.ascontiguousarray(y0, dtype=float)
+        if self.loop_width is None:
+            ops.play_outputs(x, r_h, y0, d.plays)
+            return
+        kappa, s_ref = self.loop_width
+        g = np.maximum(1.0 + kappa * (s_ref - d.stress), ops.WIDTH_MIN)
+        ops.play_outputs_scaled(x, r_h, np.ascontiguousarray(g), y0, d.plays)
+
+    @property
+    def core_(self) -> Any:
+        """The identified core as it runs: `model_`, or with `loop_width` its widened core."""
+        if self.loop_width is None:
+            return self.model_
+        from .effects.stress_play import WidenedCore
+
+        return WidenedCore(self.model_, *self.loop_width)
 
     def _align_zeros(self, refit: Callable[[], None], data: list[_Data]) -> None:
         """Each recording's zero its own. The stress step fits each recording's zero with its terms
@@ -416,7 +443,10 @@ class SDPIIdentifier:
             drive_name=recordings[0].drive_name, initial_state=self.initial_state,
             provenance={"tool": "gma-ffc identify", "recordings": [d.name for d in data],
                         "settings": {"n_play": self.n_play, "n_deadzone": self.n_deadzone,
-                                     "refine": self.refine, "zero": self.zero}, "notes": list(self.notes_)},
+                                     "refine": self.refine, "zero": self.zero,
+                                     **({} if self.loop_width is None else
+                                        {"loop_width": [float(v) for v in self.loop_width]})},
+                        "notes": list(self.notes_)},
         )
         violations = self.model_.invertibility_violations()
         if violations:  # the fits' bounds make this impossible: a defect, never a bad inverse handed out
@@ -508,6 +538,8 @@ class SDPIIdentifier:
 
     # -- preparation -------------------------------------------------------------------------
     def _check_settings(self) -> None:
+        if self.loop_width is not None and not all(math.isfinite(float(v)) for v in self.loop_width):
+            raise InputError(f"loop_width must be two finite numbers (kappa per MPa, reference MPa), got {self.loop_width}")
         if self.n_play < 1:
             raise InputError(f"n_play must be at least 1, got {self.n_play}")
         if self.zero not in ZERO_MODES:
@@ -802,7 +834,7 @@ class SDPIIdentifier:
         """RMS over the fitted samples, the model started from its estimated initial state (its
         output kept in `d.pred` for the degeneracy check)."""
         measured = self.output_sign_ * d.y                 # the recording's own orientation
-        pred = d.pred = self.model_.simulate(None, d.x, d.sigma, measured_um=measured)
+        pred = d.pred = self.core_.simulate(None, d.x, d.sigma, measured_um=measured)
         start = burn_in_end(d.x) if d.start is None else d.start
         err = pred[start:] - measured[start:]
         stroke = float(d.y.max() - d.y.min())

@@ -282,6 +282,18 @@ def inverse_batch(y: np.ndarray, sigma: np.ndarray, p: np.ndarray, state: np.nda
 
 
 @njit(cache=True, nogil=True)
+def play_outputs_scaled(x: np.ndarray, r: np.ndarray, g: np.ndarray, y0: np.ndarray, out: np.ndarray) -> None:
+    """play_outputs with every threshold scaled by g[k] at sample k (a loop width that follows
+    stress: the widened core's plays, the regressors of its identification)."""
+    n = r.shape[0]
+    for i in range(n):
+        out[0, i] = play(x[0], g[0] * r[i], y0[i])
+    for k in range(1, x.shape[0]):
+        for i in range(n):
+            out[k, i] = play(x[k], g[k] * r[i], out[k - 1, i])
+
+
+@njit(cache=True, nogil=True)
 def play_outputs(x: np.ndarray, r: np.ndarray, y0: np.ndarray, out: np.ndarray) -> None:
     """All play outputs H_{r_i}[x](t_k) into out[k, i]: the regressors of identification."""
     n = r.shape[0]

@@ -479,6 +479,19 @@ def read_recording(path: str | Path, require: Sequence[str] = (TIME, "drive", DI
     return read_csv(p, require)
 
 
+def fingerprint(path: str | Path) -> dict[str, Any]:
+    """A recording file's name, size in bytes and SHA-256 of its content: what `identify` keeps of
+    each identification file, so `diagnose --ident` can tell whether it was given the same files."""
+    import hashlib
+
+    p = Path(path)
+    h = hashlib.sha256()
+    with open(p, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return {"name": p.name, "bytes": p.stat().st_size, "sha256": h.hexdigest()}
+
+
 def plain(value: Any) -> Any:
     """Numpy scalars/arrays and other objects -> what YAML can write (metadata never blocks a write)."""
     if isinstance(value, np.generic):

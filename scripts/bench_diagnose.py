@@ -20,6 +20,12 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set sdp-variants  # stress-dependent play on six more recordings
     .venv/bin/python scripts/bench_diagnose.py --set rising   # amplitude growing from the drive's minimum
     .venv/bin/python scripts/bench_diagnose.py --set rising-holdout  # the same family, never tuned
+    .venv/bin/python scripts/bench_diagnose.py --set general   # generalisation (development), with --ident
+    .venv/bin/python scripts/bench_diagnose.py --set general-holdout   # the same, never tuned
+
+Beside the held-out blocks, every case is also judged on probes (`benchmarks.probes`): the same
+simulated actuator recorded again at loads, rates and drive shapes diagnose never saw; the extended
+model's RMS there against the base's (gain), and the base's on the effect-free twin (floor).
 
 The never-tuned set (`benchmarks.cases.holdout_cases`, seed fixed before it was first run) also
 holds the families users bring: a recording cut mid-cycle, a drive labelled in volts and an
@@ -42,46 +48,71 @@ sys.path.insert(0, str(ROOT))      # benchmarks/ is a checkout folder, not part 
 from gma_ffc.diagnose.engine import diagnose
 from gma_ffc.initial_state import settled_index
 from benchmarks.cases import (FS, LABELS, Case, cases, holdout_cases, make_case,  # noqa: F401  (re-exported)
-                               OTHER_PLANTS_HOLDOUT_SEED, other_plant_cases, rising_cases, rising_holdout_cases,
-                               sdp_variant_cases)
+                               OTHER_PLANTS_HOLDOUT_SEED, case_recordings, other_plant_cases, rising_cases,
+                               rising_holdout_cases, sdp_variant_cases)
+from benchmarks.general import GENERAL_HOLDOUT_SEED, general_cases
+from benchmarks.probes import pooled, probe_recordings, probe_scores
 
-def run_case(case: Case) -> dict[str, Any]:
-    model, rec = make_case(case)
+# the held-out-condition targets (issue 31), on the probes diagnose never saw
+PROBE_GAIN_EACH = 1.5        # every effect case at least this much better than the base
+PROBE_GAIN_MEDIAN = 3.0      # the median effect case
+PROBE_GAIN_RESONANCE = 3.0   # every case with a resonance
+
+
+def run_case(case: Case, ident: bool = False, probes: bool = True) -> dict[str, Any]:
+    model, ident_recs, rec = case_recordings(case)
     t = rec.time_s
     t0 = time.perf_counter()
-    dg = diagnose(model, [rec])
+    dg = diagnose(model, [rec], identification=ident_recs if ident else ())
     elapsed = time.perf_counter() - t0
-    return {"case": case.name, "truth": case.truth, "verdict": tuple(dg.verdict), "outcome": dg.outcome,
-            "before": dg.rms_before_um, "after": dg.rms_after_um, "noise": dg.noise_um, "seconds": elapsed, "samples": t.size,
-            "conclusive": dg.conclusive, "floor": effect_free_floor(case),
-            "scored": sum(d.n_scored for d in dg.data)}
+    out = {"case": case.name, "truth": case.truth, "verdict": tuple(dg.verdict), "outcome": dg.outcome,
+           "before": dg.rms_before_um, "after": dg.rms_after_um, "noise": dg.noise_um, "seconds": elapsed,
+           "samples": t.size, "conclusive": dg.conclusive,
+           "scored": sum(d.n_scored for d in dg.data)}
+    twin = None if not case.truth or "saturation" in case.truth else case_recordings(case, effect_free=True)
+    out["floor"] = effect_free_floor(twin)
+    if probes:
+        scores = probe_scores(model, dg.extended, probe_recordings(case))
+        out["probe_before"], out["probe_after"] = pooled(scores, "base_um"), pooled(scores, "extended_um")
+        out["probe_each"] = [(s.name, s.base_um, s.extended_um) for s in scores]
+        out["probe_floor"] = float("nan") if twin is None else \
+            pooled(probe_scores(twin[0], twin[0], probe_recordings(case, effect_free=True)), "base_um")
+    return out
 
 
-def effect_free_floor(case: Case) -> float:
+def effect_free_floor(twin: Any) -> float:
     """The base model's RMS error on the case's twin, every recording made with the plant's effects
     off (same drives, loads and noise; the twin's base model identified on its own effect-free
     loops): what the model class leaves on this experiment without the missing physics, so about
-    the least an extended model can reach. NaN for saturation, whose effect is the drive itself."""
-    if not case.truth or "saturation" in case.truth:
+    the least an extended model can reach. NaN without a twin (nulls; saturation, whose effect is
+    the drive itself)."""
+    if twin is None:
         return float("nan")
-    model, twin = make_case(case, effect_free=True)
-    pred = model.simulate(twin.time_s, twin.drive, twin.stress_MPa, measured_um=twin.displacement_um)
-    start = settled_index(model, twin.drive)
-    return float(np.sqrt(np.mean((pred - twin.displacement_um)[start:] ** 2)))
+    model, _, rec = twin
+    pred = model.simulate(rec.time_s, rec.drive, rec.stress_MPa, measured_um=rec.displacement_um)
+    start = settled_index(model, rec.drive)
+    return float(np.sqrt(np.mean((pred - rec.displacement_um)[start:] ** 2)))
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--set", choices=("tuned", "holdout", "all", "sdp-variants", "plants", "plants-holdout", "rising",
-                                      "rising-holdout"), default="tuned",
+    ap.add_argument("--set", choices=("tuned", "holdout", "all", "sdp-variants", "plants", "plants-holdout",
+                                      "rising", "rising-holdout", "general", "general-holdout"),
+                    default="tuned",
                     help="the development cases (default), the never-tuned set, both, six more "
                          "stress-dependent play cases on plain, voltage, falling and cut recordings, or "
                          "six other actuators (drawn Jiles-Atherton parameters, preload, rod, noise), "
-                         "each with nothing missing and with one effect (plants-holdout: six more, never tuned), "
-                         "or the rising-amplitude family (sines growing from the drive's minimum and decaying to "
-                         "it, the base identified the same way; rising-holdout: drawn once, never tuned)")
+                         "each with nothing missing and with one effect (plants-holdout: six more, never tuned); "
+                         "general: every effect on the default and a drawn actuator, diagnosed with its "
+                         "identification recordings (general-holdout: a second draw, never tuned); "
+                         "rising: the rising-amplitude family (sines growing from the drive's minimum and decaying to "
+                         "it; rising-holdout: drawn once, never tuned)")
     ap.add_argument("--quick", action="store_true", help="middle magnitude of each effect, two nulls, one pair")
     ap.add_argument("--only", default="", help="comma-separated case-name prefixes")
+    ap.add_argument("--ident", action="store_true",
+                    help="give diagnose the identification recordings (--ident); always on for the general sets")
+    ap.add_argument("--no-probes", action="store_true",
+                    help="skip the probes (other loads, rates and drive shapes diagnose never saw)")
     args = ap.parse_args(argv)
     sets = {"tuned": [("development cases (thresholds were developed on these)", cases())],
             "holdout": [("never-tuned set (seed fixed in advance; quoted apart)", holdout_cases())],
@@ -91,7 +122,11 @@ def main(argv: list[str] | None = None) -> int:
                                 other_plant_cases(seed=OTHER_PLANTS_HOLDOUT_SEED, prefix="unseen-plant"))],
             "rising": [("rising-amplitude family (development; quoted apart)", rising_cases())],
             "rising-holdout": [("rising-amplitude family, never tuned (seed fixed in advance; quoted apart)",
-                                rising_holdout_cases())]}
+                                rising_holdout_cases())],
+            "general": [("generalisation, development (with --ident; probes at other loads, rates, shapes)",
+                         general_cases())],
+            "general-holdout": [("generalisation, never tuned (seed fixed and committed before its first run)",
+                                 general_cases(GENERAL_HOLDOUT_SEED, prefix="unseen"))]}
     chosen = sets["tuned"] + sets["holdout"] if args.set == "all" else sets[args.set]
     ok = True
     for title, todo in chosen:
@@ -102,22 +137,27 @@ def main(argv: list[str] | None = None) -> int:
             todo = [c for c in todo if c.name.split(":")[-1].startswith(pre)]
         if todo:
             print(f"\n=== {title}: {len(todo)} cases ===")
-            ok &= summarise(todo)
+            ok &= summarise(todo, ident=args.ident or args.set.startswith("general"), probes=not args.no_probes)
     return 0 if ok else 1
 
 
-def summarise(todo: list[Case]) -> bool:
+def summarise(todo: list[Case], ident: bool = False, probes: bool = True) -> bool:
     results = []
-    print(f"{'case':<26} {'truth':<40} {'verdict':<40} {'outcome':<14} {'RMS before':>10} {'after':>8} {'floor':>8} "
-          f"{'scored':>6} {'ok':>3} {'s':>5}")
+    print(f"{'case':<34} {'truth':<40} {'verdict':<40} {'outcome':<14} {'RMS before':>10} {'after':>8} {'floor':>8} "
+          f"{'scored':>6} {'ok':>3} {'s':>5}" + (f" {'probes before':>13} {'after':>8} {'gain':>6} {'floor':>8}" if probes else ""))
     for case in todo:
-        r = run_case(case)
+        r = run_case(case, ident, probes)
         r["ok"] = set(r["verdict"]) == set(r["truth"])
         results.append(r)
-        print(f"{r['case']:<26} {','.join(r['truth']) or '-':<40} {','.join(r['verdict']) or '-':<40} "
-              f"{r['outcome']:<14} {r['before']:>10.4f} {r['after']:>8.4f} {r['floor']:>8.4f} "
-              f"{r['scored'] / r['samples']:>6.0%} {'yes' if r['ok'] else 'NO':>3} {r['seconds']:>5.1f}",
-              flush=True)
+        line = (f"{r['case']:<34} {','.join(r['truth']) or '-':<40} {','.join(r['verdict']) or '-':<40} "
+                f"{r['outcome']:<14} {r['before']:>10.4f} {r['after']:>8.4f} {r['floor']:>8.4f} "
+                f"{r['scored'] / r['samples']:>6.0%} {'yes' if r['ok'] else 'NO':>3} {r['seconds']:>5.1f}")
+        if probes:
+            line += (f" {r['probe_before']:>13.4f} {r['probe_after']:>8.4f} "
+                     f"{r['probe_before'] / r['probe_after']:>6.2f} {r['probe_floor']:>8.4f}")
+        print(line, flush=True)
+        if probes:
+            print("    probes: " + "; ".join(f"{n}: {b:.4f} -> {e:.4f} um" for n, b, e in r["probe_each"]), flush=True)
     # confusion matrix over single-effect and null cases: true label x named labels (a case naming two
     # effects counts in two columns); two-effect cases are listed below it
     cols = list(LABELS) + ["none"]
@@ -168,6 +208,8 @@ def summarise(todo: list[Case]) -> bool:
                 f"; the base model's error on its effect-free twin (floor) is {r['floor']:.3f} um, so halving needed "
                 f"{'less than the floor' if 0.5 * r['before'] < r['floor'] else 'more of the effect removed'}")
             print(f"  not halved: {r['case']}: {r['before']:.3f} -> {r['after']:.3f} um{floor}")
+    if probes:
+        summarise_probes(results)
     total_s = sum(r["seconds"] for r in results)
     n = sum(r["samples"] for r in results)
     shares = np.array([r["scored"] / r["samples"] for r in results])
@@ -178,6 +220,29 @@ def summarise(todo: list[Case]) -> bool:
     return correct == len(results)
 
 
+
+def summarise_probes(results: list[dict[str, Any]]) -> None:
+    """The held-out-condition figures: each case's extended model against its base on the probes
+    (other loads, rates and drive shapes, recordings diagnose never saw)."""
+    effect = [r for r in results if r["truth"]]
+    nulls = [r for r in results if not r["truth"]]
+    print("\nheld-out conditions (probes at other loads, rates and drive shapes; diagnose never saw them):")
+    if effect:
+        gains = np.array([r["probe_before"] / r["probe_after"] for r in effect])
+        weak = [r for r, g in zip(effect, gains) if g < PROBE_GAIN_EACH]
+        print(f"  effect cases: median gain {np.median(gains):.2f}x (target >= {PROBE_GAIN_MEDIAN:g}x), worst "
+              f"{gains.min():.2f}x; at least {PROBE_GAIN_EACH:g}x in {len(effect) - len(weak)}/{len(effect)} "
+              "(target: all)")
+        for r in weak:
+            print(f"    below {PROBE_GAIN_EACH:g}x: {r['case']}: {r['probe_before']:.4f} -> {r['probe_after']:.4f} um "
+                  f"(floor {r['probe_floor']:.4f} um)")
+        res = [(r, g) for r, g in zip(effect, gains) if "mechanical_dynamics" in r["truth"]]
+        if res:
+            print(f"  resonance cases: " + ", ".join(f"{r['case']} {g:.2f}x" for r, g in res)
+                  + f" (target >= {PROBE_GAIN_RESONANCE:g}x each)")
+    if nulls:
+        ratio = [r["probe_after"] / r["probe_before"] for r in nulls]
+        print(f"  null cases: extended/base on the probes {min(ratio):.3f}-{max(ratio):.3f} (1.000: nothing changed)")
 
 
 if __name__ == "__main__":

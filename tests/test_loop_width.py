@@ -139,13 +139,16 @@ def test_a_loop_width_needs_a_core_with_stress() -> None:
 
 
 def test_the_width_search_includes_no_widening_and_stays_in_its_physical_range() -> None:
+    from types import SimpleNamespace
+
     from gma_ffc.effects.stress_play import WIDTH_GRID, StressPlay
 
+    searched = SimpleNamespace(identification=[])     # no identification loops: the law is searched
     assert 0.0 in WIDTH_GRID                     # play weights' stress slopes alone must be choosable
     top = max(abs(v) for v in WIDTH_GRID)
     for p in WIDTH_GRID:
         for level in (1, 2, 3):
-            points = StressPlay.refine(None, p, level)   # type: ignore[arg-type]
-            assert all(abs(v) <= top for v in points)
+            points = StressPlay.refine(searched, p, level)   # type: ignore[arg-type]
+            assert points is not None and all(abs(v) <= top for v in points)
             if 0 < abs(p) < top:                 # inside the range the refinement does look around p
                 assert any(v > p for v in points) and any(v < p for v in points)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from ..errors import InputError
 from ._common import add_group_option, add_initial_state_option, check_drive_name, note_gaps
@@ -21,10 +22,13 @@ accept like any model.
 
 Give recordings that differ in what matters: several drive frequencies (rate effects, delay,
 dynamics), minutes with current on/off phases (heating), steps with holds (creep), several
-loads (stress effects).
+loads (stress effects). With --ident, also the recordings the model was identified on (checked
+against the model's record of them): every fit is then held to those measured loops, and an
+effect may identify the core again on them (a loop width that follows stress).
 
-example:
+examples:
   gma-ffc diagnose --model model.yaml long_run.csv sweep_19MPa.csv --out diagnosis/
+  gma-ffc diagnose --model model.yaml long_run.csv --ident id_*.csv --out diagnosis/
 """
 
 
@@ -32,7 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("diagnose", help="name the physics a model leaves out, model it, prove it",
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--model", required=True, metavar="MODEL.yaml", help="sdpi or mpi model to check")
-    p.add_argument("recordings", nargs="+", metavar="REC", help="recordings (.csv or .mat) with displacement_um")
+    p.add_argument("recordings", nargs="*", metavar="REC", help="recordings (.csv or .mat) with displacement_um")
+    p.add_argument("--ident", nargs="+", default=[], metavar="ID_REC",
+                   help="the recordings the model was identified on (checked against the model's record); "
+                        "give them after the recordings to diagnose, or end the list with --")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for diagnosis.json, report.html, extended_model.yaml")
     p.add_argument("--max-effects", type=int, default=3, metavar="N",
                    help="at most this many effects are named (default 3)")
@@ -56,18 +63,20 @@ def run(args: argparse.Namespace) -> int:
     from ..atomic import refuse_overwrite
 
     for produced in ("diagnosis.json", "report.html", "extended_model.yaml"):
-        refuse_overwrite(out / produced, [*args.recordings, args.model], "--out")
+        refuse_overwrite(out / produced, [*args.recordings, *args.ident, args.model], "--out")
     model = load_model(args.model)
     if model.kind == "extended":
         raise InputError(f"{args.model} is already an extended model; diagnose its base sdpi/mpi model instead")
-    recs = [read_recording(p, require=("time_s", "drive", "displacement_um"), group=args.group)
-            for p in args.recordings]
-    for rec in recs:
+    paths, ident_paths, fingerprints = _split_paths(model, args.recordings, args.ident)
+    recs = [read_recording(p, require=("time_s", "drive", "displacement_um"), group=args.group) for p in paths]
+    ident = [read_recording(p, require=("time_s", "drive", "displacement_um"), group=args.group)
+             for p in ident_paths]
+    for rec in recs + ident:
         check_drive_name(model, rec)
     note_gaps(recs)
     with Progress("diagnose") as prog:
         dg = diagnose(model, recs, max_effects=args.max_effects, progress=lambda msg: prog.advance(note=msg),
-                      initial_state=args.initial_state)
+                      initial_state=args.initial_state, identification=ident, fingerprints=fingerprints)
         prog.advance(note="writing report")
         doc = write_outputs(dg, out)
     words = {"within_noise": "the model explains the recordings within their noise",
@@ -79,9 +88,38 @@ def run(args: argparse.Namespace) -> int:
     print(f"verdict: {verdict}")
     print(f"held-out RMS {doc['rms_before_um']:.4g} um -> {doc['rms_after_um']:.4g} um "
           f"(noise floor {doc['noise_floor_um']:.3g} um)")
+    print(f"identification recordings: {doc['identification']['note']}", file=sys.stderr)
     for state in doc["initial_state"]:
         print(f"initial state ({state['recording']}): {state['how']}", file=sys.stderr)
     for note in doc["cannot_conclude"]:
         print(f"cannot conclude: {note}", file=sys.stderr)
     print(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'}, {out / 'extended_model.yaml'}")
     return 0
+
+
+def _split_paths(model: Any, recordings: list[str], ident: list[str]) -> tuple[list[str], list[str], list[dict]]:
+    """The recordings to diagnose and the identification recordings (with their files' fingerprints).
+
+    `--ident` takes every file after it; when nothing is left for the recordings, the files the
+    model's record names (same name, size and content) are the identification recordings and the
+    rest are diagnosed."""
+    from ..diagnose.identification import split_by_record
+    from ..recordings import fingerprint
+
+    for p in ident:
+        if not Path(p).is_file():
+            raise InputError(f"--ident {p}: no such file")
+    fingerprints = [fingerprint(p) for p in ident]
+    if recordings or not ident:
+        if not recordings:
+            raise InputError("give at least one recording to diagnose (REC ...)")
+        return recordings, ident, fingerprints
+    own, rest = split_by_record(model, ident, fingerprints)
+    if not rest:
+        raise InputError("give at least one recording to diagnose besides the identification recordings: put "
+                         "them before --ident, or end the --ident list with -- (gma-ffc diagnose --model M "
+                         "--out DIR --ident ID... -- REC...)")
+    if not own:
+        raise InputError("--ident: none of the files after it is one the model records as identified on; put "
+                         "the recordings to diagnose before --ident, or end the --ident list with --")
+    return [ident[k] for k in rest], [ident[k] for k in own], [fingerprints[k] for k in own]

@@ -46,6 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..identify import SDPIIdentifier
+    from ..recordings import fingerprint
 
     from ..atomic import refuse_overwrite
 
@@ -63,6 +64,8 @@ def run(args: argparse.Namespace) -> int:
                                progress=lambda stage: prog.advance(note=stage))
         ident.fit(recs)
     model = ident.model_
+    # each identification file as it was read, so `diagnose --ident` can check it is given the same ones
+    model.provenance["identification_files"] = [fingerprint(p) for p in args.recordings]
     if args.plot:
         from ..plots import plot_loops
 

@@ -99,19 +99,44 @@ def anchor_data(model: Any, dt: float, freq_hz: float | None = None) -> list[Rec
                          dtype=float)
         d.rows = d.rows[d.t[d.rows] >= d.t[0] + 1.0 / f]        # after the first loop
         d.extra["anchor_tolerance_um"] = err
+        d.extra["anchor_rule"] = "relaxed"
     return out
 
 
-def anchor_words(model: Any, departures_um: list[float]) -> str:
+def measured_loops(model: Any, recordings: list[Recording]) -> list[RecData]:
+    """The anchor from the identification recordings themselves (`diagnose --ident`): the measured
+    loops, each from its own estimated initial state, scored after it settles (at most MAX_SAMPLES
+    rows a loop), with the base's departure from the measurement there, offset and scale aside, as
+    the tolerance: a fit may trade nothing on the loops the base was fitted to beyond what the base
+    itself gets wrong there."""
+    srange = model.stress_range_MPa
+    out = prepare(recordings, model, "estimate")
+    for d in out:
+        stride = max(1, int(np.ceil(d.rows.size / MAX_SAMPLES)))
+        d.rows = d.rows[::stride]
+        yb = np.asarray(model.simulate(d.t, d.u, d.s if srange is not None else None, initial_state=d.start),
+                        dtype=float)[d.rows]
+        q, _ = np.linalg.qr(np.column_stack([np.ones(d.rows.size), d.y[d.rows]]))
+        d.extra["anchor_tolerance_um"] = float(np.sqrt(np.mean((yb - q @ (q.T @ yb)) ** 2)))
+        d.extra["anchor_rule"] = "estimate"
+    return out
+
+
+def anchor_words(model: Any, departures_um: list[float], measured: bool = False) -> str:
     """The validation's sentence on the anchor: what it was, and how far the extended model departs
     from it (an empty list: the base was kept as it is)."""
     loops = identification_loops(model)
     errors = [e for _, e in loops if np.isfinite(e)]
     tolerance = (f"its identification error there ({min(errors):.3g}-{max(errors):.3g} um)" if errors else
                  "the data's noise floor (the model records no identification error)")
-    text = (f" Every fit was held, on the loops the base was identified on ({identification_rate(model):.3g} Hz "
-            f"full-range loops at {len(loops)} stress(es)), within {tolerance} of the base's own output, offset and "
-            "scale aside (those the data may recalibrate), so no fit trades those loops for this drive")
+    if measured:
+        text = (" Every fit was held, on the measured identification recordings (--ident), to within the base's "
+                "own error there, offset and scale aside (those the data may recalibrate), so no fit trades the "
+                "loops the base was fitted to for this drive")
+    else:
+        text = (f" Every fit was held, on the loops the base was identified on ({identification_rate(model):.3g} Hz "
+                f"full-range loops at {len(loops)} stress(es)), within {tolerance} of the base's own output, offset "
+                "and scale aside (those the data may recalibrate), so no fit trades those loops for this drive")
     if not departures_um:
         return text + "."
     dev = float(np.sqrt(np.mean(np.square(departures_um))))

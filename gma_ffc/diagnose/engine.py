@@ -6,7 +6,7 @@ selection rule and `results` for what comes back.
 
 from __future__ import annotations
 
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from ..recordings import Recording
 from .results import OUTCOMES, Candidate, Diagnosis
@@ -16,7 +16,12 @@ __all__ = ["OUTCOMES", "Candidate", "Diagnosis", "EffectSelector", "diagnose"]
 
 
 def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
-             progress: Callable[[str], None] | None = None, initial_state: Any = "estimate") -> Diagnosis:
-    """Run the whole diagnosis (no I/O) with the default thresholds."""
+             progress: Callable[[str], None] | None = None, initial_state: Any = "estimate",
+             identification: Sequence[Recording] = (),
+             fingerprints: Sequence[Mapping[str, Any]] | None = None) -> Diagnosis:
+    """Run the whole diagnosis (no I/O) with the default thresholds. `identification`: the
+    recordings the model was identified on (checked against its record: by their files'
+    `fingerprints` when given, else by name)."""
     selector = EffectSelector(max_effects=max_effects, initial_state=initial_state)
-    return selector.fit(model, recordings, progress).diagnosis_
+    return selector.fit(model, recordings, progress, identification=identification,
+                        fingerprints=fingerprints).diagnosis_

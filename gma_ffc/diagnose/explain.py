@@ -26,7 +26,8 @@ def decider(a: str, b: str) -> str:
     return "an experiment that changes one of them and not the other would decide"
 
 
-def runner_up_note(best: Candidate, runner: Candidate) -> str:
+def runner_up_note(best: Any, runner: Any) -> str:
+    """Why the runner-up lost (each a Candidate or a selection Trial: effect, cv_mse, loglik_gain)."""
     return (f"The runner-up, {runner.effect}, lost: held-out RMS {math.sqrt(runner.cv_mse):.4g} um against "
             f"{math.sqrt(best.cv_mse):.4g} um for {best.effect}"
             + (f" ({best.loglik_gain - runner.loglik_gain:.0f} nats less penalised held-out likelihood)"

@@ -13,6 +13,7 @@ separately for each fold using only that fold's training samples.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
@@ -24,6 +25,7 @@ from ..effects.static import StaticMap
 from .cache import BoundedCache
 from .data import RecData, mean_stress, stress_levels, stress_span
 from .jumps import Jump
+from .rebase import identify_on
 
 # the caches' byte budgets: each entry is as long as the recordings, so without them memory grows
 # with the recording (64 core runs of an hour at 1 kHz are 3.7 GB); within them a long recording
@@ -118,11 +120,21 @@ class Score:
         return (self.sq_test[0] + self.sq_test[1]) / max(self.n_held_out, 1)
 
 
+@dataclass(frozen=True)
+class FitSettings:
+    """The fitter's settings (`EffectSelector`'s constructor documents each one's reason)."""
+
+    min_stress_span_MPa: float = 1.0
+    recalibration_plays: tuple[float, ...] = (0.1, 0.25, 0.45)
+
+
 class Fitter:
     """Builds regressors for specs over the prepared recordings (with caches) and solves them."""
 
-    def __init__(self, model: Any, data: Sequence[RecData], anchor: Sequence[RecData] = ()) -> None:
+    def __init__(self, model: Any, data: Sequence[RecData], anchor: Sequence[RecData] = (),
+                 settings: FitSettings = FitSettings()) -> None:
         self.model = model
+        self.settings = settings
         self.data = list(data)
         self.anchor = list(anchor)     # train-only pseudo-recordings (`anchor.py`), never scored
         lo, hi = model.drive_range
@@ -132,8 +144,9 @@ class Fitter:
         self.drive_lo, self.drive_hi = float(lo), float(hi)
         self.drive_span = max(self.drive_hi - self.drive_lo, 1e-12)
         self.stress_ref = mean_stress(self.data)
-        self.stress_varies = model.stress_range_MPa is not None and stress_span(self.data) >= 1.0
-        self.play_thresholds = np.array([0.1, 0.25, 0.45]) * self.drive_span
+        self.stress_varies = (model.stress_range_MPa is not None
+                              and stress_span(self.data) >= settings.min_stress_span_MPa)
+        self.play_thresholds = np.array(settings.recalibration_plays, dtype=float) * self.drive_span
         # the effects as registered now, in signal-path order: input-side ones change the core input
         self.effects: list[type[Effect]] = [c for c in path_order() if c.candidate]
         self._inputs = [c for c in self.effects if c.stage == "input"]
@@ -182,6 +195,10 @@ class Fitter:
         self._anchor_slices = [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]   # per loop, in its rows
         self.anchor_on = False
         self._anchor_tol = np.full(len(self.anchor), math.nan)
+        # the measured identification loops (`diagnose --ident`), on which the core may be identified again
+        self.identification = [d for d in self.anchor if d.extra.get("anchor_rule") == "estimate"]
+        self._identified: dict[Any, Any] = {}
+        self._identify_lock = threading.Lock()
 
     # ------------------------------------------------------------------ the core
     def input_key(self, spec: Spec) -> tuple:
@@ -217,6 +234,31 @@ class Fitter:
             out.append((u3, yc))
         return out
 
+    def identification_levels(self) -> list[float]:
+        return stress_levels(self.identification, gap_MPa=self.settings.min_stress_span_MPa)
+
+    def identified_core(self, loop_width: tuple[float, float] | None = None) -> Any:
+        """The base identified again on the measured identification loops by its own settings (with
+        a loop width that follows stress when given), once per setting; None without those loops
+        (`diagnose --ident`) or when the fit fails."""
+        if not self.identification:
+            return None
+        key = None if loop_width is None else (float(loop_width[0]), float(loop_width[1]))
+        with self._identify_lock:
+            if key not in self._identified:
+                self._identified[key] = identify_on(self.model, self.identification, loop_width=key)
+            return self._identified[key]
+
+    def plain_core(self, spec: Spec) -> Any:
+        """The core the spec's extended model is built on: the given one, or the one an effect that
+        reshapes the core identified again (the widening itself is the effect's block)."""
+        core = self.model
+        for c in self._core_fx:
+            if c.name in spec:
+                shaped = c.fit_core(self, self.model, spec[c.name])
+                core = getattr(shaped, "base", shaped)
+        return core
+
     def core_input(self, d: RecData, spec: Spec) -> np.ndarray:
         u = d.u
         for c in self._inputs:
@@ -229,7 +271,7 @@ class Fitter:
         return self._cache.get_or_compute(key, compute)
 
     def stress_levels(self) -> list[float]:
-        return stress_levels(self.data)
+        return stress_levels(self.data, gap_MPa=self.settings.min_stress_span_MPa)
 
     @property
     def yc_center(self) -> float:
@@ -462,6 +504,59 @@ class Fitter:
         return [np.concatenate([np.arange(a_start[k], a_start[k] + a_sizes[k]),
                                 np.arange(b_start[k], b_start[k] + b_sizes[k])]) for k in range(len(a_sizes))]
 
+    def left_out(self, spec: Spec) -> list["LeftOut"]:
+        """Each recording predicted by the spec fitted on the other recordings alone (gains only: its
+        nonlinear parameters as given), its own nuisance (its sensor zero and jumps: columns no
+        other recording has, and a constant) fitted on it. Held by the anchor like every fit."""
+        X, names = self.design(spec)
+        y = self.y_rows
+        blocks = self.row_blocks()
+        out = []
+        for k, test in enumerate(blocks):
+            others = [j for j in range(len(blocks)) if j != k]
+            train = np.concatenate([blocks[j] for j in others])
+            keep = self._identifiable(X[train], names, self._stress_span(others))
+            Xk = np.where(keep, X, 0.0)
+            c, loss_tr, n_tr = self._fit(Xk[train], y[train], spec)
+            out.append(self._left_out_score(Xk, y, train, test, np.where(keep, c, 0.0), loss_tr, n_tr))
+        return out
+
+    def _stress_span(self, which: Sequence[int]) -> float:
+        """The span of the scored stresses the model sees over the recordings `which` (0 without stress)."""
+        s = [self.data[j].s[self.data[j].rows] for j in which if self.data[j].s is not None]
+        s = [v for v in s if v.size]
+        return float(max(v.max() for v in s) - min(v.min() for v in s)) if s else 0.0
+
+    def _identifiable(self, X: np.ndarray, names: Sequence[str], stress_span: float) -> np.ndarray:
+        """Which columns the training rows X determine, in design order (a column that the earlier
+        ones already span is left at zero: on one recording its sensor zero is the offset), and no
+        stress term (`stress_*`) when the training stresses span less than the fitter's
+        `min_stress_span_MPa`: a recording at one load says nothing of how gains change with load,
+        and a split of its gain into a gain and a stress gain would be extrapolated to the load left out."""
+        keep = np.zeros(X.shape[1], dtype=bool)
+        basis = np.zeros((X.shape[0], 0))
+        for j in range(X.shape[1]):
+            col = X[:, j]
+            norm = float(np.linalg.norm(col))
+            if norm == 0.0 or (names[j].startswith("stress_") and stress_span < self.settings.min_stress_span_MPa):
+                continue
+            r = col - basis @ (basis.T @ col)
+            r = r - basis @ (basis.T @ r)            # twice: Gram-Schmidt keeps its orthogonality
+            rn = float(np.linalg.norm(r))
+            if rn <= RANK_TOL * norm:
+                continue
+            basis = np.column_stack([basis, r / rn])
+            keep[j] = True
+        return keep
+
+    def _left_out_score(self, X: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray, c: np.ndarray,
+                        loss_tr: float, n_tr: int) -> "LeftOut":
+        r = y[test] - X[test] @ c
+        own = ~np.any(X[train] != 0.0, axis=0)          # columns only the left-out recording has
+        nuis = np.column_stack([np.ones(test.size), X[test][:, own]])
+        r = r - nuis @ np.linalg.lstsq(nuis, r, rcond=None)[0]
+        return LeftOut(loss_tr / max(n_tr, 1), self.loss(r), float(r @ r), int(r.size))
+
     def test_residuals(self, specs: tuple[Spec, Spec, Spec]) -> np.ndarray:
         """Held-out residuals at the least-squares rows (each fold predicted by the other fold's fit)."""
         y = self.y_rows
@@ -476,6 +571,43 @@ class Fitter:
         return out
 
 
+@dataclass(frozen=True)
+class LeftOut:
+    """One recording predicted by a fit on the others: the training loss per sample there, and on
+    the left-out recording the loss, the squared error and the sample count."""
+
+    train_loss: float
+    loss: float
+    sse: float
+    n: int
+
+
+@dataclass(frozen=True)
+class LeaveOneOut:
+    """Leave-one-recording-out: per recording, the loss, squared error and count when it was left
+    out of the fit; and the effect parameter chosen without it (None: none was searched)."""
+
+    loss: tuple[float, ...]
+    sse: tuple[float, ...]
+    n: tuple[int, ...]
+    params: tuple[Any, ...] = ()
+
+    @property
+    def loss_per_sample(self) -> float:
+        return sum(self.loss) / max(sum(self.n), 1)
+
+    @property
+    def mse(self) -> float:
+        return sum(self.sse) / max(sum(self.n), 1)
+
+    @classmethod
+    def of(cls, parts: Sequence[LeftOut], params: Sequence[Any] = ()) -> "LeaveOneOut":
+        return cls(tuple(p.loss for p in parts), tuple(p.sse for p in parts), tuple(p.n for p in parts),
+                   tuple(params))
+
+
+RANK_TOL = 1e-9         # a column whose part outside the earlier ones is below this share of its norm adds
+                        # nothing the rows can tell (double precision's rounding on ~1e4 rows is ~1e-12)
 ANCHOR_BISECTIONS = 16   # on the log of the anchor weight over 16 decades: 2.4e-4 of a decade
 POLISH_EVALS = 15     # per free coordinate: Nelder-Mead from the zoom's best point
 POLISH_STEP = 0.03    # its first simplex: 3 % moves (the zoom's last steps are 0.5-1.5 %)
@@ -592,3 +724,27 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
     final = fitter.score(specs, want_coef=True)
     assert final.coef_all is not None
     return SearchResult(specs, cv, mse, final.all_mse, n_test, final.coef_all, final.names, len(results))
+
+
+def leave_one_out_search(fitter: Fitter, base: Spec, make: Callable[[Spec, Any], Spec], grid: Iterable[Any],
+                         refine: Callable[[Fitter, Any, int], Sequence[Any] | None] | None = None,
+                         zoom_levels: int = ZOOM_LEVELS) -> LeaveOneOut:
+    """An effect's law judged on recordings it was not fitted on: for each recording left out, the
+    effect's parameter chosen (grid, then zoom) by the training loss on the other recordings, its
+    gains fitted there, and the left-out recording predicted. (No continuous polish: it would be
+    one more search per recording.)"""
+    results: dict[Any, list[LeftOut]] = {}
+
+    def run(points: Iterable[Any]) -> None:
+        for p in points:
+            if p not in results:
+                results[p] = fitter.left_out(make(base, p))
+
+    run(grid)
+    n = len(fitter.data)
+    if refine is not None:
+        for level in range(1, zoom_levels + 1):
+            for bp in {min(results, key=lambda p: results[p][k].train_loss) for k in range(n)}:
+                run(refine(fitter, bp, level) or [])
+    chosen = [min(results, key=lambda p: results[p][k].train_loss) for k in range(n)]
+    return LeaveOneOut.of([results[p][k] for k, p in enumerate(chosen)], chosen)

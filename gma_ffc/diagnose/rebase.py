@@ -26,11 +26,24 @@ from .data import RecData
 def reidentify_through(model: Any, inputs: Sequence[Any], loops: Sequence[RecData]) -> SDPIModel | None:
     """An SDPI/MPI core whose output through the input-side effects `inputs` (effect objects of an
     extended model, in path order) reproduces `model` on its own identification loops `loops` (the
-    anchor's, `anchor.anchor_data`: the base's output on them); None when the model is not one
-    `gma-ffc identify` wrote (its settings and loops unknown) or the fit fails. The new core keeps
-    the base's drive range, name and provenance (its loops and errors: the truth is known there to
-    within those, not better), with a note of what it was identified through."""
-    if not inputs or not loops or not isinstance(model, SDPIModel) or "fit_stress_MPa" not in model.provenance:
+    anchor's: the base's output on them, or the measured identification recordings); None when the
+    model is not one `gma-ffc identify` wrote (its settings and loops unknown) or the fit fails. The
+    new core keeps the base's drive range, name and provenance (its loops and errors: the truth is
+    known there to within those, not better), with a note of what it was identified through."""
+    if not inputs:
+        return None
+    return identify_on(model, loops, inputs)
+
+
+def identify_on(model: Any, loops: Sequence[RecData], inputs: Sequence[Any] = (),
+                loop_width: tuple[float, float] | None = None) -> SDPIModel | None:
+    """The core identified again on `loops` by the base's own settings (`provenance.settings`), the
+    drive passed through the input-side effects `inputs` first, with a loop width that follows
+    stress when `loop_width` is given (`SDPIIdentifier.loop_width`); None when the model is not one
+    `gma-ffc identify` wrote or the fit fails."""
+    if not loops or not isinstance(model, SDPIModel) or "fit_stress_MPa" not in model.provenance:
+        return None
+    if loop_width is not None and model.stress_range_MPa is None:
         return None
     prov = model.provenance
     recs = []
@@ -44,16 +57,22 @@ def reidentify_through(model: Any, inputs: Sequence[Any], loops: Sequence[RecDat
         recs.append(Recording(cols, {}, d.name))
     settings = prov.get("settings")
     settings = settings if isinstance(settings, dict) else {}
+    zero = settings.get("zero", "shared")
     ident = SDPIIdentifier(n_play=int(settings.get("n_play", 10)), n_deadzone=int(settings.get("n_deadzone", 7)),
-                           refine=bool(settings.get("refine", True)), initial_state=model.initial_state)
+                           refine=bool(settings.get("refine", True)), initial_state=model.initial_state,
+                           zero=zero if zero in ("shared", "per_recording") else "shared", loop_width=loop_width)
     try:
         core = ident.fit(recs).model_
     except (InputError, ModelError, np.linalg.LinAlgError, ValueError):
         return None
     if (core.stress_range_MPa is None) != (model.stress_range_MPa is None) or core.output_sign != model.output_sign:
         return None
-    note = {"identified_through": [k for eff in inputs for k in eff.to_blocks()],
-            "by": "gma-ffc diagnose, on the base's own identification loops"}
+    note: dict[str, Any] = {"by": "gma-ffc diagnose, on the base's own identification loops",
+                            "fit_rms_um": {f.name: round(f.rms_um, 6) for f in ident.report_}}
+    if inputs:
+        note["identified_through"] = [k for eff in inputs for k in eff.to_blocks()]
+    if loop_width is not None:
+        note["loop_width"] = [float(v) for v in loop_width]
     return dataclasses.replace(core, drive_range=model.drive_range, drive_name=model.drive_name,
                                stress_range_MPa=model.stress_range_MPa,
                                provenance={**prov, "reidentified": note})

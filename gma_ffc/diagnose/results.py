@@ -27,12 +27,15 @@ class Candidate:
     round: int = 0
     accepted: bool = False
     result: SearchResult | None = None
+    leave_one_out_mse: float = math.nan   # its law fitted on the other recordings, each left out in turn
 
     def to_json(self) -> dict:
         d: dict[str, Any] = {"effect": self.effect, "evidence": round(float(self.evidence), 4),
                              "params": {k: _round(v) for k, v in self.params.items()}}
         d["validation_rms_um"] = None if not math.isfinite(self.cv_mse) else _round(math.sqrt(self.cv_mse))
         d["heldout_loglik_gain"] = None if not math.isfinite(self.loglik_gain) else round(self.loglik_gain, 2)
+        if math.isfinite(self.leave_one_out_mse):
+            d["leave_one_out_rms_um"] = _round(math.sqrt(self.leave_one_out_mse))
         d["accepted"] = self.accepted
         d["testable"] = self.testable
         if self.reason:
@@ -67,6 +70,8 @@ class Diagnosis:
     n_eff: float
     initial_state: str = "estimate"   # the rule asked for; each recording's resolved state is in data[k].start
     located_after: list[Located] = field(default_factory=list)   # the residual the named effects leave
+    identification: dict = field(default_factory=dict)   # the identification recordings given (`--ident`), checked
+    leave_one_out: dict = field(default_factory=dict)    # leave-one-recording-out figures (two or more recordings)
 
     def initial_states(self) -> list[dict]:
         """Per recording: the rule, how its state was chosen, and how long it is not scored."""
@@ -90,6 +95,8 @@ class Diagnosis:
             "conclusive": self.conclusive,
             "cannot_conclude": list(self.cannot_conclude),
             "initial_state": self.initial_states(),
+            "identification": dict(self.identification),
+            "leave_one_out": dict(self.leave_one_out),
             "extended_model": model_file,
         }
 

@@ -13,42 +13,33 @@ offset, curvature, stress gain, loop width): ordinary model error of that kind i
 an effect. With two or more accepted, a swap pass asks whether each is still the best choice for
 its slot with the others in place. Final guards then refuse anything that is worse than the base
 as given, or fitted to a drive the model's class cannot follow.
+
+`fit` runs the steps in order, each taking the frozen state of the one before (`state.py`) and
+returning a new one: the recordings prepared with the null model (`problem.setup`), the
+candidates each round fits and scores (`scoring`) and this module decides on, the swap pass, the
+core identified again through input-side effects (`rebase`), the guards, and the outcome in
+words (`outcome.assemble`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Callable, Sequence
-
-import numpy as np
+from typing import Any, Callable, Mapping, Sequence
 
 from .. import effects as effect_registry
 from ..effects import REGISTRY
-from ..effects.base import SignatureCheck, geom_refine
-from ..effects.static import StaticMap
-from ..errors import InputError
+from ..effects.base import SignatureCheck, SignatureFailure
 from ..extended import ExtendedModel
 from ..recordings import Recording
-from ..drive import reversals
-from .checks import check_overlap
-from .anchor import anchor_data, anchor_words
+from .explain import decider, runner_up_note
+from .fitting import Fitter, LeaveOneOut, SearchResult, Spec, leave_one_out_search
+from .identification import check
+from .outcome import assemble
+from .problem import setup
 from .rebase import reidentify_through
-from .data import N_BLOCKS, RecData, noise_floor, prepare, unscored_note
-from .noise import mad_sigma
-from .jumps import jump_words, sensor_jumps
-from .explain import decider, drive_unit, explain, identification_rms, runner_up_note, validation_words
-from .fitting import ZOOM_LEVELS, Fitter, SearchResult, Spec, search
-from .locate import locate
-from .results import Candidate, Diagnosis
-from .timing import displacement_lead
-
-Specs = tuple[Spec, Spec, Spec]          # fold A's, fold B's and the all-data spec
-
-MIN_REVERSALS = 2 * N_BLOCKS   # drive turning points in all: on average a full drive cycle per time block, or a
-                               # held-out block is a piece of one branch that the neighbouring training blocks
-                               # interpolate, and blocked cross-validation tests interpolation, not prediction
+from .scoring import Specs, build_extended, effective_samples, loglik_gain, params_of, score_round, search_all
+from .state import Final, Problem, RoundRecord, Selection, Trial
 
 
 class EffectSelector:
@@ -84,6 +75,30 @@ class EffectSelector:
         model can follow (a load change) weigh in linearly, Gaussian noise never reaches it.
     min_samples (400)
         Scored samples needed at all; below, any effect is fitted to the loops it is judged on.
+    min_removed_noise (0.5)
+        An accepted effect takes at least half the noise floor off the held-out RMS: a smaller gain,
+        however significant on many samples, is not a residual anyone could see above the noise.
+    min_stress_span_MPa (1.0)
+        Stress terms (the recalibration's stress gain, stress_dependent_play) are fitted only when
+        the recordings' loads span at least this, and loads closer than this count as one level:
+        the SDPI loop moves by a few % of its stroke per MPa (the paper's rig: about a micrometre
+        over 13 MPa), so across less a stress term fits noise and drift, not the load.
+    recalibration_plays ((0.1, 0.25, 0.45))
+        The recalibration's own play thresholds, as fractions of the drive span: a narrow, a middle
+        and the widest play a 10-play core has (0.45 of the span), so the loop's width can be
+        corrected at every scale with three columns.
+    range_margin (0.02)
+        A drive or stress within 2 % of the model's range counts as inside it: the range was taken
+        from noisy recordings, to about that.
+    min_overlap (0.05)
+        Unless at least 5 % of the samples lie inside the model's drive (and stress) range, nothing
+        can be compared and the recordings are refused with the experiment to make instead.
+    clamped_share (0.01)
+        More than 1 % of samples at stresses outside the model's range is said (they are compared at
+        the nearest stress of the range): beyond that the comparison there is an extrapolation.
+    slow_duration_s (20.0)
+        A longest recording shorter than this gets a caveat on slow effects: heating and creep have
+        time constants of tens of seconds, and below that they look alike.
     workers (2)
         Candidate searches in parallel threads (numba kernels and BLAS release the GIL).
     initial_state ("estimate")
@@ -98,6 +113,9 @@ class EffectSelector:
     def __init__(self, max_effects: int = 3, *, min_mse_ratio: float = 0.75, min_loglik_gain: float = 6.0,
                  noise_factor: float = 1.5, model_error_factor: float = 3.0, slow_ratio_max: float = 0.8,
                  ambiguous_nats: float = 3.0, huber_k: float = 3.0, min_samples: int = 400,
+                 min_removed_noise: float = 0.5, min_stress_span_MPa: float = 1.0,
+                 recalibration_plays: tuple[float, ...] = (0.1, 0.25, 0.45), range_margin: float = 0.02,
+                 min_overlap: float = 0.05, clamped_share: float = 0.01, slow_duration_s: float = 20.0,
                  workers: int = 2, initial_state: Any = "estimate") -> None:
         self.max_effects = max_effects
         self.min_mse_ratio = min_mse_ratio
@@ -108,21 +126,37 @@ class EffectSelector:
         self.ambiguous_nats = ambiguous_nats
         self.huber_k = huber_k
         self.min_samples = min_samples
+        self.min_removed_noise = min_removed_noise
+        self.min_stress_span_MPa = min_stress_span_MPa
+        self.recalibration_plays = recalibration_plays
+        self.range_margin = range_margin
+        self.min_overlap = min_overlap
+        self.clamped_share = clamped_share
+        self.slow_duration_s = slow_duration_s
         self.workers = workers
         self.initial_state = initial_state
 
-    def fit(self, model: Any, recordings: Sequence[Recording],
-            progress: Callable[[str], None] | None = None) -> "EffectSelector":
-        """Run the whole diagnosis (no I/O) and keep its results in the trailing-underscore attributes."""
-        run = _Run(self, model, recordings, progress)
-        run.precheck()
-        run.null_model()
-        run.open_candidates()
-        run.forward_rounds()
-        run.swap_pass()
-        run.rebase()
-        run.final_guards()
-        dg = run.outcome()
+    def fit(self, model: Any, recordings: Sequence[Recording], progress: Callable[[str], None] | None = None,
+            identification: Sequence[Recording] = (),
+            fingerprints: Sequence[Mapping[str, Any]] | None = None) -> "EffectSelector":
+        """Run the whole diagnosis (no I/O) and keep its results in the trailing-underscore attributes.
+        `identification`: the recordings the model was identified on (checked against its record, by
+        their files' `fingerprints` when given, else by name), which every fit is then held to and on
+        which an effect may identify the core again."""
+        say = progress or (lambda _msg: None)
+        checked = check(model, [r.name for r in identification], fingerprints)
+        problem = setup(self, model, recordings, say, identification, checked)
+        sel = self._open(problem)
+        for rnd in range(1, self.max_effects + 1):
+            if math.sqrt(sel.cur_cv) <= self.noise_factor * problem.noise:
+                break
+            sel, more = self._round(problem, sel, rnd, say)
+            if not more:
+                break
+        sel = self._swap_pass(problem, sel, say)
+        problem, sel = self._rebase(problem, sel, say)
+        final = self._guard(problem, sel)
+        dg = assemble(self, problem, final)
         self.diagnosis_ = dg
         self.outcome_ = dg.outcome
         self.verdict_ = list(dg.verdict)
@@ -130,7 +164,8 @@ class EffectSelector:
         self.extended_model_ = dg.extended
         return self
 
-    def accepts(self, best: Candidate, cur_loss: float, noise: float) -> bool:
+    # ------------------------------------------------------------------ the acceptance rule
+    def accepts(self, best: Trial, cur_loss: float, noise: float) -> bool:
         """The acceptance rule of one round (before the winner's signature check)."""
         return self.earns_place(best.cv_loss, best.loglik_gain, cur_loss, noise)
 
@@ -138,530 +173,293 @@ class EffectSelector:
         """Does an effect that takes the held-out loss from `loss_without` to `loss` (with that
         log-likelihood gain, its parameters paid for) earn its place in the model?"""
         return (loss < self.min_mse_ratio * loss_without and loglik_gain > self.min_loglik_gain
-                and math.sqrt(loss_without) - math.sqrt(loss) > 0.5 * noise)
+                and math.sqrt(loss_without) - math.sqrt(loss) > self.min_removed_noise * noise)
+
+    # ------------------------------------------------------------------ what can be tested
+    def _open(self, problem: Problem) -> Selection:
+        """The selection before any round: the null model, and which effects the data can test."""
+        fitter = problem.fitter
+        testable, reasons, cannot = set(), {}, []
+        for cls in effect_registry.candidates():
+            ok, why = cls.testable(fitter)
+            if problem.too_little:
+                ok, why = False, why or "too little data"
+            elif ok and cls.slow and fitter.duration_max < self.slow_duration_s:
+                why = (f"the longest recording lasts {fitter.duration_max:.3g} s: slow effects "
+                       "(heating, creep) with time constants beyond it are hard to separate; "
+                       "a run of several minutes with drive on/off phases would decide")
+            if ok:
+                testable.add(cls.name)
+            elif why and not problem.too_little:
+                cannot.append(f"{cls.name}: {why}")
+            reasons[cls.name] = why
+        loo = fitter_loo(problem, problem.null.fit.specs[2])
+        return Selection(problem.null.fit, frozenset(testable), reasons, cannot=tuple(cannot), leave_one_out=loo,
+                         null_leave_one_out=loo)
+
+    # ------------------------------------------------------------------ one forward round
+    def _round(self, problem: Problem, sel: Selection, rnd: int,
+               say: Callable[[str], None]) -> tuple[Selection, bool]:
+        """One round: every effect not yet accepted fitted and scored, the best decided on; the
+        selection after it, and whether selection goes on."""
+        todo = [c.name for c in effect_registry.candidates() if c.name in sel.testable and c.name not in sel.accepted]
+        say(f"round {rnd}: fitting {', '.join(todo)}")
+        trials, n_eff = score_round(problem.fitter, sel.fit.specs, sel.cur_loss, todo, rnd, self.workers)
+        if not trials:
+            return sel, False
+        sel = dataclasses.replace(sel, trials={**sel.trials, **{t.effect: t for t in trials}})
+        best = trials[0]
+        ok = self.accepts(best, sel.cur_loss, problem.noise)
+        # signature checks: a winner without its effect's signature is dropped, and the next one checked
+        while ok:
+            failure = REGISTRY[best.effect].signature(
+                SignatureCheck(problem.fitter, problem.model, sel.fit.specs, best.result, dict(best.params),
+                               problem.noise, self.slow_ratio_max, self.model_error_factor))
+            if failure is None:
+                best, why = self._carries_over(problem, sel, best)
+                trials = [best] + trials[1:]
+                sel = dataclasses.replace(sel, trials={**sel.trials, best.effect: best})
+                if not why:
+                    break
+                failure = SignatureFailure(why)
+            sel = sel.with_reason(best.effect, failure.reason, testable=False)
+            if failure.outside_class:
+                sel = dataclasses.replace(sel, outside_class=failure.reason)
+            trials = trials[1:]
+            if not trials:
+                return sel, False
+            best = trials[0]
+            ok = self.accepts(best, sel.cur_loss, problem.noise)
+        record = RoundRecord(rnd, n_eff, math.sqrt(sel.cur_cv),
+                             tuple((t.effect, math.sqrt(t.cv_mse), t.loglik_gain) for t in trials),
+                             best.effect if ok else None)
+        sel = dataclasses.replace(sel, rounds=sel.rounds + (record,))
+        if not ok:
+            return sel, False
+        ambiguous = sel.ambiguous
+        if len(trials) > 1 and trials[1].loglik_gain > self.min_loglik_gain and \
+                best.loglik_gain - trials[1].loglik_gain < self.ambiguous_nats:
+            ambiguous += ((best.effect, trials[1].effect),)
+        runner = runner_up_note(best, trials[1]) if rnd == 1 and len(trials) > 1 else sel.runner_note
+        return dataclasses.replace(sel, accepted=sel.accepted + (best.effect,), fit=best.result,
+                                   ambiguous=ambiguous, runner_note=runner,
+                                   leave_one_out=fitter_loo(problem, best.result.specs[2])), True
+
+    def _carries_over(self, problem: Problem, sel: Selection, best: Trial) -> tuple[Trial, str]:
+        """With two or more recordings: does the effect's law, fitted on the other recordings,
+        improve each recording left out (pooled)? The trial with its leave-one-out figures, and why
+        not ('' when it does, or when there is one recording)."""
+        if sel.leave_one_out is None:
+            return best, ""
+        cls = REGISTRY[best.effect]
+        loo = leave_one_out_search(problem.fitter, sel.fit.specs[2], lambda s, p: s.with_(best.effect, p),
+                                   cls.grid(problem.fitter), cls.refine, getattr(cls, "zoom_levels", 3))
+        best = dataclasses.replace(best, leave_one_out=loo)
+        before, after = sel.leave_one_out.loss_per_sample, loo.loss_per_sample
+        if after < before:
+            return best, ""
+        return best, (f"fitted on the other recordings, it does not improve the one left out (leave-one-recording-"
+                      f"out RMS {math.sqrt(loo.mse):.4g} um against {math.sqrt(sel.leave_one_out.mse):.4g} um "
+                      "without it): its law does not carry to the conditions it was not fitted on")
+
+    # ------------------------------------------------------------------ the swap pass
+    def _swap_pass(self, problem: Problem, sel: Selection, say: Callable[[str], None]) -> Selection:
+        """With the other accepted effects in place, is each one still the best choice for its slot?
+        (the first rounds judge look-alikes against a residual dominated by the biggest effect)"""
+        if len(sel.accepted) < 2:
+            return sel
+        fitter = problem.fitter
+        importance: dict[str, float] = {}
+        sel = dataclasses.replace(sel, ambiguous=())
+        n_eff_last = sel.rounds[-1].n_eff if sel.rounds else 1.0
+        for name in list(sel.accepted):
+            if name not in sel.accepted:
+                continue
+            others: Specs = tuple(s.without(name) for s in sel.fit.specs)  # type: ignore[assignment]
+            o_cv = fitter.score(others).held_out_loss
+            rivals = [c.name for c in effect_registry.candidates()
+                      if c.name in sel.testable and not (c.name in sel.accepted and c.name != name)]
+            say(f"checking {name} against the others with the other effects in place")
+            found = search_all(fitter, others, rivals, self.workers)
+            best_name, best_res = name, None
+            for cand in rivals:
+                if best_res is None or found[cand].cv_loss < best_res.cv_loss:
+                    best_name, best_res = cand, found[cand]
+            if best_res is None:
+                continue
+            slot = sorted((found[cand].cv_loss, cand) for cand in rivals)
+            if len(slot) > 1 and \
+                    0.5 * n_eff_last * math.log(slot[1][0] / max(slot[0][0], 1e-300)) < self.ambiguous_nats:
+                sel = dataclasses.replace(sel, ambiguous=sel.ambiguous + ((slot[0][1], slot[1][1]),))
+            if best_name != name and best_res.cv_loss < sel.cur_loss:
+                sel = _swapped(fitter, sel, name, best_name, best_res)
+                name = best_name
+            importance[name] = o_cv - sel.cur_loss
+        return dataclasses.replace(sel, accepted=tuple(sorted(sel.accepted, key=lambda n: -importance.get(n, 0.0))))
+
+    # ------------------------------------------------------------------ the core through the effects
+    def _rebase(self, problem: Problem, sel: Selection, say: Callable[[str], None]) -> tuple[Problem, Selection]:
+        """With an input-side effect named (eddy lag, delay), the core identified again through it on
+        the base's own loops (`rebase.py`: the base had absorbed the effect's lag there, and the
+        effect in front of it would undo that lag twice); kept when the final specs, refitted on it,
+        are no worse on held-out blocks."""
+        if problem.too_little or not any(REGISTRY[name].stage == "input" for name in sel.accepted):
+            return problem, sel
+        fitter, final = problem.fitter, sel.fit
+        ext = build_extended(problem.model, fitter, final.specs[2], final.coef_all, final.names, list(sel.accepted))
+        inputs = [e for e in ext.chain if e.stage == "input"]
+        names = ", ".join(k for e in inputs for k in e.to_blocks())
+        say(f"identifying the core again through {names}")
+        core = reidentify_through(problem.model, inputs, fitter.anchor)    # the base's loops, as the anchor holds them
+        if core is None:
+            return problem, sel
+        # the same recordings and scored rows (the anchor's: the base's loops and tolerances), each
+        # with the new core's own initial state
+        data = _restarted(core, problem.data, self.initial_state)
+        refit = Fitter(core, data, [dataclasses.replace(d, start=core.resolve_initial_state(
+            d.u, d.s if core.stress_range_MPa is not None else None, d.extra.get("anchor_rule", "relaxed"), d.y,
+            d.t)) for d in fitter.anchor], fitter.settings)
+        refit.use_anchor(fallback_tolerance_um=problem.noise)
+        refit.delta = fitter.delta
+        sc = refit.score(final.specs, want_coef=True)
+        assert sc.coef_all is not None
+        if sc.held_out_mse > sel.cur_cv:
+            return problem, dataclasses.replace(sel, rebase_note=(
+                f" The core identified again through {names} on the base's own loops was not "
+                f"kept: held-out {math.sqrt(sc.held_out_mse):.4g} um against {math.sqrt(sel.cur_cv):.4g} um."))
+        note = (f" The core was identified again through {names} on the base's own identification "
+                "loops, so that core and effect together give back the base there (the base had "
+                "absorbed the effect's lag into those loops; in front of the base as it was, the "
+                f"effect would undo that lag twice): held-out {math.sqrt(sc.held_out_mse):.4g} um against "
+                f"{math.sqrt(sel.cur_cv):.4g} um on the base's core.")
+        problem = dataclasses.replace(problem, core=core, data=tuple(data), fitter=refit)
+        fit = SearchResult(final.specs, sc.held_out_loss, sc.held_out_mse, sc.all_mse, sc.n_held_out, sc.coef_all,
+                           sc.names, final.evaluated)
+        return problem, self._prune_after_rebase(problem, dataclasses.replace(sel, fit=fit, rebase_note=note), names)
+
+    def _prune_after_rebase(self, problem: Problem, sel: Selection, through: str) -> Selection:
+        """Effects accepted later than the input-side one were judged against the residual of the old
+        core, part of which was the input-side effect's lag absorbed twice: on the new core each must
+        earn its place again, by the rule it was accepted by, or it is dropped."""
+        fitter = problem.fitter
+        n_eff: float | None = None          # of the current final model's residual: found again only after a drop
+        for name in [n for n in sel.accepted if REGISTRY[n].stage != "input"]:
+            without: Specs = tuple(s.without(name) for s in sel.fit.specs)  # type: ignore[assignment]
+            sc = fitter.score(without, want_coef=True)
+            assert sc.coef_all is not None
+            if n_eff is None:
+                n_eff = effective_samples(fitter.test_residuals(sel.fit.specs), fitter.segment_lengths)
+            gain = loglik_gain(n_eff, sc.held_out_loss, sel.cur_loss, REGISTRY[name].count_params(fitter))
+            if self.earns_place(sel.cur_loss, gain, sc.held_out_loss, problem.noise):
+                continue
+            reason = (f"named against the core before it was identified again through {through}; on the new "
+                      f"core it no longer earns its place (held-out {math.sqrt(sel.cur_cv):.4g} um with it, "
+                      f"{math.sqrt(sc.held_out_mse):.4g} um without)")
+            fit = SearchResult(without, sc.held_out_loss, sc.held_out_mse, sc.all_mse, sc.n_held_out,
+                               sc.coef_all, sc.names, sel.fit.evaluated)
+            sel = dataclasses.replace(
+                sel.with_reason(name, reason), fit=fit, accepted=tuple(n for n in sel.accepted if n != name),
+                ambiguous=tuple(p for p in sel.ambiguous if name not in p),
+                rebase_note=sel.rebase_note + f" {name} was dropped: {reason}.")
+            n_eff = None
+        return sel
+
+    # ------------------------------------------------------------------ final guards
+    def _guard(self, problem: Problem, sel: Selection) -> Final:
+        """The extended model, unless it is worse than the base as given, does not generalise, or is
+        fitted to a drive outside the model's class."""
+        fitter, fit, null = problem.fitter, sel.fit, problem.null
+        if problem.too_little:           # nothing was fitted: the base as given
+            return Final(sel, ExtendedModel(problem.model, {}, []), null.base_pred, null.rms_before ** 2, True,
+                         tuple(problem.cannot + sel.cannot))
+        # parameters of the accepted effects as they stand in the final model (later rounds may retune them)
+        trials = dict(sel.trials)
+        for name in sel.accepted:
+            trials[name] = dataclasses.replace(trials[name], params=params_of(fitter, name, fit.specs[2], fit.coef_all,
+                                                                              fit.names))
+        sel = dataclasses.replace(sel, trials=trials)
+        cannot = list(problem.cannot + sel.cannot)
+        base = Final(sel, ExtendedModel(problem.model, {}, []), null.base_pred, null.rms_before ** 2, True, ())
+        final = Final(sel, build_extended(fitter.plain_core(fit.specs[2]), fitter, fit.specs[2], fit.coef_all,
+                                          fit.names, list(sel.accepted)),
+                      tuple(fitter.predict_full(fit.specs[2], fit.coef_all)), sel.cur_cv, False, ())
+        if final.cv_mse > null.rms_before ** 2:
+            # Worse than the base model as given, on held-out data: never the verdict. The extended
+            # model is the base as it was, and nothing is named.
+            if sel.accepted:
+                cannot.append(
+                    f"{', '.join(sel.accepted)} improved on the recalibrated model but not on the base model "
+                    f"itself on held-out data ({math.sqrt(final.cv_mse):.4g} um against {null.rms_before:.4g} um), "
+                    "so nothing is named: longer recordings, or several at different drive frequencies, "
+                    "would let the fit be judged on more than the blocks it was chosen on")
+                sel = _name_nothing(sel)
+            final = dataclasses.replace(base, selection=sel)
+        for a, b in sel.ambiguous:
+            cannot.append(f"{a} and {b} explain the held-out data almost equally well; " + decider(a, b))
+        if not sel.accepted and final.cv_mse < null.rms_before ** 2:
+            # nothing named: the static recalibration alone is kept only where it generalises, i.e. it
+            # beats the base model on the held-out blocks of every recording (on data with nothing
+            # missing, a recalibration fitted to one recording's quirks makes the next one worse)
+            worse = _recalibration_hurts(fitter, null.base_pred, fit.specs)
+            if worse:
+                cannot.append(f"the static recalibration was left out of the extended model: on held-out "
+                              f"blocks it is worse than the base model on {', '.join(worse)}")
+                final = dataclasses.replace(base, selection=sel)
+        if sel.outside_class and not problem.too_little:
+            # the residual is dominated by drive the model's class cannot follow: whatever else fits it, a
+            # recalibration too, is fitted to that, so nothing is named and nothing is written over the base
+            # until the core is identified over the drive range used
+            if sel.accepted:
+                cannot.append(f"{', '.join(sel.accepted)} would be fitted to the part of the residual the "
+                              "model's class cannot follow, so nothing is named")
+            sel = _name_nothing(sel)
+            final = dataclasses.replace(base, selection=sel)
+        if sel.outside_class:
+            cannot.insert(0, f"outside the model's class: {sel.outside_class}")
+        loo = None if final.base_kept else fitter_loo(problem, sel.fit.specs[2])
+        return dataclasses.replace(final, selection=sel, cannot=tuple(cannot), leave_one_out=loo)
 
 
-def loglik_gain(n_eff: float, loss_without: float, loss: float, n_params: int) -> float:
-    """Penalised held-out log-likelihood gain (nats) of a model that takes the loss per sample from
-    `loss_without` to `loss` on n_eff effectively independent samples, one nat per parameter."""
-    return 0.5 * n_eff * math.log(loss_without / max(loss, 1e-300)) - n_params
+def _swapped(fitter: Fitter, sel: Selection, name: str, by: str, res: SearchResult) -> Selection:
+    """`name` replaced by `by` (fitted as `res`) in its slot."""
+    old = sel.trials[name]
+    params = params_of(fitter, by, res.specs[2], res.coef_all, res.names)
+    prior = sel.trials.get(by)
+    trial = Trial(by, res, params, 0) if prior is None else dataclasses.replace(prior, result=res, params=params)
+    return dataclasses.replace(
+        sel, trials={**sel.trials, by: trial}, fit=res,
+        accepted=tuple(by if n == name else n for n in sel.accepted),
+        swapped=sel.swapped + ((name, by, math.sqrt(old.cv_mse), math.sqrt(res.cv_mse)),))
 
 
-def effective_samples(resid: np.ndarray, lengths: Sequence[int]) -> float:
-    """Independent samples in a residual (per recording: length / integrated correlation time)."""
-    total = 0.0
-    start = 0
-    for n in lengths:
-        r = resid[start:start + n]
-        start += n
-        if r.size < 8:
-            total += r.size
-            continue
-        r = r - r.mean()
-        var = float(r @ r) / r.size
-        if var <= 0:
-            total += r.size
-            continue
-        tau = 1.0
-        for lag in range(1, min(r.size // 4, 2000)):
-            rho = float(r[:-lag] @ r[lag:]) / (r.size * var)
-            if rho < 0.05:
-                break
-            tau += 2 * rho
-        total += r.size / tau
-    return max(total, 1.0)
+def _name_nothing(sel: Selection) -> Selection:
+    return dataclasses.replace(sel, accepted=(), ambiguous=())
 
 
-def params_of(fitter: Fitter, effect: str, spec: Spec, coef: np.ndarray, names: list[str]) -> dict[str, float]:
-    """An effect's reported parameters for a spec and its all-data coefficients."""
-    return REGISTRY[effect].fitted_params(fitter, spec[effect], dict(zip(names, coef)))
+def _recalibration_hurts(fitter: Fitter, base_pred: Sequence[Any], specs: Specs) -> list[str]:
+    """Recordings on whose held-out blocks the selected (recalibrated) model does worse than the base."""
+    import numpy as np
+
+    held_out = fitter.test_residuals(specs)
+    rows = fitter.row_blocks()                      # per recording: (fold A rows, fold B rows) in held_out
+    worse = []
+    for d, yb, idx, (ra, rb) in zip(fitter.data, base_pred, rows, fitter.rows_ab):
+        base_r = np.concatenate([(d.y - yb)[ra], (d.y - yb)[rb]])
+        if float(held_out[idx] @ held_out[idx]) > float(base_r @ base_r):
+            worse.append(d.name)
+    return worse
 
 
-def build_extended(model: Any, fitter: Fitter, spec: Spec, coef: np.ndarray, names: list[str],
-                   effects: list[str]) -> ExtendedModel:
-    """The extended model for a spec and its all-data coefficients (through the file form, so it is validated)."""
-    c = dict(zip(names, (float(v) for v in coef)))
-    blocks = StaticMap.fitted_blocks(fitter, None, c)
-    for cls in fitter.effects:
-        if cls.name in spec:
-            blocks.update(cls.fitted_blocks(fitter, spec[cls.name], c))
-    return ExtendedModel(model, blocks, effects)
-
-
-def _restarted(core: Any, data: Sequence[RecData], rule: Any) -> list[RecData]:
+def _restarted(core: Any, data: Sequence[Any], rule: Any) -> list[Any]:
     """The recordings as they are (rows, folds, what is not scored), each with `core`'s own initial
     state by `rule`."""
     return [dataclasses.replace(d, start=core.resolve_initial_state(
         d.u, d.s if core.stress_range_MPa is not None else None, rule, d.y, d.t)) for d in data]
 
 
-def _scored(d: RecData, r: np.ndarray) -> np.ndarray:
-    """The residual with the samples that are not scored set to zero (`data.known_samples`)."""
-    return d.scored_only(r)
-
-
-class _Run:
-    """One fit of the selector: the named steps share this state (nothing outlives `fit`)."""
-
-    def __init__(self, sel: EffectSelector, model: Any, recordings: Sequence[Recording],
-                 progress: Callable[[str], None] | None) -> None:
-        self.sel = sel
-        self.model = model
-        self.recordings = recordings
-        self.say = progress or (lambda _msg: None)
-        self.cannot: list[str] = []
-        self.accepted: list[str] = []
-        self.rounds: list[dict] = []
-        self.runner_note = ""
-        self.ambiguous_pairs: list[tuple[str, str]] = []
-        self.swapped: list[tuple[str, str, float, float]] = []
-        self.outside_class = ""
-        self.base_kept = False
-        self.ext_core: Any = model          # the core the extended model is built on (`rebase`)
-        self.rebase_note = ""
-
-    # ------------------------------------------------------------------ step 1: pre-checks
-    def precheck(self) -> None:
-        """Overlap with the model's ranges, enough samples and loops, what is not scored."""
-        sel, recordings = self.sel, self.recordings
-        if not recordings:
-            raise InputError("give at least one recording to compare with the model")
-        check_overlap(self.model, recordings)
-        self.data = data = prepare(recordings, self.model, sel.initial_state)
-        self.fitter = Fitter(self.model, data, anchor_data(self.model, min(d.dt_med for d in data)))
-        self.n_samples = sum(d.n_scored for d in data)   # samples scored: where the initial state is known
-        n_rev = sum(reversals(d.u[run]) for d in data for run in d.scored_runs())
-        for d in data:
-            note = unscored_note(d)
-            if d.n_scored == 0:
-                self.cannot.append(note)
-            elif note:
-                d.extra["settled_note"] = note
-        # each fold needs scored rows to fit on: a fold without any would be fitted to nothing
-        self.too_little = (self.n_samples < sel.min_samples or n_rev < MIN_REVERSALS
-                           or min(self.fitter.n_a, self.fitter.y_rows.size - self.fitter.n_a) == 0)
-        if self.too_little:
-            self.cannot.append(
-                f"too little data to tell effects apart ({self.n_samples} samples, {n_rev} drive reversals in all): "
-                "any effect would be fitted to the same few loops it is judged on; record at least a few cycles "
-                f"(>= {MIN_REVERSALS // 2} full loops, >= {sel.min_samples} samples) at two or more drive frequencies")
-        for d in data:
-            if d.clamped_fraction > 0.01:
-                self.cannot.append(f"{d.name}: {d.clamped_fraction:.0%} of the samples are at stresses outside the "
-                                   "model's range; they were compared at the nearest stress of the range")
-        self.noise = float(np.median([noise_floor(d.y) for d in data]))
-        self.fitter.use_anchor(fallback_tolerance_um=self.noise)
-
-    # ------------------------------------------------------------------ step 2: the null model
-    def null_model(self) -> None:
-        """The base as given (rms_before) and recalibrated (the null every effect must beat)."""
-        fitter, data = self.fitter, self.data
-        self.say("simulating the base model")
-        base_core = fitter.core(Spec())
-        _ = fitter.yc_center          # computed once, before any threads share the fitter
-        self.base_pred = [yc for _, yc in base_core]
-        for d, yc in zip(data, self.base_pred):     # before any fit: each jump is a column of every design
-            d.jumps = sensor_jumps(d.y, yc, d.u, d.recorded_stress, d.t, d.dt_med, d.settled)
-            if d.jumps.excess:
-                self.cannot.append(f"{d.name}: {jump_words(d.jumps)}")
-        # over the scored samples; over all of them when none is (the figure then says how far off the
-        # transient is, and cannot_conclude says that nothing was scored)
-        judged = [d.mask if self.n_samples else np.ones(d.t.size, bool) for d in data]
-        self.rms_before = float(np.sqrt(sum(float(np.sum((d.y - yc)[m] ** 2)) for d, yc, m
-                                            in zip(data, self.base_pred, judged)) / max(sum(map(np.sum, judged)), 1)))
-        if self.too_little:
-            self._nothing_to_fit()
-            return
-        null_specs = (Spec(), Spec(), Spec())
-        # Huber scale from the recalibrated base's held-out residual: bursts the core cannot follow at all
-        # (e.g. a load change) then weigh in linearly, not quadratically, in fits and in the selection
-        r0 = fitter.test_residuals(null_specs)
-        fitter.delta = max(self.sel.huber_k * mad_sigma(r0), 2.0 * self.noise, 1e-12)
-        null = fitter.score(null_specs, want_coef=True)
-        assert null.coef_all is not None
-        self.null_loss, self.null_cv = null.held_out_loss, null.held_out_mse
-        self.null_pred = fitter.predict_full(Spec(), null.coef_all)
-        self.located = [locate(d, _scored(d, d.y - yb), _scored(d, d.y - yn))
-                        for d, yb, yn in zip(data, self.base_pred, self.null_pred)]
-        self.current: Specs = null_specs
-        self.cur_cv = self.null_cv
-        self.cur_loss = self.null_loss
-        self.final = SearchResult(null_specs, self.null_loss, self.null_cv, null.all_mse,
-                                  null.n_held_out, null.coef_all, null.names, 1)
-
-    def _nothing_to_fit(self) -> None:
-        """Too little scored data to fit anything and judge it on other blocks: the base as given is
-        the null and stays the model (a fit to a fold without rows has no coefficients, and one to a
-        few loops would be judged on the loops it was fitted to)."""
-        self.fitter.delta = max(2.0 * self.noise, 1e-12)
-        self.null_loss = self.null_cv = self.rms_before ** 2
-        self.null_pred = list(self.base_pred)
-        self.located = [locate(d, _scored(d, d.y - yb), _scored(d, d.y - yb)) for d, yb in zip(self.data, self.base_pred)]
-        self.current = (Spec(), Spec(), Spec())
-        self.cur_cv = self.cur_loss = self.null_cv
-        self.final = SearchResult(self.current, self.null_loss, self.null_cv, self.null_cv, 0, np.zeros(0), [], 0)
-
-    # ------------------------------------------------------------------ step 3: what can be tested
-    def open_candidates(self) -> None:
-        fitter = self.fitter
-        self.candidates = {cls.name: Candidate(cls.name, *cls.testable(fitter))
-                           for cls in effect_registry.candidates()}
-        if self.too_little:
-            for c in self.candidates.values():
-                c.testable, c.reason = False, c.reason or "too little data"
-        if fitter.duration_max < 20.0:
-            for name, c in self.candidates.items():
-                if REGISTRY[name].slow and c.testable:
-                    c.reason = (f"the longest recording lasts {fitter.duration_max:.3g} s: slow effects "
-                                "(heating, creep) with time constants beyond it are hard to separate; "
-                                "a run of several minutes with drive on/off phases would decide")
-        for c in self.candidates.values():
-            if not c.testable and c.reason and c.reason not in self.cannot and not self.too_little:
-                self.cannot.append(f"{c.effect}: {c.reason}")
-
-    # ------------------------------------------------------------------ step 4: forward rounds
-    def forward_rounds(self) -> None:
-        sel = self.sel
-        for rnd in range(1, sel.max_effects + 1):
-            if math.sqrt(self.cur_cv) <= sel.noise_factor * self.noise:
-                break
-            if not self._round(rnd):
-                break
-
-    def _round(self, rnd: int) -> bool:
-        """One round; False when selection stops here."""
-        sel, fitter = self.sel, self.fitter
-        todo = [c for c in self.candidates.values() if c.testable and not c.accepted]
-        self.say(f"round {rnd}: fitting {', '.join(c.effect for c in todo)}")
-        results = self.search_all(self.current, [c.effect for c in todo])
-        tried: list[Candidate] = []
-        for c in todo:
-            res = results[c.effect]
-            c.result = res
-            c.cv_mse = res.cv_mse
-            c.cv_loss = res.cv_loss
-            c.params = params_of(fitter, c.effect, res.specs[2], res.coef_all, res.names)
-            c.round = rnd
-            tried.append(c)
-        if not tried:
-            return False
-        # effective sample count of the noise, from the best candidate's held-out residual
-        leader = min(tried, key=lambda c: c.cv_loss)
-        assert leader.result is not None
-        n_eff = effective_samples(fitter.test_residuals(leader.result.specs), fitter.segment_lengths)
-        for c in tried:
-            c.loglik_gain = loglik_gain(n_eff, self.cur_loss, c.cv_loss, REGISTRY[c.effect].n_params)
-        gains = np.array([c.loglik_gain for c in tried])
-        top = max(0.0, float(gains.max()))
-        weights = np.exp(np.clip(gains - top, -700, 0))
-        norm = math.exp(-top) + float(weights.sum())
-        for c, w in zip(tried, weights):
-            c.evidence = float(w / norm)
-        tried.sort(key=lambda c: c.cv_loss)
-        best = tried[0]
-        ok = sel.accepts(best, self.cur_loss, self.noise)
-        # signature checks: a winner without its effect's signature is dropped, and the next one checked
-        while ok:
-            assert best.result is not None
-            failure = REGISTRY[best.effect].signature(
-                SignatureCheck(fitter, self.model, self.current, best.result, best.params, self.noise,
-                               sel.slow_ratio_max, sel.model_error_factor))
-            if failure is None:
-                break
-            best.testable, best.reason = False, failure.reason
-            if failure.outside_class:
-                self.outside_class = failure.reason
-            tried = tried[1:]
-            if not tried:
-                return False
-            best = tried[0]
-            ok = sel.accepts(best, self.cur_loss, self.noise)
-        self.rounds.append({"round": rnd, "n_eff": n_eff, "current_rms_um": math.sqrt(self.cur_cv),
-                            "table": [(c.effect, math.sqrt(c.cv_mse), c.loglik_gain) for c in tried],
-                            "accepted": best.effect if ok else None})
-        if not ok:
-            return False
-        if len(tried) > 1 and tried[1].loglik_gain > sel.min_loglik_gain and \
-                best.loglik_gain - tried[1].loglik_gain < sel.ambiguous_nats:
-            self.ambiguous_pairs.append((best.effect, tried[1].effect))
-        if rnd == 1 and len(tried) > 1:
-            self.runner_note = runner_up_note(best, tried[1])
-        assert best.result is not None
-        best.accepted = True
-        self.accepted.append(best.effect)
-        self._take(best.result)
-        return True
-
-    def _take(self, res: SearchResult) -> None:
-        self.current, self.cur_cv, self.cur_loss, self.final = res.specs, res.cv_mse, res.cv_loss, res
-
-    def search_all(self, base: Specs, names: list[str]) -> dict[str, SearchResult]:
-        """Search several effects on top of `base`, in parallel threads (the kernels release the GIL)."""
-        fitter = self.fitter
-
-        def one(name: str) -> SearchResult:
-            cls = REGISTRY[name]
-
-            def make(s: Spec, p: Any) -> Spec:
-                return s.with_(name, p)
-
-            partner = cls.joint_with
-            if partner is None or partner not in base[2]:
-                return search(fitter, base, make, cls.grid(fitter), cls.refine, getattr(cls, "zoom_levels", ZOOM_LEVELS),
-                              cls.polish)
-
-            # look-alikes trade off against each other: re-search the accepted one's value with the new one
-            def make_joint(s: Spec, p: Any) -> Spec:
-                return s.with_(name, p[0]).with_(partner, s[partner] * p[1])
-
-            def refine(f: Fitter, p: Any, level: int) -> list:
-                own = cls.refine(f, p[0], level)
-                out = [(q, p[1]) for q in own] if own is not None else []
-                return out + [(p[0], min(p[1] * m, 1.5)) for m in geom_refine(1.0, 1.6, level)]
-
-            grid = [(p, k) for p in cls.grid(fitter) for k in (0.3, 0.55, 0.8, 1.0)]
-            return search(fitter, base, make_joint, grid, refine)
-
-        workers = min(self.sel.workers, max(len(names), 1))
-        if workers <= 1:
-            return {n: one(n) for n in names}
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            return dict(zip(names, pool.map(one, names)))
-
-    # ------------------------------------------------------------------ step 5: swap pass
-    def swap_pass(self) -> None:
-        """With the other accepted effects in place, is each one still the best choice for its slot?
-        (the first rounds judge look-alikes against a residual dominated by the biggest effect)"""
-        if len(self.accepted) < 2:
-            return
-        fitter, candidates = self.fitter, self.candidates
-        importance: dict[str, float] = {}
-        self.ambiguous_pairs = []
-        n_eff_last = self.rounds[-1]["n_eff"] if self.rounds else 1.0
-        for name in list(self.accepted):
-            if name not in self.accepted:
-                continue
-            others: Specs = tuple(s.without(name) for s in self.current)  # type: ignore[assignment]
-            o = fitter.score(others)
-            o_cv = o.held_out_loss
-            best_name, best_res = name, None
-            slot: list[tuple[float, str]] = []
-            rivals = [c.effect for c in candidates.values() if c.testable and not (c.accepted and c.effect != name)]
-            self.say(f"checking {name} against the others with the other effects in place")
-            found = self.search_all(others, rivals)
-            for cand_name in rivals:
-                res = found[cand_name]
-                slot.append((res.cv_loss, cand_name))
-                if best_res is None or res.cv_loss < best_res.cv_loss:
-                    best_name, best_res = cand_name, res
-            if best_res is None:
-                continue
-            slot.sort()
-            if len(slot) > 1 and \
-                    0.5 * n_eff_last * math.log(slot[1][0] / max(slot[0][0], 1e-300)) < self.sel.ambiguous_nats:
-                self.ambiguous_pairs.append((slot[0][1], slot[1][1]))
-            if best_name != name and best_res.cv_loss < self.cur_loss:
-                swap = candidates[best_name]
-                candidates[name].accepted = False
-                swap.accepted = True
-                swap.result = best_res
-                swap.cv_mse = best_res.cv_mse
-                swap.cv_loss = best_res.cv_loss
-                swap.params = params_of(fitter, best_name, best_res.specs[2], best_res.coef_all, best_res.names)
-                self.swapped.append((name, best_name, math.sqrt(candidates[name].cv_mse), math.sqrt(best_res.cv_mse)))
-                self.accepted[self.accepted.index(name)] = best_name
-                self._take(best_res)
-                name = best_name
-            importance[name] = o_cv - self.cur_loss
-        self.accepted.sort(key=lambda n: -importance.get(n, 0.0))
-
-    # ------------------------------------------------------------------ step 5b: the core through the effects
-    def rebase(self) -> None:
-        """With an input-side effect named (eddy lag, delay), the core identified again through it on
-        the base's own loops (`rebase.py`: the base had absorbed the effect's lag there, and the
-        effect in front of it would undo that lag twice); kept when the final specs, refitted on it,
-        are no worse on held-out blocks."""
-        if self.too_little or not self.accepted:
-            return
-        if not any(REGISTRY[name].stage == "input" for name in self.accepted):
-            return
-        fitter, final = self.fitter, self.final
-        ext = build_extended(self.model, fitter, final.specs[2], final.coef_all, final.names, list(self.accepted))
-        inputs = [e for e in ext.chain if e.stage == "input"]
-        names = ", ".join(k for e in inputs for k in e.to_blocks())
-        self.say(f"identifying the core again through {names}")
-        core = reidentify_through(self.model, inputs, fitter.anchor)    # the base's loops, as the anchor holds them
-        if core is None:
-            return
-        # the same recordings and scored rows (the anchor's: the base's loops and tolerances), each
-        # with the new core's own initial state
-        data = _restarted(core, self.data, self.sel.initial_state)
-        refit = Fitter(core, data, _restarted(core, fitter.anchor, "relaxed"))
-        refit.use_anchor(fallback_tolerance_um=self.noise)
-        refit.delta = fitter.delta
-        sc = refit.score(final.specs, want_coef=True)
-        assert sc.coef_all is not None
-        cv_mse, cv_loss = sc.held_out_mse, sc.held_out_loss
-        if cv_mse > self.cur_cv:
-            self.rebase_note = (f" The core identified again through {names} on the base's own loops was not "
-                                f"kept: held-out {math.sqrt(cv_mse):.4g} um against {math.sqrt(self.cur_cv):.4g} um.")
-            return
-        self.rebase_note = (f" The core was identified again through {names} on the base's own identification "
-                            "loops, so that core and effect together give back the base there (the base had "
-                            "absorbed the effect's lag into those loops; in front of the base as it was, the "
-                            f"effect would undo that lag twice): held-out {math.sqrt(cv_mse):.4g} um against "
-                            f"{math.sqrt(self.cur_cv):.4g} um on the base's core.")
-        self.fitter, self.data, self.ext_core = refit, data, core
-        self.final = SearchResult(final.specs, cv_loss, cv_mse, sc.all_mse, sc.n_held_out, sc.coef_all, sc.names,
-                                  final.evaluated)
-        self.cur_cv, self.cur_loss = cv_mse, cv_loss
-        self._prune_after_rebase(names)
-
-    def _prune_after_rebase(self, through: str) -> None:
-        """Effects accepted later than the input-side one were judged against the residual of the old
-        core, part of which was the input-side effect's lag absorbed twice: on the new core each must
-        earn its place again, by the rule it was accepted by, or it is dropped."""
-        fitter = self.fitter
-        n_eff: float | None = None          # of the current final model's residual: found again only after a drop
-        for name in [n for n in self.accepted if REGISTRY[n].stage != "input"]:
-            final = self.final
-            without: Specs = tuple(s.without(name) for s in final.specs)  # type: ignore[assignment]
-            sc = fitter.score(without, want_coef=True)
-            assert sc.coef_all is not None
-            if n_eff is None:
-                n_eff = effective_samples(fitter.test_residuals(final.specs), fitter.segment_lengths)
-            gain = loglik_gain(n_eff, sc.held_out_loss, self.cur_loss, REGISTRY[name].n_params)
-            if self.sel.earns_place(self.cur_loss, gain, sc.held_out_loss, self.noise):
-                continue
-            cand = self.candidates[name]
-            cand.accepted = False
-            cand.reason = (f"named against the core before it was identified again through {through}; on the new "
-                           f"core it no longer earns its place (held-out {math.sqrt(self.cur_cv):.4g} um with it, "
-                           f"{math.sqrt(sc.held_out_mse):.4g} um without)")
-            self.accepted.remove(name)
-            self.ambiguous_pairs = [p for p in self.ambiguous_pairs if name not in p]
-            self.rebase_note += f" {name} was dropped: {cand.reason}."
-            self.final = SearchResult(without, sc.held_out_loss, sc.held_out_mse, sc.all_mse, sc.n_held_out,
-                                      sc.coef_all, sc.names, final.evaluated)
-            self.cur_cv, self.cur_loss = sc.held_out_mse, sc.held_out_loss
-            n_eff = None
-
-    # ------------------------------------------------------------------ step 6: final guards
-    def final_guards(self) -> None:
-        """The extended model, unless it is worse than the base as given, does not generalise, or is
-        fitted to a drive outside the model's class."""
-        fitter, final, candidates = self.fitter, self.final, self.candidates
-        if self.too_little:              # nothing was fitted: the base as given
-            self._keep_base()
-            return
-        # parameters of the accepted effects as they stand in the final model (later rounds may retune them)
-        for name in self.accepted:
-            candidates[name].params = params_of(fitter, name, final.specs[2], final.coef_all, final.names)
-        self.ext = build_extended(self.ext_core, fitter, final.specs[2], final.coef_all, final.names,
-                                  list(self.accepted))
-        self.final_pred = fitter.predict_full(final.specs[2], final.coef_all)
-        if self.cur_cv > self.rms_before ** 2:
-            # Worse than the base model as given, on held-out data: never the verdict. The extended
-            # model is the base as it was, and nothing is named.
-            if self.accepted:
-                self.cannot.append(
-                    f"{', '.join(self.accepted)} improved on the recalibrated model but not on the base model "
-                    f"itself on held-out data ({math.sqrt(self.cur_cv):.4g} um against {self.rms_before:.4g} um), "
-                    "so nothing is named: longer recordings, or several at different drive frequencies, "
-                    "would let the fit be judged on more than the blocks it was chosen on")
-                self._name_nothing()
-            self._keep_base()
-        for a, b in self.ambiguous_pairs:
-            self.cannot.append(f"{a} and {b} explain the held-out data almost equally well; " + decider(a, b))
-        if not self.accepted and self.cur_cv < self.rms_before ** 2:
-            # nothing named: the static recalibration alone is kept only where it generalises, i.e. it
-            # beats the base model on the held-out blocks of every recording (on data with nothing
-            # missing, a recalibration fitted to one recording's quirks makes the next one worse)
-            worse = self._recalibration_hurts(final.specs)
-            if worse:
-                self.cannot.append(f"the static recalibration was left out of the extended model: on held-out "
-                                   f"blocks it is worse than the base model on {', '.join(worse)}")
-                self._keep_base()
-        if self.outside_class and not self.too_little:
-            # the residual is dominated by drive the model's class cannot follow: whatever else fits it, a
-            # recalibration too, is fitted to that, so nothing is named and nothing is written over the base
-            # until the core is identified over the drive range used
-            if self.accepted:
-                self.cannot.append(f"{', '.join(self.accepted)} would be fitted to the part of the residual the "
-                                   "model's class cannot follow, so nothing is named")
-            self._name_nothing()
-            self._keep_base()
-        if self.outside_class:
-            self.cannot.insert(0, f"outside the model's class: {self.outside_class}")
-
-    def _name_nothing(self) -> None:
-        for name in self.accepted:
-            self.candidates[name].accepted = False
-        self.accepted, self.ambiguous_pairs = [], []
-
-    def _keep_base(self) -> None:
-        self.base_kept = True
-        self.ext = ExtendedModel(self.model, {}, [])
-        self.final_pred = list(self.base_pred)
-        self.cur_cv = self.rms_before ** 2
-
-    def _recalibration_hurts(self, specs: Specs) -> list[str]:
-        """Recordings on whose held-out blocks the selected (recalibrated) model does worse than the base."""
-        fitter = self.fitter
-        held_out = fitter.test_residuals(specs)
-        rows = fitter.row_blocks()                      # per recording: (fold A rows, fold B rows) in held_out
-        worse = []
-        for d, yb, idx, (ra, rb) in zip(fitter.data, self.base_pred, rows, fitter.rows_ab):
-            base_r = np.concatenate([(d.y - yb)[ra], (d.y - yb)[rb]])
-            if float(held_out[idx] @ held_out[idx]) > float(base_r @ base_r):
-                worse.append(d.name)
-        return worse
-
-    # ------------------------------------------------------------------ step 7: the outcome
-    def outcome(self) -> Diagnosis:
-        sel = self.sel
-        verdict = [] if self.too_little else list(self.accepted)
-        conclusive = not self.too_little and not self.ambiguous_pairs
-        well_above = math.sqrt(self.cur_cv) > sel.model_error_factor * self.noise
-        if self.too_little or self.ambiguous_pairs:
-            outcome = "inconclusive"     # too little data, or look-alikes the data cannot tell apart
-        elif verdict:
-            outcome = "effects_named"
-        elif not well_above and not self.outside_class:
-            outcome = "within_noise"
-        else:
-            outcome = "unexplained"
-        self.cannot.extend(d.extra["settled_note"] for d in self.data if "settled_note" in d.extra)
-        lead = displacement_lead(self.data, self.base_pred)
-        if lead is not None:     # a column-timing fault: effects fitted to it would be confidently wrong
-            self.cannot.append(lead.words())
-            if outcome != "unexplained":
-                outcome, conclusive = "inconclusive", False
-        for old_name, new_name, old_rms, new_rms in self.swapped:
-            self.runner_note += (f" {old_name} was first chosen while a larger effect dominated the residual; with the "
-                                 f"other effects in place {new_name} explains the held-out data better ({new_rms:.4g} "
-                                 f"um against {old_rms:.4g} um), so it replaced {old_name}.")
-        # where the named effects leave residual: located on the final model's, as the base's was
-        left = [_scored(d, d.y - yf) for d, yf in zip(self.data, self.final_pred)] if outcome == "effects_named" else []
-        after = [locate(d, r, r) for d, r in zip(self.data, left)]     # nothing recalibrated away: raw = residual
-        explanation = explain(verdict, self.candidates, self.located, self.rms_before, math.sqrt(self.null_cv),
-                              math.sqrt(self.cur_cv), self.noise, self.too_little, self.runner_note.strip(), outcome,
-                              drive_unit(self.model), sel.noise_factor, identification_rms(self.model),
-                              after, sel.model_error_factor, any(d.s_raw is not None for d in self.data))
-        if lead is not None:     # the fault to fix first, so it comes first
-            explanation = (f"First, a fault in the columns: {lead.words()}"
-                           + ("." if outcome == "unexplained" else "; what is named below may only compensate it.")
-                           + " " + explanation)
-        validation = validation_words(self.fitter, self.null_cv, sel.min_mse_ratio, sel.min_loglik_gain)
-        if not self.base_kept:
-            validation += self.rebase_note
-        if self.fitter.anchor_on:
-            validation += anchor_words(self.model, [] if self.base_kept else
-                                       self.fitter.anchor_deviation(self.final.specs[2], self.final.coef_all))
-        ordered = sorted(self.candidates.values(), key=lambda c: (not c.accepted, not c.testable,
-                                                                 c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
-        return Diagnosis(outcome, verdict, explanation, self.located, ordered, self.rms_before,
-                         math.sqrt(self.null_cv), math.sqrt(self.cur_cv), self.noise, validation, conclusive,
-                         self.cannot, self.ext, self.data, self.base_pred, self.null_pred, self.final_pred,
-                         self.rounds, self.rounds[0]["n_eff"] if self.rounds else float("nan"),
-                         str(self.sel.initial_state), after)
+def fitter_loo(problem: Problem, spec: Spec) -> LeaveOneOut | None:
+    """The spec, each recording predicted by its gains fitted on the others; None with one recording
+    (nothing to leave out) or too little data."""
+    if len(problem.data) < 2 or problem.too_little:
+        return None
+    return LeaveOneOut.of(problem.fitter.left_out(spec))

@@ -144,6 +144,7 @@ class FitData(Protocol):
     stress_bottom: float           # the most compressive one
     stress_varies: bool
     play_thresholds: np.ndarray
+    identification: list[Any]      # the measured identification loops (`diagnose --ident`), or none
 
     def stress(self, d: Any, spec: Any) -> np.ndarray:
         """The stress the model under `spec` sees on a recording (clamped to the model's range)."""
@@ -160,6 +161,13 @@ class FitData(Protocol):
 
     def stress_levels(self) -> list[float]:
         """Distinct stress levels the recordings dwell at."""
+
+    def identification_levels(self) -> list[float]:
+        """Distinct stress levels of the identification loops (`diagnose --ident`; none without)."""
+
+    def identified_core(self, loop_width: tuple[float, float] | None = None) -> Any:
+        """The base identified again on the measured identification recordings (`diagnose --ident`),
+        with a loop width (kappa per MPa, reference MPa) when given; None without those recordings."""
 
 
 @dataclass
@@ -223,6 +231,7 @@ class Effect(Protocol):
     transforms_stress: ClassVar[bool]       # True: it supplies the stress the core (and every stage) sees
     shapes_core: ClassVar[bool]             # True: its parameter changes the core itself (`fit_core`)
     zoom_levels: ClassVar[int]              # refinement levels of its parameter search
+    without_identification: ClassVar[str]   # what it cannot do without the identification recordings ('' nothing)
 
     # ---- model side
     @classmethod
@@ -258,6 +267,15 @@ class Effect(Protocol):
     # ---- diagnosis side
     @classmethod
     def testable(cls, fitter: FitData) -> tuple[bool, str]: ...
+
+    @classmethod
+    def count_params(cls, fitter: FitData) -> int:
+        """Parameters the block adds on this diagnosis (nonlinear and gains): the likelihood penalty."""
+
+    @classmethod
+    def lost_without_identification(cls, fitter: FitData) -> str:
+        """What the diagnosis could not do for this effect without the identification recordings
+        (`diagnose --ident`); '' when they would change nothing."""
 
     @classmethod
     def grid(cls, fitter: FitData) -> Iterable[Any]: ...
@@ -330,6 +348,7 @@ class EffectBase:
 
     keys: ClassVar[tuple[str, ...]]
     inverted: ClassVar[Mapping[str, str]]
+    n_params: ClassVar[int]
     physics_voltage: ClassVar[str | None] = None
     physics_without_stress: ClassVar[str | None] = None
     candidate: ClassVar[bool] = True
@@ -340,6 +359,7 @@ class EffectBase:
     transforms_stress: ClassVar[bool] = False
     shapes_core: ClassVar[bool] = False
     zoom_levels: ClassVar[int] = 3
+    without_identification: ClassVar[str] = ""    # what it cannot do without the identification recordings
 
     def __init__(self, block: Mapping[str, Any]) -> None:
         self.block = dict(block)
@@ -374,6 +394,16 @@ class EffectBase:
     @classmethod
     def testable(cls, fitter: FitData) -> tuple[bool, str]:
         return True, ""
+
+    @classmethod
+    def count_params(cls, fitter: FitData) -> int:
+        """Parameters the block adds on this diagnosis (the likelihood penalty): `n_params`."""
+        return cls.n_params
+
+    @classmethod
+    def lost_without_identification(cls, fitter: FitData) -> str:
+        """`without_identification`, when the effect could be tested on these recordings."""
+        return cls.without_identification if cls.testable(fitter)[0] else ""
 
     @classmethod
     def refine(cls, fitter: FitData, p: Any, level: int) -> Sequence[Any] | None:

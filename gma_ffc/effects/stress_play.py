@@ -143,8 +143,11 @@ class StressPlay(EffectBase):
     physics_voltage: ClassVar[str | None] = (
         "the play-operator weights and the loop width (the play thresholds, the 'coercive voltage') change "
         "with stress, which the SDPI assumes they do not")
-    n_params: ClassVar[int] = 5
+    n_params: ClassVar[int] = 4          # the width law's slope and a weight slope for each of the 3 plays
     shapes_core: ClassVar[bool] = True
+    without_identification: ClassVar[str] = (
+        "its loop-width law was fitted to these recordings alone; with the identification recordings (--ident) "
+        "the core would be identified again through it on the loops at every load the model was identified at")
 
     def __init__(self, base: Any, stress_play: Mapping[str, Any] | None = None,
                  stress_width: Mapping[str, Any] | None = None, loop_width: Mapping[str, Any] | None = None) -> None:
@@ -213,6 +216,10 @@ class StressPlay(EffectBase):
                            "cannot be told from ordinary hysteresis error; record loops at three or more loads "
                            "spanning the model's stress range")
         levels = fitter.stress_levels()
+        if len(levels) < 3 and len(fitter.identification_levels()) >= 3:
+            # the width law is fitted on the identification loops, at their three or more loads, not on
+            # the differences between these recordings' few levels: they only judge it
+            return True, ""
         if len(levels) < 3:
             return False, (f"the recordings dwell at only {len(levels)} distinct stress level(s) "
                            f"({', '.join(f'{v:.3g}' for v in levels)} MPa): anything else that differs between those "
@@ -222,25 +229,57 @@ class StressPlay(EffectBase):
         return True, ""
 
     @classmethod
+    def lost_without_identification(cls, fitter: FitData) -> str:
+        """What --ident would have added: the law fitted on the identification loops, and (when these
+        recordings dwell at fewer than three loads) the test itself."""
+        if fitter.model.stress_range_MPa is None or not fitter.stress_varies:
+            return ""
+        if len(fitter.stress_levels()) < 3:
+            return ("with the identification recordings (--ident), at the loads the model was identified at, its "
+                    "loop-width law could be fitted on those loops and tested on these recordings' few loads")
+        return cls.without_identification
+
+    @classmethod
+    def count_params(cls, fitter: FitData) -> int:
+        """With the identification loops, the width law alone (the core identified again through it
+        carries the stress dependence those loops show); else its slope and the plays' weight slopes."""
+        return 1 if fitter.identification else cls.n_params
+
+    @classmethod
     def grid(cls, fitter: FitData) -> list[float]:
+        """The loop-width law: fitted on the identification loops when the diagnosis has them (one
+        point: the core is identified again through it), else searched on these recordings."""
+        if fitter.identification:
+            return [width_law(fitter)]
         return list(WIDTH_GRID)
 
     @classmethod
-    def refine(cls, fitter: FitData, p: Any, level: int) -> list[float]:
+    def refine(cls, fitter: FitData, p: Any, level: int) -> list[float] | None:
         """Around p, within the grid's range: a width law beyond 30 % per MPa is not the physics
-        searched for (the refinement of an edge point would otherwise leave it)."""
+        searched for (the refinement of an edge point would otherwise leave it). None when the law
+        was fitted on the identification loops."""
+        if fitter.identification:
+            return None
         top = max(abs(v) for v in WIDTH_GRID)
         return [v for v in geom_refine(float(p), WIDTH_RATIO, level) if abs(v) <= top]
 
     @classmethod
     def fit_core(cls, fitter: FitData, core: Any, p: Any) -> WidenedCore:
-        """The core the diagnosis runs for loop-width change p (per MPa, about the data's mean stress)."""
-        return WidenedCore(core, float(p), fitter.stress_ref)
+        """The core the diagnosis runs for loop-width change p (per MPa): the base's widened about the
+        data's mean stress, or, with the identification loops, the core identified again on them
+        through the width law about the model's reference stress."""
+        ref = width_reference(fitter)
+        again = fitter.identified_core((float(p), ref))
+        return WidenedCore(core if again is None else again, float(p), ref)
 
     @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
         # each play's weight may change linearly with stress (loop shape); the loop's width is in
-        # the core the spec runs (fit_core)
+        # the core the spec runs (fit_core). With the identification loops, the core identified again
+        # through the width law carries what they show of the stress dependence: no weight slopes
+        # fitted to these recordings' few loads beside it
+        if fitter.identification:
+            return
         ds = fitter.stress(r.d, r.spec) - fitter.stress_ref      # the stress the model sees
         plays = r.shared["plays"]
         for j in range(fitter.play_thresholds.size):
@@ -249,17 +288,20 @@ class StressPlay(EffectBase):
 
     @classmethod
     def fitted_params(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, float]:
-        out = {f"coef_{j}_um_per_A_MPa": coef.get(f"stress_play_{j}", math.nan)
-               for j in range(fitter.play_thresholds.size)}
+        out = {f"coef_{j}_um_per_A_MPa": coef[f"stress_play_{j}"]
+               for j in range(fitter.play_thresholds.size) if f"stress_play_{j}" in coef}
         out["loop_width_change_per_MPa"] = float(p)
         return out
 
     @classmethod
     def fitted_blocks(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, dict[str, Any]]:
-        return {"stress_play": {"thresholds": [float(v) for v in fitter.play_thresholds],
-                                "coefficients_per_MPa": [coef[f"stress_play_{j}"]
-                                                         for j in range(fitter.play_thresholds.size)]},
-                "loop_width": {"kappa_per_MPa": float(p), "stress_ref_MPa": float(fitter.stress_ref)}}
+        out: dict[str, dict[str, Any]] = {}
+        if "stress_play_0" in coef:
+            out["stress_play"] = {"thresholds": [float(v) for v in fitter.play_thresholds],
+                                  "coefficients_per_MPa": [coef[f"stress_play_{j}"]
+                                                           for j in range(fitter.play_thresholds.size)]}
+        out["loop_width"] = {"kappa_per_MPa": float(p), "stress_ref_MPa": float(width_reference(fitter))}
+        return out
 
     @classmethod
     def signature(cls, check: SignatureCheck) -> SignatureFailure | None:
@@ -284,6 +326,45 @@ class StressPlay(EffectBase):
         coercive = "coercive current" if unit == "A" else "coercive voltage"
         return (f"play weights and a loop width ({coercive}) that change with stress: the width "
                 f"{'grows' if k > 0 else 'shrinks'} by {abs(k) * 100:.2g} % per MPa of extra compression")
+
+
+def width_reference(fitter: FitData) -> float:
+    """The stress at which the loop width is the core's own: the model's reference stress (that of
+    its identification's first step) when the core is identified again through the law, else the
+    data's mean stress (the base's loops are kept where the data are)."""
+    if fitter.identification:
+        ref = getattr(fitter.model, "reference_stress_MPa", None)
+        if ref is not None:
+            return float(ref)
+    return float(fitter.stress_ref)
+
+
+WIDTH_LAW_ROUNDS = 3      # halvings of the step about the best grid point (to 1/8 of the grid's spacing)
+
+
+def width_law(fitter: FitData) -> float:
+    """The loop width's change per MPa that best fits the identification loops, the core identified
+    again through it at each value tried (the grid, then steps halved about the best): the loops
+    were recorded at every load, so the law follows stress where the diagnosis recordings' few
+    loads cannot say."""
+    ref = width_reference(fitter)
+
+    def error(k: float) -> float:
+        core = fitter.identified_core((k, ref))
+        fit = getattr(core, "provenance", {}).get("reidentified", {}).get("fit_rms_um", {}) if core else {}
+        vals = [float(v) for v in fit.values()]
+        return float(np.sqrt(np.mean(np.square(vals)))) if vals else math.inf
+
+    tried = {k: error(k) for k in WIDTH_GRID}
+    best = min(tried, key=lambda k: (tried[k], abs(k)))
+    step = min((abs(a - b) for a in WIDTH_GRID for b in WIDTH_GRID if a != b and (a == best or b == best)))
+    for _ in range(WIDTH_LAW_ROUNDS):
+        step /= 2
+        for k in (best - step, best + step):
+            if abs(k) <= max(abs(v) for v in WIDTH_GRID) and k not in tried:
+                tried[k] = error(k)
+        best = min(tried, key=lambda k: (tried[k], abs(k)))
+    return float(best)
 
 
 class _StressPlayState(OwnPlays):

@@ -1,0 +1,133 @@
+"""The last step of a diagnosis: the guarded selection as one of four outcomes, in words.
+
+`assemble` reads the frozen `state.Problem` and `state.Final` and returns the `Diagnosis`: the
+outcome (`within_noise`, `effects_named`, `unexplained`, `inconclusive`), the candidates as the
+report lists them, where the named effects leave residual, the explanation and how it was
+validated. It fits nothing. Pure maths: no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from .. import effects as effect_registry
+from .anchor import anchor_words
+from .explain import drive_unit, explain, identification_rms, validation_words
+from .locate import locate
+from .problem import scored
+from .results import Candidate, Diagnosis
+from .state import Final, Problem, Selection
+from .timing import displacement_lead
+
+
+def candidates(sel: Selection) -> dict[str, Candidate]:
+    """Every candidate effect (registry order) as the report lists it: its last trial, whether the
+    data could test it and why not, and whether it is named."""
+    out = {}
+    for cls in effect_registry.candidates():
+        name = cls.name
+        c = Candidate(name, name in sel.testable, sel.reasons.get(name, ""))
+        t = sel.trials.get(name)
+        if t is not None:
+            c.result, c.cv_mse, c.cv_loss, c.params, c.round = t.result, t.cv_mse, t.cv_loss, dict(t.params), t.round
+            c.loglik_gain, c.evidence = t.loglik_gain, t.evidence
+            if t.leave_one_out is not None:
+                c.leave_one_out_mse = t.leave_one_out.mse
+        c.accepted = name in sel.accepted
+        out[name] = c
+    return out
+
+
+def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
+    """The outcome, the words and the figures of a guarded selection."""
+    sel = final.selection
+    too_little, noise = problem.too_little, problem.noise
+    cands = candidates(sel)
+    verdict = [] if too_little else list(sel.accepted)
+    conclusive = not too_little and not sel.ambiguous
+    well_above = math.sqrt(final.cv_mse) > selector.model_error_factor * noise
+    if too_little or sel.ambiguous:
+        outcome = "inconclusive"     # too little data, or look-alikes the data cannot tell apart
+    elif verdict:
+        outcome = "effects_named"
+    elif not well_above and not sel.outside_class:
+        outcome = "within_noise"
+    else:
+        outcome = "unexplained"
+    cannot = list(final.cannot) + [d.extra["settled_note"] for d in problem.data if "settled_note" in d.extra]
+    if not problem.identification.given:      # what the effects could not do without those recordings
+        lost = [(cls.name, cls.lost_without_identification(problem.fitter)) for cls in effect_registry.candidates()]
+        cannot += [f"{name}: {why}" for name, why in lost if why]
+    lead = displacement_lead(problem.data, problem.null.base_pred)
+    if lead is not None:     # a column-timing fault: effects fitted to it would be confidently wrong
+        cannot.append(lead.words())
+        if outcome != "unexplained":
+            outcome, conclusive = "inconclusive", False
+    runner_note = sel.runner_note
+    for old_name, new_name, old_rms, new_rms in sel.swapped:
+        runner_note += (f" {old_name} was first chosen while a larger effect dominated the residual; with the "
+                        f"other effects in place {new_name} explains the held-out data better ({new_rms:.4g} "
+                        f"um against {old_rms:.4g} um), so it replaced {old_name}.")
+    # where the named effects leave residual: located on the final model's, as the base's was
+    left = [scored(d, d.y - yf) for d, yf in zip(problem.data, final.final_pred)] if outcome == "effects_named" else []
+    after = [locate(d, r, r) for d, r in zip(problem.data, left)]     # nothing recalibrated away: raw = residual
+    null = problem.null
+    explanation = explain(verdict, cands, list(null.located), null.rms_before, math.sqrt(null.fit.cv_mse),
+                          math.sqrt(final.cv_mse), noise, too_little, runner_note.strip(), outcome,
+                          drive_unit(problem.model), selector.noise_factor, identification_rms(problem.model),
+                          after, selector.model_error_factor, any(d.s_raw is not None for d in problem.data))
+    if lead is not None:     # the fault to fix first, so it comes first
+        explanation = (f"First, a fault in the columns: {lead.words()}"
+                       + ("." if outcome == "unexplained" else "; what is named below may only compensate it.")
+                       + " " + explanation)
+    fitter = problem.fitter
+    validation = validation_words(fitter, null.fit.cv_mse, selector.min_mse_ratio, selector.min_loglik_gain)
+    if not final.base_kept:
+        validation += sel.rebase_note
+    loo = leave_one_out_figures(problem, final)
+    if loo["applies"]:
+        validation += (f" With {len(problem.data)} recordings, each was also left out in turn: every effect's law "
+                       "(its parameters chosen and its gains fitted on the other recordings) had to lower the "
+                       "error on the recording left out, or it was not accepted; leave-one-recording-out RMS "
+                       f"{loo['rms_recalibrated_um']} um for the recalibrated base, "
+                       f"{loo['rms_after_um'] if loo['rms_after_um'] is not None else 'unchanged'} um for the "
+                       "final model (its nonlinear parameters as selected, its gains fitted without the recording).")
+    if fitter.anchor_on:
+        validation += anchor_words(problem.model, [] if final.base_kept else
+                                   fitter.anchor_deviation(sel.fit.specs[2], sel.fit.coef_all),
+                                   measured=bool(fitter.identification))
+    ordered = sorted(cands.values(), key=lambda c: (not c.accepted, not c.testable,
+                                                    c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
+    rounds = [r.as_dict() for r in sel.rounds]
+    return Diagnosis(outcome, verdict, explanation, list(null.located), ordered, null.rms_before,
+                     math.sqrt(null.fit.cv_mse), math.sqrt(final.cv_mse), noise, validation, conclusive,
+                     cannot, final.extended, list(problem.data), list(null.base_pred), list(null.null_pred),
+                     list(final.final_pred), rounds, rounds[0]["n_eff"] if rounds else float("nan"),
+                     str(selector.initial_state), after, problem.identification.to_json(), loo)
+
+
+def leave_one_out_figures(problem: Problem, final: Final) -> dict[str, Any]:
+    """diagnosis.json's leave-one-recording-out figures: per recording, the null's and the final
+    model's RMS when that recording was left out of the fit (its own zero fitted on it)."""
+    null, after = final.selection.null_leave_one_out, final.leave_one_out
+    if null is None:
+        why = ("too little data" if problem.too_little else
+               "one recording: give recordings at other loads, rates or drive shapes to test the laws on "
+               "conditions they were not fitted on")
+        return {"applies": False, "why": why}
+    after = after or null                       # nothing kept beyond the base: as the null
+    if final.base_kept:
+        after = None
+    rows = []
+    for k, d in enumerate(problem.data):
+        rows.append({"recording": d.name, "rms_recalibrated_um": _rms(null.sse[k], null.n[k]),
+                     "rms_after_um": _rms(after.sse[k], after.n[k]) if after is not None else None})
+    return {"applies": True, "rms_recalibrated_um": _rms(sum(null.sse), sum(null.n)),
+            "rms_after_um": _rms(sum(after.sse), sum(after.n)) if after is not None else None,
+            "per_recording": rows}
+
+
+def _rms(sse: float, n: int) -> float | None:
+    v = math.sqrt(sse / n) if n > 0 else math.nan
+    return float(f"{v:.6g}") if math.isfinite(v) else None

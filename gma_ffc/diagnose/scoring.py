@@ -1,0 +1,132 @@
+"""Fit and score candidate effects on top of a model: the searches, and what a round's scores mean.
+
+`search_all` searches several effects' parameters on held-out blocks (in parallel threads);
+`score_round` turns a round's searches into frozen `state.Trial`s with the penalised held-out
+log-likelihood gain of each (on the residual's effective sample count) and their relative
+evidence. Deciding what to accept is `selection`'s job; this module only measures. Pure maths.
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..effects import REGISTRY
+from ..effects.base import geom_refine
+from ..effects.static import StaticMap
+from ..extended import ExtendedModel
+from .fitting import ZOOM_LEVELS, Fitter, SearchResult, Spec, search
+from .state import Trial
+
+Specs = tuple[Spec, Spec, Spec]          # fold A's, fold B's and the all-data spec
+
+
+def loglik_gain(n_eff: float, loss_without: float, loss: float, n_params: int) -> float:
+    """Penalised held-out log-likelihood gain (nats) of a model that takes the loss per sample from
+    `loss_without` to `loss` on n_eff effectively independent samples, one nat per parameter."""
+    return 0.5 * n_eff * math.log(loss_without / max(loss, 1e-300)) - n_params
+
+
+def effective_samples(resid: np.ndarray, lengths: Sequence[int]) -> float:
+    """Independent samples in a residual: per recording, its length over the integrated
+    autocorrelation time, by Geyer's initial monotone sequence (the sums of neighbouring pairs of
+    autocorrelations, taken while they stay positive and falling: no cut-off to choose, the data
+    say where the correlation has died out)."""
+    total = 0.0
+    start = 0
+    for n in lengths:
+        r = resid[start:start + n]
+        start += n
+        total += r.size / max(correlation_time(r), 1.0)
+    return max(total, 1.0)
+
+
+def correlation_time(r: np.ndarray) -> float:
+    """Integrated autocorrelation time 1 + 2 sum_k rho_k of a series (Geyer 1992, initial monotone
+    sequence estimator); 1 for a series too short or flat to say."""
+    if r.size < 8:
+        return 1.0
+    x = r - r.mean()
+    var = float(x @ x)
+    if var <= 0:
+        return 1.0
+    m = 1 << int(np.ceil(np.log2(2 * x.size)))
+    f = np.fft.rfft(x, m)
+    rho = np.fft.irfft(f * np.conj(f), m)[: x.size // 2] / var
+    pairs = rho[: 2 * (rho.size // 2)].reshape(-1, 2).sum(axis=1)     # Gamma_k = rho_2k + rho_2k+1
+    stop = np.flatnonzero(pairs <= 0)
+    pairs = pairs[: stop[0] if stop.size else pairs.size]
+    pairs = np.minimum.accumulate(pairs)
+    return float(-1.0 + 2.0 * pairs.sum())
+
+
+def params_of(fitter: Fitter, effect: str, spec: Spec, coef: np.ndarray, names: list[str]) -> dict[str, float]:
+    """An effect's reported parameters for a spec and its all-data coefficients."""
+    return REGISTRY[effect].fitted_params(fitter, spec[effect], dict(zip(names, coef)))
+
+
+def build_extended(model: Any, fitter: Fitter, spec: Spec, coef: np.ndarray, names: list[str],
+                   effects: list[str]) -> ExtendedModel:
+    """The extended model for a spec and its all-data coefficients (through the file form, so it is validated)."""
+    c = dict(zip(names, (float(v) for v in coef)))
+    blocks = StaticMap.fitted_blocks(fitter, None, c)
+    for cls in fitter.effects:
+        if cls.name in spec:
+            blocks.update(cls.fitted_blocks(fitter, spec[cls.name], c))
+    return ExtendedModel(model, blocks, effects)
+
+
+def search_all(fitter: Fitter, base: Specs, names: list[str], workers: int) -> dict[str, SearchResult]:
+    """Search several effects on top of `base`, in parallel threads (the kernels release the GIL)."""
+
+    def one(name: str) -> SearchResult:
+        cls = REGISTRY[name]
+
+        def make(s: Spec, p: Any) -> Spec:
+            return s.with_(name, p)
+
+        partner = cls.joint_with
+        if partner is None or partner not in base[2]:
+            return search(fitter, base, make, cls.grid(fitter), cls.refine, getattr(cls, "zoom_levels", ZOOM_LEVELS),
+                          cls.polish)
+
+        # look-alikes trade off against each other: re-search the accepted one's value with the new one
+        def make_joint(s: Spec, p: Any) -> Spec:
+            return s.with_(name, p[0]).with_(partner, s[partner] * p[1])
+
+        def refine(f: Fitter, p: Any, level: int) -> list:
+            own = cls.refine(f, p[0], level)
+            out = [(q, p[1]) for q in own] if own is not None else []
+            return out + [(p[0], min(p[1] * m, 1.5)) for m in geom_refine(1.0, 1.6, level)]
+
+        grid = [(p, k) for p in cls.grid(fitter) for k in (0.3, 0.55, 0.8, 1.0)]
+        return search(fitter, base, make_joint, grid, refine)
+
+    n = min(workers, max(len(names), 1))
+    if n <= 1:
+        return {name: one(name) for name in names}
+    with ThreadPoolExecutor(max_workers=n) as pool:
+        return dict(zip(names, pool.map(one, names)))
+
+
+def score_round(fitter: Fitter, base: Specs, loss_without: float, names: list[str], rnd: int,
+                workers: int) -> tuple[list[Trial], float]:
+    """Each effect of `names` searched on top of `base` and scored: the trials, best first (by
+    held-out loss), and the effective sample count of the best one's held-out residual."""
+    results = search_all(fitter, base, names, workers)
+    if not names:
+        return [], math.nan
+    leader = min(names, key=lambda n: results[n].cv_loss)
+    # effective sample count of the noise, from the best candidate's held-out residual
+    n_eff = effective_samples(fitter.test_residuals(results[leader].specs), fitter.segment_lengths)
+    gains = [loglik_gain(n_eff, loss_without, results[n].cv_loss, REGISTRY[n].count_params(fitter)) for n in names]
+    top = max(0.0, max(gains))
+    weights = np.exp(np.clip(np.array(gains) - top, -700, 0))
+    norm = math.exp(-top) + float(weights.sum())
+    trials = [Trial(n, results[n], params_of(fitter, n, results[n].specs[2], results[n].coef_all, results[n].names),
+                    rnd, g, float(w / norm)) for n, g, w in zip(names, gains, weights)]
+    trials.sort(key=lambda t: t.cv_loss)
+    return trials, n_eff

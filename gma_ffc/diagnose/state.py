@@ -1,0 +1,137 @@
+"""The selection's state, explicit and frozen: what each step of `EffectSelector.fit` hands the next.
+
+    Problem      what the recordings are (prepared data, the fitter over them, noise floor, what
+                 cannot be concluded from them) and the null model every effect must beat
+    Trial        one effect fitted and scored on top of the model so far (a round, or the swap pass)
+    Selection    the forward selection after a step: which effects are accepted, the current fit,
+                 the last trial of every effect, why some cannot be tested, the rounds' record
+    Final        the guarded result: the extended model and its predictions
+
+Each step takes these and returns new ones (`dataclasses.replace`); nothing is changed in place,
+so a round's result can be read, logged or tested on its own. Pure data: no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..extended import ExtendedModel
+from .data import RecData
+from .fitting import Fitter, LeaveOneOut, SearchResult
+from .identification import IdentificationCheck
+from .locate import Located
+
+
+@dataclass(frozen=True)
+class NullFit:
+    """The base model as given and the null model (the base with a static recalibration)."""
+
+    base_pred: tuple[np.ndarray, ...]     # the base model's displacement per recording
+    rms_before: float                     # its RMS on the scored samples: "before"
+    fit: SearchResult                     # the recalibrated base, scored on held-out blocks
+    null_pred: tuple[np.ndarray, ...]     # its all-data prediction per recording
+    located: tuple[Located, ...]          # where the residual sits, per recording
+
+
+@dataclass(frozen=True)
+class Problem:
+    """The recordings as the selection sees them: prepared data, the fitter (its caches are its
+    own business), the core the extended model is built on, the noise floor, and the null model."""
+
+    model: Any                            # the base model as the user gave it
+    core: Any                             # the core the extended model is built on (`rebase` may replace it)
+    data: tuple[RecData, ...]
+    fitter: Fitter
+    noise: float                          # the data's noise floor (um)
+    n_samples: int                        # scored samples in all
+    too_little: bool                      # too little data for blocked cross-validation
+    cannot: tuple[str, ...]               # what cannot be concluded, found before any fit
+    null: NullFit
+    identification: IdentificationCheck   # the identification recordings given, against the model's record
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One effect fitted on top of the model so far and scored on held-out blocks."""
+
+    effect: str
+    result: SearchResult
+    params: Mapping[str, float]
+    round: int
+    loglik_gain: float = math.nan
+    evidence: float = 0.0
+    leave_one_out: LeaveOneOut | None = None     # its law judged on each recording it was not fitted on
+
+    @property
+    def cv_mse(self) -> float:
+        return self.result.cv_mse
+
+    @property
+    def cv_loss(self) -> float:
+        return self.result.cv_loss
+
+
+@dataclass(frozen=True)
+class RoundRecord:
+    """What a round tried and decided (the report's table)."""
+
+    round: int
+    n_eff: float
+    current_rms_um: float
+    table: tuple[tuple[str, float, float], ...]      # (effect, held-out RMS, log-likelihood gain)
+    accepted: str | None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"round": self.round, "n_eff": self.n_eff, "current_rms_um": self.current_rms_um,
+                "table": list(self.table), "accepted": self.accepted}
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The forward selection after a step."""
+
+    fit: SearchResult                               # the current model (specs, held-out loss and MSE)
+    testable: frozenset[str]                        # effects the data can test (a failed signature removes one)
+    reasons: Mapping[str, str]                      # per effect: why it cannot be tested, or a caveat
+    accepted: tuple[str, ...] = ()                  # in the order named (most important first after the swap pass)
+    trials: Mapping[str, Trial] = field(default_factory=dict)   # the last trial of each effect
+    rounds: tuple[RoundRecord, ...] = ()
+    ambiguous: tuple[tuple[str, str], ...] = ()     # look-alikes the data do not tell apart
+    runner_note: str = ""
+    swapped: tuple[tuple[str, str, float, float], ...] = ()     # (first choice, its replacement, their RMS)
+    outside_class: str = ""                         # a drive the model's class cannot follow (named nothing)
+    rebase_note: str = ""
+    cannot: tuple[str, ...] = ()                    # what cannot be concluded, found by the selection's steps
+    leave_one_out: LeaveOneOut | None = None        # the current model, each recording fitted without it
+    null_leave_one_out: LeaveOneOut | None = None   # the null model's (None: one recording, or too little data)
+
+    @property
+    def cur_cv(self) -> float:
+        return self.fit.cv_mse
+
+    @property
+    def cur_loss(self) -> float:
+        return self.fit.cv_loss
+
+    def with_reason(self, effect: str, reason: str, testable: bool | None = None) -> "Selection":
+        """The same selection with a new reason for `effect` (and, if given, its testability)."""
+        tested = self.testable if testable is None else (
+            self.testable | {effect} if testable else self.testable - {effect})
+        return replace(self, reasons={**self.reasons, effect: reason}, testable=tested)
+
+
+@dataclass(frozen=True)
+class Final:
+    """The guarded result of the selection."""
+
+    selection: Selection
+    extended: ExtendedModel
+    final_pred: tuple[np.ndarray, ...]
+    cv_mse: float                         # the extended model's held-out MSE (the base's as given when kept)
+    base_kept: bool
+    cannot: tuple[str, ...]               # what cannot be concluded, in the order found
+    leave_one_out: LeaveOneOut | None = None    # the final model, each recording fitted without it
