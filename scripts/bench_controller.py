@@ -211,7 +211,11 @@ def _child(rate: float, duration: float, model_path: str) -> int:
 def _in_child(src: Path, rate: float, duration: float, model_path: str) -> dict[str, Any]:
     import subprocess
 
-    env = {**os.environ, "PYTHONPATH": str(src)}
+    # numba's cache of its own per source tree: the same process imports the baseline's sources
+    # as `gma_ffc_baseline` (compute per tick), and kernels cached under that name do not load as
+    # `gma_ffc`
+    cache = Path(tempfile.gettempdir()) / f"gma-ffc-bench-numba-{abs(hash(str(src)))}"
+    env = {**os.environ, "PYTHONPATH": str(src), "NUMBA_CACHE_DIR": str(cache)}
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child-rate", str(rate), "--duration", str(duration),
            "--child-model", model_path, "--realtime-priority", str(PRIORITY)]
     out = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=str(src), timeout=duration * 5 + 300)

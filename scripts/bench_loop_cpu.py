@@ -1,0 +1,74 @@
+"""CPU per tick of the controller loop: the package as it was (a baseline source tree), against
+this tree with the model-fit monitor on and off, interleaved in one process on a simulated clock.
+
+The loop thread's CPU time (`time.thread_time`) counts only this thread's work, so other
+processes on the core do not enter the figure. Issue 34 asks the split controller to cost within
+1.1x of the old one; issue 30 asks the same of the monitor.
+
+    python scripts/bench_loop_cpu.py --baseline-src DIR [--rounds 16] [--rate 1000]
+
+DIR holds a gma_ffc package, e.g. `git archive d0686ce | tar -x -C DIR`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_controller as bench  # noqa: E402  (the controllers are built as bench_controller builds them)
+
+
+def controllers(baseline: Path, rate: float) -> dict[str, Any]:
+    from gma_ffc.control import config
+
+    bench._load_as(baseline.resolve(), "gma_ffc_baseline")
+    model = bench._models()[0].to_dict()
+    out = {"before": bench._simulated("gma_ffc_baseline", rate, model),
+           "after, monitor on": bench._simulated("gma_ffc", rate, model)}
+    validate = config.validate_config
+
+    def monitor_off(d: dict[str, Any], *args: Any, **kwargs: Any) -> Any:
+        return validate({**d, "monitor": {"enabled": False}}, *args, **kwargs)
+
+    config.validate_config = monitor_off
+    try:
+        out["after, monitor off"] = bench._simulated("gma_ffc", rate, model)
+    finally:
+        config.validate_config = validate
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--baseline-src", type=Path, required=True, metavar="DIR", help="a tree with the old gma_ffc")
+    ap.add_argument("--rounds", type=int, default=16, help="interleaved rounds (default 16)")
+    ap.add_argument("--rate", type=float, default=1000.0, help="loop rate, Hz (default 1000)")
+    ap.add_argument("--seconds", type=float, default=3.0, help="simulated seconds per run (default 3)")
+    args = ap.parse_args(argv)
+    if not (args.baseline_src / "gma_ffc" / "__init__.py").is_file():
+        raise SystemExit(f"--baseline-src {args.baseline_src}: no gma_ffc package there; make one with "
+                         "`git archive <commit> | tar -x -C DIR`")
+    ctrls = controllers(args.baseline_src, args.rate)
+    per_tick: dict[str, list[float]] = {k: [] for k in ctrls}
+    for _ in range(args.rounds):
+        for name, ctrl in ctrls.items():
+            seen, started = ctrl.stats.count, time.thread_time()
+            summary = ctrl.run(duration_s=args.seconds)
+            per_tick[name].append((time.thread_time() - started) / (summary["ticks"] - seen) * 1e6)
+    before = statistics.median(per_tick["before"])
+    print(f"CPU per tick of the loop thread at {args.rate:g} Hz, {args.rounds} interleaved rounds "
+          f"(load average {os.getloadavg()[0]:.1f}):")
+    for name, values in per_tick.items():
+        median = statistics.median(values)
+        print(f"  {name:<20} median {median:6.2f} us ({median / before:.2f}x before), min {min(values):.2f} us")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
