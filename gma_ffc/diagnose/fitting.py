@@ -285,8 +285,9 @@ class Fitter:
                 steady: bool = False) -> tuple[list[np.ndarray], list[str]]:
         """Full-length regressors of one recording (before row selection): the static map's, then
         each effect's in signal-path order (a filter effect transforms those before it). `steady`
-        (the anchor's loops): effects that do not follow the drive loop (heating, creep, pickup) stay
-        at their reference state: the base absorbed whatever state its loops were recorded in."""
+        (the anchor's loops): effects that do not follow the drive loop (`follows_drive = False`:
+        heating, a plugin's pickup) stay at their reference state, as the base absorbed whatever state
+        its loops were recorded in; creep follows the drive (a loss of gain at the loops' rate)."""
         r = Regressors(d, u3, yc, self.input_key(spec), spec, [], [], {})
         # the static map's columns follow from the core's run alone (its input key): computed once
         # per recording and run, shared by every spec on that run (no effect changes an array in place)

@@ -46,7 +46,8 @@ class Creep(EffectBase):
 
     @classmethod
     def refine(cls, fitter: FitData, p: Any, level: int) -> list[float]:
-        return [max(q, MIN_CREEP_TAU_S) for q in geom_refine(p, grid_ratio(1, 30, 12), level)]
+        g = cls.grid(fitter)            # zoom by the spacing of creep's own grid, which follows the recording
+        return [max(q, MIN_CREEP_TAU_S) for q in geom_refine(p, grid_ratio(g[0], g[-1], g.size), level)]
 
     @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
