@@ -66,12 +66,17 @@ def test_a_reload_while_running_replays_the_new_model_off_the_loop_and_adopts_it
     cfg = config(tmp_path)
     ctrl = ControllerManager(cfg, model=model)
     done = {}
-    loop = threading.Thread(target=lambda: done.setdefault("summary", ctrl.run(duration_s=8.0)), daemon=True)
+    loop = threading.Thread(target=lambda: done.setdefault("summary", ctrl.run(duration_s=600.0)), daemon=True)
     loop.start()
     end = time.monotonic() + 120
     while ctrl.stats.count < 4 * RATE and time.monotonic() < end:
         time.sleep(0.01)
     ctrl.reload(cfg, model=model)
+    # the simulated clock runs as fast as the machine allows: the run lasts until the loop has
+    # adopted the prepared model (or two minutes pass), not a fixed simulated time the replay may outlast
+    while "replayed" not in ctrl.status().get("monitor", {}).get("prediction", "") and time.monotonic() < end:
+        time.sleep(0.01)
+    ctrl.request_stop("test over")
     loop.join(timeout=300)
     monitor = done["summary"]["monitor"]
     assert done["summary"]["ok"] and "replayed over the last" in monitor["prediction"], monitor
