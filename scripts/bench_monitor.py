@@ -52,7 +52,8 @@ def _config(variant: str, duration: float, priority: int) -> Any:
 class DiagnosisChild:
     """A real diagnosis, restarted whenever it finishes, for as long as the variant runs."""
 
-    def __init__(self, model_path: Path, window: Path, out: Path) -> None:
+    def __init__(self, model_path: Path, window: Path, out: Path, loop_started: Any = lambda: True) -> None:
+        self.loop_started = loop_started
         self.argv = [sys.executable, "-m", "gma_ffc.service.diagnose_child", str(os.getpid()), "--", "diagnose",
                      "--model", str(model_path), str(window), "--out", str(out)]
         self.out = out
@@ -64,6 +65,9 @@ class DiagnosisChild:
     def _run(self) -> None:
         from gma_ffc.service.diagnosis import SINGLE_THREAD
 
+        # as the service starts one: while the loop runs (its environment then names the loop's CPU)
+        while not self.stop.wait(0.01) and not self.loop_started():
+            pass
         while not self.stop.is_set():
             for name in ("diagnosis.json", "report.html", "extended_model.yaml"):
                 (self.out / name).unlink(missing_ok=True)
@@ -137,7 +141,7 @@ def run_variant(variant: str, model: Any, duration: float, priority: int, child_
             svc.run()
             runs = 0
         else:
-            with DiagnosisChild(*child_files) as child:
+            with DiagnosisChild(*child_files, loop_started=lambda: ctrl.stats.count > 0) as child:
                 svc.run()
                 runs = child.runs
     finally:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from gma_ffc.control import safety
@@ -98,6 +98,7 @@ def test_a_carried_state_is_a_play_state_for_other_thresholds():
 # ---- the limiter says which limit bound ----------------------------------------------------------
 @given(lo=st.floats(-5, 0), span=st.floats(0.01, 10), slew=st.floats(0.1, 1e4), rate=st.floats(10, 1e4),
        targets=st.lists(st.floats(-1e3, 1e3), min_size=1, max_size=100), initial=st.floats(-1e3, 1e3))
+@example(lo=0.0, span=1.0, slew=1.0, rate=75.0, targets=[0.0, 0.25], initial=0.25)   # a step one rounding over
 def test_the_limiter_names_the_limit_that_changed_the_command(lo, span, slew, rate, targets, initial):
     hi = lo + span
     lim = safety.Limiter(lo, hi, slew, 1.0 / rate, initial)

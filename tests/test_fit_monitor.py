@@ -1,5 +1,5 @@
 """The model-fit monitor alone (issue 30): its maths against batch numpy, its states, its noise
-floor, where it says the residual sits, and that a tick allocates nothing."""
+floor, where it says the residual sits, and its prediction in blocks off the loop."""
 
 from __future__ import annotations
 
@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from allocation import worst_call_allocation
 from gma_ffc.control.fit_monitor import (CLEAR_RATIO, DRIFT_RATIO, DRIFTING, OK, UNKNOWN, FitMonitor,
                                          identification_error_um)
-from gma_ffc.control.prediction import Prediction
+from gma_ffc.control.prediction import FAULTED, RAMPING, Prediction, predict_block
 from gma_ffc.control.recent import RecentRows
 
 RATE = 1000.0
@@ -145,30 +144,50 @@ def test_identification_error_from_provenance():
     assert identification_error_um(object()) is None
 
 
-def test_a_tick_allocates_nothing():
-    """What the loop does per tick: the residual, the prediction's step, the row into the ring."""
+def _row_by_row(model, t, drive, stress, flags, gap_s):
+    """The monitor's rule written tick by tick (as the loop ran it before it moved off the loop)."""
+    pred = Prediction(model, 1e-3, 0.0)
+    last_t, out = -math.inf, []
+    for tk, u, s, f in zip(t, drive, stress, flags):
+        if int(f) & FAULTED:
+            if s == s:
+                pred.after_write(u, s)
+            pred.forget()
+            out.append(math.nan)
+            continue
+        if tk - last_t > gap_s:
+            pred.forget()
+        last_t = tk
+        out.append(pred.next_um)
+        if s == s:
+            pred.after_write(u, s)
+        else:
+            pred.forget()
+    return np.array(out)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 400), st.integers(0, 2**31 - 1), st.floats(0.0, 0.2), st.integers(1, 60))
+def test_block_prediction_is_the_tick_by_tick_rule(n, seed, odd, block):
+    """Off the loop, in blocks of any size, the prediction is the one the tick-by-tick rule gives:
+    faults (stepped with the safe current, then forgotten), ramps, invalid stresses and gaps in the
+    ticks included."""
     from pathlib import Path
 
-    from gma_ffc.control.model_watch import ModelWatch
     from gma_ffc.modelio import load_model
 
     model = load_model(Path(__file__).resolve().parents[1] / "config" / "models" / "sim_sdpi.yaml")
-    cols = ["time_s", "reference_um", "current_cmd_A", "current_A", "stress_MPa", "displacement_um",
-            "predicted_um", "residual_um", "force_N", "outside_model"]
-    watch = ModelWatch({"enabled": True, "window_s": 0.05}, ("force_N", "current_A", "displacement_um"), cols, 1e-3)
-    watch.start(model, 0.0)
-    row = np.arange(float(len(cols)))
-    drives = [1.5 + 1.4 * math.sin(k / 37.0) for k in range(997)]
-
-    def tick(k):
-        watch.on_tick(k * 1e-3, 20.0 + drives[k % 997], 20.0, drives[k % 997], -15.0, k % 101 != 0)
-        watch.push(row)
-
-    for k in range(2000):
-        tick(k)
-    worst, peak = worst_call_allocation(tick, 1000)
-    assert worst <= 0, f"retained {worst} bytes"
-    assert peak <= 256, f"allocated up to {peak} bytes on the way"
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(np.where(rng.random(n) < odd, rng.uniform(1e-3, 8e-3, n), 1e-3))
+    drive = 1.5 + 1.4 * np.sin(np.arange(n) / 37.0)
+    stress = np.where(rng.random(n) < odd, np.nan, -15.0 + rng.normal(0, 2, n))
+    flags = np.where(rng.random(n) < odd, FAULTED, np.where(rng.random(n) < odd, RAMPING, 0)).astype(float)
+    want = _row_by_row(model, t, drive, stress, flags, 2.5e-3)
+    pred = Prediction(model, 1e-3, 0.0)
+    got = np.concatenate([predict_block(pred, t[a:a + block], drive[a:a + block], stress[a:a + block],
+                                        flags[a:a + block], 2.5e-3) for a in range(0, n, block)])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    assert np.isnan(got).tolist() == np.isnan(want).tolist()
 
 
 def test_prediction_is_the_forward_model_one_write_behind():

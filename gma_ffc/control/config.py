@@ -91,6 +91,9 @@ SCHEDULER = {
                                help="SCHED_FIFO priority of the loop thread (0 = normal scheduling)"),
     "gil_switch_interval_us": Field("float", 100.0, min=10.0, max=5000.0,
                                     help="how soon the loop gets the GIL back from other threads"),
+    "loop_cpu": Field("int", None, min=-1, nullable=True,
+                      help="with realtime_priority > 0: the CPU the loop thread runs on, which a background "
+                           "diagnosis never uses (null: the last CPU allowed, when there are two or more; -1: no pinning)"),
 }
 
 # The model-fit monitor (gma_ffc/control/fit_monitor.py, docs/monitor.md).

@@ -243,7 +243,8 @@ class ControllerManager:
 
     # ---- the loop ----------------------------------------------------------------------------
     def _loop(self, duration_s: float | None) -> None:
-        clock, stats, tick, broadcasters = self.clock, self.stats, self.tick, self.broadcasters
+        clock, stats, tick = self.clock, self.stats, self.tick
+        broadcasters = [b for b in self.broadcasters if b.on_the_loop]
         watchdog, stop_event = self.watchdog, self._stop_event
         sched, t0 = self._start_schedule()
         end_t = math.inf if duration_s is None else duration_s
@@ -380,7 +381,8 @@ class ControllerManager:
             tick.correction_um = 0.0
             tick.faulted = True        # its row records the safe current; reference_um stays the last good
             for b in self.broadcasters:
-                b.on_tick(tick)
+                if b.on_the_loop:
+                    b.on_tick(tick)
         self.faults.raise_fault(name, message)
         return self._execute(name, t, reason)
 

@@ -1,19 +1,21 @@
-"""The controller watching its own model (issue 30, docs/monitor.md): the per-tick part.
+"""The controller watching its own model (issue 30, docs/monitor.md), off the loop.
 
-Each tick, after the write: the residual of this tick's displacement reading against the model's
-prediction (`prediction.Prediction`, one write behind; NaN on ticks not judged: stopping, no
-valid stress), then the prediction steps with the drive just written. The telemetry row gains
-`predicted_um` and `residual_um` and is kept in a ring (`recent.RecentRows`). That is all the
-loop does. Off the loop, `status` feeds the rows pushed since its last call to the fit monitor
-(`fit_monitor.FitMonitor`) as one block, and the service takes the last `monitor.window_s` of
-the ring as a recording for a background diagnosis.
+The loop only packs its telemetry row (with a hidden flags column: faulted, ramping). The
+telemetry writer's thread hands each block of rows to `on_block` before it writes them: each
+row's reading is compared with the model's prediction (`prediction.predict_block`, one write
+behind; NaN on rows not judged: a fault, a ramp, no valid stress, a gap in the ticks), the
+prediction steps with the drives written, and the rows, with `predicted_um` and `residual_um`
+filled in, go to the file and to a ring (`recent.RecentRows`). Off the loop too, `status` feeds
+the rows kept since its last call to the fit monitor (`fit_monitor.FitMonitor`) as one block,
+and the service takes the last `monitor.window_s` of the ring as a recording for a background
+diagnosis.
 
-A new model (a reload) is prepared off the loop: its prediction is brought to the present by
-replaying history through it (hysteresis, heating and creep states included): the recording a
-background diagnosis fitted it on when the model comes from one (its folder holds `window.csv`),
-then the retained rows after it; else the retained rows alone. The loop then adopts it between
-two ticks, stepping only the few rows pushed since. Its monitor starts afresh (`unknown`): the new
-model is judged on ticks it was not fitted on.
+A new model (a reload) is prepared in the reloading thread: its prediction is brought to the
+present by replaying history through it (hysteresis, heating and creep states included): the
+recording a background diagnosis fitted it on when the model comes from one (its folder holds
+`window.csv`), then the retained rows after it; else the retained rows alone. The writer's thread
+then adopts it before the next block, stepping only the rows kept since. Its monitor starts
+afresh (`unknown`): the new model is judged on ticks it was not fitted on.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ import numpy as np
 from ..drivers.base import DISPLACEMENT
 from ..protocols import Model
 from .fit_monitor import OFF, FitMonitor, identification_error_um
-from .prediction import Prediction
+from .prediction import RAMPING, Prediction, predict_block
 from .recent import RecentRows
 
 PREDICTED, RESIDUAL = "predicted_um", "residual_um"
@@ -39,7 +41,8 @@ COLUMNS = (PREDICTED, RESIDUAL)
 # replay that brings an adopted model to the present needs the rows since its recording ended.
 EXTRA_HISTORY_S = 180.0
 MAX_HISTORY_ROWS = 400_000      # ~35 MB of 11-column rows: a 5 kHz loop keeps 80 s, not 210
-CATCH_UP_MARGIN = 64            # rows pushed while a reload is prepared, stepped in the loop at adoption
+GAP_PERIODS = 2.5
+CATCH_UP_MARGIN = 64            # the ring's least margin beyond a snapshot (recent.RecentRows)
 
 
 @dataclass
@@ -77,6 +80,11 @@ class ModelWatch:
         self._col = {name: self.columns.index(name) for name in self.columns}
         self._fed = 0                     # rows of the ring the fit monitor has seen
         self._fed_drive = math.nan        # the command of the last row it saw (the next residual answers it)
+        self.pending: Prepared | None = None   # a reload's prediction, adopted before the next block
+        # A reading more than this long after the last judged one follows ticks the monitor did not
+        # see (a reconnect wrote the safe current outside them): it is not judged. 2.5 periods: one
+        # late tick (an overrun) still is.
+        self.gap_s = GAP_PERIODS * period_s
         self._lock = threading.Lock()
 
     # ---- set-up (off the loop) -----------------------------------------------------------------
@@ -155,7 +163,7 @@ class ModelWatch:
                 prediction.after_write(drive, stress)
 
     def adopt(self, prepared: Prepared | None) -> None:
-        """Between two ticks (the loop's thread): step the rows pushed since `prepare`, then swap."""
+        """Before a block (the writer's thread): step the rows kept since `prepare`, then swap."""
         if prepared is None or self.rows is None:
             return
         missed = self.rows.head - prepared.head
@@ -166,35 +174,28 @@ class ModelWatch:
                 prepared.model, prepared.prediction, prepared.fit, prepared.replay
             self._fed = self.rows.head            # the new model is judged on the ticks after it
 
-    # ---- hot path ------------------------------------------------------------------------------
-    def on_tick(self, t: float, displacement_um: float, reference_um: float, drive: float, stress_MPa: float,
-                running: bool) -> None:
-        """After the write: this tick's residual, then the prediction for the next reading."""
-        prediction = self.prediction
-        if prediction is None:
+    # ---- the telemetry writer's thread ---------------------------------------------------------
+    def on_block(self, block: np.ndarray) -> None:
+        """Rows the loop packed since the last block (the file's columns, then the flags): adopt a
+        prepared model if one waits, fill each row's prediction and residual in place, and keep
+        the rows in the ring."""
+        if self.rows is None:
             return
-        predicted = prediction.next_um
-        self.predicted_um = predicted
-        self.residual_um = displacement_um - predicted if running else math.nan
-        if stress_MPa == stress_MPa:
-            prediction.after_write(drive, stress_MPa)
-        else:
-            prediction.forget()
-
-    def interrupt(self, drive: float, stress_MPa: float) -> None:
-        """The fault path wrote `drive` outside the loop's writes: the model sees it, the next
-        reading is not judged (it may follow a stall of any length)."""
-        if self.prediction is None:
-            return
-        if stress_MPa == stress_MPa:
-            self.prediction.after_write(drive, stress_MPa)
-        self.prediction.forget()
-        self.predicted_um = self.residual_um = math.nan
-
-    def push(self, row: np.ndarray) -> None:
-        """The tick's telemetry row, kept for snapshots and replays."""
-        if self.rows is not None:
-            self.rows.push(row)
+        pending, self.pending = self.pending, None
+        if pending is not None:
+            self.adopt(pending)
+        prediction, c = self.prediction, self._col
+        if prediction is not None:
+            flags = block[:, -1]
+            predicted = predict_block(prediction, block[:, c["time_s"]], block[:, c["current_cmd_A"]],
+                                      block[:, c["stress_MPa"]], flags, self.gap_s)
+            block[:, c[PREDICTED]] = predicted
+            residual = block[:, c[DISPLACEMENT]] - predicted
+            residual[(flags.astype(np.int64) & RAMPING) != 0] = math.nan     # a ramp's readings are not judged
+            block[:, c[RESIDUAL]] = residual
+            if len(block):
+                self.predicted_um, self.residual_um = float(predicted[-1]), float(residual[-1])
+        self.rows.push_block(block[:, :len(self.columns)])
 
     # ---- reporting and snapshots (off the loop) ---------------------------------------------------
     def evaluate(self) -> None:

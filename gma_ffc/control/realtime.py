@@ -2,7 +2,11 @@
 
 A short GIL switch interval (the loop gets the GIL back quickly from the telemetry and service
 threads), the garbage collector frozen (no long collections of start-up objects), and SCHED_FIFO
-for the loop thread when `scheduler.realtime_priority` asks for it.
+for the loop thread when `scheduler.realtime_priority` asks for it. With SCHED_FIFO the loop
+thread is also pinned to one CPU (`scheduler.loop_cpu`), named in the environment a background
+diagnosis inherits (`LOOP_CPU_ENV`), which keeps the diagnosis off it: on a 2-core lab PC a
+CPU-bound child on the loop's core left its caches cold and raised the compute per tick by about
+a fifth (scripts/bench_monitor.py, variant "on").
 """
 
 from __future__ import annotations
@@ -11,7 +15,40 @@ import contextlib
 import gc
 import os
 import sys
+import threading
 from typing import Any, Callable, Iterator
+
+LOOP_CPU_ENV = "GMA_FFC_LOOP_CPU"
+
+
+def loop_cpu(setting: int | None) -> int | None:
+    """The CPU to pin the loop to: `setting`, or (None) the last allowed one when two or more are."""
+    allowed = sorted(os.sched_getaffinity(0))
+    if setting is None:
+        return allowed[-1] if len(allowed) >= 2 else None
+    return setting if setting in allowed else None
+
+
+@contextlib.contextmanager
+def _pinned(cpu: int | None) -> Iterator[None]:
+    """The calling thread on `cpu` (and the environment naming it), restored afterwards."""
+    if cpu is None:
+        yield
+        return
+    tid = threading.get_native_id()
+    old = os.sched_getaffinity(tid)
+    try:
+        os.sched_setaffinity(tid, {cpu})
+    except OSError:
+        yield
+        return
+    os.environ[LOOP_CPU_ENV] = str(cpu)
+    try:
+        yield
+    finally:
+        os.environ.pop(LOOP_CPU_ENV, None)
+        with contextlib.suppress(OSError):
+            os.sched_setaffinity(tid, old)
 
 
 @contextlib.contextmanager
@@ -31,8 +68,10 @@ def realtime(scheduler: dict[str, Any], refused: Callable[[str], None]) -> Itera
         except (OSError, AttributeError) as exc:
             old_policy = None
             refused(f"SCHED_FIFO {prio} not permitted ({exc}); running with normal scheduling")
+    cpu = loop_cpu(scheduler.get("loop_cpu")) if old_policy is not None and scheduler.get("loop_cpu") != -1 else None
     try:
-        yield
+        with _pinned(cpu):
+            yield
     finally:
         if old_policy is not None:
             with contextlib.suppress(OSError):

@@ -1,8 +1,8 @@
 """The last seconds of telemetry rows, in memory, for a recording taken while the loop runs.
 
-The loop copies each telemetry row into a preallocated ring (`push`: one row copy, nothing
-allocated). Another thread takes the last n rows (`last`) without stopping the loop: it copies
-them and checks that the loop did not reach them meanwhile (the ring holds `margin` rows more
+The telemetry writer's thread copies each block of rows into a preallocated ring (`push_block`,
+in steps of at most half the margin). Another thread takes the last n rows (`last`) meanwhile: it
+copies them and checks that the writer did not reach them (the ring holds `margin` rows more
 than a snapshot may ask for; a copy that took longer is taken again).
 """
 
@@ -28,6 +28,16 @@ class RecentRows:
         """Hot path: copy one row in."""
         self.buf[self.head % self.capacity] = row
         self.head += 1
+
+    def push_block(self, rows: np.ndarray) -> None:
+        """Copy rows in, oldest first, the head moved after each step of at most margin/2 rows (so
+        a snapshot taken meanwhile sees any overwrite that could reach it)."""
+        step = max(1, self.margin // 2)
+        for start in range(0, len(rows), step):
+            part = rows[start:start + step]
+            idx = np.arange(self.head, self.head + len(part)) % self.capacity
+            self.buf[idx] = part
+            self.head += len(part)
 
     def clear(self) -> None:
         self.head = 0

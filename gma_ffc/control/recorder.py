@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import numpy as np
 
 from ..drivers.base import CURRENT, DISPLACEMENT, FORCE
+from .prediction import FAULTED, RAMPING
+from .safety import RAMP
 from .telemetry import Telemetry
 from .tick import Broadcaster, Tick
 
@@ -63,11 +65,12 @@ class TelemetryRecorder(Broadcaster):
         self._push = _not_started
         self._safe_A = 0.0
         self._disp = self._force = self._corr = -1
-        self._predicted = False
+        self._flags = self._outside = -1
         self.columns: list[str] = []
-        # Another consumer of each packed row, on the hot path after the writer's push (the
-        # model-fit monitor's ring of recent rows): it must allocate nothing.
-        self.tap: Callable[[np.ndarray], None] | None = None
+        # With the monitor on: who gets each block of rows in the writer's thread, before it is
+        # written (the model-fit monitor fills in its prediction); the block holds the file's
+        # columns, then a hidden flags column (prediction.FAULTED | prediction.RAMPING).
+        self.consumer: Callable[[np.ndarray], None] | None = None
 
     def start(self, channels: Sequence[str], setup: Setup, started_unix_s: float) -> None:
         """Open the recording (the writer refuses a file another controller holds)."""
@@ -77,19 +80,29 @@ class TelemetryRecorder(Broadcaster):
                     "command_lead_s": setup.law.reference.lead_s, "model_kind": setup.model.kind,
                     "current_A_is": "measured (commanded where a reading is missing)"
                     if CURRENT in channels else "commanded"}
+        predicted = PREDICTED in cols
         tel = Telemetry(self.section["path"], cols, metadata, capacity=int(self.section["buffer_s"] * self.rate_hz),
                         flush_interval_s=self.section["flush_interval_s"], block_when_full=self.simulated,
-                        output_dirs=self.output_dirs)
+                        output_dirs=self.output_dirs, hidden=1 if predicted else 0,
+                        consumer=self._consume if predicted else None)
         if self.writer_priority > 0:          # just below the loop (0 when the loop runs without SCHED_FIFO)
             tel.realtime_priority = self.writer_priority
         self.telemetry = tel
         self._push = tel.push
         self._closed = False
-        self._row = np.zeros(len(cols))
+        self._row = np.zeros(len(cols) + (1 if predicted else 0))
         self._disp, self._force, self._corr = (cols.index(c) if c in cols else -1
                                                for c in (DISPLACEMENT, FORCE, CORRECTION))
-        self._predicted = PREDICTED in cols
+        self._outside = cols.index(OUTSIDE)
+        self._flags = len(cols) if predicted else -1
+        if predicted:     # filled in the writer's thread
+            self._row[cols.index(PREDICTED)] = self._row[cols.index(RESIDUAL)] = np.nan
         tel.start()
+
+    def _consume(self, block: np.ndarray) -> None:
+        consumer = self.consumer
+        if consumer is not None:
+            consumer(block)
 
     def on_setup(self, setup: Setup) -> None:
         self._safe_A = setup.safe_A        # the command a fault tick's row records
@@ -109,18 +122,14 @@ class TelemetryRecorder(Broadcaster):
         row[4] = tick.stress_MPa
         if self._disp >= 0:
             row[self._disp] = tick.displacement_um
-            if self._predicted:
-                row[self._disp + 1] = tick.predicted_um
-                row[self._disp + 2] = tick.residual_um
         if self._force >= 0:
             row[self._force] = tick.inputs.force_N
         if self._corr >= 0:
             row[self._corr] = tick.correction_um
-        row[-1] = tick.outside_model
+        row[self._outside] = tick.outside_model
+        if self._flags >= 0:
+            row[self._flags] = FAULTED if tick.faulted else RAMPING if tick.limited_by == RAMP else 0
         self._push(row)
-        tap = self.tap
-        if tap is not None:
-            tap(row)
 
     def close(self) -> str:
         """Write what is left and close the file; returns the writer's error ('' when none)."""

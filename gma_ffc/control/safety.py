@@ -156,8 +156,10 @@ class Limiter:
             clipped = CURRENT_MIN
         step = target - self.last
         if step > self.max_step or step < -self.max_step:
-            target = self.last + (self.max_step if step > 0 else -self.max_step)
-            clipped = RAMP if self._ramp_ticks > 0 else SLEW
+            stepped = self.last + (self.max_step if step > 0 else -self.max_step)
+            if stepped != target:       # a step one rounding over max_step lands on the target: not limited
+                target = stepped
+                clipped = RAMP if self._ramp_ticks > 0 else SLEW
         if clipped != RAMP:
             self._ramp_ticks = 0
         elif self._ramp_ticks > 0:

@@ -1,7 +1,9 @@
 """Telemetry: every tick as a row of a recording, written off the hot path.
 
 The hot path copies one row into a preallocated ring (`push`, no allocation beyond Python
-floats); a writer thread appends the rows to a CSV recording (docs/recordings.md) and
+floats); a writer thread hands each block of new rows to a `consumer` if there is one (the
+model-fit monitor, which fills its columns in place; the ring may hold `hidden` columns after the
+file's for it), then appends the rows to a CSV recording (docs/recordings.md) and
 flushes + fsyncs at least every `flush_interval_s` (<= 1 s), so a killed process loses at most
 that much. Each flush writes whole lines in one call (the header with the first rows), so the
 file is always a valid recording, at worst with a torn last line that readers report and skip.
@@ -25,7 +27,7 @@ import os
 import threading
 import time
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -39,14 +41,16 @@ class Telemetry:
 
     def __init__(self, path: str | os.PathLike | None, columns: Sequence[str], metadata: dict[str, Any],
                  capacity: int, flush_interval_s: float = 0.5, block_when_full: bool = False,
-                 output_dirs: Sequence[str] = ()) -> None:
+                 output_dirs: Sequence[str] = (), hidden: int = 0,
+                 consumer: Callable[[np.ndarray], None] | None = None) -> None:
         self.path = Path(path) if path is not None else None
         self.output_dirs = tuple(output_dirs)
         self.columns = tuple(columns)
         self.metadata = metadata
         self.ncols = len(self.columns)
         self.capacity = max(16, int(capacity))
-        self.buf = np.zeros((self.capacity, self.ncols))
+        self.buf = np.zeros((self.capacity, self.ncols + hidden))
+        self.consumer = consumer
         self.flush_interval_s = flush_interval_s
         self.block_when_full = block_when_full
         self.realtime_priority = 0
@@ -61,10 +65,19 @@ class Telemetry:
         self._fh: int | None = None      # raw fd: each flush is one write() of whole lines
         self._lock_fd: int | None = None
         self._header_written = False
+        self._keeps = False              # rows are kept: there is a file or a consumer, and a writer thread
 
     def start(self) -> None:
-        if self.path is None:
+        if self.path is not None:
+            self._open()
+        elif self.consumer is None:
             return
+        self._keeps = True
+        self._thread = threading.Thread(target=self._run, name="gma-ffc-telemetry", daemon=True)
+        self._thread.start()
+
+    def _open(self) -> None:
+        assert self.path is not None
         self._lock()
         try:
             self._fh = safe_files.open_for_writing(self.path, self.output_dirs,
@@ -72,8 +85,6 @@ class Telemetry:
         except BaseException:
             self._unlock()
             raise
-        self._thread = threading.Thread(target=self._run, name="gma-ffc-telemetry", daemon=True)
-        self._thread.start()
 
     def _lock(self) -> None:
         """Exclusive, non-blocking lock on FILE.lock; refuse (naming the holder) if taken."""
@@ -104,8 +115,8 @@ class Telemetry:
         self._header_written = True
 
     def push(self, row: np.ndarray) -> None:
-        """Copy one row (length ncols) into the ring; hot path."""
-        if self._fh is None:
+        """Copy one row (the file's columns, then the hidden ones) into the ring; hot path."""
+        if not self._keeps:
             self.head += 1
             return
         if self.head - self.tail >= self.capacity:
@@ -120,8 +131,8 @@ class Telemetry:
                 return
         self.buf[self.head % self.capacity] = row
         self.head += 1
-        if self.block_when_full and self.head - self.tail >= self.capacity // 2:
-            self._wake.set()
+        if self.block_when_full and self.head - self.tail == self.capacity // 2:
+            self._wake.set()          # once as the ring passes half full (an Event.set a push costs ~1 us)
 
     def _run(self) -> None:
         if self.realtime_priority > 0:
@@ -138,17 +149,25 @@ class Telemetry:
 
     def _drain(self) -> None:
         head, tail = self.head, self.tail
-        if self._fh is None or head == tail:
+        if not self._keeps or head == tail:
             return
         idx = np.arange(tail, head) % self.capacity
         block = self.buf[idx]
         self.tail = head
+        if self.consumer is not None:
+            try:
+                self.consumer(block)
+            except Exception as exc:  # noqa: BLE001 - the rows are still written; the status says why
+                self.error = f"model-fit monitor failed on a block of telemetry: {exc}"
+                self.consumer = None
+        if self._fh is None:
+            return
         out = io.StringIO()
         if not self._header_written:     # in the first rows' write: the loop has stamped start_unix_s by then,
             out.write(self._header())    # and a file killed then holds rows under its header or nothing
         fmt = ",".join(["%.9g"] * self.ncols) + "\n"
         write = out.write
-        for values in block.tolist():      # short steps: the loop can take the GIL between rows
+        for values in block[:, :self.ncols].tolist():      # short steps: the loop can take the GIL between rows
             write(fmt % tuple(values))
         try:
             self._write_all(out.getvalue().encode())
@@ -176,8 +195,9 @@ class Telemetry:
         if self._thread is not None:
             self._thread.join(timeout=10.0)
             self._thread = None
+        self._drain()
+        self._keeps = False
         if self._fh is not None:
-            self._drain()
             if not self._header_written:  # a run without a single tick still leaves a valid recording
                 try:
                     self._write_header()

@@ -52,6 +52,8 @@ class Tick:
 class Broadcaster:
     """A part that watches every tick; subclass and override `on_tick` (and `on_setup` if needed)."""
 
+    on_the_loop = True   # False: the part has no `on_tick` and the loop does not call it
+
     def on_setup(self, setup: Any) -> None:
         """The setup (`builder.Setup`) the next ticks use: at the start, and after every reload."""
 

@@ -20,6 +20,8 @@ import signal
 import sys
 from typing import Sequence
 
+from ..control.realtime import LOOP_CPU_ENV
+
 PR_SET_PDEATHSIG = 1      # <linux/prctl.h>
 NICENESS = 19             # the lowest priority there is: the loop and the lab's own work come first
 
@@ -34,9 +36,15 @@ def bind_to_parent(parent_pid: int) -> None:
 
 
 def lower_priority() -> None:
-    """SCHED_OTHER (a real-time policy is never inherited into a diagnosis) at nice 19."""
+    """SCHED_OTHER (a real-time policy is never inherited into a diagnosis) at nice 19, and off
+    the CPU the control loop is pinned to (named by the service: control/realtime.py), when
+    another is allowed."""
     os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     os.setpriority(os.PRIO_PROCESS, 0, NICENESS)
+    loop = os.environ.get(LOOP_CPU_ENV, "")
+    others = os.sched_getaffinity(0) - {int(loop)} if loop.isdigit() else set()
+    if others:
+        os.sched_setaffinity(0, others)
 
 
 def main(argv: Sequence[str]) -> int:
