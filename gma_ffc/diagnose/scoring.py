@@ -91,7 +91,7 @@ def search_all(fitter: Fitter, base: Specs, names: list[str], workers: int) -> d
         partner = cls.joint_with
         if partner is None or partner not in base[2]:
             return search(fitter, base, make, cls.grid(fitter), cls.refine, getattr(cls, "zoom_levels", ZOOM_LEVELS),
-                          cls.polish)
+                          cls.polish, workers)
 
         # look-alikes trade off against each other: re-search the accepted one's value with the new one
         def make_joint(s: Spec, p: Any) -> Spec:
@@ -103,7 +103,7 @@ def search_all(fitter: Fitter, base: Specs, names: list[str], workers: int) -> d
             return out + [(p[0], min(p[1] * m, 1.5)) for m in geom_refine(1.0, 1.6, level)]
 
         grid = [(p, k) for p in cls.grid(fitter) for k in (0.3, 0.55, 0.8, 1.0)]
-        return search(fitter, base, make_joint, grid, refine)
+        return search(fitter, base, make_joint, grid, refine, workers=workers)
 
     n = min(workers, max(len(names), 1))
     if n <= 1:
