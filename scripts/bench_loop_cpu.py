@@ -67,6 +67,12 @@ def main(argv: list[str] | None = None) -> int:
     for name, values in per_tick.items():
         median = statistics.median(values)
         print(f"  {name:<20} median {median:6.2f} us ({median / before:.2f}x before), min {min(values):.2f} us")
+    # A count, so the machine's load cannot move it: the loop thread's Python work per tick (the
+    # monitor's work runs in the telemetry writer's thread, which is not traced; numba's is not counted)
+    work = {name: bench._traced_work(ctrl, args.rate) for name, ctrl in ctrls.items()}
+    print("Python work per tick of the loop thread (sys.settrace; load-independent):")
+    for name, (calls, ops) in work.items():
+        print(f"  {name:<20} {calls:6.1f} calls, {ops:7.1f} bytecodes ({ops / work['before'][1]:.2f}x before)")
     return 0
 
 

@@ -13,7 +13,7 @@ Per variant: period jitter p99 and compute time per tick p50/p99 (the loop's own
 medians over the rounds and as ratios against `off`. The load average is printed beside them:
 the machine is shared, so only the interleaved ratios mean anything.
 
-    .venv/bin/python scripts/bench_monitor.py --rounds 5 --duration 10 [--realtime-priority 50]
+    .venv/bin/python scripts/bench_monitor.py --rounds 5 --duration 10 [--realtime-priority 50] [--telemetry]
 """
 
 from __future__ import annotations
@@ -35,14 +35,14 @@ sys.path.insert(0, str(ROOT))
 VARIANTS = ("off", "monitor", "on", "scraped")
 
 
-def _config(variant: str, duration: float, priority: int) -> Any:
+def _config(variant: str, duration: float, priority: int, telemetry: Path | None = None) -> Any:
     from gma_ffc.control.config import validate_config
 
     data = {"rate_hz": 1000.0, "clock": "real", "model": "unused.yaml", "watchdog_s": 1.0,
             "driver": {"kind": "sim", "load_mass_kg": 15.3},
             "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 25.5, "offset_um": 26.0},
             "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
-            "telemetry": {"path": None}, "scheduler": {"realtime_priority": priority},
+            "telemetry": {"path": str(telemetry) if telemetry else None}, "scheduler": {"realtime_priority": priority},
             "monitor": {"enabled": variant != "off", "window_s": min(30.0, duration / 2), "on_drift": "warn"}}
     if variant == "scraped":
         data["metrics"] = {"port": 0}
@@ -123,11 +123,12 @@ def _scrape(url_of: Any, stop: threading.Event, counts: list[int]) -> None:
         proc.wait()
 
 
-def run_variant(variant: str, model: Any, duration: float, priority: int, child_files: tuple[Path, Path, Path]) -> dict:
+def run_variant(variant: str, model: Any, duration: float, priority: int, child_files: tuple[Path, Path, Path],
+                telemetry: Path | None = None) -> dict:
     from gma_ffc.control.manager import ControllerManager
     from gma_ffc.service.runner import Service
 
-    cfg = _config(variant, duration, priority)
+    cfg = _config(variant, duration, priority, telemetry)
     ctrl = ControllerManager(cfg, model=model)
     svc = Service("bench.yaml", duration_s=duration, load_config=lambda p: cfg, make_controller=lambda c: ctrl,
                   install_signal_handlers=False)
@@ -176,6 +177,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("--duration", type=float, default=10.0, help="seconds per variant per round")
     p.add_argument("--realtime-priority", type=int, default=0)
+    p.add_argument("--telemetry", action="store_true",
+                   help="every variant records its telemetry to a file, as the shipped configs do "
+                        "(default: none, so `off` has no writer thread at all)")
     args = p.parse_args(argv)
     from gma_ffc.sil import cached_sdpi_and_mpi
 
@@ -186,7 +190,8 @@ def main(argv: list[str] | None = None) -> int:
         for r in range(args.rounds):
             order = VARIANTS if r % 2 == 0 else VARIANTS[::-1]       # neither goes first every time
             for v in order:
-                res = run_variant(v, model, args.duration, args.realtime_priority, files)
+                res = run_variant(v, model, args.duration, args.realtime_priority, files,
+                                  Path(tmp) / f"telemetry_{v}_{r}.csv" if args.telemetry else None)
                 results[v].append(res)
                 print(f"round {r + 1} {v:8s} jitter p99 {res['jitter_p99_us']:7.1f} us  compute p50 "
                       f"{res['compute_p50_us']:6.1f} p99 {res['compute_p99_us']:6.1f} us  overruns {res['overruns']:3d}  "
@@ -198,6 +203,15 @@ def main(argv: list[str] | None = None) -> int:
         med = {k: statistics.median(x[k] for x in results[v]) for k in base}
         ratio = "  ".join(f"{k} {med[k]:7.1f} us ({med[k] / base[k]:.2f}x)" for k in base)
         print(f"  {v:8s} {ratio}")
+    # the same figures as ratios within each round (variant / off of that round), so a machine whose
+    # speed drifts between rounds moves both sides of a ratio alike: the median and range of those
+    print("\nratios within each round (median, range):")
+    for v in VARIANTS[1:]:
+        cells = []
+        for k in base:
+            rs = [x[k] / max(o[k], 1e-9) for x, o in zip(results[v], results["off"])]
+            cells.append(f"{k} {statistics.median(rs):.2f}x ({min(rs):.2f}-{max(rs):.2f})")
+        print(f"  {v:8s} " + "  ".join(cells))
     return 0
 
 
