@@ -95,19 +95,24 @@ def test_ticks_and_their_broadcasts_keep_nothing(model, learning, floor_A):
 
     ticks(0, 1000)                       # a learner's first periods set up what it keeps
     # the monitor's writer thread allocates its blocks meanwhile: only what the loop's thread keeps
-    # counts (frames under threading's bootstrap are another thread's)
-    other_threads = [tracemalloc.Filter(False, threading.__file__, all_frames=True)]
-    fnmatch.fnmatch("", threading.__file__)          # the filter's pattern compiled before tracing starts
+    # counts (frames under threading's bootstrap are another thread's; tracemalloc's own are the
+    # snapshots', which grow with the number of traces)
+    others = [tracemalloc.Filter(False, name, all_frames=True) for name in (threading.__file__, tracemalloc.__file__)]
+    for name in (threading.__file__, tracemalloc.__file__):
+        fnmatch.fnmatch("", name)                    # the filters' patterns compiled before tracing starts
+
+    def loop_thread_bytes():
+        return sum(stat.size for stat in tracemalloc.take_snapshot().filter_traces(others).statistics("filename"))
+
     tracemalloc.start(64)
     try:
         ticks(1000, 1000)
-        short = tracemalloc.take_snapshot().filter_traces(other_threads)
+        short = loop_thread_bytes()
         ticks(2000, 10_000)
-        long = tracemalloc.take_snapshot().filter_traces(other_threads)
+        long = loop_thread_bytes()
     finally:
         tracemalloc.stop()
         ctrl.recorder.close()
-    short, long = (sum(st.size for st in snap.statistics("filename")) for snap in (short, long))
     assert long - short < 1024, (short, long)
     watch = next(b for b in ctrl.broadcasters if not b.on_the_loop).watch       # the model-fit monitor, off the loop
     kept = watch.rows.last(1000)          # its writer-thread work ran on those ticks' rows
