@@ -152,17 +152,17 @@ def _row_by_row(model, t, drive, stress, flags, gap_s):
         if int(f) & FAULTED:
             if s == s:
                 pred.after_write(u, s)
-            pred.forget()
+            pred.next_um = math.nan
             out.append(math.nan)
             continue
         if tk - last_t > gap_s:
-            pred.forget()
+            pred.next_um = math.nan
         last_t = tk
         out.append(pred.next_um)
         if s == s:
             pred.after_write(u, s)
         else:
-            pred.forget()
+            pred.next_um = math.nan
     return np.array(out)
 
 

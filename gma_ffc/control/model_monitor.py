@@ -40,7 +40,6 @@ class ModelMonitor(Broadcaster):
         self.period_s = period_s
         self.recorder = recorder
         self.watch: ModelWatch | None = None
-        self._setup: Setup | None = None
         self._prepared: tuple[Setup, Prepared | None] | None = None
 
     # ---- lifecycle (off the loop) ------------------------------------------------------------
@@ -68,7 +67,6 @@ class ModelMonitor(Broadcaster):
         pending, self._prepared = self._prepared, None
         if pending is not None and pending[0] is setup and self.watch is not None:
             self.watch.pending = pending[1]      # adopted before the next block
-        self._setup = setup
         self.cfg = setup.cfg.monitor           # the next run's window (monitor.enabled cannot change)
 
     # ---- reporting (any thread) -----------------------------------------------------------------

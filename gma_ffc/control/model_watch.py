@@ -67,8 +67,6 @@ class ModelWatch:
         self.enabled = bool(monitor_cfg.get("enabled")) and DISPLACEMENT in channels
         self.off_reason = ("monitor.enabled is false" if not monitor_cfg.get("enabled") else
                            "the driver has no displacement channel: nothing to compare the model with")
-        self.predicted_um = math.nan
-        self.residual_um = math.nan
         self.model: Model | None = None
         self.prediction: Prediction | None = None
         self.fit: FitMonitor | None = None
@@ -193,8 +191,6 @@ class ModelWatch:
             residual = block[:, c[DISPLACEMENT]] - predicted
             residual[(flags.astype(np.int64) & RAMPING) != 0] = math.nan     # a ramp's readings are not judged
             block[:, c[RESIDUAL]] = residual
-            if len(block):
-                self.predicted_um, self.residual_um = float(predicted[-1]), float(residual[-1])
         self.rows.push_block(block[:, :len(self.columns)])
 
     # ---- reporting and snapshots (off the loop) ---------------------------------------------------

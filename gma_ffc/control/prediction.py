@@ -67,10 +67,6 @@ class Prediction:
             self.next_um = float(out[-1])
         return out
 
-    def forget(self) -> None:
-        """The next reading cannot be predicted (the output went safe outside the loop's writes)."""
-        self.next_um = math.nan
-
 
 def predict_block(prediction: Prediction, t: np.ndarray, drive: np.ndarray, stress: np.ndarray,
                   flags: np.ndarray, gap_s: float) -> np.ndarray:

@@ -29,8 +29,7 @@ class Tick:
     values (what the state broadcaster reports)."""
 
     __slots__ = ("time_s", "t", "inputs", "reference_um", "command_A", "current_A", "stress_MPa",
-                 "displacement_um", "correction_um", "outside_model", "limited_by", "faulted", "predicted_um",
-                 "residual_um")
+                 "displacement_um", "correction_um", "outside_model", "limited_by", "faulted")
 
     def __init__(self, inputs: Inputs) -> None:
         self.inputs = inputs            # the driver's reading this tick (force, current, displacement)
@@ -45,8 +44,6 @@ class Tick:
         self.outside_model = 0          # OUTSIDE_DRIVE | OUTSIDE_STRESS
         self.limited_by = ""            # safety.NOT_LIMITED or the limit that changed the command
         self.faulted = False            # the tick ended on the fault path
-        self.predicted_um = math.nan    # the model's prediction of this tick's reading (model-fit monitor)
-        self.residual_um = math.nan     # the reading minus it (NaN where not judged, or without a monitor)
 
 
 class Broadcaster:
