@@ -151,7 +151,7 @@ def _row_by_row(model, t, drive, stress, flags, gap_s):
     for tk, u, s, f in zip(t, drive, stress, flags):
         if int(f) & FAULTED:
             if s == s:
-                pred.after_write(u, s)
+                pred.next_um = pred.stepper.step(u, s)
             pred.next_um = math.nan
             out.append(math.nan)
             continue
@@ -160,7 +160,7 @@ def _row_by_row(model, t, drive, stress, flags, gap_s):
         last_t = tk
         out.append(pred.next_um)
         if s == s:
-            pred.after_write(u, s)
+            pred.next_um = pred.stepper.step(u, s)
         else:
             pred.next_um = math.nan
     return np.array(out)
@@ -201,7 +201,7 @@ def test_prediction_is_the_forward_model_one_write_behind():
     ref = model.forward_stepper(1e-3, initial_drive=0.0)
     assert math.isnan(pred.next_um)
     for u in drive:
-        pred.after_write(float(u), -15.0)
+        pred.run(np.array([u]), np.array([-15.0]))
         assert pred.next_um == ref.step(float(u), -15.0)
 
 

@@ -156,9 +156,8 @@ class ModelWatch:
 
     def _replay(self, prediction: Prediction, rows: np.ndarray) -> None:
         d, s = self._col["current_cmd_A"], self._col["stress_MPa"]
-        for drive, stress in zip(rows[:, d].tolist(), rows[:, s].tolist()):
-            if drive == drive and stress == stress:
-                prediction.after_write(drive, stress)
+        ok = np.isfinite(rows[:, d]) & np.isfinite(rows[:, s])
+        prediction.run(rows[ok, d], rows[ok, s])          # the blocks' own stepping, in one call
 
     def adopt(self, prepared: Prepared | None) -> None:
         """Before a block (the writer's thread): step the rows kept since `prepare`, then swap."""

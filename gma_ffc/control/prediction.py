@@ -48,10 +48,6 @@ class Prediction:
         self.next_um = math.nan
         self.last_t = -math.inf
 
-    def after_write(self, drive: float, stress_MPa: float) -> None:
-        """One drive written, under the stress it was written under."""
-        self.next_um = self.stepper.step(drive, stress_MPa)
-
     def run(self, drive: np.ndarray, stress_MPa: np.ndarray) -> np.ndarray:
         """The outputs after each of these writes (all finite), the state moved past them."""
         out = np.empty(drive.size)

@@ -4,9 +4,9 @@ A short GIL switch interval (the loop gets the GIL back quickly from the telemet
 threads), the garbage collector frozen (no long collections of start-up objects), and SCHED_FIFO
 for the loop thread when `scheduler.realtime_priority` asks for it. With SCHED_FIFO the loop
 thread is also pinned to one CPU (`scheduler.loop_cpu`), named in the environment a background
-diagnosis inherits (`LOOP_CPU_ENV`), which keeps the diagnosis off it: on a 2-core lab PC a
-CPU-bound child on the loop's core left its caches cold and raised the compute per tick by about
-a fifth (scripts/bench_monitor.py, variant "on").
+diagnosis inherits (`LOOP_CPU_ENV`), which keeps the diagnosis off it, so a CPU-bound child
+never shares the loop's core and its caches. On the 2-vCPU VM it was measured on, the "on"
+variant of scripts/bench_monitor.py stayed within that bench's noise either way.
 """
 
 from __future__ import annotations
