@@ -78,6 +78,7 @@ class EffectSelector:
     min_removed_noise (0.5)
         An accepted effect takes at least half the noise floor off the held-out RMS: a smaller gain,
         however significant on many samples, is not a residual anyone could see above the noise.
+        With nothing named, the static recalibration alone is kept only on the same terms.
     min_stress_span_MPa (1.0)
         Stress terms (the recalibration's stress gain, stress_dependent_play) are fitted only when
         the recordings' loads span at least this, and loads closer than this count as one level:
@@ -397,13 +398,9 @@ class EffectSelector:
         for a, b in sel.ambiguous:
             cannot.append(f"{a} and {b} explain the held-out data almost equally well; " + decider(a, b))
         if not sel.accepted and final.cv_mse < null.rms_before ** 2:
-            # nothing named: the static recalibration alone is kept only where it generalises, i.e. it
-            # beats the base model on the held-out blocks of every recording (on data with nothing
-            # missing, a recalibration fitted to one recording's quirks makes the next one worse)
-            worse = _recalibration_hurts(fitter, null.base_pred, fit.specs)
-            if worse:
-                cannot.append(f"the static recalibration was left out of the extended model: on held-out "
-                              f"blocks it is worse than the base model on {', '.join(worse)}")
+            doubt = self._recalibration_doubt(problem, fit.specs, math.sqrt(final.cv_mse))
+            if doubt:
+                cannot.append(f"the static recalibration was left out of the extended model: {doubt}")
                 final = dataclasses.replace(base, selection=sel)
         if sel.outside_class and not problem.too_little:
             # the residual is dominated by drive the model's class cannot follow: whatever else fits it, a
@@ -418,6 +415,27 @@ class EffectSelector:
             cannot.insert(0, f"outside the model's class: {sel.outside_class}")
         loo = None if final.base_kept else fitter_loo(problem, sel.fit.specs[2])
         return dataclasses.replace(final, selection=sel, cannot=tuple(cannot), leave_one_out=loo)
+
+    def _recalibration_doubt(self, problem: Problem, specs: Specs, rms_after: float) -> str:
+        """With nothing named, why the static recalibration alone would not hold in another session,
+        or ''. It is kept only where (1) it beats the base on every recording's held-out blocks,
+        (2) by as much as an effect must take off (min_removed_noise), and (3) fitted without each
+        recording, it predicts that one better than the base: held-out blocks of one recording share
+        its drive and loads, and a recalibration fitted to them did not carry to other rates."""
+        worse = _recalibration_hurts(problem.fitter, problem.null.base_pred, specs)
+        if worse:
+            return f"on held-out blocks it is worse than the base model on {', '.join(worse)}"
+        removed = problem.null.rms_before - rms_after
+        if removed < self.min_removed_noise * problem.noise:
+            return (f"it takes {removed:.2g} um off the base's held-out RMS, less than "
+                    f"{self.min_removed_noise:g}x the noise floor ({problem.noise:.2g} um)")
+        if len(problem.data) < 2:
+            return ("fitted to one recording, it cannot be shown to hold in another session; give two or more "
+                    "(another load, rate or drive shape) and it is kept where it predicts each one left out")
+        worse = _recalibration_fails_left_out(problem, specs[2])
+        if worse:
+            return f"fitted without {', '.join(worse)}, it predicts it worse than the base model"
+        return ""
 
 
 def _swapped(fitter: Fitter, sel: Selection, name: str, by: str, res: SearchResult) -> Selection:
@@ -446,6 +464,21 @@ def _recalibration_hurts(fitter: Fitter, base_pred: Sequence[Any], specs: Specs)
     for d, yb, idx, (ra, rb) in zip(fitter.data, base_pred, rows, fitter.rows_ab):
         base_r = np.concatenate([(d.y - yb)[ra], (d.y - yb)[rb]])
         if float(held_out[idx] @ held_out[idx]) > float(base_r @ base_r):
+            worse.append(d.name)
+    return worse
+
+
+def _recalibration_fails_left_out(problem: Problem, spec: Spec) -> list[str]:
+    """Recordings the spec, fitted on the others (`Fitter.left_out`), predicts worse than the base
+    model does; each with its own sensor zero, as the left-out fit has."""
+    import numpy as np
+
+    fitter = problem.fitter
+    worse = []
+    for d, yb, part, (ra, rb) in zip(fitter.data, problem.null.base_pred, fitter.left_out(spec), fitter.rows_ab):
+        base_r = np.concatenate([(d.y - yb)[ra], (d.y - yb)[rb]])
+        base_r = base_r - base_r.mean() if base_r.size else base_r
+        if part.sse > float(base_r @ base_r):
             worse.append(d.name)
     return worse
 

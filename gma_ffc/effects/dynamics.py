@@ -11,7 +11,7 @@ the model's stress transform (`seen_stress`, called before the core). Blocks wit
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping, Sequence
 
 import numpy as np
 
@@ -22,6 +22,9 @@ from .base import (BatchSignals, EffectBase, FitData, Regressors, SignatureCheck
                    positive)
 
 MAX_ZETA = 0.5   # a resonance must peak; heavier damping is a lag/delay look-alike and is left to those
+LAW_SPREAD = (0.05, 0.15, 0.5, 1.5, 5.0)   # moving masses tried from a load-independent resonance, in units
+                                           # of the loads' stress extent: from a load that dwarfs the fixture
+                                           # (frequency ratio 0.22 end to end) to one that barely moves it (0.91)
 TOP_OF_NYQUIST = 0.8   # the highest resonance searched, as a fraction of the Nyquist frequency: above
                        # it a few samples per period cannot show a peak, only a lag
 
@@ -100,12 +103,12 @@ class Dynamics(EffectBase):
 
     @classmethod
     def refine(cls, fitter: FitData, p: Any, level: int) -> list[tuple[float, float, float]]:
-        """Zoom on (resonance at the lightest load, damping, frequency ratio heaviest/lightest load)."""
+        """Zoom on (resonance frequency, damping, load law). The load law moves in its physical
+        parameter, the moving mass at the least compressive load in stress units (`_mass_stress`),
+        with the resonance held where the data show it: at the stress where the drive excites it
+        most (`_stress_excited`), or at either end (the fast drive may sit at one load only). Held
+        at the least compressive end alone, frequency and law trade off along a narrow valley."""
         fr, z, b = p
-        ratio = _load_ratio(fitter, b)          # f(most compressive) / f(least compressive)
-
-        def point(f_top: float, zeta: float, rat: float) -> tuple[float, float, float]:
-            return _point(fitter, f_top, zeta, rat)
 
         # steps halve per level (not a third): a sharp resonance's damping and load law are coupled to its
         # frequency, and the grid's coarse frequency first pins the damping far from its value
@@ -113,33 +116,47 @@ class Dynamics(EffectBase):
             step = 2.0 ** -level
             return [ratio_ ** (e * step) for e in (-2.0, -1.0, 1.0, 2.0)]
 
-        out = [point(fr * k, z, ratio) for k in near(1.4)]
-        out += [point(fr, z * k, ratio) for k in near(2.4)]
+        ratio = 1.0 / math.sqrt(1.0 + b * _stress_extent(fitter))     # the law kept: its end-to-end ratio
+        out = [_point(fitter, fr * k, z, ratio) for k in near(1.4)]
+        out += [_point(fitter, fr, z * k, ratio) for k in near(2.4)]
         # diagonal moves: frequency and damping trade off along a narrow valley near a sharp resonance
-        out += [point(fr * a, z * c, ratio) for a in near(1.4)[1:3] for c in near(2.4)[1:3]]
+        out += [_point(fitter, fr * a, z * c, ratio) for a in near(1.4)[1:3] for c in near(2.4)[1:3]]
         if fitter.stress_varies:
-            out += [point(fr * math.sqrt(ratio / min(ratio * k, 1.0)), z, ratio * k) for k in near(1.5)]
-            out += [point(fr, z, ratio * k) for k in near(1.5)]       # the lightest load's resonance kept
-            if b == 0.0:
-                # load-dependent resonance: spread the ends apart keeping the geometric-mean frequency, or the
-                # frequency at either end (the fast drive that shows the resonance may sit at one load only)
-                out += [point(fr * k, z, r) for r in (0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3)
-                        for k in (1.0 / math.sqrt(r), 1.0, 1.0 / r)]
+            s0 = _mass_stress(b)
+            excited = _stress_excited(fitter)
+            # the whole range of moving masses at every level, the frequency held where the drive
+            # excites it: a sharp resonance's law shows only once its frequency and damping are
+            # close, which the grid's coarse steps are not
+            spread = [_stress_extent(fitter) * k for k in LAW_SPREAD] + [math.inf]
+            ends = (fitter.stress_top, fitter.stress_bottom)
+
+            def law(held: float, masses: Sequence[float]) -> list[tuple[float, float, float]]:
+                return [_point_held(fitter, _f_at(fr, b, fitter.stress_top, held), held, z, m) for m in masses]
+
+            out += law(excited, spread)
+            if math.isinf(s0):      # from the grid's point, the frequency also held at either end (the fast
+                for held in ends:   # drive may sit at one load only)
+                    out += law(held, spread)
+            else:                   # from a law, a zoom on its mass
+                for held in (excited,) + ends:
+                    out += law(held, [s0 * k for k in near(3.0)])
         return out
 
     @classmethod
     def polish(cls, fitter: FitData, p: Any) -> tuple[int, Callable[[np.ndarray], Any]]:
         """The zoom leaves the damping of a sharp resonance a few percent off, and its residual
-        ringing is then several times the noise: a local search over log(frequency), log(damping)
-        and, when the load varies, log(frequency ratio) finishes the job."""
+        ringing is then several times the noise: a local search over log(frequency where the drive
+        excites it), log(damping) and, for a load law, log(moving mass) finishes the job."""
         fr, z, b = p
-        ratio = _load_ratio(fitter, b)
+        held = _stress_excited(fitter)
+        f_held, s0 = _f_at(fr, b, fitter.stress_top, held), _mass_stress(b)
+        law = fitter.stress_varies and not math.isinf(s0)
 
         def at(x: np.ndarray) -> tuple[float, float, float]:
             k = np.exp(np.clip(x, -0.7, 0.7))
-            return _point(fitter, fr * k[0], z * k[1], ratio * k[2] if k.size > 2 else ratio)
+            return _point_held(fitter, f_held * k[0], held, z * k[1], s0 * k[2] if law else s0)
 
-        return (3 if fitter.stress_varies else 2), at
+        return (3 if law else 2), at
 
     @classmethod
     def signature(cls, check: SignatureCheck) -> SignatureFailure | None:
@@ -197,9 +214,39 @@ class Dynamics(EffectBase):
         return txt
 
 
-def _load_ratio(fitter: FitData, beta: float) -> float:
-    """f(most compressive) / f(least compressive) of a resonance law with `beta`."""
-    return 1.0 / math.sqrt(1.0 + beta * _stress_extent(fitter))
+def _mass_stress(beta: float) -> float:
+    """The load law's physical parameter: the moving mass (load, fixture and rod) at the least
+    compressive load, as the stress its weight puts on the rod, m g / A in MPa (`rod_load`:
+    beta = 1 / it); infinite for a resonance that does not move with the load."""
+    return math.inf if beta <= 0.0 else 1.0 / beta
+
+
+def _f_at(f_top: float, beta: float, stress_top: float, stress: float) -> float:
+    """The law's resonance at a static stress, from the one at the least compressive load."""
+    return f_top / math.sqrt(1.0 + beta * (stress_top - stress))
+
+
+def _point_held(fitter: FitData, f_held: float, held: float, zeta: float, mass_stress: float
+                ) -> tuple[float, float, float]:
+    """The parameter point whose resonance at the static stress `held` is `f_held`, with a moving
+    mass of `mass_stress` (m g / A, MPa) at the least compressive load."""
+    beta = 0.0 if math.isinf(mass_stress) else 1.0 / max(mass_stress, 1e-9)
+    f_top = f_held * math.sqrt(1.0 + beta * (fitter.stress_top - held))
+    ratio = 1.0 / math.sqrt(1.0 + beta * _stress_extent(fitter))
+    return _point(fitter, f_top, zeta, ratio)
+
+
+def _stress_excited(fitter: FitData) -> float:
+    """The static stress at which the drive excites a resonance most: its mean weighted by the
+    drive's squared rate (a resonance answers a drive's fast part). The data pin the resonance's
+    frequency there; the load law then only moves it elsewhere."""
+    num = den = 0.0
+    for d in fitter.data:
+        w = np.square(np.diff(d.u) / d.dt[1:]) if d.u.size > 1 else np.zeros(0)
+        num += float(w @ fitter.static_stress(d)[1:])
+        den += float(w.sum())
+    s = num / den if den > 0 else fitter.stress_ref
+    return min(max(s, fitter.stress_bottom), fitter.stress_top)
 
 
 def _point(fitter: FitData, f_top: float, zeta: float, ratio: float) -> tuple[float, float, float]:
