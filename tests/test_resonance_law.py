@@ -37,3 +37,15 @@ def test_the_resonance_law_carries_to_a_load_the_diagnosis_never_held():
     # 5 %: the damping ratio is 0.2, so a 5 % frequency error moves the response near the peak by
     # about a quarter of its height; the law fitted before this test's fix was 11 % off
     assert f_heavy == pytest.approx(plant.resonance_hz(HEAVY_KG), rel=0.05)
+
+
+@pytest.mark.slow
+def test_a_resonance_beside_eddy_currents_is_named_once_a_lag_is_in_the_model():
+    """Eddy currents and a resonance together: the resonance's first fit runs to a lag's damping (its
+    signature fails), and a delay stands in for the lag and part of the resonance. Once the delay is
+    in the model, the resonance is tried again, with the delay re-searched beside it, and named."""
+    case = {c.name: c for c in general_cases()}["gen:rate_dependence+mechanical_dynamics"]
+    model, ident, rec = case_recordings(case, scale=0.5)
+    dg = diagnose(model, [rec], identification=ident)
+    assert "mechanical_dynamics" in dg.verdict
+    assert dg.rms_after_um < 0.2 * dg.rms_before_um

@@ -88,8 +88,8 @@ def search_all(fitter: Fitter, base: Specs, names: list[str], workers: int) -> d
         def make(s: Spec, p: Any) -> Spec:
             return s.with_(name, p)
 
-        partner = cls.joint_with
-        if partner is None or partner not in base[2]:
+        partner = next((p for p in cls.joint_with if p in base[2]), None)
+        if partner is None:
             return search(fitter, base, make, cls.grid(fitter), cls.refine, getattr(cls, "zoom_levels", ZOOM_LEVELS),
                           cls.polish, workers)
 

@@ -8,6 +8,8 @@ Selection is greedy and forward: each round fits every untried effect of the reg
 The best is accepted only if it (1) lowers the held-out loss by a clear margin, (2) wins a
 penalised held-out likelihood test with the residual's effective sample count, (3) removes a
 residual above the noise floor measured from the data, and (4) passes its own signature check.
+A winner that fails its signature is set aside, and tried again once another effect is accepted:
+a resonance beside eddy currents first fits as a lag, and shows its peak once a lag is in the model.
 The null model every effect must beat is the base model with a static recalibration (gain,
 offset, curvature, stress gain, loop width): ordinary model error of that kind is never called
 an effect. With two or more accepted, a swap pass asks whether each is still the best choice for
@@ -211,7 +213,8 @@ class EffectSelector:
         sel = dataclasses.replace(sel, trials={**sel.trials, **{t.effect: t for t in trials}})
         best = trials[0]
         ok = self.accepts(best, sel.cur_loss, problem.noise)
-        # signature checks: a winner without its effect's signature is dropped, and the next one checked
+        # signature checks: a winner without its effect's signature is set aside, and the next one checked;
+        # once another effect is accepted, it is tried again on top of it
         while ok:
             failure = REGISTRY[best.effect].signature(
                 SignatureCheck(problem.fitter, problem.model, sel.fit.specs, best.result, dict(best.params),
@@ -223,9 +226,11 @@ class EffectSelector:
                 if not why:
                     break
                 failure = SignatureFailure(why)
-            sel = sel.with_reason(best.effect, failure.reason, testable=False)
             if failure.outside_class:
-                sel = dataclasses.replace(sel, outside_class=failure.reason)
+                sel = dataclasses.replace(sel.with_reason(best.effect, failure.reason, testable=False),
+                                          outside_class=failure.reason)
+            else:
+                sel = sel.aside(best.effect, failure.reason)
             trials = trials[1:]
             if not trials:
                 return sel, False
@@ -242,7 +247,7 @@ class EffectSelector:
                 best.loglik_gain - trials[1].loglik_gain < self.ambiguous_nats:
             ambiguous += ((best.effect, trials[1].effect),)
         runner = runner_up_note(best, trials[1]) if rnd == 1 and len(trials) > 1 else sel.runner_note
-        return dataclasses.replace(sel, accepted=sel.accepted + (best.effect,), fit=best.result,
+        return dataclasses.replace(sel.readmitted(), accepted=sel.accepted + (best.effect,), fit=best.result,
                                    ambiguous=ambiguous, runner_note=runner,
                                    leave_one_out=fitter_loo(problem, best.result.specs[2])), True
 

@@ -108,6 +108,7 @@ class Selection:
     cannot: tuple[str, ...] = ()                    # what cannot be concluded, found by the selection's steps
     leave_one_out: LeaveOneOut | None = None        # the current model, each recording fitted without it
     null_leave_one_out: LeaveOneOut | None = None   # the null model's (None: one recording, or too little data)
+    set_aside: Mapping[str, str] = field(default_factory=dict)  # failed a check this round: its reason before
 
     @property
     def cur_cv(self) -> float:
@@ -122,6 +123,17 @@ class Selection:
         tested = self.testable if testable is None else (
             self.testable | {effect} if testable else self.testable - {effect})
         return replace(self, reasons={**self.reasons, effect: reason}, testable=tested)
+
+    def aside(self, effect: str, reason: str) -> "Selection":
+        """`effect` failed a check on top of the current model: not tried again until another effect is
+        accepted (a resonance's fit that ran to a lag's damping may peak once the lag is in the model)."""
+        return replace(self.with_reason(effect, reason, testable=False),
+                       set_aside={**self.set_aside, effect: self.reasons.get(effect, "")})
+
+    def readmitted(self) -> "Selection":
+        """The effects set aside, testable again with the reasons they had (the model has changed)."""
+        return replace(self, testable=self.testable | frozenset(self.set_aside),
+                       reasons={**self.reasons, **self.set_aside}, set_aside={})
 
 
 @dataclass(frozen=True)

@@ -226,7 +226,7 @@ class Effect(Protocol):
     follows_drive: ClassVar[bool]           # True: a function of the drive loop, pinned by the base's own
                                             # identification loops (`diagnose.anchor`); False: a disturbance
                                             # or slow state, held at its reference on those loops
-    joint_with: ClassVar[str | None]        # a look-alike whose parameter is re-searched with this one
+    joint_with: ClassVar[tuple[str, ...]]   # look-alikes: the first accepted has its parameter re-searched with this one
     deciders: ClassVar[Mapping[str, str]]   # per look-alike: the experiment that tells the two apart
     transforms_stress: ClassVar[bool]       # True: it supplies the stress the core (and every stage) sees
     shapes_core: ClassVar[bool]             # True: its parameter changes the core itself (`fit_core`)
@@ -354,7 +354,7 @@ class EffectBase:
     candidate: ClassVar[bool] = True
     slow: ClassVar[bool] = False
     follows_drive: ClassVar[bool] = False
-    joint_with: ClassVar[str | None] = None
+    joint_with: ClassVar[tuple[str, ...]] = ()
     deciders: ClassVar[Mapping[str, str]] = {}
     transforms_stress: ClassVar[bool] = False
     shapes_core: ClassVar[bool] = False

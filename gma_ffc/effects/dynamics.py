@@ -48,6 +48,9 @@ class Dynamics(EffectBase):
         "as one constant mass and the resonance as fixed")
     n_params: ClassVar[int] = 3
     transforms_stress: ClassVar[bool] = True     # the model sees the load's static stress (rod_load)
+    # a lag or delay already in the model takes the resonance's phase too (a delay stood in for eddy
+    # currents and a resonance together): it is re-searched, scaled down, with the resonance
+    joint_with: ClassVar[tuple[str, ...]] = ("time_delay", "rate_dependence")
     # a sharp resonance needs its frequency, damping and load law to about a percent (steps halve per level)
     zoom_levels: ClassVar[int] = 6
     deciders: ClassVar[Mapping[str, str]] = {
