@@ -3,6 +3,8 @@
 real clock, in three variants interleaved in one process, round after round:
 
   off      monitor.enabled: false, no metrics
+  off-again  the same as `off`, run again: its ratio to `off` is the bench's own spread (an A/A
+           control), against which the others' ratios are read
   monitor  the monitor (prediction, fit monitor, recent rows), nothing else
   on       the monitor, and a real `gma-ffc diagnose` child running throughout (nice 19,
            SCHED_OTHER, as the service starts it)
@@ -32,7 +34,8 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-VARIANTS = ("off", "monitor", "on", "scraped")
+VARIANTS = ("off", "off-again", "monitor", "on", "scraped")
+OFF = ("off", "off-again")      # the same service twice: their ratio is what the bench itself resolves
 
 
 def _config(variant: str, duration: float, priority: int, telemetry: Path | None = None) -> Any:
@@ -43,7 +46,7 @@ def _config(variant: str, duration: float, priority: int, telemetry: Path | None
             "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 25.5, "offset_um": 26.0},
             "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
             "telemetry": {"path": str(telemetry) if telemetry else None}, "scheduler": {"realtime_priority": priority},
-            "monitor": {"enabled": variant != "off", "window_s": min(30.0, duration / 2), "on_drift": "warn"}}
+            "monitor": {"enabled": variant not in OFF, "window_s": min(30.0, duration / 2), "on_drift": "warn"}}
     if variant == "scraped":
         data["metrics"] = {"port": 0}
     return validate_config(data)
@@ -138,7 +141,7 @@ def run_variant(variant: str, model: Any, duration: float, priority: int, child_
     if variant == "scraped":
         scraper.start()
     try:
-        if variant in ("off", "monitor"):
+        if variant in OFF + ("monitor",):
             svc.run()
             runs = 0
         else:

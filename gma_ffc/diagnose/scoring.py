@@ -102,7 +102,7 @@ def search_all(fitter: Fitter, base: Specs, names: list[str], workers: int) -> d
             out = [(q, p[1]) for q in own] if own is not None else []
             return out + [(p[0], min(p[1] * m, 1.5)) for m in geom_refine(1.0, 1.6, level)]
 
-        grid = [(p, k) for p in cls.grid(fitter) for k in (0.3, 0.55, 0.8, 1.0)]
+        grid = [(p, k) for p in cls.grid(fitter) for k in cls.joint_scales]
         return search(fitter, base, make_joint, grid, refine, workers=workers)
 
     n = min(workers, max(len(names), 1))

@@ -227,6 +227,7 @@ class Effect(Protocol):
                                             # identification loops (`diagnose.anchor`); False: a disturbance
                                             # or slow state, held at its reference on those loops
     joint_with: ClassVar[tuple[str, ...]]   # look-alikes: the first accepted has its parameter re-searched with this one
+    joint_scales: ClassVar[tuple[float, ...]]   # the grid's scales of that parameter (the zoom refines them)
     deciders: ClassVar[Mapping[str, str]]   # per look-alike: the experiment that tells the two apart
     transforms_stress: ClassVar[bool]       # True: it supplies the stress the core (and every stage) sees
     shapes_core: ClassVar[bool]             # True: its parameter changes the core itself (`fit_core`)
@@ -355,6 +356,7 @@ class EffectBase:
     slow: ClassVar[bool] = False
     follows_drive: ClassVar[bool] = False
     joint_with: ClassVar[tuple[str, ...]] = ()
+    joint_scales: ClassVar[tuple[float, ...]] = (0.3, 0.55, 0.8, 1.0)   # the look-alike's parameter, scaled
     deciders: ClassVar[Mapping[str, str]] = {}
     transforms_stress: ClassVar[bool] = False
     shapes_core: ClassVar[bool] = False

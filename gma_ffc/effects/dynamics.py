@@ -51,6 +51,7 @@ class Dynamics(EffectBase):
     # a lag or delay already in the model takes the resonance's phase too (a delay stood in for eddy
     # currents and a resonance together): it is re-searched, scaled down, with the resonance
     joint_with: ClassVar[tuple[str, ...]] = ("time_delay", "rate_dependence")
+    joint_scales: ClassVar[tuple[float, ...]] = (0.5, 1.0)   # two, not four: its grid is 90 points already
     # a sharp resonance needs its frequency, damping and load law to about a percent (steps halve per level)
     zoom_levels: ClassVar[int] = 6
     deciders: ClassVar[Mapping[str, str]] = {
@@ -125,24 +126,7 @@ class Dynamics(EffectBase):
         # diagonal moves: frequency and damping trade off along a narrow valley near a sharp resonance
         out += [_point(fitter, fr * a, z * c, ratio) for a in near(1.4)[1:3] for c in near(2.4)[1:3]]
         if fitter.stress_varies:
-            s0 = _mass_stress(b)
-            excited = _stress_excited(fitter)
-            # the whole range of moving masses at every level, the frequency held where the drive
-            # excites it: a sharp resonance's law shows only once its frequency and damping are
-            # close, which the grid's coarse steps are not
-            spread = [_stress_extent(fitter) * k for k in LAW_SPREAD] + [math.inf]
-            ends = (fitter.stress_top, fitter.stress_bottom)
-
-            def law(held: float, masses: Sequence[float]) -> list[tuple[float, float, float]]:
-                return [_point_held(fitter, _f_at(fr, b, fitter.stress_top, held), held, z, m) for m in masses]
-
-            out += law(excited, spread)
-            if math.isinf(s0):      # from the grid's point, the frequency also held at either end (the fast
-                for held in ends:   # drive may sit at one load only)
-                    out += law(held, spread)
-            else:                   # from a law, a zoom on its mass
-                for held in (excited,) + ends:
-                    out += law(held, [s0 * k for k in near(3.0)])
+            out += _law_moves(fitter, p, near(3.0))
         return out
 
     @classmethod
@@ -215,6 +199,32 @@ class Dynamics(EffectBase):
         if "f_at_most_compressive_hz" in params:
             txt += f" that moves down to {params['f_at_most_compressive_hz']:.4g} Hz at the most compressive load"
         return txt
+
+
+def _law_moves(fitter: FitData, p: tuple[float, float, float], zoom: Sequence[float]
+               ) -> list[tuple[float, float, float]]:
+    """The load law's moves from point p: the whole range of moving masses at every level, the
+    frequency held where the drive excites it (a sharp resonance's law shows only once its frequency
+    and damping are close, which the grid's coarse steps are not); from the grid's load-independent
+    point also held at either end (the fast drive may sit at one load only); from a law, a zoom by
+    the factors `zoom` on its mass, held at any of the three."""
+    fr, z, b = p
+    s0 = _mass_stress(b)
+    excited = _stress_excited(fitter)
+    spread = [_stress_extent(fitter) * k for k in LAW_SPREAD] + [math.inf]
+    ends = (fitter.stress_top, fitter.stress_bottom)
+
+    def law(held: float, masses: Sequence[float]) -> list[tuple[float, float, float]]:
+        return [_point_held(fitter, _f_at(fr, b, fitter.stress_top, held), held, z, m) for m in masses]
+
+    out = law(excited, spread)
+    if math.isinf(s0):
+        for held in ends:
+            out += law(held, spread)
+    else:
+        for held in (excited,) + ends:
+            out += law(held, [s0 * k for k in zoom])
+    return out
 
 
 def _mass_stress(beta: float) -> float:
