@@ -459,15 +459,21 @@ def _name_nothing(sel: Selection) -> Selection:
     return dataclasses.replace(sel, accepted=(), ambiguous=())
 
 
-def _recalibration_hurts(fitter: Fitter, base_pred: Sequence[Any], specs: Specs) -> list[str]:
-    """Recordings on whose held-out blocks the selected (recalibrated) model does worse than the base."""
+def _base_residuals(fitter: Fitter, base_pred: Sequence[Any]) -> list[Any]:
+    """Per recording, the base model's residual on its scored rows, fold A's then fold B's (the order
+    of the fitter's rows)."""
     import numpy as np
 
+    return [np.concatenate([(d.y - yb)[ra], (d.y - yb)[rb]]) for d, yb, (ra, rb) in
+            zip(fitter.data, base_pred, fitter.rows_ab)]
+
+
+def _recalibration_hurts(fitter: Fitter, base_pred: Sequence[Any], specs: Specs) -> list[str]:
+    """Recordings on whose held-out blocks the selected (recalibrated) model does worse than the base."""
     held_out = fitter.test_residuals(specs)
     rows = fitter.row_blocks()                      # per recording: (fold A rows, fold B rows) in held_out
     worse = []
-    for d, yb, idx, (ra, rb) in zip(fitter.data, base_pred, rows, fitter.rows_ab):
-        base_r = np.concatenate([(d.y - yb)[ra], (d.y - yb)[rb]])
+    for d, idx, base_r in zip(fitter.data, rows, _base_residuals(fitter, base_pred)):
         if float(held_out[idx] @ held_out[idx]) > float(base_r @ base_r):
             worse.append(d.name)
     return worse
@@ -476,12 +482,9 @@ def _recalibration_hurts(fitter: Fitter, base_pred: Sequence[Any], specs: Specs)
 def _recalibration_fails_left_out(problem: Problem, spec: Spec) -> list[str]:
     """Recordings the spec, fitted on the others (`Fitter.left_out`), predicts worse than the base
     model does; each with its own sensor zero, as the left-out fit has."""
-    import numpy as np
-
     fitter = problem.fitter
     worse = []
-    for d, yb, part, (ra, rb) in zip(fitter.data, problem.null.base_pred, fitter.left_out(spec), fitter.rows_ab):
-        base_r = np.concatenate([(d.y - yb)[ra], (d.y - yb)[rb]])
+    for d, part, base_r in zip(fitter.data, fitter.left_out(spec), _base_residuals(fitter, problem.null.base_pred)):
         base_r = base_r - base_r.mean() if base_r.size else base_r
         if part.sse > float(base_r @ base_r):
             worse.append(d.name)

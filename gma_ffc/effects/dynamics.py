@@ -120,7 +120,7 @@ class Dynamics(EffectBase):
             step = 2.0 ** -level
             return [ratio_ ** (e * step) for e in (-2.0, -1.0, 1.0, 2.0)]
 
-        ratio = 1.0 / math.sqrt(1.0 + b * _stress_extent(fitter))     # the law kept: its end-to-end ratio
+        ratio = _load_ratio(fitter, b)          # the law kept: f(most compressive) / f(least compressive)
         out = [_point(fitter, fr * k, z, ratio) for k in near(1.4)]
         out += [_point(fitter, fr, z * k, ratio) for k in near(2.4)]
         # diagonal moves: frequency and damping trade off along a narrow valley near a sharp resonance
@@ -227,6 +227,11 @@ def _law_moves(fitter: FitData, p: tuple[float, float, float], zoom: Sequence[fl
     return out
 
 
+def _load_ratio(fitter: FitData, beta: float) -> float:
+    """f(most compressive) / f(least compressive) of a resonance law with `beta`."""
+    return 1.0 / math.sqrt(1.0 + beta * _stress_extent(fitter))
+
+
 def _mass_stress(beta: float) -> float:
     """The load law's physical parameter: the moving mass (load, fixture and rod) at the least
     compressive load, as the stress its weight puts on the rod, m g / A in MPa (`rod_load`:
@@ -245,8 +250,7 @@ def _point_held(fitter: FitData, f_held: float, held: float, zeta: float, mass_s
     mass of `mass_stress` (m g / A, MPa) at the least compressive load."""
     beta = 0.0 if math.isinf(mass_stress) else 1.0 / max(mass_stress, 1e-9)
     f_top = f_held * math.sqrt(1.0 + beta * (fitter.stress_top - held))
-    ratio = 1.0 / math.sqrt(1.0 + beta * _stress_extent(fitter))
-    return _point(fitter, f_top, zeta, ratio)
+    return _point(fitter, f_top, zeta, _load_ratio(fitter, beta))
 
 
 def _stress_excited(fitter: FitData) -> float:
