@@ -151,7 +151,9 @@ class Fitter:
         # the effects as registered now, in signal-path order: input-side ones change the core input
         self.effects: list[type[Effect]] = [c for c in path_order() if c.candidate]
         self._inputs = [c for c in self.effects if c.stage == "input"]
-        self._core_fx = [c for c in self.effects if c.shapes_core]     # effects that reshape the core
+        # the identification loops first: an effect may reshape the core only where they are given
+        self.identification = [d for d in self.anchor if d.extra.get("anchor_rule") == "estimate"]
+        self._core_fx = [c for c in self.effects if c.reshapes(self)]  # effects that reshape the core
         # an effect that supplies the stress the model sees (the rod_load dynamics: the load's static
         # stress, the load cell's inertial force filtered out); per recording raw (it sets the
         # resonance) and clamped (the core's)
@@ -196,8 +198,6 @@ class Fitter:
         self._anchor_slices = [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]   # per loop, in its rows
         self.anchor_on = False
         self._anchor_tol = np.full(len(self.anchor), math.nan)
-        # the measured identification loops (`diagnose --ident`), on which the core may be identified again
-        self.identification = [d for d in self.anchor if d.extra.get("anchor_rule") == "estimate"]
         self._identified: dict[Any, Any] = {}
         self._identify_lock = threading.Lock()
 
@@ -238,17 +238,20 @@ class Fitter:
     def identification_levels(self) -> list[float]:
         return stress_levels(self.identification, gap_MPa=self.settings.min_stress_span_MPa)
 
-    def identified_core(self, loop_width: tuple[float, float] | None = None) -> Any:
+    def identified_core(self, loop_width: tuple[float, float] | None = None,
+                        creep: tuple[float, float] | None = None) -> Any:
         """The base identified again on the measured identification loops by its own settings (with
-        a loop width that follows stress when given), once per setting; None without those loops
-        (`diagnose --ident`) or when the fit fails."""
+        a loop width that follows stress, or through a creep, when given), once per setting; None
+        without those loops (`diagnose --ident`) or when the fit fails."""
         if not self.identification:
             return None
-        key = None if loop_width is None else (float(loop_width[0]), float(loop_width[1]))
+        width = None if loop_width is None else (float(loop_width[0]), float(loop_width[1]))
+        through = None if creep is None else (float(creep[0]), float(creep[1]))
         with self._identify_lock:
-            if key not in self._identified:
-                self._identified[key] = identify_on(self.model, self.identification, loop_width=key)
-            return self._identified[key]
+            if (width, through) not in self._identified:
+                self._identified[(width, through)] = identify_on(self.model, self.identification,
+                                                                 loop_width=width, creep=through)
+            return self._identified[(width, through)]
 
     def plain_core(self, spec: Spec) -> Any:
         """The core the spec's extended model is built on: the given one, or the one an effect that

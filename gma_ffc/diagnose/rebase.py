@@ -17,6 +17,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import InputError, ModelError
+from ..effects.creep import creep_inverse
 from ..identify import SDPIIdentifier
 from ..model import SDPIModel
 from ..recordings import Recording
@@ -36,11 +37,13 @@ def reidentify_through(model: Any, inputs: Sequence[Any], loops: Sequence[RecDat
 
 
 def identify_on(model: Any, loops: Sequence[RecData], inputs: Sequence[Any] = (),
-                loop_width: tuple[float, float] | None = None) -> SDPIModel | None:
+                loop_width: tuple[float, float] | None = None,
+                creep: tuple[float, float] | None = None) -> SDPIModel | None:
     """The core identified again on `loops` by the base's own settings (`provenance.settings`), the
     drive passed through the input-side effects `inputs` first, with a loop width that follows
-    stress when `loop_width` is given (`SDPIIdentifier.loop_width`); None when the model is not one
-    `gma-ffc identify` wrote or the fit fails."""
+    stress when `loop_width` is given (`SDPIIdentifier.loop_width`), and the displacement taken back
+    through a creep (gain, tau s) when `creep` is given (the core is what creeps); None when the
+    model is not one `gma-ffc identify` wrote or the fit fails."""
     if not loops or not isinstance(model, SDPIModel) or "fit_stress_MPa" not in model.provenance:
         return None
     if loop_width is not None and model.stress_range_MPa is None:
@@ -51,7 +54,8 @@ def identify_on(model: Any, loops: Sequence[RecData], inputs: Sequence[Any] = ()
         u3 = d.u
         for eff in inputs:
             u3 = eff.apply_input(u3, d.dt, d.dt_med, float(u3[0]))
-        cols = {"time_s": d.t, model.drive_name: np.ascontiguousarray(u3), "displacement_um": d.y}
+        y = d.y if creep is None else creep_inverse(d.y, d.dt, creep[0], creep[1])
+        cols = {"time_s": d.t, model.drive_name: np.ascontiguousarray(u3), "displacement_um": y}
         if model.stress_range_MPa is not None:
             cols["stress_MPa"] = d.s
         recs.append(Recording(cols, {}, d.name))
@@ -73,6 +77,8 @@ def identify_on(model: Any, loops: Sequence[RecData], inputs: Sequence[Any] = ()
         note["identified_through"] = [k for eff in inputs for k in eff.to_blocks()]
     if loop_width is not None:
         note["loop_width"] = [float(v) for v in loop_width]
+    if creep is not None:
+        note["creep"] = [float(v) for v in creep]
     return dataclasses.replace(core, drive_range=model.drive_range, drive_name=model.drive_name,
                                stress_range_MPa=model.stress_range_MPa,
                                provenance={**prov, "reidentified": note})

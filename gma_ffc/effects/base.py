@@ -165,9 +165,11 @@ class FitData(Protocol):
     def identification_levels(self) -> list[float]:
         """Distinct stress levels of the identification loops (`diagnose --ident`; none without)."""
 
-    def identified_core(self, loop_width: tuple[float, float] | None = None) -> Any:
+    def identified_core(self, loop_width: tuple[float, float] | None = None,
+                        creep: tuple[float, float] | None = None) -> Any:
         """The base identified again on the measured identification recordings (`diagnose --ident`),
-        with a loop width (kappa per MPa, reference MPa) when given; None without those recordings."""
+        with a loop width (kappa per MPa, reference MPa) or through a creep (gain, tau s) when given;
+        None without those recordings."""
 
 
 @dataclass
@@ -230,7 +232,8 @@ class Effect(Protocol):
     joint_scales: ClassVar[tuple[float, ...]]   # the grid's scales of that parameter (the zoom refines them)
     deciders: ClassVar[Mapping[str, str]]   # per look-alike: the experiment that tells the two apart
     transforms_stress: ClassVar[bool]       # True: it supplies the stress the core (and every stage) sees
-    shapes_core: ClassVar[bool]             # True: its parameter changes the core itself (`fit_core`)
+    shapes_core: ClassVar[bool]             # True: its parameter changes the core itself (`fit_core`);
+                                            # `reshapes` says whether it does on a given diagnosis
     zoom_levels: ClassVar[int]              # refinement levels of its parameter search
     without_identification: ClassVar[str]   # what it cannot do without the identification recordings ('' nothing)
 
@@ -296,8 +299,12 @@ class Effect(Protocol):
         """`transforms_stress` only: the transformed stress of a recording (unclamped)."""
 
     @classmethod
+    def reshapes(cls, fitter: FitData) -> bool:
+        """Whether its parameter changes the core on this diagnosis (`fit_core` is then called)."""
+
+    @classmethod
     def fit_core(cls, fitter: FitData, core: Any, p: Any) -> Any:
-        """`shapes_core` only: the core the diagnosis runs for parameter p."""
+        """`reshapes` only: the core the diagnosis runs for parameter p."""
 
     @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
@@ -430,6 +437,10 @@ class EffectBase:
     @classmethod
     def fit_stress(cls, d: Any) -> np.ndarray:
         return np.asarray(d.s)
+
+    @classmethod
+    def reshapes(cls, fitter: FitData) -> bool:
+        return cls.shapes_core
 
     @classmethod
     def fit_core(cls, fitter: FitData, core: Any, p: Any) -> Any:

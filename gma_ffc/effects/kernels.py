@@ -49,6 +49,32 @@ def lag_inverse(z: np.ndarray, dt: np.ndarray, tau: float, z0: float) -> np.ndar
 
 
 @njit(cache=True, nogil=True)
+def creep_inverse(y: np.ndarray, dt: np.ndarray, gain: float, taus: np.ndarray) -> np.ndarray:
+    """Exact inverse of creep, y = y_c + gain mean_k (lag(y_c, tau_k) - y_c) with every lag relaxed at
+    y_c[0]: the core output y_c that gives y. Each sample's y_c is the root of a linear equation in it."""
+    n = y.shape[0]
+    m = taus.shape[0]
+    out = np.empty(n)
+    z = np.full(m, y[0])
+    for k in range(n):
+        if k == 0:
+            out[0] = y[0]                       # every lag starts at y_c[0]: no creep term yet
+            continue
+        held = 0.0
+        fresh = 0.0
+        for j in range(m):
+            a = lag_coeff(dt[k], taus[j])
+            held += a * z[j]
+            fresh += 1.0 - a
+        yc = (y[k] - gain * held / m) / (1.0 - gain + gain * fresh / m)
+        for j in range(m):
+            a = lag_coeff(dt[k], taus[j])
+            z[j] = a * z[j] + (1.0 - a) * yc
+        out[k] = yc
+    return out
+
+
+@njit(cache=True, nogil=True)
 def delay_filter(x: np.ndarray, delay_samples: float, x0: float) -> np.ndarray:
     """Fractional delay by linear interpolation; samples before the start hold x0."""
     n = x.shape[0]

@@ -1,0 +1,59 @@
+"""Creep as material behaviour: its law is the identification loops' too, and it carries to other sessions.
+
+The base model was identified on loops that crept. It absorbed part of the creep into their
+shape, so creep put in front of it is counted twice, and a gain fitted beside it comes out too
+small. With the identification recordings (`diagnose --ident`), the law (time constant and gain)
+is fitted on those loops, and the core is identified again through the creep's exact inverse.
+
+hil_sim's creep adds three lags of the magnetostrictive stroke, each of gain g, to the stroke:
+y = (1 + g sum_k L_k) x. Normalised to a unit static gain, its instantaneous gain is 1 / (1 + 3 g).
+gma-ffc's creep block has the instantaneous gain 1 - gain, so the plant's gain in its terms is
+3 g / (1 + 3 g).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from benchmarks.cases import case_plant, case_recordings
+from benchmarks.general import general_cases
+from benchmarks.probes import probe_recordings, probe_scores
+from gma_ffc.diagnose.engine import diagnose
+from gma_ffc.effects.creep import creep_inverse, relaxation
+
+
+@settings(max_examples=60, deadline=None)
+@given(gain=st.floats(0.0, 0.5), tau=st.floats(0.05, 50.0), n=st.integers(2, 400), seed=st.integers(0, 2**31 - 1),
+       uneven=st.booleans())
+def test_the_creep_inverse_gives_back_the_core_output(gain, tau, n, seed, uneven):
+    rng = np.random.default_rng(seed)
+    yc = np.cumsum(rng.normal(size=n))
+    dt = rng.uniform(1e-4, 0.1, n) if uneven else np.full(n, 1e-3)
+    y = yc + gain * relaxation(yc, dt, tau)
+    back = creep_inverse(y, dt, gain, tau)
+    assert np.allclose(back, yc, rtol=1e-9, atol=1e-9 * (1.0 + float(np.abs(yc).max())))
+
+
+@pytest.mark.slow
+def test_the_creep_law_of_the_identification_loops_carries_to_a_later_session():
+    case = {c.name: c for c in general_cases()}["gen:creep@default"]
+    model, ident, rec = case_recordings(case, scale=0.5)
+    dg = diagnose(model, [rec], identification=ident)
+    assert dg.verdict == ["creep"]
+    law = {c.effect: c.params for c in dg.candidates}["creep"]
+    creep = case_plant(case).creep
+    g = creep.gains[0]
+    # within 20 % of the plant's gain: a creep gain off by more than that left the history probe's
+    # error at twice the floor in the investigation of this fix (0.10 against 0.135: 0.33 um vs 0.15 um)
+    assert law["gain"] == pytest.approx(3 * g / (1 + 3 * g), rel=0.2)
+    # the plant's middle time constant within a factor of two: a factor of three still carried 4x
+    assert 0.5 < law["tau_s"] / creep.time_constants_s[1] < 2.0
+    probes = {s.name: s for s in probe_scores(model, dg.extended, probe_recordings(case))}
+    history = probes["probe_history.csv"]          # a staircase with 2-5 s holds: creep, at other loads
+    assert history.extended_um < 0.5 * history.base_um
+    assert math.isfinite(history.extended_um)
