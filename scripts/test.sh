@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Install gma-ffc with its test extras into .venv, type-check, and run the whole test suite on 2 workers.
+# Install gma-ffc with its test extras into .venv, type-check, and run the whole test suite on 2 workers
+# (an idle worker takes queued tests from the other: the long diagnoses are not left to one worker).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
@@ -7,4 +8,4 @@ PY=${PYTHON:-python3}
 .venv/bin/python -m pip install --quiet --upgrade pip
 .venv/bin/python -m pip install --quiet -e '.[test]'
 .venv/bin/python -m mypy          # the typed part of the package (pyproject.toml [tool.mypy]) must stay clean
-exec .venv/bin/python -m pytest -n 2 "$@"
+exec .venv/bin/python -m pytest -n 2 --dist worksteal "$@"
