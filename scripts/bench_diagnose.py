@@ -23,6 +23,7 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set general   # generalisation (development), with --ident
     .venv/bin/python scripts/bench_diagnose.py --set general-holdout   # the same, never tuned
     .venv/bin/python scripts/bench_diagnose.py --set general-fresh     # a second never-tuned draw
+    .venv/bin/python scripts/bench_diagnose.py --set general-fourth    # a third, drawn after the second's fixes
 
 Beside the held-out blocks, every case is also judged on probes (`benchmarks.probes`): the same
 simulated actuator recorded again at loads, rates and drive shapes diagnose never saw; the extended
@@ -51,7 +52,7 @@ from gma_ffc.initial_state import settled_index
 from benchmarks.cases import (FS, LABELS, Case, cases, holdout_cases, make_case,  # noqa: F401  (re-exported)
                                OTHER_PLANTS_HOLDOUT_SEED, case_recordings, other_plant_cases, rising_cases,
                                rising_holdout_cases, sdp_variant_cases)
-from benchmarks.general import GENERAL_FRESH_SEED, GENERAL_HOLDOUT_SEED, general_cases
+from benchmarks.general import GENERAL_FOURTH_SEED, GENERAL_FRESH_SEED, GENERAL_HOLDOUT_SEED, general_cases
 from benchmarks.probes import pooled, probe_recordings, probe_scores
 
 # the held-out-condition targets (issue 31), on the probes diagnose never saw
@@ -98,7 +99,8 @@ def effect_free_floor(twin: Any) -> float:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--set", choices=("tuned", "holdout", "all", "sdp-variants", "plants", "plants-holdout",
-                                      "rising", "rising-holdout", "general", "general-holdout", "general-fresh"),
+                                      "rising", "rising-holdout", "general", "general-holdout", "general-fresh",
+                                      "general-fourth"),
                     default="tuned",
                     help="the development cases (default), the never-tuned set, both, six more "
                          "stress-dependent play cases on plain, voltage, falling and cut recordings, or "
@@ -106,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
                          "each with nothing missing and with one effect (plants-holdout: six more, never tuned); "
                          "general: every effect on the default and a drawn actuator, diagnosed with its "
                          "identification recordings (general-holdout: a second draw, never tuned; general-fresh: a "
-                         "third, never tuned, drawn after the second's misses were fixed); "
+                         "third, never tuned, drawn after the second's misses were fixed; general-fourth: a fourth, "
+                         "drawn after the third's creep misses were fixed); "
                          "rising: the rising-amplitude family (sines growing from the drive's minimum and decaying to "
                          "it; rising-holdout: drawn once, never tuned)")
     ap.add_argument("--quick", action="store_true", help="middle magnitude of each effect, two nulls, one pair")
@@ -131,7 +134,10 @@ def main(argv: list[str] | None = None) -> int:
                                  general_cases(GENERAL_HOLDOUT_SEED, prefix="unseen"))],
             "general-fresh": [("generalisation, a second never-tuned draw (seed fixed and committed before its "
                                "first run, after the first draw's misses were fixed)",
-                               general_cases(GENERAL_FRESH_SEED, prefix="fresh"))]}
+                               general_cases(GENERAL_FRESH_SEED, prefix="fresh"))],
+            "general-fourth": [("generalisation, a fourth draw, never tuned (seed fixed and committed before its "
+                                "first run, after the third draw's creep misses were fixed)",
+                                general_cases(GENERAL_FOURTH_SEED, prefix="fourth"))]}
     chosen = sets["tuned"] + sets["holdout"] if args.set == "all" else sets[args.set]
     ok = True
     for title, todo in chosen:
