@@ -41,7 +41,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .effects import by_block_key
-from .effects.base import BatchSignals, Effect, EffectState, PlayStart, StepSignals
+from .effects.base import BatchSignals, Effect, EffectState, PlayStart, StepSignals, time_steps
 from .effects.static import StaticMap
 from .errors import ModelError
 
@@ -59,15 +59,6 @@ def _stress_array(stress: Any, n: int) -> np.ndarray:
     if s.shape != (n,):
         raise ModelError(f"stress_MPa has {s.size} values but the drive has {n}")
     return s
-
-
-def _time_steps(time_s: np.ndarray) -> tuple[np.ndarray, float]:
-    t = np.asarray(time_s, dtype=float)
-    if t.size < 2:
-        return np.ones(t.size), 1.0
-    d = np.diff(t)
-    med = float(np.median(d))
-    return np.concatenate(([med], d)), med
 
 
 def effects_from_blocks(blocks: Mapping[str, Any], base: Any) -> list[Effect]:
@@ -144,7 +135,7 @@ class ExtendedModel:
         """The drive as the core sees it after the input-side effects (at rest at initial_drive before)."""
         u = np.asarray(drive, dtype=float)
         u0 = float(u[0]) if initial_drive is None else float(initial_drive)
-        dt, dt_med = _time_steps(time_s)
+        dt, dt_med = time_steps(time_s)
         for e in self.stage("input"):
             u = e.apply_input(u, dt, dt_med, u0)
         return np.ascontiguousarray(u)
@@ -185,7 +176,7 @@ class ExtendedModel:
         if not any(getattr(e, "transforms_stress", False) for e in self.chain):
             return stress_MPa
         t = np.asarray(time_s, dtype=float)
-        dt, _ = _time_steps(t)
+        dt, _ = time_steps(t)
         for e in self.chain:
             if getattr(e, "transforms_stress", False):
                 stress_MPa = e.seen_stress(stress_MPa, t, dt)
@@ -196,7 +187,7 @@ class ExtendedModel:
                          play_start: PlayStart | None = None) -> np.ndarray:
         """Apply the output-side effects to the core's displacement (`stress_MPa` as the model sees
         it: `seen_stress` of the recorded one; `play_start`: where the core's plays started)."""
-        dt, _ = _time_steps(t)
+        dt, _ = time_steps(t)
         s = _stress_array(stress_MPa, t.size)
         sig = BatchSignals(t, dt, np.asarray(drive, dtype=float), u3, yc, s, s - self.static.stress_ref,
                            stress_MPa, initial_drive, play_start)

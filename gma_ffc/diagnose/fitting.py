@@ -21,7 +21,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 import numpy as np
 
 from ..effects import path_order
-from ..effects.base import Effect, Regressors
+from ..effects.base import CoreAround, Effect, Regressors
 from ..effects.static import StaticMap
 from .cache import BoundedCache
 from .data import RecData, mean_stress, stress_levels, stress_span
@@ -255,12 +255,14 @@ class Fitter:
 
     def plain_core(self, spec: Spec) -> Any:
         """The core the spec's extended model is built on: the given one, or the one an effect that
-        reshapes the core identified again (the widening itself is the effect's block)."""
+        reshapes the core identified again, as the diagnosis ran it (`_run_core`) with what each
+        effect put around it taken off (the widening, the creep: those are the effects' blocks)."""
         core = self.model
         for c in self._core_fx:
             if c.name in spec:
-                shaped = c.fit_core(self, self.model, spec[c.name])
-                core = getattr(shaped, "base", shaped)
+                core = c.fit_core(self, core, spec[c.name])
+        while isinstance(core, CoreAround):
+            core = core.base
         return core
 
     def core_input(self, d: RecData, spec: Spec) -> np.ndarray:

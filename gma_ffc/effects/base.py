@@ -447,6 +447,35 @@ class EffectBase:
         return core
 
 
+class CoreAround:
+    """A core with something around it (an effect that reshapes the core): the plain core's
+    stress range, drive range and output sign, which the wrapping does not change."""
+
+    base: Any
+
+    @property
+    def stress_range_MPa(self) -> Any:
+        return self.base.stress_range_MPa
+
+    @property
+    def drive_range(self) -> Any:
+        return self.base.drive_range
+
+    @property
+    def output_sign(self) -> int:
+        return int(self.base.output_sign)
+
+
+def time_steps(time_s: Any) -> tuple[np.ndarray, float]:
+    """(dt, median dt) of a recording's time stamps: dt[k] = t[k] - t[k-1], dt[0] the median step."""
+    t = np.asarray(time_s, dtype=float)
+    if t.size < 2:
+        return np.ones(t.size), 1.0
+    d = np.diff(t)
+    med = float(np.median(d))
+    return np.concatenate(([med], d)), med
+
+
 def block_of(blocks: Mapping[str, Any], key: str) -> dict[str, Any] | None:
     """A block of a model file as a fresh dict (None when absent)."""
     v = blocks.get(key)

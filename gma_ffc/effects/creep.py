@@ -8,8 +8,8 @@ import numpy as np
 from scipy import optimize
 
 from . import kernels as K
-from .base import (BatchSignals, EffectBase, FitData, Regressors, StepSignals, finite, geom_refine, grid_ratio,
-                   positive)
+from .base import (BatchSignals, CoreAround, EffectBase, FitData, Regressors, StepSignals, finite, geom_refine,
+                   grid_ratio, positive, time_steps)
 
 CREEP_SPREAD = (0.1, 1.0, 10.0)   # time constants relative to tau_s: a distributed (log-like) relaxation
 MIN_CREEP_TAU_S = 1.0             # creep's central time constant (its components span 0.1x..10x of it)
@@ -172,7 +172,7 @@ class _CreepState:
         self.first = False
 
 
-class CreepingCore:
+class CreepingCore(CoreAround):
     """A core with creep around it: what the diagnosis runs while it judges a creep law whose
     core was identified again through it (`Creep.fit_core`). Only the batch simulation: the
     extended model puts the creep block after the plain core itself."""
@@ -182,25 +182,9 @@ class CreepingCore:
         self.gain = float(gain)
         self.tau_s = float(tau_s)
 
-    @property
-    def stress_range_MPa(self) -> Any:
-        return self.base.stress_range_MPa
-
-    @property
-    def drive_range(self) -> Any:
-        return self.base.drive_range
-
-    @property
-    def output_sign(self) -> int:
-        return int(self.base.output_sign)
-
     def simulate(self, time_s: Any, drive: Any, stress_MPa: Any = None, **start: Any) -> np.ndarray:
         y = np.asarray(self.base.simulate(time_s, drive, stress_MPa, **start), dtype=float)
-        t = np.asarray(time_s, dtype=float)
-        dt = np.diff(t, prepend=t[0])
-        if dt.size > 1:
-            dt[0] = float(np.median(dt[1:]))
-        return y + self.gain * relaxation(y, dt, self.tau_s)
+        return y + self.gain * relaxation(y, time_steps(time_s)[0], self.tau_s)
 
 
 # the law on the identification loops: gains of 0 to half of each step (past half, the slow part of the

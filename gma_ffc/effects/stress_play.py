@@ -18,8 +18,9 @@ import numpy as np
 
 from .. import operators as ops
 from ..errors import ModelError
-from .base import (BatchSignals, EffectBase, FitData, OwnPlays, PlayBankState, Regressors, SignatureCheck,
-                   SignatureFailure, StepSignals, block_of, finite, geom_refine, play_sum, play_weights)
+from .base import (BatchSignals, CoreAround, EffectBase, FitData, OwnPlays, PlayBankState, Regressors,
+                   SignatureCheck, SignatureFailure, StepSignals, block_of, finite, geom_refine, play_sum,
+                   play_weights)
 
 # the loop-width search: relative width changes per MPa of 1 % to 30 %, either sign (a few % per MPa
 # is what pinning in Terfenol-D does; past 30 % per MPa the width would halve or double within 2-3 MPa)
@@ -35,7 +36,7 @@ def widened_core(base: Any, eps: float) -> Any:
     return dataclasses.replace(base, play_thresholds=np.asarray(th, dtype=float) * (1.0 + eps))  # type: ignore[type-var]
 
 
-class WidenedCore:
+class WidenedCore(CoreAround):
     """An SDPI core whose play thresholds are scaled by g(sigma) = max(1 + kappa (sigma_w - sigma), 0.05)
     at each sample's (clamped) stress: the loop widens by kappa per MPa of extra compression.
 
@@ -49,18 +50,6 @@ class WidenedCore:
         self.base = base
         self.kappa = float(kappa)
         self.sigma_w = float(sigma_w)
-
-    @property
-    def stress_range_MPa(self) -> Any:
-        return self.base.stress_range_MPa
-
-    @property
-    def drive_range(self) -> Any:
-        return self.base.drive_range
-
-    @property
-    def output_sign(self) -> int:
-        return int(self.base.output_sign)
 
     def state(self, initial_drive: float, play_state: Any = None) -> np.ndarray:
         """Kernel state: the plain core's forward state, plus the widened inverse's scratch."""
