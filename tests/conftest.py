@@ -18,8 +18,7 @@ REALTIME_RERUNS = 2
 
 
 # Tests that run whole diagnoses (20-80 s each on 2 cores) or a minute of real time go first, so
-# that neither worker is left running one alone at the end while the other idles
-# (scripts/test.sh also lets an idle worker take queued tests from the other: --dist worksteal).
+# that neither worker is left running one alone at the end while the other idles.
 LONG_MODULES = ("test_diagnose_", "test_resonance_law", "test_creep_law", "test_figures_layout",
                 "test_model_watch_service")
 

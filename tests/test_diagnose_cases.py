@@ -61,7 +61,7 @@ def test_an_effect_named_against_the_core_before_the_rebase_must_earn_its_place_
     no longer has, was named creep (and before that a 1 kHz resonance at 2 kHz sampling). On the
     new core each later effect is judged again by the rule it was accepted by."""
     case = next(c for c in bench.other_plant_cases() if c.name == "plant5:rate_dependence")
-    model, rec = bench.make_case(case, scale=0.5)
+    model, rec = bench.make_case(case, scale=0.35)
     dg = diagnose(model, [rec])
     assert dg.verdict == ["rate_dependence"], dg.explanation
     dropped = [c for c in dg.candidates if "no longer earns its place" in c.reason]
