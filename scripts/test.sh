@@ -1,6 +1,5 @@
 #!/usr/bin/env bash
-# Install gma-ffc with its test extras into .venv, type-check, and run the whole test suite on 2 workers
-# (tests marked with one xdist_group run on one worker: the threshold moves share their memoised searches).
+# Install gma-ffc with its test extras into .venv, type-check, and run the whole test suite on 2 workers.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
@@ -8,4 +7,4 @@ PY=${PYTHON:-python3}
 .venv/bin/python -m pip install --quiet --upgrade pip
 .venv/bin/python -m pip install --quiet -e '.[test]'
 .venv/bin/python -m mypy          # the typed part of the package (pyproject.toml [tool.mypy]) must stay clean
-exec .venv/bin/python -m pytest -n 2 --dist loadgroup "$@"
+exec .venv/bin/python -m pytest -n 2 "$@"

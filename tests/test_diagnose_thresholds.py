@@ -56,7 +56,6 @@ def test_every_threshold_is_a_documented_constructor_argument():
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("thresholds")     # one worker runs every move: the memo is per worker
 @pytest.mark.parametrize("name", THRESHOLDS)
 @pytest.mark.parametrize("factor", [0.7, 1.3])
 def test_verdicts_do_not_flip_when_a_threshold_moves_30_percent(cases, memoised_rounds, name, factor):
