@@ -17,21 +17,10 @@ settings.register_profile("slow", deadline=None)
 REALTIME_RERUNS = 2
 
 
-# Tests that run whole diagnoses (20-80 s each on 2 cores) or a minute of real time go first, so
-# that neither worker is left running one alone at the end while the other idles.
-LONG_MODULES = ("test_diagnose_", "test_resonance_law", "test_creep_law", "test_figures_layout",
-                "test_model_watch_service")
-
-
-def _runs_long(item: pytest.Item) -> bool:
-    return item.get_closest_marker("slow") is not None or item.module.__name__.startswith(LONG_MODULES)
-
-
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         if item.get_closest_marker("realtime") is not None and item.get_closest_marker("flaky") is None:
             item.add_marker(pytest.mark.flaky(reruns=REALTIME_RERUNS, reruns_delay=1.0))
-    items.sort(key=lambda item: not _runs_long(item))      # stable: the order within each part is kept
 
 
 @pytest.fixture(scope="session")

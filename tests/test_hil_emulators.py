@@ -302,10 +302,12 @@ def test_modbus_tcp_drop_fault_closes_connection_until_cleared(rig):
             assert emu.connections == 1
             rig.faults.set("drop")
             assert wait_for(lambda: emu.connections == 0)  # cut at once, not at the next request
-            with pytest.raises(ModbusException):
+            # the client reports the cut as pymodbus's error or, when the reset reaches its read
+            # first (a busy machine), as the socket's own: either way the request fails
+            with pytest.raises((ModbusException, ConnectionError)):
                 read_channel(client, m, "current_A")
             assert client.connect()  # the server still accepts, then drops on the first request
-            with pytest.raises(ModbusException):
+            with pytest.raises((ModbusException, ConnectionError)):
                 read_channel(client, m, "current_A")
             assert rig.history() == []
             rig.faults.clear("drop")
