@@ -19,6 +19,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..effects.base import time_steps
 from ..errors import InputError
 from ..recordings import Recording
 from ..initial_state import InitialStateSpec
@@ -98,9 +99,7 @@ def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "e
             raise InputError(f"{rec.source}: no displacement_um column; diagnose compares the model with measured displacement")
         t = np.ascontiguousarray(rec.time_s, dtype=float)
         n = t.size
-        d = np.diff(t)
-        dt_med = float(np.median(d)) if n > 1 else 1.0
-        dt = np.concatenate(([dt_med], d))
+        dt, dt_med = time_steps(t)
         s_raw = None if rec.stress_MPa is None else np.ascontiguousarray(rec.stress_MPa, dtype=float)
         if srange is None:
             s = np.zeros(n)
