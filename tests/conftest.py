@@ -24,6 +24,32 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 
 
 @pytest.fixture(scope="session")
+def session_folder(tmp_path_factory: pytest.TempPathFactory, worker_id: str):
+    """A folder every xdist worker of this session shares (`session_cache`); a run without
+    xdist has its own."""
+    base = tmp_path_factory.getbasetemp()
+    return (base if worker_id == "master" else base.parent) / "shared"
+
+
+@pytest.fixture(scope="session")
+def diagnosed(session_folder):
+    """diagnosed(case name, scale) -> (model, recording, diagnosis) of a benchmark case, with
+    `diagnose`'s defaults: computed once per session (`session_cache`), a fresh copy for each test."""
+    from session_cache import once_per_session
+
+    def run(name: str, scale: float = 0.5):
+        def compute():
+            from benchmarks import cases as bench
+            from gma_ffc.diagnose.engine import diagnose
+
+            case = {c.name: c for c in bench.cases()}[name]
+            model, rec = bench.make_case(case, scale=scale)
+            return model, rec, diagnose(model, [rec])
+        return once_per_session(session_folder, f"diagnosed {name} at {scale!r}", compute)
+    return run
+
+
+@pytest.fixture(scope="session")
 def piezo_csv(tmp_path_factory: pytest.TempPathFactory):
     """The measured piezo recording (tests/measured.py): ../shared's, else the vendored copy; an
     error, never a skip, when neither is there."""

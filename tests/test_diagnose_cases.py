@@ -12,10 +12,9 @@ CASES = {c.name: c for c in bench.cases()}
 
 
 @pytest.mark.parametrize("name", ["null#1", "thermal_drift#3", "time_delay#2", "thermal+delay", "stress_dependent_play#3"])
-def test_benchmark_case(name):
+def test_benchmark_case(diagnosed, name):
     case = CASES[name]
-    model, rec = bench.make_case(case, scale=0.5)
-    dg = diagnose(model, [rec])
+    model, rec, dg = diagnosed(name, 0.5)
     assert set(dg.verdict) == set(case.truth), dg.explanation
     if case.truth:
         assert dg.outcome == "effects_named"

@@ -53,12 +53,12 @@ def test_a_voltage_driven_actuator_with_creep_is_told_about_creep_in_volts():
     assert "Joule" not in dg.explanation and " A^2" not in dg.explanation
 
 
-def test_a_falling_actuator_gets_the_same_diagnosis_as_a_rising_one():
+def test_a_falling_actuator_gets_the_same_diagnosis_as_a_rising_one(diagnosed):
     rising_case = CASES["thermal_drift#3"]
-    m_up, r_up = bench.make_case(rising_case, scale=0.5)
+    m_up, r_up, up = diagnosed(rising_case.name, 0.5)
     m_down, r_down = bench.make_case(dataclasses.replace(rising_case, falling=True), scale=0.5)
     assert np.allclose(r_down.displacement_um, -r_up.displacement_um)
-    up, down = diagnose(m_up, [r_up]), diagnose(m_down, [r_down])
+    down = diagnose(m_down, [r_down])
     assert down.verdict == up.verdict == ["thermal_drift"], down.explanation
     assert down.rms_after_um == pytest.approx(up.rms_after_um, rel=0.02)
     assert down.rms_before_um == pytest.approx(up.rms_before_um, rel=1e-6)

@@ -8,7 +8,8 @@ already in the model and the effects tried. Only `huber_k` changes its inputs (t
 other thresholds decide on its results. So the searches are memoised by those inputs across the
 moves: a move that takes the same path as the defaults pays only for its decisions, and one that
 takes another path searches afresh. This keeps the test to a tenth of its cost (14 moves x 3
-diagnoses were 40 % of the suite's time), and what it asserts is unchanged."""
+diagnoses were 40 % of the suite's time), and what it asserts is unchanged. The memo is on disk, so
+the xdist workers share it: the defaults' path is searched once, not once per worker."""
 
 from __future__ import annotations
 
@@ -33,18 +34,17 @@ def cases():
     return {name: bench.make_case(by_name[name], scale=0.5) + (by_name[name].truth,) for name in SUBSET}
 
 
-_SEARCHES: dict = {}      # one per xdist worker: the searches this worker's moves have run
-
-
 @pytest.fixture
-def memoised_rounds(monkeypatch):
+def memoised_rounds(monkeypatch, session_folder):
+    """The searches, shared by every move on every xdist worker (`session_cache`)."""
+    from session_cache import once_per_session
+
     search = selection.score_round
 
     def score_round(fitter, base, loss_without, names, rnd, workers):
         key = (fitter.delta, fitter.y_rows.size, float(fitter.y_rows.sum()), loss_without, repr(base), tuple(names), rnd)
-        if key not in _SEARCHES:
-            _SEARCHES[key] = search(fitter, base, loss_without, names, rnd, workers)
-        return _SEARCHES[key]
+        return once_per_session(session_folder / "threshold_rounds", repr(key),
+                                lambda: search(fitter, base, loss_without, names, rnd, workers))
 
     monkeypatch.setattr(selection, "score_round", score_round)
 

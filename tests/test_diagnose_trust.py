@@ -57,12 +57,10 @@ def test_a_voltage_driven_actuator_is_never_told_about_coil_heating():
     assert "Joule" not in text and "coil" not in text.replace("no coil current", "")
 
 
-def test_every_outcome_is_in_the_json_and_the_headline(tmp_path):
+def test_every_outcome_is_in_the_json_and_the_headline(diagnosed, tmp_path):
     from gma_ffc.diagnose.report import write_outputs
 
-    case = CASES["time_delay#2"]
-    model, rec = bench.make_case(case, scale=0.5)
-    dg = diagnose(model, [rec])
+    model, rec, dg = diagnosed("time_delay#2", 0.5)
     doc = write_outputs(dg, tmp_path)
     assert doc["outcome"] == "effects_named" and doc["verdict"] == ["time_delay"]
     page = (tmp_path / "report.html").read_text()
@@ -104,15 +102,14 @@ def late_drive(rec: Recording, seconds: float) -> Recording:
     return Recording(cols, dict(rec.metadata), "late_drive")
 
 
-def test_a_late_drive_column_is_named_as_a_timing_fault_not_physics():
+def test_a_late_drive_column_is_named_as_a_timing_fault_not_physics(diagnosed):
     """No effect makes a displacement lead its drive: a current column 3 ms late is a fault in the
     columns, and diagnose says so, with the lead it measured, instead of fitting effects to it."""
-    model, rec = bench.make_case(CASES["null#1"])
+    model, rec, on_time = diagnosed("null#1", 1.0)
     dg = diagnose(model, [late_drive(rec, 0.003)])
     lead = [c for c in dg.cannot_conclude if "ahead of the model" in c]
     assert len(lead) == 1 and "runs 3 ms ahead" in lead[0] and "align" in lead[0]
     assert dg.outcome != "effects_named" and "ahead of the model" in dg.explanation
-    on_time = diagnose(model, [rec])
     assert not any("ahead of the model" in c for c in on_time.cannot_conclude)
 
 
@@ -130,12 +127,12 @@ def test_only_a_lead_is_a_timing_fault_a_lag_is_physics():
         assert (lead is None) if expected is None else (lead is not None and abs(lead.lead_s - expected) < 1e-12)
 
 
-def test_mains_hum_on_the_sensor_is_described_not_fitted_as_physics():
+def test_mains_hum_on_the_sensor_is_described_not_fitted_as_physics(diagnosed):
     """50 Hz pickup on the displacement channel, as lab cabling adds: no effect is named for it, and
     the unexplained residual is described as a line nothing in the drive puts there (the diagnosis
     drive holds a 16.7 Hz burst, whose third harmonic is 50 Hz: only the pieces of the run without
     it can tell)."""
-    model, rec = bench.make_case(CASES["null#1"])
+    model, rec, clean = diagnosed("null#1", 1.0)
     t = rec.time_s
     cols = dict(rec.columns)
     cols["displacement_um"] = rec.columns["displacement_um"] + 0.15 * np.sin(2 * np.pi * 50.0 * t + 0.3)
@@ -144,7 +141,6 @@ def test_mains_hum_on_the_sensor_is_described_not_fitted_as_physics():
     line = dg.located[0].line
     assert line is not None and abs(line.hz - 50.0) < 0.05 and line.from_drive == ""
     assert "mains pickup" in dg.explanation
-    clean = diagnose(model, [rec])
     assert clean.located[0].line is None or clean.located[0].line.from_drive != ""
 
 

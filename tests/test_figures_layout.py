@@ -118,13 +118,10 @@ def test_demo_tracking_plot(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("case", ["thermal+delay", "null#1"])
-def test_diagnose_report_figures(bench, case):
+def test_diagnose_report_figures(diagnosed, case):
     from gma_ffc.diagnose import report
-    from gma_ffc.diagnose.engine import diagnose
 
-    cases = {c.name: c for c in bench.cases()}
-    model, rec = bench.make_case(cases[case], scale=0.5)
-    dg = diagnose(model, [rec])
+    _, _, dg = diagnosed(case, 0.5)
     for plot in (report.plot_residuals, report.plot_overlays, report.plot_loops, report.plot_candidates):
         fig = plot(dg, render=lambda f: f)
         assert layout_problems(fig) == [], plot.__name__
