@@ -38,6 +38,7 @@ def test_outputs_follow_the_spec(case_files, capsys, tmp_path):
     assert code == 0, err
     assert "verdict: thermal_drift" in out
     doc = json.loads((out_dir / "diagnosis.json").read_text())
+    _says_its_initial_state(doc, err, None, "estimated from the measured")
     for key, kind in (("verdict", list), ("explanation", str), ("located", list), ("located_after", list),
                       ("candidates", list),
                       ("rms_before_um", float), ("rms_after_um", float), ("validation", str),
@@ -134,15 +135,17 @@ def test_one_stress_cannot_test_stress_effects(case_files, capsys, tmp_path):
     assert any(s.startswith("stress_dependent_play") for s in doc["cannot_conclude"])
 
 
-@pytest.mark.parametrize("rule, words", [(None, "estimated from the measured"), ("relaxed", "relaxed")])
-def test_diagnose_shares_the_initial_state_rule_and_says_which_it_used(case_files, capsys, tmp_path, rule, words):
+def test_diagnose_shares_the_initial_state_rule_and_says_which_it_used(case_files, capsys, tmp_path):
     """Issue 8: simulate, invert, diagnose and the controller share one default rule; each says
-    which state it started from (on stderr and, for diagnose, in diagnosis.json)."""
-    extra = [] if rule is None else ["--initial-state", rule]
+    which state it started from (on stderr and, for diagnose, in diagnosis.json). The default rule's
+    run is `test_outputs_follow_the_spec`'s (the same diagnosis, checked there)."""
     code, _, err = _run(capsys, "diagnose", "--model", str(case_files / "model.yaml"), str(case_files / "long_run.csv"),
-                        "--out", str(tmp_path / "d"), *extra)
+                        "--out", str(tmp_path / "d"), "--initial-state", "relaxed")
     assert code == 0
-    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    _says_its_initial_state(json.loads((tmp_path / "d" / "diagnosis.json").read_text()), err, "relaxed", "relaxed")
+
+
+def _says_its_initial_state(doc: dict, err: str, rule: str | None, words: str) -> None:
     (state,) = doc["initial_state"]
     assert state["rule"] == (rule or "estimate") and words in state["how"]
     assert f"initial state ({state['recording']}): {state['how']}" in err

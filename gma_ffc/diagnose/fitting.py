@@ -405,8 +405,8 @@ class Fitter:
         """Least squares (plus c' penalty c); with a Huber scale, two reweighting passes so a few
         bursts (a load change the core cannot follow) do not steer the fit. Returns the coefficients
         and the last pass's scaled normal equations (G, b, column scale) for cheap re-solves."""
-        scale = np.sqrt(np.mean(X * X, axis=0))
-        scale[scale == 0] = 1.0
+        scale = np.sqrt(np.einsum("ij,ij->j", X, X) / X.shape[0])   # the columns' RMS; np.mean(X * X, axis=0)
+        scale[scale == 0] = 1.0                                       # took 3x as long (a strided reduction)
         Xs = X / scale
         P = np.zeros((X.shape[1], X.shape[1])) if penalty is None else penalty / np.outer(scale, scale)
         w = None
