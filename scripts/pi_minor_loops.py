@@ -1,0 +1,82 @@
+#!/usr/bin/env python3
+"""How well can any Prandtl-Ishlinskii core follow a case's nested minor loops? (issue 31)
+
+    python scripts/pi_minor_loops.py [CASE ...]       (default: a null case and both play cases)
+
+The light-load probe of `benchmarks.probes` ends with a two-tone drive: small fast loops nested
+in a slow large one. For each case this prints three RMS errors on that part, in um:
+  - `base`: the case's base model (identified on the 3 Hz loops), from its estimated start;
+  - `width law`: the core identified on the same loops through the plant's loop width law
+    expressed at the model's reference stress (the best the width law can do);
+  - `self-fit`: an SDPI identified on the two-tone part itself (10 and 20 plays), the least
+    error of the model class on those loops. A floor far above the noise means the loops break
+    the class's rule (Masing's: minor loops are the major loop's branches, halved), and no law
+    in stress can recover them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.cases import case_plant, case_recordings  # noqa: E402
+from benchmarks.general import general_cases  # noqa: E402
+from benchmarks.probes import _prediction, probe_recordings  # noqa: E402
+from gma_ffc.extended import ExtendedModel  # noqa: E402
+from gma_ffc.identify import SDPIIdentifier  # noqa: E402
+from gma_ffc.recordings import Recording  # noqa: E402
+
+TWO_TONE_FROM_S = 8.0          # the probe's rising triangle lasts 8 s; the two-tone drive follows
+DEFAULT = ("gen:null#1@default", "gen:stress_dependent_play@default", "gen:stress_dependent_play@other")
+
+
+def rms(a: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(a ** 2)))
+
+
+def two_tone(case) -> Recording:
+    probe = next(p for p in probe_recordings(case) if p.name == "probe_other_shape.csv")
+    keep = probe.time_s >= probe.time_s[0] + TWO_TONE_FROM_S
+    return Recording({k: v[keep] for k, v in probe.columns.items()}, dict(probe.metadata), "two_tone")
+
+
+def width_law_model(case, model, ident):
+    """The core identified through the plant's own width law, at the model's reference stress."""
+    mag = case_plant(case).magnetics
+    if not mag.stress_dependent_width:
+        return None
+    ref = float(model.reference_stress_MPa)
+    k = mag.width_change_per_MPa / (1.0 + mag.width_change_per_MPa * (mag.width_reference_MPa - ref))
+    core = SDPIIdentifier(loop_width=(k, ref)).fit(ident).model_
+    return ExtendedModel(core, {"loop_width": {"kappa_per_MPa": k, "stress_ref_MPa": ref}})
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("cases", nargs="*", default=list(DEFAULT))
+    names = ap.parse_args().cases
+    by_name = {c.name: c for c in general_cases()}
+    for name in names:
+        case = by_name[name]
+        model, ident, _ = case_recordings(case)
+        part = two_tone(case)
+        y = part.displacement_um
+        row = {"base": rms(_prediction(model, part) - y)}
+        wide = width_law_model(case, model, ident)
+        if wide is not None:                       # an effect-free plant has no width law
+            row["width law"] = rms(_prediction(wide, part) - y)
+        for n_play in (10, 20):
+            own = SDPIIdentifier(n_play=n_play).fit([part]).model_
+            row[f"self-fit {n_play}"] = rms(own.simulate(part.time_s, part.drive, part.stress_MPa,
+                                                         measured_um=y) - y)
+        figures = ", ".join(f"{k} {v:.3f}" for k, v in row.items())
+        print(f"{name}: two-tone part ({np.ptp(y):.1f} um peak to peak): {figures}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
