@@ -231,7 +231,7 @@ def test_the_readme_figures_are_the_ones_the_benchmarks_wrote():
     stale = figures.stale_blocks(text, figures.load())
     assert not stale, f"README.md blocks {stale} differ from docs/figures.json: run python scripts/figures.py"
     for key, fig in figures.load().items():
-        script = re.search(r"scripts/[\w/]+\.py", fig["command"])
+        script = re.search(r"scripts/[\w/]+\.(?:py|sh)", fig["command"])
         if fig["command"].startswith("gma-ffc "):         # a command of the tool itself: the parser knows it
             from gma_ffc.cli import build_parser
             build_parser().parse_args(shlex.split(fig["command"])[1:])
