@@ -67,8 +67,9 @@ class EffectSelector:
         error (a core fitted to similar data reaches 2-3x its sensor noise): nothing to explain.
         Also the tolerance of saturation's "the curve turns round" check.
     slow_ratio_max (0.8)
-        Play weights are rate-independent, so stress_dependent_play must also cut the error on
-        the slowest 40 % of samples, by 20 %: a gain from the fast parts is another effect's leftover.
+        Play weights are rate-independent, and creep shows most where the drive stops changing, so
+        stress_dependent_play and creep must also cut the error on the slowest 40 % of samples (where
+        the drive turns round or holds), by 20 %: a gain from the fast parts is another effect's leftover.
     ambiguous_nats (3.0)
         A runner-up within 3 nats of the winner (likelihood ratio ~20) is a look-alike the data
         do not tell apart: the outcome is inconclusive, with the experiment that would decide.

@@ -200,6 +200,28 @@ class SignatureCheck:
     slow_ratio_max: float          # the selector's thresholds the checks use
     model_error_factor: float
 
+    SLOW_SHARE: ClassVar[int] = 40   # the slowest 40 % of samples: where the drive turns round or holds
+
+    def slow_ratio(self) -> float:
+        """Held-out mean-square error with the effect over that without it, on the slowest
+        `SLOW_SHARE` % of samples (by the drive's rate): where the drive turns round or holds."""
+        f = self.fitter
+        slow = f.rate_rows <= np.percentile(f.rate_rows, self.SLOW_SHARE)
+        r0 = f.test_residuals(self.before)[slow]
+        r1 = f.test_residuals(self.result.specs)[slow]
+        return float(np.mean(r1 * r1) / max(float(np.mean(r0 * r0)), 1e-300))
+
+    def gain_from_fast_parts(self, because: str) -> "SignatureFailure | None":
+        """A failure when the effect's held-out gain does not hold where the drive is slow (the
+        error there falls to no less than `slow_ratio_max` of before), saying `because`; else None."""
+        ratio = self.slow_ratio()
+        if ratio <= self.slow_ratio_max:
+            return None
+        return SignatureFailure(
+            f"its held-out gain comes from the fast parts of the drive (on the slowest {self.SLOW_SHARE} % of "
+            f"samples, where the drive turns round or holds, the error only falls to {ratio:.0%} of before): "
+            + because)
+
 
 @dataclass
 class SignatureFailure:

@@ -8,8 +8,8 @@ import numpy as np
 from scipy import optimize
 
 from . import kernels as K
-from .base import (BatchSignals, CoreAround, EffectBase, FitData, Regressors, StepSignals, finite, geom_refine,
-                   grid_ratio, positive, time_steps)
+from .base import (BatchSignals, CoreAround, EffectBase, FitData, Regressors, SignatureCheck, SignatureFailure,
+                   StepSignals, finite, geom_refine, grid_ratio, positive, time_steps)
 
 CREEP_SPREAD = (0.1, 1.0, 10.0)   # time constants relative to tau_s: a distributed (log-like) relaxation
 MIN_CREEP_TAU_S = 1.0             # creep's central time constant (its components span 0.1x..10x of it)
@@ -98,6 +98,29 @@ class Creep(EffectBase):
     def fitted_blocks(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, dict[str, Any]]:
         law = cls.fitted_params(fitter, p, coef)
         return {"creep": {"gain": law["gain"], "tau_s": law["tau_s"]}}
+
+    @classmethod
+    def signature(cls, check: SignatureCheck) -> SignatureFailure | None:
+        """Creep is motion that goes on after the drive stops changing: its term, lag(y_c) - y_c, is
+        largest where the drive turns round or holds, so its gain must show there. On the slowest
+        40 % of samples it must cut the error by as much as a rate-independent effect must
+        (`slow_ratio_max`); a gain from the fast parts alone is the refit of the other columns
+        absorbing a loop shape the core cannot follow.
+
+        A fit whose central time constant runs to the fastest the search allows (its fastest part at
+        0.1 s) wants a quicker relaxation than creep's: a lag look-alike that a leftover of eddy
+        currents, a delay or the core's own shape gives as well, and a law not determined by the data.
+        On simulated actuators with nothing missing, creep fitted to rising-amplitude sines runs there."""
+        p = check.result.specs[2][cls.name]
+        tau = float(p[0] if isinstance(p, tuple) else p)
+        fastest = float(time_constants(check.fitter)[0])
+        if tau <= fastest * (1.0 + 1e-9):
+            return SignatureFailure(
+                f"its fit runs to the fastest time constant creep may have ({fastest:.3g} s, its fastest part "
+                f"{fastest * CREEP_SPREAD[0]:.2g} s): the relaxation the data want is quicker than creep, a lag that a "
+                "leftover of another effect or of the model's own shape gives as well")
+        return check.gain_from_fast_parts("creep shows most where the drive stops changing, so this is the "
+                                          "leftover of a loop shape the model cannot follow")
 
     @staticmethod
     def describe(params: Mapping[str, float], unit: str) -> str:

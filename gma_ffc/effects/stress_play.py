@@ -295,17 +295,8 @@ class StressPlay(EffectBase):
     @classmethod
     def signature(cls, check: SignatureCheck) -> SignatureFailure | None:
         """Play weights are rate-independent, so the gain must hold where the drive is slow."""
-        f = check.fitter
-        slow = f.rate_rows <= np.percentile(f.rate_rows, 40)
-        r0 = f.test_residuals(check.before)[slow]
-        r1 = f.test_residuals(check.result.specs)[slow]
-        ratio = float(np.mean(r1 * r1) / max(float(np.mean(r0 * r0)), 1e-300))
-        if ratio <= check.slow_ratio_max:
-            return None
-        return SignatureFailure(
-            f"its held-out gain comes from the fast parts of the drive (on the slowest 40 % of samples the error "
-            f"only falls to {ratio:.0%} of before), where rate-independent play weights cannot be the cause: a "
-            "leftover of another effect that changes with the load")
+        return check.gain_from_fast_parts("rate-independent play weights cannot be the cause, so this is the "
+                                          "leftover of another effect that changes with the load")
 
     @staticmethod
     def describe(params: Mapping[str, float], unit: str) -> str:
