@@ -79,7 +79,7 @@ class Creep(EffectBase):
         recording the creep under way at its start: a recording rarely starts from rest, and the
         state its history left decays with creep's time constants. One column: a history slow
         against the drive (any loop faster than creep's fastest part) leaves every part at one level."""
-        tau = p[0] if isinstance(p, tuple) else p
+        tau = central_tau(p)
         if not isinstance(p, tuple):
             r.cols.append(relaxation(r.yc, r.d.dt, p))
             r.names.append("creep_gain")
@@ -111,8 +111,7 @@ class Creep(EffectBase):
         0.1 s) wants a quicker relaxation than creep's: a lag look-alike that a leftover of eddy
         currents, a delay or the core's own shape gives as well, and a law not determined by the data.
         On simulated actuators with nothing missing, creep fitted to rising-amplitude sines runs there."""
-        p = check.result.specs[2][cls.name]
-        tau = float(p[0] if isinstance(p, tuple) else p)
+        tau = central_tau(check.result.specs[2][cls.name])
         fastest = float(time_constants(check.fitter)[0])
         if tau <= fastest * (1.0 + 1e-9):
             return SignatureFailure(
@@ -126,6 +125,11 @@ class Creep(EffectBase):
     def describe(params: Mapping[str, float], unit: str) -> str:
         return (f"creep of {params['gain'] * 100:+.3g} % of each step relaxing over time constants around "
                 f"{params['tau_s']:.3g} s (0.1x to 10x)")
+
+
+def central_tau(p: Any) -> float:
+    """Creep's central time constant from a search point: tau, or (tau, gain) with the loops' law."""
+    return float(p[0] if isinstance(p, tuple) else p)
 
 
 def time_constants(fitter: FitData) -> np.ndarray:
