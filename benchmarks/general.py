@@ -15,7 +15,8 @@ GENERAL_HOLDOUT_SEED the never-tuned one, fixed and committed before its first r
 adjusted while looking at it, and it is quoted apart. Its first run's misses were fixed later, so
 GENERAL_FRESH_SEED draws a second never-tuned set, for the figures after those fixes. Its creep and
 heating-with-creep misses were then worked on (creep's law on the identification loops), so
-GENERAL_FOURTH_SEED draws a third, for the figures after that.
+GENERAL_FOURTH_SEED draws a third, for the figures after that. Its resonance miss was then looked at
+and fixed (the anchor's allowance for a law's own lag), so GENERAL_FIFTH_SEED draws a fourth.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ GENERAL_FRESH_SEED = 20261201     # a second never-tuned draw (2026-11-26): the 
                                   # its misses (the resonance's law, null#2's recalibration) were then fixed,
                                   # so it no longer counts as unseen; fixed and committed before its first run
 GENERAL_FOURTH_SEED = 20261202    # a third never-tuned draw (2026-11-26, later): the second's creep misses were
+                                  # looked at and fixed; fixed and committed before its first run
+GENERAL_FIFTH_SEED = 20261203     # a fourth never-tuned draw (2026-11-27): the third's resonance miss was
                                   # looked at and fixed; fixed and committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 

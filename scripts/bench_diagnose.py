@@ -24,6 +24,7 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set general-holdout   # the same, never tuned
     .venv/bin/python scripts/bench_diagnose.py --set general-fresh     # a second never-tuned draw
     .venv/bin/python scripts/bench_diagnose.py --set general-fourth    # a third, drawn after the second's fixes
+    .venv/bin/python scripts/bench_diagnose.py --set general-fifth     # a fourth, drawn after the third's fix
 
 Beside the held-out blocks, every case is also judged on probes (`benchmarks.probes`): the same
 simulated actuator recorded again at loads, rates and drive shapes diagnose never saw; the extended
@@ -52,7 +53,8 @@ from gma_ffc.initial_state import settled_index
 from benchmarks.cases import (FS, LABELS, Case, cases, holdout_cases, make_case,  # noqa: F401  (re-exported)
                                OTHER_PLANTS_HOLDOUT_SEED, case_recordings, other_plant_cases, rising_cases,
                                rising_holdout_cases, sdp_variant_cases)
-from benchmarks.general import GENERAL_FOURTH_SEED, GENERAL_FRESH_SEED, GENERAL_HOLDOUT_SEED, general_cases
+from benchmarks.general import (GENERAL_FIFTH_SEED, GENERAL_FOURTH_SEED, GENERAL_FRESH_SEED,  # noqa: E402
+                                GENERAL_HOLDOUT_SEED, general_cases)
 from benchmarks.probes import pooled, probe_recordings, probe_scores
 
 # the held-out-condition targets (issue 31), on the probes diagnose never saw
@@ -100,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--set", choices=("tuned", "holdout", "all", "sdp-variants", "plants", "plants-holdout",
                                       "rising", "rising-holdout", "general", "general-holdout", "general-fresh",
-                                      "general-fourth"),
+                                      "general-fourth", "general-fifth"),
                     default="tuned",
                     help="the development cases (default), the never-tuned set, both, six more "
                          "stress-dependent play cases on plain, voltage, falling and cut recordings, or "
@@ -137,7 +139,10 @@ def main(argv: list[str] | None = None) -> int:
                                general_cases(GENERAL_FRESH_SEED, prefix="fresh"))],
             "general-fourth": [("generalisation, a fourth draw, never tuned (seed fixed and committed before its "
                                 "first run, after the third draw's creep misses were fixed)",
-                                general_cases(GENERAL_FOURTH_SEED, prefix="fourth"))]}
+                                general_cases(GENERAL_FOURTH_SEED, prefix="fourth"))],
+            "general-fifth": [("generalisation, a fifth draw, never tuned (seed fixed and committed before its "
+                               "first run, after the fourth draw's resonance miss was fixed)",
+                               general_cases(GENERAL_FIFTH_SEED, prefix="fifth"))]}
     chosen = sets["tuned"] + sets["holdout"] if args.set == "all" else sets[args.set]
     ok = True
     for title, todo in chosen:
