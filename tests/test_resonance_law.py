@@ -49,3 +49,27 @@ def test_a_resonance_beside_eddy_currents_is_named_once_a_lag_is_in_the_model():
     dg = diagnose(model, [rec], identification=ident)
     assert "mechanical_dynamics" in dg.verdict
     assert dg.rms_after_um < 0.2 * dg.rms_before_um
+
+
+@pytest.mark.slow
+def test_the_law_holds_when_the_identification_loops_reach_a_heavier_load():
+    """The identification loops run to 24 MPa, the diagnosis recording to 21 MPa. On the heaviest
+    loop the law's resonance (85 Hz) lags the 3 Hz drive by about 0.13 um, 1.5x that loop's
+    identification error; the base absorbed that lag. Held below its own lag, that loop pulled the
+    fit off the law, and a load-independent resonance won (the heavy-load probe: 4.0 -> 4.0 um, where
+    the law gives 0.11 um). This case was the fourth never-tuned draw's; it is development since."""
+    from benchmarks.general import GENERAL_FOURTH_SEED
+
+    case = {c.name: c for c in general_cases(GENERAL_FOURTH_SEED, prefix="fourth")}["fourth:mechanical_dynamics@default"]
+    model, ident, rec = case_recordings(case, scale=0.5)
+    plant = case_plant(case)
+    def heaviest(r):     # the static stress: a resonance's inertial force is not a load
+        return float(static_stress(r.stress_MPa, np.gradient(r.time_s)).min())
+
+    assert min(heaviest(r) for r in ident) < heaviest(rec) - 2.0
+    dg = diagnose(model, [rec], identification=ident)
+    assert dg.verdict == ["mechanical_dynamics"]
+    p = {c.effect: c.params for c in dg.candidates}["mechanical_dynamics"]
+    heavy = plant.stress_for_mass(HEAVY_KG)
+    f_heavy = p["f_ref_hz"] / math.sqrt(1.0 + p["beta_per_MPa"] * (p["stress_ref_MPa"] - heavy))
+    assert f_heavy == pytest.approx(plant.resonance_hz(HEAVY_KG), rel=0.05)     # 5 %: as above

@@ -365,13 +365,19 @@ class Fitter:
 
     def _anchor_grams(self, spec: Spec) -> tuple[list[np.ndarray], list[float]]:
         """Per anchor loop, the quadratic form c' A_k c = (its RMS departure / its tolerance)^2, and
-        what each loop may reach: 1 plus the least departure at gain 1 (`_fit`); cached per spec."""
+        what each loop may reach: 1 plus the departure the spec brings by itself (`_fit`). That is
+        the larger of two: the least departure at gain 1 over all loops together, and the loop's own
+        departure at no recalibration (gain 1, nothing else). The second matters for a law in stress:
+        a resonance that moves with the load lags the heaviest loop most, and the least departure
+        over all loops takes it from that loop to spread it. A loop held below its own lag drags the
+        fit away from the law the data show (a resonance law that cut a probe at another load from
+        3.6 to 0.14 um lost to a load-independent one). Cached per spec."""
         def compute() -> tuple[list[np.ndarray], list[float]]:
             Xa = self.anchor_design(spec)
             grams = [Xa[k].T @ Xa[k] / ((k.stop - k.start) * t * t)
                      for k, t in zip(self._anchor_slices, self._anchor_tol)]
             least = _least_departure(np.sum(grams, axis=0))
-            return grams, [1.0 + float(least @ A @ least) for A in grams]
+            return grams, [1.0 + max(float(least @ A @ least), float(A[0, 0])) for A in grams]
 
         return self._gram_cache.get_or_compute(spec, compute)
 
@@ -429,9 +435,9 @@ class Fitter:
 
         The discrepancy principle, per loop: the least anchor weight (each loop's scaled by its
         1/tolerance^2) that brings every loop within its tolerance, beyond the departure the spec
-        cannot avoid at any recalibration of gain 1 (a resonance's lag on the 3 Hz loops, say,
-        which the base absorbed into its loops and no static term undoes: it is added to the
-        tolerance in quadrature), so an effect is never distorted into the data fit to chase it."""
+        brings by itself (a resonance's lag on the 3 Hz loops, say, which the base absorbed into its
+        loops and no static term undoes: it is added to the tolerance in quadrature, see
+        `_anchor_grams`), so an effect is never distorted into the data fit to chase it."""
         c, G, b, scale = self._solve(X, y)
         if self.anchor_on:
             grams, allowed = self._anchor_grams(spec)
