@@ -11,7 +11,12 @@ in a slow large one. For each case this prints three RMS errors on that part, in
   - `self-fit`: an SDPI identified on the two-tone part itself (10 and 20 plays), the least
     error of the model class on those loops. A floor far above the noise means the loops break
     the class's rule (Masing's: minor loops are the major loop's branches, halved), and no law
-    in stress can recover them.
+    in stress can recover them;
+  - `Preisach N`: a discrete Preisach model fitted on the same part by least squares, with free
+    weights on N(N-1)/2 relays (an N-level grid over the probe's drive range) plus a linear term.
+    Its minor loops need not be the major loop's (it obeys only congruency), so it tells whether
+    a richer classical core would follow these loops. Its relays start from rest at the probe's
+    minimum and run through the whole probe.
 """
 
 from __future__ import annotations
@@ -39,10 +44,39 @@ def rms(a: np.ndarray) -> float:
     return float(np.sqrt(np.mean(a ** 2)))
 
 
-def two_tone(case) -> Recording:
+def other_shape_probe(case) -> tuple[Recording, np.ndarray]:
+    """The light-load probe and the mask of its two-tone part."""
     probe = next(p for p in probe_recordings(case) if p.name == "probe_other_shape.csv")
-    keep = probe.time_s >= probe.time_s[0] + TWO_TONE_FROM_S
+    return probe, probe.time_s >= probe.time_s[0] + TWO_TONE_FROM_S
+
+
+def two_tone(case) -> Recording:
+    probe, keep = other_shape_probe(case)
     return Recording({k: v[keep] for k, v in probe.columns.items()}, dict(probe.metadata), "two_tone")
+
+
+def relay_states(drive: np.ndarray, levels: int) -> np.ndarray:
+    """States (0 down, 1 up) of the Preisach relays alpha > beta on a `levels` grid, from rest."""
+    grid = np.linspace(drive.min(), drive.max(), levels)
+    up, down = np.meshgrid(grid, grid, indexing="ij")
+    above = down < up
+    up, down = up[above], down[above]
+    state = np.zeros(up.size)
+    out = np.empty((drive.size, up.size))
+    for k, u in enumerate(drive):
+        state[u >= up] = 1.0
+        state[u <= down] = 0.0
+        out[k] = state
+    return out
+
+
+def preisach_self_fit(case, levels: int) -> float:
+    """RMS of a least-squares Preisach fit on the two-tone part (relays from the probe's start)."""
+    probe, keep = other_shape_probe(case)
+    y = probe.displacement_um[keep]
+    cols = np.column_stack([relay_states(probe.drive, levels)[keep], probe.drive[keep], np.ones(y.size)])
+    weights = np.linalg.lstsq(cols, y, rcond=None)[0]
+    return rms(cols @ weights - y)
 
 
 def width_law_model(case, model, ident):
@@ -74,6 +108,8 @@ def main() -> None:
             own = SDPIIdentifier(n_play=n_play).fit([part]).model_
             row[f"self-fit {n_play}"] = rms(own.simulate(part.time_s, part.drive, part.stress_MPa,
                                                          measured_um=y) - y)
+        for levels in (20, 30):
+            row[f"Preisach {levels}"] = preisach_self_fit(case, levels)
         figures = ", ".join(f"{k} {v:.3f}" for k, v in row.items())
         print(f"{name}: two-tone part ({np.ptp(y):.1f} um peak to peak): {figures}", flush=True)
 
