@@ -108,7 +108,7 @@ def main() -> None:
             own = SDPIIdentifier(n_play=n_play).fit([part]).model_
             row[f"self-fit {n_play}"] = rms(own.simulate(part.time_s, part.drive, part.stress_MPa,
                                                          measured_um=y) - y)
-        for levels in (20, 30):
+        for levels in (30, 45):
             row[f"Preisach {levels}"] = preisach_self_fit(case, levels)
         figures = ", ".join(f"{k} {v:.3f}" for k, v in row.items())
         print(f"{name}: two-tone part ({np.ptp(y):.1f} um peak to peak): {figures}", flush=True)
