@@ -367,19 +367,31 @@ class Fitter:
         """Per anchor loop, the quadratic form c' A_k c = (its RMS departure / its tolerance)^2, and
         what each loop may reach: 1 plus the departure the spec brings by itself (`_fit`). That is
         the larger of two: the least departure at gain 1 over all loops together, and the loop's own
-        departure at no recalibration (gain 1, nothing else). The second matters for a law in stress:
-        a resonance that moves with the load lags the heaviest loop most, and the least departure
-        over all loops takes it from that loop to spread it. A loop held below its own lag drags the
-        fit away from the law the data show (a resonance law that cut a probe at another load from
-        3.6 to 0.14 um lost to a load-independent one). Cached per spec."""
+        lag that stays (`_lag_that_stays`). The second matters for a law in stress: a resonance that
+        moves with the load lags the heaviest loop most, and the least departure over all loops takes
+        it from that loop to spread it. A loop held below its own lag drags the fit away from the law
+        the data show (a resonance law that cut a probe at another load from 3.6 to 0.14 um lost to a
+        load-independent one). Cached per spec."""
         def compute() -> tuple[list[np.ndarray], list[float]]:
             Xa = self.anchor_design(spec)
             grams = [Xa[k].T @ Xa[k] / ((k.stop - k.start) * t * t)
                      for k, t in zip(self._anchor_slices, self._anchor_tol)]
             least = _least_departure(np.sum(grams, axis=0))
-            return grams, [1.0 + max(float(least @ A @ least), float(A[0, 0])) for A in grams]
+            stays = self._lag_that_stays(spec)
+            return grams, [1.0 + max(float(least @ A @ least), s) for A, s in zip(grams, stays)]
 
         return self._gram_cache.get_or_compute(spec, compute)
+
+    def _lag_that_stays(self, spec: Spec) -> list[float]:
+        """Per anchor loop, (departure / tolerance)^2 of the core's output at gain 1 through the spec's
+        effects that no rebase takes back out: all but the input-side ones, whose lag the core
+        identified again through them gives back (`rebase.py`). Zero without such an effect."""
+        stage = {c.name: c.stage for c in self.effects}
+        kept = Spec((name, p) for name, p in spec.items() if stage.get(name) != "input")
+        if not any(stage.get(name) == "filter" for name in kept):
+            return [0.0] * len(self.anchor)
+        gain = self.anchor_design(kept)[:, 0]
+        return [float(np.mean(gain[k] ** 2)) / (t * t) for k, t in zip(self._anchor_slices, self._anchor_tol)]
 
     def anchor_deviation(self, spec: Spec, coef: np.ndarray) -> list[float]:
         """Per anchor loop, the RMS by which the model (spec, coefficients) departs from the base's
