@@ -386,9 +386,9 @@ class Fitter:
         """Per anchor loop, (departure / tolerance)^2 of the core's output at gain 1 through the spec's
         effects that no rebase takes back out: all but the input-side ones, whose lag the core
         identified again through them gives back (`rebase.py`). Zero without such an effect."""
-        stage = {c.name: c.stage for c in self.effects}
-        kept = Spec((name, p) for name, p in spec.items() if stage.get(name) != "input")
-        if not any(stage.get(name) == "filter" for name in kept):
+        rebased = {c.name for c in self._inputs}
+        kept = Spec((name, p) for name, p in spec.items() if name not in rebased)
+        if not any(c.stage == "filter" and c.name in kept for c in self.effects):
             return [0.0] * len(self.anchor)
         gain = self.anchor_design(kept)[:, 0]
         return [float(np.mean(gain[k] ** 2)) / (t * t) for k, t in zip(self._anchor_slices, self._anchor_tol)]
