@@ -16,7 +16,9 @@ adjusted while looking at it, and it is quoted apart. Its first run's misses wer
 GENERAL_FRESH_SEED draws a second never-tuned set, for the figures after those fixes. Its creep and
 heating-with-creep misses were then worked on (creep's law on the identification loops), so
 GENERAL_FOURTH_SEED draws a third, for the figures after that. Its resonance miss was then looked at
-and fixed (the anchor's allowance for a law's own lag), so GENERAL_FIFTH_SEED draws a fourth.
+and fixed (the anchor's allowance for a law's own lag), so GENERAL_FIFTH_SEED draws a fourth. Its
+eddy-and-resonance pair's miss was known (a delay named alone) when the resonance's joint search
+beside a lag was fixed on the development draws, so GENERAL_SIXTH_SEED draws a fifth.
 """
 
 from __future__ import annotations
@@ -37,6 +39,9 @@ GENERAL_FOURTH_SEED = 20261202    # a third never-tuned draw (2026-11-26, later)
                                   # looked at and fixed; fixed and committed before its first run
 GENERAL_FIFTH_SEED = 20261203     # a fourth never-tuned draw (2026-11-27): the third's resonance miss was
                                   # looked at and fixed; fixed and committed before its first run
+GENERAL_SIXTH_SEED = 20261204     # a fifth never-tuned draw (2026-11-27, third session): the fourth's pair miss
+                                  # was known before the joint search beside a lag was fixed; fixed and
+                                  # committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
