@@ -95,7 +95,7 @@ def search_all(fitter: Fitter, base: Specs, names: list[str], workers: int) -> d
 
         # look-alikes trade off against each other: re-search the accepted one's value with the new one
         def make_joint(s: Spec, p: Any) -> Spec:
-            return s.with_(name, p[0]).with_(partner, s[partner] * p[1])
+            return s.with_(name, p[0]).with_(partner, REGISTRY[partner].scaled_for_partner(s[partner], p[1]))
 
         def refine(f: Fitter, p: Any, level: int) -> list:
             own = cls.refine(f, p[0], level)
@@ -103,13 +103,57 @@ def search_all(fitter: Fitter, base: Specs, names: list[str], workers: int) -> d
             return out + [(p[0], min(p[1] * m, 1.5)) for m in geom_refine(1.0, 1.6, level)]
 
         grid = [(p, k) for p in cls.grid(fitter) for k in cls.joint_scales]
-        return search(fitter, base, make_joint, grid, refine, workers=workers)
+        found = search(fitter, base, make_joint, grid, refine, workers=workers)
+        return _descend(fitter, base, found, name, partner, workers) if REGISTRY[partner].joint_refit else found
 
     n = min(workers, max(len(names), 1))
     if n <= 1:
         return {name: one(name) for name in names}
     with ThreadPoolExecutor(max_workers=n) as pool:
         return dict(zip(names, pool.map(one, names)))
+
+
+DESCENT_ROUNDS = 3     # coordinate-descent rounds at most: each is two whole searches
+DESCENT_GAIN = 0.05    # a round that takes less than 5 % off the all-data error has converged (the zoom's
+                       # last steps move a resonance's error by about that)
+
+
+def _descend(fitter: Fitter, base: Specs, joint: SearchResult, name: str, partner: str,
+             workers: int) -> SearchResult:
+    """Coordinate descent from a joint search: the partner's whole search again (grid, zoom,
+    polish) with `name` held where the joint search put it, then `name`'s with the partner held, until
+    a round gains little. For a partner whose look-alike part is not one parameter: a resonance fitted
+    alone beside eddy currents takes the lag's phase as damping and moves its frequency and load law
+    with it (damping 0.38 where the rig's is 0.10); scaling its damping alone took the held-out RMS from
+    1.72 to 1.63 um, the descent to 0.43 um (`fourth:rate_dependence+mechanical_dynamics`). Each search
+    includes the point it starts from, so no step can leave a worse all-data fit.
+
+    The descent is kept only where the partner it leaves leans on `name`: without it, that partner
+    fits worse than the one accepted. Otherwise the gain is the partner's own search run again, and
+    it would be credited to an effect that adds nothing (a 0.02 ms lag beside a lone resonance,
+    `mechanical_dynamics#3`): the joint search's result stands."""
+    pcls, cls = REGISTRY[partner], REGISTRY[name]
+
+    def make_partner(s: Spec, p: Any) -> Spec:
+        return s.with_(partner, p)
+
+    def make_own(s: Spec, p: Any) -> Spec:
+        return s.with_(name, p)
+
+    found = joint
+    for k in range(DESCENT_ROUNDS):
+        # the grids in the first round only: later rounds zoom from where the one before ended
+        held = found.specs
+        step = search(fitter, held, make_partner, [held[2][partner]] + (list(pcls.grid(fitter)) if k == 0 else []),
+                      pcls.refine, pcls.zoom_levels, pcls.polish, workers)
+        step = search(fitter, step.specs, make_own, [step.specs[2][name]] + (list(cls.grid(fitter)) if k == 0 else []),
+                      cls.refine, cls.zoom_levels, cls.polish, workers)
+        done = step.all_mse > (1.0 - DESCENT_GAIN) * found.all_mse
+        found = step
+        if done:
+            break
+    alone = fitter.score(tuple(s.without(name) for s in found.specs))      # type: ignore[arg-type]
+    return found if alone.all_mse > fitter.score(base).all_mse else joint
 
 
 def score_round(fitter: Fitter, base: Specs, loss_without: float, names: list[str], rnd: int,

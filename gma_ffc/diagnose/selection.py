@@ -259,7 +259,8 @@ class EffectSelector:
         if sel.leave_one_out is None:
             return best, ""
         cls = REGISTRY[best.effect]
-        loo = leave_one_out_search(problem.fitter, sel.fit.specs[2], lambda s, p: s.with_(best.effect, p),
+        # on the round's fit of it: a look-alike it was searched jointly with (`joint_with`) as rescaled there
+        loo = leave_one_out_search(problem.fitter, best.result.specs[2], lambda s, p: s.with_(best.effect, p),
                                    cls.grid(problem.fitter), cls.refine, getattr(cls, "zoom_levels", 3))
         best = dataclasses.replace(best, leave_one_out=loo)
         before, after = sel.leave_one_out.loss_per_sample, loo.loss_per_sample

@@ -251,7 +251,10 @@ class Effect(Protocol):
                                             # identification loops (`diagnose.anchor`); False: a disturbance
                                             # or slow state, held at its reference on those loops
     joint_with: ClassVar[tuple[str, ...]]   # look-alikes: the first accepted has its parameter re-searched with this one
+                                            # (scaled by the look-alike's `scaled_for_partner`)
     joint_scales: ClassVar[tuple[float, ...]]   # the grid's scales of that parameter (the zoom refines them)
+    joint_refit: ClassVar[bool]             # True: beside a look-alike tried with it, its own parameters are
+                                            # searched again as well (`scoring._descend`): one scale is not enough
     deciders: ClassVar[Mapping[str, str]]   # per look-alike: the experiment that tells the two apart
     transforms_stress: ClassVar[bool]       # True: it supplies the stress the core (and every stage) sees
     shapes_core: ClassVar[bool]             # True: its parameter changes the core itself (`fit_core`);
@@ -386,11 +389,18 @@ class EffectBase:
     follows_drive: ClassVar[bool] = False
     joint_with: ClassVar[tuple[str, ...]] = ()
     joint_scales: ClassVar[tuple[float, ...]] = (0.3, 0.55, 0.8, 1.0)   # the look-alike's parameter, scaled
+    joint_refit: ClassVar[bool] = False
     deciders: ClassVar[Mapping[str, str]] = {}
     transforms_stress: ClassVar[bool] = False
     shapes_core: ClassVar[bool] = False
     zoom_levels: ClassVar[int] = 3
     without_identification: ClassVar[str] = ""    # what it cannot do without the identification recordings
+
+    @classmethod
+    def scaled_for_partner(cls, p: Any, k: float) -> Any:
+        """This effect's parameter when a look-alike tried beside it (`joint_with`) may take over part of
+        what it stood in for: scaled by k (a lag's time constant, a delay)."""
+        return p * k
 
     def __init__(self, block: Mapping[str, Any]) -> None:
         self.block = dict(block)

@@ -52,6 +52,8 @@ class Dynamics(EffectBase):
     # currents and a resonance together): it is re-searched, scaled down, with the resonance
     joint_with: ClassVar[tuple[str, ...]] = ("time_delay", "rate_dependence")
     joint_scales: ClassVar[tuple[float, ...]] = (0.5, 1.0)   # two, not four: its grid is 90 points already
+    joint_refit: ClassVar[bool] = True   # beside a lag or delay its frequency and load law move too, not only
+                                         # its damping: searched again whole (`scoring._descend`)
     # a sharp resonance needs its frequency, damping and load law to about a percent (steps halve per level)
     zoom_levels: ClassVar[int] = 6
     deciders: ClassVar[Mapping[str, str]] = {
@@ -128,6 +130,14 @@ class Dynamics(EffectBase):
         if fitter.stress_varies:
             out += _law_moves(fitter, p, near(3.0))
         return out
+
+    @classmethod
+    def scaled_for_partner(cls, p: Any, k: float) -> Any:
+        """Fitted alone, a resonance beside eddy currents or a delay takes their phase lag as extra
+        damping (a damping ratio of 0.38 where the rig's is 0.1): tried beside it, a lag or delay has
+        the damping re-searched, scaled by k."""
+        fr, z, b = p
+        return (fr, min(z * k, MAX_ZETA), b)
 
     @classmethod
     def polish(cls, fitter: FitData, p: Any) -> tuple[int, Callable[[np.ndarray], Any]]:

@@ -25,7 +25,7 @@ class EddyLag(EffectBase):
         "stack's capacitance through its output resistance, or a filter in the drive or sensor path), so "
         "loops widen and tilt as the drive gets faster")
     n_params: ClassVar[int] = 1
-    joint_with: ClassVar[tuple[str, ...]] = ("time_delay",)
+    joint_with: ClassVar[tuple[str, ...]] = ("time_delay", "mechanical_dynamics")
 
     def __init__(self, block: Mapping[str, Any]) -> None:
         super().__init__(block)
