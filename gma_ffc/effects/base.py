@@ -320,6 +320,10 @@ class Effect(Protocol):
         for a continuous local search (None: the zoom is all there is)."""
 
     @classmethod
+    def scaled_for_partner(cls, p: Any, k: float) -> Any:
+        """Its parameter scaled by k, beside a look-alike that names it in `joint_with`."""
+
+    @classmethod
     def fit_stress(cls, d: Any) -> np.ndarray:
         """`transforms_stress` only: the transformed stress of a recording (unclamped)."""
 
