@@ -113,7 +113,7 @@ def search_all(fitter: Fitter, base: Specs, names: list[str], workers: int) -> d
         return dict(zip(names, pool.map(one, names)))
 
 
-DESCENT_ROUNDS = 3     # coordinate-descent rounds at most: each is two whole searches
+DESCENT_ROUNDS = 3     # coordinate-descent rounds at most: each is two searches (whole, then zooms)
 DESCENT_GAIN = 0.05    # a round that takes less than 5 % off the all-data error has converged (the zoom's
                        # last steps move a resonance's error by about that)
 

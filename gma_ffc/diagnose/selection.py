@@ -13,13 +13,14 @@ a resonance beside eddy currents first fits as a lag, and shows its peak once a 
 The null model every effect must beat is the base model with a static recalibration (gain,
 offset, curvature, stress gain, loop width): ordinary model error of that kind is never called
 an effect. With two or more accepted, a swap pass asks whether each is still the best choice for
-its slot with the others in place. Final guards then refuse anything that is worse than the base
-as given, or fitted to a drive the model's class cannot follow.
+its slot with the others in place, and a backward pass drops any that no longer earns its place
+beside them. Final guards then refuse anything that is worse than the base as given, or fitted
+to a drive the model's class cannot follow.
 
 `fit` runs the steps in order, each taking the frozen state of the one before (`state.py`) and
 returning a new one: the recordings prepared with the null model (`problem.setup`), the
-candidates each round fits and scores (`scoring`) and this module decides on, the swap pass, the
-core identified again through input-side effects (`rebase`), the guards, and the outcome in
+candidates each round fits and scores (`scoring`) and this module decides on, the swap and
+backward passes, the core identified again through input-side effects (`rebase`), the guards, and the outcome in
 words (`outcome.assemble`).
 """
 
@@ -157,7 +158,7 @@ class EffectSelector:
             sel, more = self._round(problem, sel, rnd, say)
             if not more:
                 break
-        sel = self._swap_pass(problem, sel, say)
+        sel = self._prune_after_swap(problem, self._swap_pass(problem, sel, say))
         problem, sel = self._rebase(problem, sel, say)
         final = self._guard(problem, sel)
         dg = assemble(self, problem, final)
@@ -349,9 +350,30 @@ class EffectSelector:
         """Effects accepted later than the input-side one were judged against the residual of the old
         core, part of which was the input-side effect's lag absorbed twice: on the new core each must
         earn its place again, by the rule it was accepted by, or it is dropped."""
+        sel, dropped = self._drop_unearned(problem, sel, [n for n in sel.accepted if REGISTRY[n].stage != "input"],
+                                           f"named against the core before it was identified again through "
+                                           f"{through}; on the new core it no longer earns its place")
+        return dataclasses.replace(sel, rebase_note=sel.rebase_note + dropped)
+
+    def _prune_after_swap(self, problem: Problem, sel: Selection) -> Selection:
+        """Backward elimination: with every other accepted effect in place, each must still earn its
+        place by the rule it was accepted by, or it is dropped. An effect accepted first takes part of
+        what a later one explains better (a delay named before eddy currents and a resonance, which
+        then share its phase lag), and forward selection alone never takes it back."""
+        if len(sel.accepted) < 2:
+            return sel
+        sel, _ = self._drop_unearned(problem, sel, list(reversed(sel.accepted)),   # the least important first
+                                     "named before the others; with them in the model it no longer earns its place")
+        return sel
+
+    def _drop_unearned(self, problem: Problem, sel: Selection, names: Sequence[str],
+                       why: str) -> tuple[Selection, str]:
+        """Each of `names` that no longer earns its place (`earns_place`, with the others as they are
+        fitted) dropped, with `why` as its reason; the selection, and a sentence per drop."""
         fitter = problem.fitter
         n_eff: float | None = None          # of the current final model's residual: found again only after a drop
-        for name in [n for n in sel.accepted if REGISTRY[n].stage != "input"]:
+        said = ""
+        for name in [n for n in names if n in sel.accepted]:
             without: Specs = tuple(s.without(name) for s in sel.fit.specs)  # type: ignore[assignment]
             sc = fitter.score(without, want_coef=True)
             assert sc.coef_all is not None
@@ -360,17 +382,16 @@ class EffectSelector:
             gain = loglik_gain(n_eff, sc.held_out_loss, sel.cur_loss, REGISTRY[name].count_params(fitter))
             if self.earns_place(sel.cur_loss, gain, sc.held_out_loss, problem.noise):
                 continue
-            reason = (f"named against the core before it was identified again through {through}; on the new "
-                      f"core it no longer earns its place (held-out {math.sqrt(sel.cur_cv):.4g} um with it, "
+            reason = (f"{why} (held-out {math.sqrt(sel.cur_cv):.4g} um with it, "
                       f"{math.sqrt(sc.held_out_mse):.4g} um without)")
             fit = SearchResult(without, sc.held_out_loss, sc.held_out_mse, sc.all_mse, sc.n_held_out,
                                sc.coef_all, sc.names, sel.fit.evaluated)
             sel = dataclasses.replace(
                 sel.with_reason(name, reason), fit=fit, accepted=tuple(n for n in sel.accepted if n != name),
-                ambiguous=tuple(p for p in sel.ambiguous if name not in p),
-                rebase_note=sel.rebase_note + f" {name} was dropped: {reason}.")
+                ambiguous=tuple(p for p in sel.ambiguous if name not in p))
+            said += f" {name} was dropped: {reason}."
             n_eff = None
-        return sel
+        return sel, said
 
     # ------------------------------------------------------------------ final guards
     def _guard(self, problem: Problem, sel: Selection) -> Final:
