@@ -18,7 +18,7 @@ from ..effects import REGISTRY
 from ..effects.base import geom_refine
 from ..effects.static import StaticMap
 from ..extended import ExtendedModel
-from .fitting import ZOOM_LEVELS, Fitter, SearchResult, Spec, search
+from .fitting import Fitter, SearchResult, Spec, search
 from .state import Trial
 
 Specs = tuple[Spec, Spec, Spec]          # fold A's, fold B's and the all-data spec
@@ -84,14 +84,9 @@ def search_all(fitter: Fitter, base: Specs, names: list[str], workers: int) -> d
 
     def one(name: str) -> SearchResult:
         cls = REGISTRY[name]
-
-        def make(s: Spec, p: Any) -> Spec:
-            return s.with_(name, p)
-
         partner = next((p for p in cls.joint_with if p in base[2]), None)
         if partner is None:
-            return search(fitter, base, make, cls.grid(fitter), cls.refine, getattr(cls, "zoom_levels", ZOOM_LEVELS),
-                          cls.polish, workers)
+            return _own_search(fitter, base, name, workers)
 
         # look-alikes trade off against each other: re-search the accepted one's value with the new one
         def make_joint(s: Spec, p: Any) -> Spec:
@@ -113,6 +108,19 @@ def search_all(fitter: Fitter, base: Specs, names: list[str], workers: int) -> d
         return dict(zip(names, pool.map(one, names)))
 
 
+def _own_search(fitter: Fitter, base: Specs, name: str, workers: int, start: Any = None,
+                grid: bool = True) -> SearchResult:
+    """One effect's own search on top of `base` (its grid, zoom and polish), from `start` as well
+    when given; without its grid, the zoom from `start` alone."""
+    cls = REGISTRY[name]
+
+    def make(s: Spec, p: Any) -> Spec:
+        return s.with_(name, p)
+
+    points = ([] if start is None else [start]) + (list(cls.grid(fitter)) if grid else [])
+    return search(fitter, base, make, points, cls.refine, cls.zoom_levels, cls.polish, workers)
+
+
 DESCENT_ROUNDS = 3     # coordinate-descent rounds at most: each is two searches (whole, then zooms)
 DESCENT_GAIN = 0.05    # a round that takes less than 5 % off the all-data error has converged (the zoom's
                        # last steps move a resonance's error by about that)
@@ -132,22 +140,11 @@ def _descend(fitter: Fitter, base: Specs, joint: SearchResult, name: str, partne
     fits worse than the one accepted. Otherwise the gain is the partner's own search run again, and
     it would be credited to an effect that adds nothing (a 0.02 ms lag beside a lone resonance,
     `mechanical_dynamics#3`): the joint search's result stands."""
-    pcls, cls = REGISTRY[partner], REGISTRY[name]
-
-    def make_partner(s: Spec, p: Any) -> Spec:
-        return s.with_(partner, p)
-
-    def make_own(s: Spec, p: Any) -> Spec:
-        return s.with_(name, p)
-
     found = joint
     for k in range(DESCENT_ROUNDS):
         # the grids in the first round only: later rounds zoom from where the one before ended
-        held = found.specs
-        step = search(fitter, held, make_partner, [held[2][partner]] + (list(pcls.grid(fitter)) if k == 0 else []),
-                      pcls.refine, pcls.zoom_levels, pcls.polish, workers)
-        step = search(fitter, step.specs, make_own, [step.specs[2][name]] + (list(cls.grid(fitter)) if k == 0 else []),
-                      cls.refine, cls.zoom_levels, cls.polish, workers)
+        step = _own_search(fitter, found.specs, partner, workers, start=found.specs[2][partner], grid=k == 0)
+        step = _own_search(fitter, step.specs, name, workers, start=step.specs[2][name], grid=k == 0)
         done = step.all_mse > (1.0 - DESCENT_GAIN) * found.all_mse
         found = step
         if done:
