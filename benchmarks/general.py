@@ -18,7 +18,9 @@ heating-with-creep misses were then worked on (creep's law on the identification
 GENERAL_FOURTH_SEED draws a third, for the figures after that. Its resonance miss was then looked at
 and fixed (the anchor's allowance for a law's own lag), so GENERAL_FIFTH_SEED draws a fourth. Its
 eddy-and-resonance pair's miss was known (a delay named alone) when the resonance's joint search
-beside a lag was fixed on the development draws, so GENERAL_SIXTH_SEED draws a fifth.
+beside a lag was fixed on the development draws, so GENERAL_SIXTH_SEED draws a fifth. Its creep miss
+(a time constant the identification loops could not tell) was then looked at and fixed, so
+GENERAL_SEVENTH_SEED draws a sixth.
 """
 
 from __future__ import annotations
@@ -42,6 +44,8 @@ GENERAL_FIFTH_SEED = 20261203     # a fourth never-tuned draw (2026-11-27): the 
 GENERAL_SIXTH_SEED = 20261204     # a fifth never-tuned draw (2026-11-27, third session): the fourth's pair miss
                                   # was known before the joint search beside a lag was fixed; fixed and
                                   # committed before its first run
+GENERAL_SEVENTH_SEED = 20261205   # a sixth never-tuned draw (2026-11-27, fourth session): the fifth's creep miss
+                                  # was looked at and fixed; fixed and committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
