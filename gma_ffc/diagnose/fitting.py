@@ -16,7 +16,7 @@ import math
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence, TypeVar
 
 import numpy as np
 
@@ -35,6 +35,7 @@ CORE_CACHE_BYTES = 192 * 2 ** 20
 REGRESSOR_CACHE_BYTES = 128 * 2 ** 20
 STATIC_CACHE_BYTES = 32 * 2 ** 20
 ANCHOR_CACHE_BYTES = 96 * 2 ** 20
+_T = TypeVar("_T")               # what an effect keeps in the fitter's cache (`Fitter.cached`)
 
 
 def _plain(p: Any) -> Any:
@@ -170,7 +171,7 @@ class Fitter:
         self.stress_bottom = min(float(self._static[id(d)].min()) for d in self.data)
         self._core_cache: BoundedCache[list[tuple[np.ndarray, np.ndarray]]] = BoundedCache(max_bytes=CORE_CACHE_BYTES)
         self._yc0: float | None = None
-        self._cache: BoundedCache[np.ndarray] = BoundedCache(max_bytes=REGRESSOR_CACHE_BYTES)
+        self._cache: BoundedCache[Any] = BoundedCache(max_bytes=REGRESSOR_CACHE_BYTES)
         self._static_cache: BoundedCache[tuple[list[np.ndarray], list[str], dict[str, np.ndarray]]] = \
             BoundedCache(max_bytes=STATIC_CACHE_BYTES)
         self.dt_min = min(d.dt_med for d in self.data)
@@ -272,7 +273,7 @@ class Fitter:
                 u = c.filter_input(u, d, spec[c.name])
         return np.ascontiguousarray(u)
 
-    def cached(self, key: tuple, compute: Callable[[], np.ndarray]) -> np.ndarray:
+    def cached(self, key: tuple, compute: Callable[[], _T]) -> _T:
         """compute() once per key (e.g. a re-run of the core an effect's regressor needs)."""
         return self._cache.get_or_compute(key, compute)
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Iterable, Mapping, Protocol, Sequence
+from typing import Any, Callable, ClassVar, Iterable, Mapping, Protocol, Sequence, TypeVar
 
 import numpy as np
 
@@ -31,6 +31,7 @@ from . import kernels as K
 #   filter filters everything summed so far (the resonance); inverted before the sum
 #   after  adds a term after the filter (heating offset); inverted first
 STAGES = ("input", "sum", "filter", "after")
+_T = TypeVar("_T")                # what a fitter's cache holds for an effect (`FitData.cached`)
 
 
 class StepSignals:
@@ -156,7 +157,7 @@ class FitData(Protocol):
     @property
     def yc_center(self) -> float: ...
 
-    def cached(self, key: tuple, compute: Any) -> np.ndarray:
+    def cached(self, key: tuple, compute: Callable[[], _T]) -> _T:
         """compute() once per key (the fitter's cache, bounded)."""
 
     def stress_levels(self) -> list[float]:
