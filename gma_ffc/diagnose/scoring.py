@@ -140,7 +140,16 @@ def _descend(fitter: Fitter, base: Specs, joint: SearchResult, name: str, partne
     fits worse than the one accepted. Otherwise the gain is the partner's own search run again, and
     it would be credited to an effect that adds nothing (a 0.02 ms lag beside a lone resonance,
     `mechanical_dynamics#3`): the joint search's result stands."""
-    found = joint
+    found = descend(fitter, joint, name, partner, workers)
+    alone = fitter.score(tuple(s.without(name) for s in found.specs))      # type: ignore[arg-type]
+    return found if alone.all_mse > fitter.score(base).all_mse else joint
+
+
+def descend(fitter: Fitter, start: SearchResult, name: str, partner: str, workers: int) -> SearchResult:
+    """Coordinate descent from `start`: the partner's whole search (grid, zoom, polish) with `name`
+    held, then `name`'s with the partner held, in rounds until one takes less than DESCENT_GAIN off
+    the all-data error. Each search includes the point it starts from."""
+    found = start
     for k in range(DESCENT_ROUNDS):
         # the grids in the first round only: later rounds zoom from where the one before ended
         step = _own_search(fitter, found.specs, partner, workers, start=found.specs[2][partner], grid=k == 0)
@@ -149,8 +158,7 @@ def _descend(fitter: Fitter, base: Specs, joint: SearchResult, name: str, partne
         found = step
         if done:
             break
-    alone = fitter.score(tuple(s.without(name) for s in found.specs))      # type: ignore[arg-type]
-    return found if alone.all_mse > fitter.score(base).all_mse else joint
+    return found
 
 
 def score_round(fitter: Fitter, base: Specs, loss_without: float, names: list[str], rnd: int,

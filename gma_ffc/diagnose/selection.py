@@ -41,7 +41,8 @@ from .identification import check
 from .outcome import assemble
 from .problem import setup
 from .rebase import reidentify_through
-from .scoring import Specs, build_extended, effective_samples, loglik_gain, params_of, score_round, search_all
+from .scoring import (Specs, build_extended, descend, effective_samples, loglik_gain, params_of, score_round,
+                      search_all)
 from .state import Final, Problem, RoundRecord, Selection, Trial
 
 
@@ -362,8 +363,25 @@ class EffectSelector:
         then share its phase lag), and forward selection alone never takes it back."""
         if len(sel.accepted) < 2:
             return sel
-        sel, _ = self._drop_unearned(problem, sel, list(reversed(sel.accepted)),   # the least important first
-                                     "named before the others; with them in the model it no longer earns its place")
+        sel, dropped = self._drop_unearned(problem, sel, list(reversed(sel.accepted)),   # the least important first
+                                           "named before the others; with them in the model it no longer earns "
+                                           "its place")
+        return self._refit_after_drop(problem, sel) if dropped else sel
+
+    def _refit_after_drop(self, problem: Problem, sel: Selection) -> Selection:
+        """The look-alikes that stay, fitted again without the one dropped: their parameters were
+        searched beside it. A lag searched beside a resonance and an earlier delay came out at 1.22 ms
+        (the rig's eddy lag 1.88 ms), the resonance's damping at 0.29 (the rig's 0.10); the delay had
+        taken the lag's place. The descent of the joint search (`scoring.descend`) runs again from
+        where they are, and is kept when it predicts the held-out blocks better."""
+        for name in sel.accepted:
+            partner = next((p for p in REGISTRY[name].joint_with if p in sel.accepted and REGISTRY[p].joint_refit),
+                           None)
+            if partner is None:
+                continue
+            found = descend(problem.fitter, sel.fit, name, partner, self.workers)
+            if found.cv_loss < sel.cur_loss:
+                sel = dataclasses.replace(sel, fit=found)
         return sel
 
     def _drop_unearned(self, problem: Problem, sel: Selection, names: Sequence[str],
