@@ -25,6 +25,7 @@ class _Fit:
 
     dt_min = 1.0 / 2000.0
     duration_max = 30.0
+    identification: tuple = ()          # no identification loops: creep's grid of twelve time constants
 
     def __init__(self, before: np.ndarray, after: np.ndarray) -> None:
         self.rate_rows = np.linspace(0.0, 10.0, N)     # the first 40 % of rows are the slowest

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from gma_ffc.cli import main
 from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.initial_state import InitialStateSpec, resolve, settled_index
-from gma_ffc.model import rms
+from gma_ffc.model import SDPIModel, rms
 from gma_ffc.modelio import save_model
 from gma_ffc.recordings import Recording, read_recording, write_recording
 from test_inverse import drive_from_rng, histories, sdpi_from_rng, sdpi_models
@@ -106,6 +106,33 @@ def random_case(base: int, k: int):
 @pytest.mark.parametrize("base,k", [(1, 336), (1, 1033), (2, 194), (2, 541), (2, 823)])
 def test_the_state_fit_escapes_the_local_minima_a_random_search_found(base, k):
     assert_estimate_reproduces_the_truth(*random_case(base, k))
+
+
+@pytest.mark.xfail(strict=True, reason="known defect, not fixed: the state fit's local search ends in a basin "
+                   "0.13 (1.04 % of the stroke) off on two samples after the reversal; more starts, climbs and "
+                   "random histories do not reach the true one")
+def test_the_state_fit_on_a_case_hypothesis_drew_in_ci():
+    """Drawn by the property test above on a clean-clone CI run (2026-11-27): a falling then rising
+    drive of 37 samples after a history of five turning points. Kept as a strict xfail so the defect
+    stays in view, and so this test fails once the fit finds the true basin here."""
+    model = SDPIModel(
+        play_thresholds=np.array([0., 0.3503427, 0.55297871, 0.78345859, 1.09295803, 1.37846444, 1.7350154,
+                                  2.00886171, 2.28061013, 2.58971397, 2.79725025]),
+        play_weights=np.array([1.79400157, 1.8616082, 0.40679128, 1.86211671, 0., 0., 1.32037935, 0.71105239,
+                               0., 2.55042476, 2.76283437]),
+        deadzone_thresholds=np.array([0.]), deadzone_coeffs=np.array([[2.69470915], [4.62503377e-02], [1.02460981e-03]]),
+        output_coeffs=np.array([-2.49434518, -3.11852101e-02, -2.76048832e-04]), input_offset=1.2769640534096012,
+        stress_range_MPa=(-24.0, -11.3), reference_stress_MPa=None, drive_range=(-3.0, 4.0), drive_name="current_A",
+        initial_state="descending", provenance={}, output_sign=1.0)
+    x = np.r_[np.linspace(2.27293073, 1.62208036, 31), np.linspace(1.82315694, 2.82853987, 6)]
+    stress = np.array([-20.20215621, -19.97930238, -19.35695174, -19.76104674, -20.02825414, -19.7997465,
+                       -20.33092048, -20.61714043, -20.5705012, -19.65212495, -19.72827621, -19.94022938,
+                       -20.25972163, -20.16940619, -19.76135806, -18.63360465, -18.35025641, -18.80769277,
+                       -18.66747177, -18.76235197, -18.9288122, -19.02484978, -18.39080464, -18.56426811,
+                       -19.00750614, -18.75774303, -18.29776169, -17.96669486, -18.14454667, -18.34862965,
+                       -18.63010333, -19.21573105, -19.24602122, -19.41255503, -18.86926384, -19.10980762,
+                       -19.54384484])
+    assert_estimate_reproduces_the_truth(model, x, stress, np.random.default_rng(5562).uniform(-3.0, 4.0, 6))
 
 
 @settings(max_examples=300, deadline=None)
