@@ -83,11 +83,7 @@ def test_eddy_currents_beside_a_resonance_are_named_with_their_own_time_constant
     rig's. This case was the fourth never-tuned draw's; it is development since."""
     from benchmarks.general import GENERAL_FOURTH_SEED
 
-    case = {c.name: c for c in general_cases(GENERAL_FOURTH_SEED, prefix="fourth")}[
-        "fourth:rate_dependence+mechanical_dynamics"]
-    tau_rig_s = case_plant(case).eddy.time_constant_ms * 1e-3
-    model, ident, rec = case_recordings(case, scale=0.5)
-    dg = diagnose(model, [rec], identification=ident)
+    dg, tau_rig_s = _eddy_and_resonance_diagnosed(GENERAL_FOURTH_SEED, "fourth")
     assert sorted(dg.verdict) == ["mechanical_dynamics", "rate_dependence"]
     tau = {c.effect: c.params for c in dg.candidates}["rate_dependence"]["tau_s"]
     # 15 %: a lag's time constant sets its phase at the resonance; the fit before the descent was 0.40 ms
@@ -105,13 +101,17 @@ def test_a_delay_named_before_eddy_currents_and_a_resonance_is_dropped_once_they
     development since."""
     from benchmarks.general import GENERAL_SIXTH_SEED
 
-    case = {c.name: c for c in general_cases(GENERAL_SIXTH_SEED, prefix="sixth")}[
-        "sixth:rate_dependence+mechanical_dynamics"]
-    tau_rig_s = case_plant(case).eddy.time_constant_ms * 1e-3
-    model, ident, rec = case_recordings(case, scale=0.5)
-    dg = diagnose(model, [rec], identification=ident)
+    dg, tau_rig_s = _eddy_and_resonance_diagnosed(GENERAL_SIXTH_SEED, "sixth")
     assert sorted(dg.verdict) == ["mechanical_dynamics", "rate_dependence"]
     dropped = {c.effect: c.reason for c in dg.candidates}["time_delay"]
     assert "no longer earns its place" in dropped
     tau = {c.effect: c.params for c in dg.candidates}["rate_dependence"]["tau_s"]
     assert tau == pytest.approx(tau_rig_s, rel=0.15)    # as above; fitted beside the delay it was 1.22 ms (rig 1.88)
+
+
+def _eddy_and_resonance_diagnosed(seed: int, prefix: str):
+    """A general draw's eddy-and-resonance pair diagnosed on half its recording with its loops, and
+    the rig's eddy time constant in s."""
+    case = {c.name: c for c in general_cases(seed, prefix=prefix)}[f"{prefix}:rate_dependence+mechanical_dynamics"]
+    model, ident, rec = case_recordings(case, scale=0.5)
+    return diagnose(model, [rec], identification=ident), case_plant(case).eddy.time_constant_ms * 1e-3
