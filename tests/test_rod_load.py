@@ -251,7 +251,7 @@ def test_the_search_never_leaves_the_frequencies_the_sampling_resolves():
 @given(st.integers(1, 6), st.integers(2, 300), st.floats(5.0, 400.0), st.floats(0.02, 2.0), st.floats(0.0, 0.2),
        st.integers(0, 2**31 - 1))
 def test_the_regressors_are_each_term_through_the_load_dynamics(m, n, f_hz, zeta, beta, seed):
-    """The fitter's batch (every term at once, one per column) is the one-signal kernel applied
+    """The fitter's batch (every term at once, one per row) is the one-signal kernel applied
     to each term, at a load that moves."""
     from gma_ffc.effects import rod_load as RL
 
@@ -259,7 +259,7 @@ def test_the_regressors_are_each_term_through_the_load_dynamics(m, n, f_hz, zeta
     X = rng.normal(size=(n, m))
     dt = rng.uniform(2e-4, 2e-3, n)
     s = -15.0 + np.cumsum(rng.normal(0.0, 1e-2, n))
-    got = RL.regressors(X, dt, s, f_hz, zeta, beta, -11.0)
+    got = RL.regressors(X.T, dt, s, f_hz, zeta, beta, -11.0)
     for j in range(m):
         want = RK.forward(np.ascontiguousarray(X[:, j]), dt, s, 2 * np.pi * f_hz, zeta, beta, -11.0, X[0, j])
-        np.testing.assert_allclose(got[:, j], want, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(got[j], want, rtol=1e-12, atol=1e-12)

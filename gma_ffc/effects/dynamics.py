@@ -184,10 +184,10 @@ class Dynamics(EffectBase):
         f, zeta, beta = p
         d = r.d
         idx = [j for j, name in enumerate(r.names) if name != "offset"]
-        filt = RL.regressors(np.column_stack([r.cols[j] for j in idx]), d.dt, fitter.static_stress(d),
+        filt = RL.regressors(np.array([r.cols[j] for j in idx]), d.dt, fitter.static_stress(d),
                              f, zeta, beta, fitter.stress_top)
         for k, j in enumerate(idx):
-            r.cols[j] = filt[:, k]
+            r.cols[j] = filt[k]
 
     @classmethod
     def fitted_params(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, float]:

@@ -109,10 +109,11 @@ def inverse(y: np.ndarray, dt: np.ndarray, s_static: np.ndarray, block: Mapping[
 
 def regressors(X: np.ndarray, dt: np.ndarray, s_static: np.ndarray, f_ref_hz: float, zeta: float,
                beta_per_MPa: float, stress_ref_MPa: float) -> np.ndarray:
-    """Every column (a term of the free stroke) through the load dynamics, each at rest at its first value."""
-    return RK.forward_columns(np.ascontiguousarray(X, dtype=float), np.ascontiguousarray(dt, dtype=float),
-                              np.ascontiguousarray(s_static, dtype=float), 2.0 * math.pi * f_ref_hz, zeta,
-                              beta_per_MPa, stress_ref_MPa)
+    """Every row of X (a term of the free stroke, shape (terms, samples)) through the load
+    dynamics, each at rest at its first value."""
+    return RK.forward_rows(np.ascontiguousarray(X, dtype=float), np.ascontiguousarray(dt, dtype=float),
+                           np.ascontiguousarray(s_static, dtype=float), 2.0 * math.pi * f_ref_hz, zeta,
+                           beta_per_MPa, stress_ref_MPa)
 
 
 class RodLoadStepper:

@@ -74,35 +74,47 @@ def static_stress(s: np.ndarray, dt: np.ndarray, fc_hz: float, s0: float) -> np.
 
 
 @njit(cache=True, nogil=True)
-def forward_columns(X: np.ndarray, dt: np.ndarray, s_static: np.ndarray, omega_ref: float, zeta: float,
-                    beta: float, s_ref: float) -> np.ndarray:
-    """Load position for every column of X taken as the free stroke (each at rest at its first value)."""
-    n, m = X.shape
-    out = np.empty((n, m))
-    x = np.empty(m)
-    v = np.zeros(m)
-    for j in range(m):
-        x[j] = X[0, j]
+def transitions(dt: np.ndarray, s_static: np.ndarray, omega_ref: float, zeta: float, beta: float,
+                s_ref: float) -> np.ndarray:
+    """Phi(dt_k) per sample, as rows (Phi11, Phi12, Phi21, Phi22) of a (4, n) array."""
+    n = dt.shape[0]
+    out = np.empty((4, n))
     last_dt = -1.0
     last_w = -1.0
-    p11 = 1.0
-    p12 = 0.0
-    p21 = 0.0
-    p22 = 1.0
+    p11, p12, p21, p22 = 1.0, 0.0, 0.0, 1.0
     for k in range(n):
         w = omega_at(omega_ref, beta, s_static[k], s_ref)
         if dt[k] != last_dt or w != last_w:
             p11, p12, p21, p22 = phi(dt[k], w, zeta)
             last_dt = dt[k]
             last_w = w
-        g1 = 1.0 - p11
-        g2 = -p21
-        for j in range(m):
-            u = X[k, j]
-            xn = p11 * x[j] + p12 * v[j] + g1 * u
-            v[j] = p21 * x[j] + p22 * v[j] + g2 * u
-            x[j] = xn
-            out[k, j] = xn
+        out[0, k] = p11
+        out[1, k] = p12
+        out[2, k] = p21
+        out[3, k] = p22
+    return out
+
+
+@njit(cache=True, nogil=True)
+def forward_rows(X: np.ndarray, dt: np.ndarray, s_static: np.ndarray, omega_ref: float, zeta: float,
+                 beta: float, s_ref: float) -> np.ndarray:
+    """Load position for every row of X taken as the free stroke (each at rest at its first value).
+    The transition matrices are computed once for all rows, and each row runs through memory in
+    order (the fitter's terms are rows: no column gather before, no strided columns after)."""
+    m, n = X.shape
+    P = transitions(dt, s_static, omega_ref, zeta, beta, s_ref)
+    out = np.empty((m, n))
+    for j in range(m):
+        x = X[j, 0]
+        v = 0.0
+        for k in range(n):
+            u = X[j, k]
+            p11 = P[0, k]
+            p21 = P[2, k]
+            xn = p11 * x + P[1, k] * v + (1.0 - p11) * u
+            v = p21 * x + P[3, k] * v - p21 * u
+            x = xn
+            out[j, k] = xn
     return out
 
 
