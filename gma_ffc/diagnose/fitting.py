@@ -170,6 +170,8 @@ class Fitter:
         self.stress_top = max(float(self._static[id(d)].max()) for d in self.data)
         self.stress_bottom = min(float(self._static[id(d)].min()) for d in self.data)
         self._core_cache: BoundedCache[list[tuple[np.ndarray, np.ndarray]]] = BoundedCache(max_bytes=CORE_CACHE_BYTES)
+        self._anchor_core_cache: BoundedCache[list[tuple[np.ndarray, np.ndarray]]] = \
+            BoundedCache(max_bytes=ANCHOR_CACHE_BYTES)
         self._yc0: float | None = None
         self._cache: BoundedCache[Any] = BoundedCache(max_bytes=REGRESSOR_CACHE_BYTES)
         self._static_cache: BoundedCache[tuple[list[np.ndarray], list[str], dict[str, np.ndarray]]] = \
@@ -222,6 +224,11 @@ class Fitter:
     def core(self, spec: Spec) -> list[tuple[np.ndarray, np.ndarray]]:
         """(core input u3, core output y_c) per recording for the spec's input-side effects."""
         return self._core_cache.get_or_compute(self.input_key(spec), lambda: self._run_core(spec, self.data))
+
+    def anchor_core(self, spec: Spec) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The same per identification loop of the anchor: shared by every spec with the same input
+        key (a resonance's grid runs the core on the loops once, not once per point)."""
+        return self._anchor_core_cache.get_or_compute(self.input_key(spec), lambda: self._run_core(spec, self.anchor))
 
     def _run_core(self, spec: Spec, data: Sequence[RecData]) -> list[tuple[np.ndarray, np.ndarray]]:
         core = self.model
@@ -358,8 +365,8 @@ class Fitter:
     def anchor_design(self, spec: Spec) -> np.ndarray:
         """Regressors at the anchor's rows, each loop's offset and base output projected out."""
         def compute() -> np.ndarray:
-            runs = self._run_core(spec, self.anchor)
-            return np.vstack([_projected(q, np.column_stack(self.columns(d, u3, yc, spec, steady=True)[0])[d.rows])
+            runs = self.anchor_core(spec)
+            return np.vstack([_projected(q, np.column_stack([c[d.rows] for c in self.columns(d, u3, yc, spec, steady=True)[0]]))
                               for q, d, (u3, yc) in zip(self._anchor_free, self.anchor, runs)])
 
         return self._anchor_cache.get_or_compute(spec, compute)
