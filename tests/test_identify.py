@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import re
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from gma_ffc.errors import InputError
 from gma_ffc.identify import SDPIIdentifier, burn_in_end, slope_basis, slopes_to_weights, weights_to_slopes
@@ -221,3 +224,39 @@ def test_per_recording_zeros_make_the_fit_blind_to_each_recording_s_zero(preisac
     assert max(f.rms_um for f in shared.report_) > 3 * max(f.rms_um for f in apart.report_)
     with pytest.raises(InputError, match="zero must be one of"):
         SDPIIdentifier(zero="each").fit(train)
+
+
+@pytest.fixture(scope="module")
+def identified(preisach_data):
+    t, x, train, _ = preisach_data
+    ident = SDPIIdentifier()
+    ident.fit(train[:3])
+    return ident, train[:3]
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.integers(0, 2), st.floats(0.0, 1.0), st.integers(0, 2**31 - 1))
+def test_the_score_after_the_burn_in_sweep_is_the_same_from_any_initial_state(identified, k, skew, seed) -> None:
+    """The fit's score skips the state fit where the burn-in sweep wipes the start: from every play
+    state in its box (drawn, and the rule's estimate), the scored samples are the same numbers."""
+    ident, recs = identified
+    rec = recs[k]
+    x, s = rec.drive, rec.stress_MPa
+    start = burn_in_end(x)
+    shortcut = ident._output_whatever_the_start(SimpleNamespace(x=x, sigma=s), start)
+    assert shortcut is not None        # a 3 Hz loop from 0 to 3 A sweeps every play's box
+    m = ident.model_
+    v0 = x[0] - m.input_offset
+    u = np.random.default_rng(seed).uniform(0.0, 1.0, m.n_play) ** (1.0 + 4.0 * skew)
+    state = v0 - m.play_thresholds + 2.0 * u * m.play_thresholds
+    for out in (m.simulate(None, x, s, initial_play_state=state),
+                m.simulate(None, x, s, measured_um=ident.output_sign_ * rec.displacement_um)):
+        np.testing.assert_array_equal(out[start:], shortcut[start:])
+
+
+def test_a_recording_whose_start_is_never_wiped_is_scored_from_its_estimated_state(identified) -> None:
+    """A drive that never sweeps its whole range leaves the start in every sample: no shortcut."""
+    ident, recs = identified
+    x, s = recs[0].drive, recs[0].stress_MPa
+    half = x.size // 8                                  # the first rise only, not a full sweep
+    assert ident._output_whatever_the_start(SimpleNamespace(x=x[:half], sigma=s[:half]), 10) is None
