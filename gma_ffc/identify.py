@@ -385,61 +385,13 @@ class SDPIIdentifier:
                  per_rec_stress: list[float], r_h: np.ndarray, x_c: float,
                  drive_range: tuple[float, float]) -> None:
         """Steps 1-3 (and the joint passes) on prepared data; sets model_ and report_."""
-        x_lo, x_hi = drive_range
-        notes_before = list(self.notes_)
-        stress_dependent = len(levels) > 1
-        ref_level: float | None
-        if stress_dependent:
-            ref = self.reference_stress_MPa if self.reference_stress_MPa is not None else max(levels)
-            ref_level = min(levels, key=lambda s: abs(s - ref))
-            nearest = min(abs(s - ref_level) for s in per_rec_stress)
-            ref_data = [d for d, s in zip(data, per_rec_stress)
-                        if abs(s - ref_level) <= max(self.stress_tolerance_MPa, nearest + 1e-9)]
-        else:
-            ref_level = levels[0] if levels else None
-            ref_data = data
-            if levels:   # the range the stress really covers (a few glitch rows do not count)
-                lo_s, hi_s = np.percentile(np.concatenate([d.stress for d in data]), [0.5, 99.5])
-            if levels and hi_s - lo_s > 2 * self.stress_tolerance_MPa:
-                note = (f"the stress varies ({lo_s:.3g}..{hi_s:.3g} MPa) but dwells at only "
-                        f"one level ({levels[0]:.3g} MPa): fitted a stress-independent MPI; record at least "
-                        "three levels, each held for a few drive cycles, for an SDPI")
-            elif levels:
-                note = (f"all recordings are at one stress ({levels[0]:.3g} MPa): fitted a stress-independent "
-                        "MPI; give recordings at several stresses for an SDPI")
-            else:
-                note = "recordings have no stress_MPa column: fitted a stress-independent MPI"
-            if note not in self.notes_:
-                self.notes_.append(note)
-
-        self._say("step 1: MPI at the reference stress")
-        w_h, r_s, slopes, y_c = self._fit_mpi(ref_data)
-        if self.threshold_grid == "intermediate":
-            r_s, slopes, y_c = self._regrid(ref_data, w_h)
-        if self.refine:
-            self._say("step 1: output-error refinement")
-            w_h, slopes, y_c = self._refine_mpi(ref_data, w_h, r_s, slopes, y_c)
-
-        if stress_dependent:
-            self._say("steps 2-3: quadratic dead-zone weights over stress")
-            s_lo = min(float(d.stress.min()) for d in data)
-            s_hi = max(float(d.stress.max()) for d in data)
-            coeffs, out_coeffs = self._fit_stress(data, w_h, r_s, (s_lo, s_hi), len(levels))
-            if self.joint_passes:
-                self._say("joint refinement of play weights over all stresses")
-                w_h, coeffs, out_coeffs = self._refine_joint(data, w_h, r_s, coeffs, out_coeffs,
-                                                             (s_lo, s_hi), len(levels))
-            stress_range: tuple[float, float] | None = (s_lo, s_hi)
-        else:
-            coeffs = np.zeros((3, len(r_s)))
-            coeffs[0] = slopes_to_weights(slopes)
-            out_coeffs = np.array([y_c, 0.0, 0.0])
-            stress_range = None
-
+        ref_level, ref_data = self._reference(data, levels, per_rec_stress)
+        w_h, r_s, slopes, y_c = self._step_1(ref_data)
+        w_h, coeffs, out_coeffs, stress_range = self._stress_steps(data, len(levels), w_h, r_s, slopes, y_c)
         self.model_ = SDPIModel(
             play_thresholds=r_h, play_weights=w_h, deadzone_thresholds=r_s, deadzone_coeffs=coeffs,
             output_coeffs=out_coeffs, input_offset=x_c, stress_range_MPa=stress_range,
-            reference_stress_MPa=ref_level, drive_range=(x_lo, x_hi), output_sign=self.output_sign_,
+            reference_stress_MPa=ref_level, drive_range=drive_range, output_sign=self.output_sign_,
             drive_name=recordings[0].drive_name, initial_state=self.initial_state,
             provenance={"tool": "gma-ffc identify", "recordings": [d.name for d in data],
                         "settings": {"n_play": self.n_play, "n_deadzone": self.n_deadzone,
@@ -453,21 +405,76 @@ class SDPIIdentifier:
             raise FaultError("the identified model violates Proposition 3.1 although every fit is constrained "
                              "to it (a defect in gma-ffc identify; please report it with the recordings): "
                              + "; ".join(map(str, violations)))
+        self._report(recordings, data)
+
+    def _reference(self, data: list[_Data], levels: list[float],
+                   per_rec_stress: list[float]) -> tuple[float | None, list[_Data]]:
+        """Step 1's stress level and recordings: the reference level's with several levels, else all
+        (noting why the model will be a stress-independent MPI)."""
+        if len(levels) > 1:
+            ref = self.reference_stress_MPa if self.reference_stress_MPa is not None else max(levels)
+            ref_level = min(levels, key=lambda s: abs(s - ref))
+            nearest = min(abs(s - ref_level) for s in per_rec_stress)
+            return ref_level, [d for d, s in zip(data, per_rec_stress)
+                               if abs(s - ref_level) <= max(self.stress_tolerance_MPa, nearest + 1e-9)]
+        if not levels:
+            note = "recordings have no stress_MPa column: fitted a stress-independent MPI"
+        else:   # the range the stress really covers (a few glitch rows do not count)
+            lo_s, hi_s = np.percentile(np.concatenate([d.stress for d in data]), [0.5, 99.5])
+            note = (f"the stress varies ({lo_s:.3g}..{hi_s:.3g} MPa) but dwells at only "
+                    f"one level ({levels[0]:.3g} MPa): fitted a stress-independent MPI; record at least "
+                    "three levels, each held for a few drive cycles, for an SDPI"
+                    if hi_s - lo_s > 2 * self.stress_tolerance_MPa else
+                    f"all recordings are at one stress ({levels[0]:.3g} MPa): fitted a stress-independent "
+                    "MPI; give recordings at several stresses for an SDPI")
+        if note not in self.notes_:
+            self.notes_.append(note)
+        return (levels[0] if levels else None), data
+
+    def _step_1(self, ref_data: list[_Data]) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """Step 1, the MPI at the reference stress: play weights, dead-zone thresholds, slopes, offset."""
+        self._say("step 1: MPI at the reference stress")
+        w_h, r_s, slopes, y_c = self._fit_mpi(ref_data)
+        if self.threshold_grid == "intermediate":
+            r_s, slopes, y_c = self._regrid(ref_data, w_h)
+        if self.refine:
+            self._say("step 1: output-error refinement")
+            w_h, slopes, y_c = self._refine_mpi(ref_data, w_h, r_s, slopes, y_c)
+        return w_h, r_s, slopes, y_c
+
+    def _stress_steps(self, data: list[_Data], n_levels: int, w_h: np.ndarray, r_s: np.ndarray,
+                      slopes: np.ndarray, y_c: float
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[float, float] | None]:
+        """Steps 2-3 and the joint passes with several stress levels (play weights, dead-zone and
+        output coefficients over stress, the stress range); with one, step 1's MPI as they are."""
+        if n_levels <= 1:
+            coeffs = np.zeros((3, len(r_s)))
+            coeffs[0] = slopes_to_weights(slopes)
+            return w_h, coeffs, np.array([y_c, 0.0, 0.0]), None
+        self._say("steps 2-3: quadratic dead-zone weights over stress")
+        stress_range = (min(float(d.stress.min()) for d in data), max(float(d.stress.max()) for d in data))
+        coeffs, out_coeffs = self._fit_stress(data, w_h, r_s, stress_range, n_levels)
+        if self.joint_passes:
+            self._say("joint refinement of play weights over all stresses")
+            w_h, coeffs, out_coeffs = self._refine_joint(data, w_h, r_s, coeffs, out_coeffs, stress_range, n_levels)
+        return w_h, coeffs, out_coeffs, stress_range
+
+    def _report(self, recordings: Sequence[Recording], data: list[_Data]) -> None:
+        """Score the fit on each recording (report_), and record in the model's provenance where it
+        is known to be right: each recording's error, the loop rate and the stresses it was fitted at
+        (diagnose keeps an extended model close to the base there, `gma_ffc.diagnose.anchor`)."""
         self.report_ = [self._score(d) for d in data]
         zero_note = zero_mismatch(self.report_) if self.zero == "shared" else ""
         if zero_note and zero_note not in self.notes_:
             self.notes_.append(zero_note)
             self.model_.provenance["notes"] = list(self.notes_)
         self.model_.provenance["fit_rms_um"] = {f.name: round(f.rms_um, 6) for f in self.report_}
-        # where the model is known to be right: the loop rate and the stresses it was fitted at
-        # (diagnose keeps an extended model close to the base there, `gma_ffc.diagnose.anchor`)
         rates = loop_rates_hz(recordings)
         if rates:
             self.model_.provenance["drive_frequency_hz"] = float(f"{float(np.median(rates)):.4g}")
-        if stress_dependent:
+        if self.model_.stress_range_MPa is not None:
             self.model_.provenance["fit_stress_MPa"] = {f.name: round(float(f.stress_MPa), 4)
                                                         for f in self.report_ if f.stress_MPa is not None}
-        del notes_before
 
     def _orientation(self, data: list[_Data]) -> float:
         """+1 if the displacement rises with the drive, -1 if it falls (the data are then fitted
