@@ -213,9 +213,9 @@ def _fit_state(model: Any, x: np.ndarray, stress: Any, y: np.ndarray, guess: np.
     so the output is a known function of one number per play. The cost has many basins (flat
     clamps, valleys where plays act together), so the starts are states real histories leave: the
     rule's guess, the last two turning points on a zoomed grid, and hill-climbs over random histories
-    of three to six turning points. From the best few, a coordinate search (a scan of each play's
-    box, then scipy's bounded Brent search) and a joint bounded least-squares fit with the exact
-    Jacobian (scipy's trust-region reflective solver).
+    of three to six turning points (`_starts`). From the best few, a coordinate search (a scan of
+    each play's box, then scipy's bounded Brent search) and a joint bounded least-squares fit with
+    the exact Jacobian (scipy's trust-region reflective solver).
     The window runs to the settled index plus a margin (at least 64 samples); NaN readings are
     ignored. Returns None when the fit does not beat the guess.
     """
@@ -269,31 +269,37 @@ def _fit_state(model: Any, x: np.ndarray, stress: Any, y: np.ndarray, guess: np.
 
     guess = np.clip(guess, lo, hi)
     guess_cost = float(costs(guess[None, :])[0])
-    # Starts: states real histories leave, so the search begins in the right basin rather than on a
-    # flat clamp: the last two turning points before the recording on a grid, zoomed in ...
-    reach = 2.0 * float(r[-1])
-    step = reach / 11
-    grid = np.linspace(0.0, reach, 12)
-    hist = _history_states(v[0], r, grid, grid)
-    hist_costs = costs(np.array([h[2] for h in hist]))
-    for _level in range(3):
-        a0, b0 = hist[int(np.argmin(hist_costs))][:2]
-        step /= 4
-        near = np.arange(-4, 5) * step
-        zoom = _history_states(v[0], r, np.clip(a0 + near, 0.0, reach), np.clip(b0 + near, 0.0, reach))
-        hist += zoom
-        hist_costs = np.r_[hist_costs, costs(np.array([h[2] for h in zoom]))]
-    # ... and longer histories, whose staircases two turning points cannot leave (a play above its
-    # neighbour after a smaller one moved down): a random search over three to six turning points
-    many = _history_search(v[0], r, reach, lambda q: costs(q, slice(None, None, 4)))
-    states = np.array([guess] + [h[2] for h in hist] + list(many))
-    start_costs = np.r_[guess_cost, hist_costs, costs(many)]
+    states, start_costs = _starts(float(v[0]), r, guess, guess_cost, costs)
     results = [_descend(states[k], float(start_costs[k]), lo, hi, w_h, A, B, output, slope, ys)
                for k in np.argsort(start_costs, kind="stable")[:STARTS]]
     best_cost, p = min(results, key=lambda t: t[0])
     if best_cost >= guess_cost:
         return None, end
     return p, end
+
+
+def _starts(v0: float, r: np.ndarray, guess: np.ndarray, guess_cost: float,
+            costs: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The local search's candidate starts and their costs: the rule's guess, then states real
+    histories leave, so the search begins in the right basin rather than on a flat clamp. First the
+    last two turning points before the recording on a grid, zoomed in; then longer histories, whose
+    staircases two turning points cannot leave (a play above its neighbour after a smaller one
+    moved down): a random search over three to six turning points."""
+    reach = 2.0 * float(r[-1])
+    step = reach / 11
+    grid = np.linspace(0.0, reach, 12)
+    hist = _history_states(v0, r, grid, grid)
+    hist_costs = costs(np.array([h[2] for h in hist]))
+    for _level in range(3):
+        a0, b0 = hist[int(np.argmin(hist_costs))][:2]
+        step /= 4
+        near = np.arange(-4, 5) * step
+        zoom = _history_states(v0, r, np.clip(a0 + near, 0.0, reach), np.clip(b0 + near, 0.0, reach))
+        hist += zoom
+        hist_costs = np.r_[hist_costs, costs(np.array([h[2] for h in zoom]))]
+    many = _history_search(v0, r, reach, lambda q: costs(q, slice(None, None, 4)))
+    states = np.array([guess] + [h[2] for h in hist] + list(many))
+    return states, np.r_[guess_cost, hist_costs, costs(many)]
 
 
 def _clip(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
