@@ -25,7 +25,7 @@ import math
 import struct
 from dataclasses import dataclass, field
 from os import PathLike
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from gma_ffc.errors import ConfigError
 
@@ -317,6 +317,7 @@ def _block(group: list[Channel]) -> ReadBlock:
 
 
 def _channel(name: str, spec: Any, defaults: Mapping[str, Any]) -> Channel:
+    """One channel of a register map, checked field by field; each error names the channel and key."""
     where = f"register map channel '{name}'"
     if not name.isidentifier():
         raise ConfigError(f"{where}: the name must be an identifier (letters, digits, underscores)")
@@ -336,32 +337,58 @@ def _channel(name: str, spec: Any, defaults: Mapping[str, Any]) -> Channel:
     function = merged["function"]
     if function not in FUNCTIONS:
         raise fail("function", f"{function!r} is not one of {', '.join(FUNCTIONS)}")
-    is_bit = function in BIT_FUNCTIONS
-
-    ctype = merged.get("type", "bool" if is_bit else "uint16")
-    if is_bit:
-        if ctype != "bool":
-            raise fail("type", f"{function} channels are single bits: type must be bool (or omitted), not {ctype!r}")
-        for key, neutral in (("scale", 1), ("offset", 0)):
-            if key in spec and spec[key] != neutral:
-                raise fail(key, f"does not apply to a {function} bit")
-    elif ctype not in TYPES:
-        raise fail("type", f"{ctype!r} is not one of {', '.join(TYPES)}")
-
-    address = merged["address"]
-    if isinstance(address, bool) or not isinstance(address, int) or not 0 <= address <= MAX_ADDRESS:
-        raise fail("address", f"{address!r} is not an integer 0..{MAX_ADDRESS}")
-    count = 1 if is_bit else TYPES[ctype][1]
-    if address + count - 1 > MAX_ADDRESS:
-        raise fail("address", f"{address} + {count} registers runs past {MAX_ADDRESS}")
-
+    ctype = _channel_type(function, spec, merged, fail)
+    address = _channel_address(merged["address"], 1 if function in BIT_FUNCTIONS else TYPES[ctype][1], fail)
     orders = {}
     for key in ("word_order", "byte_order"):
         value = merged.get(key, "big")
         if value not in ORDERS:
             raise fail(key, f"{value!r} is not big or little")
         orders[key] = value
+    numbers = _channel_numbers(merged, fail)
+    unit_id = merged.get("unit_id", 1)
+    lo, hi = UNIT_ID_RANGE
+    if isinstance(unit_id, bool) or not isinstance(unit_id, int) or not lo <= unit_id <= hi:
+        raise fail("unit_id", f"{unit_id!r} is not an integer {lo}..{hi}")
+    access = merged.get("access", "r")
+    if access not in ACCESS:
+        raise fail("access", f"{access!r} is not r or rw")
+    if access == "rw" and function not in WRITABLE_FUNCTIONS:
+        raise fail("access", f"{function} tables are read-only in Modbus; use holding or coil for rw")
+    return Channel(
+        name=name, function=function, address=address, type=ctype, unit_id=unit_id, access=access,
+        scale=numbers["scale"], offset=numbers["offset"], **orders,
+    )
 
+
+def _channel_type(function: str, spec: Mapping[str, Any], merged: Mapping[str, Any],
+                  fail: Callable[[str, str], ConfigError]) -> str:
+    """The channel's value type: bool for a bit table (which takes no scale or offset), else one of TYPES."""
+    if function in BIT_FUNCTIONS:
+        ctype = merged.get("type", "bool")
+        if ctype != "bool":
+            raise fail("type", f"{function} channels are single bits: type must be bool (or omitted), not {ctype!r}")
+        for key, neutral in (("scale", 1), ("offset", 0)):
+            if key in spec and spec[key] != neutral:
+                raise fail(key, f"does not apply to a {function} bit")
+        return "bool"
+    ctype = merged.get("type", "uint16")
+    if ctype not in TYPES:
+        raise fail("type", f"{ctype!r} is not one of {', '.join(TYPES)}")
+    return str(ctype)
+
+
+def _channel_address(address: Any, count: int, fail: Callable[[str, str], ConfigError]) -> int:
+    """The first register's address, with the channel's `count` registers inside the table."""
+    if isinstance(address, bool) or not isinstance(address, int) or not 0 <= address <= MAX_ADDRESS:
+        raise fail("address", f"{address!r} is not an integer 0..{MAX_ADDRESS}")
+    if address + count - 1 > MAX_ADDRESS:
+        raise fail("address", f"{address} + {count} registers runs past {MAX_ADDRESS}")
+    return address
+
+
+def _channel_numbers(merged: Mapping[str, Any], fail: Callable[[str, str], ConfigError]) -> dict[str, float]:
+    """Scale (not zero) and offset: finite numbers."""
     numbers = {}
     for key, default in (("scale", 1.0), ("offset", 0.0)):
         value = merged.get(key, default)
@@ -375,22 +402,7 @@ def _channel(name: str, spec: Any, defaults: Mapping[str, Any]) -> Channel:
         numbers[key] = float(value)
     if numbers["scale"] == 0.0:
         raise fail("scale", "must not be zero")
-
-    unit_id = merged.get("unit_id", 1)
-    lo, hi = UNIT_ID_RANGE
-    if isinstance(unit_id, bool) or not isinstance(unit_id, int) or not lo <= unit_id <= hi:
-        raise fail("unit_id", f"{unit_id!r} is not an integer {lo}..{hi}")
-
-    access = merged.get("access", "r")
-    if access not in ACCESS:
-        raise fail("access", f"{access!r} is not r or rw")
-    if access == "rw" and function not in WRITABLE_FUNCTIONS:
-        raise fail("access", f"{function} tables are read-only in Modbus; use holding or coil for rw")
-
-    return Channel(
-        name=name, function=function, address=address, type=ctype, unit_id=unit_id, access=access,
-        scale=numbers["scale"], offset=numbers["offset"], **orders,
-    )
+    return numbers
 
 
 def _check_overlaps(channels: Iterable[Channel]) -> None:
