@@ -139,36 +139,56 @@ class Fitter:
         self.settings = settings
         self.data = list(data)
         self.anchor = list(anchor)     # train-only pseudo-recordings (`anchor.py`), never scored
-        lo, hi = model.drive_range
-        u_all = np.concatenate([d.u for d in self.data])
-        if not (math.isfinite(lo) and math.isfinite(hi)):
-            lo, hi = float(u_all.min()), float(u_all.max())
-        self.drive_lo, self.drive_hi = float(lo), float(hi)
-        self.drive_span = max(self.drive_hi - self.drive_lo, 1e-12)
-        self.stress_ref = mean_stress(self.data)
-        self.stress_varies = (model.stress_range_MPa is not None
-                              and stress_span(self.data) >= settings.min_stress_span_MPa)
-        self.play_thresholds = np.array(settings.recalibration_plays, dtype=float) * self.drive_span
+        self._init_ranges()
         # the effects as registered now, in signal-path order: input-side ones change the core input
         self.effects: list[type[Effect]] = [c for c in path_order() if c.candidate]
         self._inputs = [c for c in self.effects if c.stage == "input"]
         # the identification loops first: an effect may reshape the core only where they are given
         self.identification = [d for d in self.anchor if d.extra.get("anchor_rule") == "estimate"]
         self._core_fx = [c for c in self.effects if c.reshapes(self)]  # effects that reshape the core
-        # an effect that supplies the stress the model sees (the rod_load dynamics: the load's static
-        # stress, the load cell's inertial force filtered out); per recording raw (it sets the
-        # resonance) and clamped (the core's)
+        self._init_stress()
+        self._init_caches()
+        self._init_rows()
+        self.evaluations = 0
+        self.delta: float | None = None   # Huber scale of the loss (None: plain least squares)
+        self._init_anchor()
+        self._identified: dict[Any, Any] = {}
+        self._identify_lock = threading.Lock()
+
+    def _init_ranges(self) -> None:
+        """The model's drive range (the data's where it has none), the mean stress, the recalibration's plays."""
+        lo, hi = self.model.drive_range
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            u_all = np.concatenate([d.u for d in self.data])
+            lo, hi = float(u_all.min()), float(u_all.max())
+        self.drive_lo, self.drive_hi = float(lo), float(hi)
+        self.drive_span = max(self.drive_hi - self.drive_lo, 1e-12)
+        self.stress_ref = mean_stress(self.data)
+        self.stress_varies = (self.model.stress_range_MPa is not None
+                              and stress_span(self.data) >= self.settings.min_stress_span_MPa)
+        self.play_thresholds = np.array(self.settings.recalibration_plays, dtype=float) * self.drive_span
+        self.dt_min = min(d.dt_med for d in self.data)
+        self.duration_max = max(d.duration_s for d in self.data)
+        self.duration_total = sum(d.duration_s for d in self.data)
+
+    def _init_stress(self) -> None:
+        """An effect that supplies the stress the model sees (the rod_load dynamics: the load's static
+        stress, the load cell's inertial force filtered out); per recording raw (it sets the
+        resonance) and clamped (the core's); the loads' static stress range (the resonance's
+        reference, the least compressive, and its extent)."""
         self._stress_fx = [c for c in self.effects if getattr(c, "transforms_stress", False)][:1]
-        rng = model.stress_range_MPa
+        rng = self.model.stress_range_MPa
         self._static = {id(d): (self._stress_fx[0].fit_stress(d) if self._stress_fx else d.s)
                         for d in self.data + self.anchor}
         self._static_clamped = {id(d): np.ascontiguousarray(np.clip(self._static[id(d)], *rng))
                                 if rng is not None else d.s for d in self.data + self.anchor}
-        self._anchor_cache: BoundedCache[np.ndarray] = BoundedCache(max_bytes=ANCHOR_CACHE_BYTES)
-        self._gram_cache: BoundedCache[tuple[list[np.ndarray], list[float]]] = BoundedCache()
-        # the loads' static stress range: the resonance's reference (least compressive) and extent
         self.stress_top = max(float(self._static[id(d)].max()) for d in self.data)
         self.stress_bottom = min(float(self._static[id(d)].min()) for d in self.data)
+
+    def _init_caches(self) -> None:
+        """Core runs, regressors, static columns and anchor designs, each bounded in bytes (`cache.py`)."""
+        self._anchor_cache: BoundedCache[np.ndarray] = BoundedCache(max_bytes=ANCHOR_CACHE_BYTES)
+        self._gram_cache: BoundedCache[tuple[list[np.ndarray], list[float]]] = BoundedCache()
         self._core_cache: BoundedCache[list[tuple[np.ndarray, np.ndarray]]] = BoundedCache(max_bytes=CORE_CACHE_BYTES)
         self._anchor_core_cache: BoundedCache[list[tuple[np.ndarray, np.ndarray]]] = \
             BoundedCache(max_bytes=ANCHOR_CACHE_BYTES)
@@ -176,10 +196,10 @@ class Fitter:
         self._cache: BoundedCache[Any] = BoundedCache(max_bytes=REGRESSOR_CACHE_BYTES)
         self._static_cache: BoundedCache[tuple[list[np.ndarray], list[str], dict[str, np.ndarray]]] = \
             BoundedCache(max_bytes=STATIC_CACHE_BYTES)
-        self.dt_min = min(d.dt_med for d in self.data)
-        self.duration_max = max(d.duration_s for d in self.data)
-        self.duration_total = sum(d.duration_s for d in self.data)
-        # least-squares rows, fold A's (of every recording) first, then fold B's: folds are slices
+
+    def _init_rows(self) -> None:
+        """The least-squares rows, fold A's (of every recording) first, then fold B's (folds are
+        slices), with their displacement and drive rate."""
         self._rows_ab = [(d.rows[d.fold[d.rows] == 0], d.rows[d.fold[d.rows] == 1]) for d in self.data]
         ya = [d.y[ra] for d, (ra, _) in zip(self.data, self._rows_ab)]
         yb = [d.y[rb] for d, (_, rb) in zip(self.data, self._rows_ab)]
@@ -189,20 +209,18 @@ class Fitter:
         rates = [np.abs(np.gradient(d.u, d.t)) if d.t.size > 1 else np.zeros(d.t.size) for d in self.data]
         self.rate_rows = np.concatenate([r[ra] for r, (ra, _) in zip(rates, self._rows_ab)] +
                                         [r[rb] for r, (_, rb) in zip(rates, self._rows_ab)])
-        self.evaluations = 0
-        self.delta: float | None = None   # Huber scale of the loss (None: plain least squares)
-        # the anchor (off until `use_anchor`): a constraint, not data. Each loop has its own free offset
-        # and scale, projected out: the sensor's zero and gain, the slow states and the rod's
-        # calibration on the day of identification are not this recording's, and a static
-        # recalibration is the diagnosis data's to learn. What is held is the shape of the base's
-        # loops (the base's own output projects to zero), to within its identification error there.
+
+    def _init_anchor(self) -> None:
+        """The anchor (off until `use_anchor`): a constraint, not data. Each loop has its own free
+        offset and scale, projected out: the sensor's zero and gain, the slow states and the rod's
+        calibration on the day of identification are not this recording's, and a static
+        recalibration is the diagnosis data's to learn. What is held is the shape of the base's
+        loops (the base's own output projects to zero), to within its identification error there."""
         self._anchor_free = [_affine_basis(d.y[d.rows]) for d in self.anchor]
         edges = np.cumsum([0] + [d.rows.size for d in self.anchor])
         self._anchor_slices = [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]   # per loop, in its rows
         self.anchor_on = False
         self._anchor_tol = np.full(len(self.anchor), math.nan)
-        self._identified: dict[Any, Any] = {}
-        self._identify_lock = threading.Lock()
 
     # ------------------------------------------------------------------ the core
     def input_key(self, spec: Spec) -> tuple:
