@@ -45,20 +45,8 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
     too_little, noise = problem.too_little, problem.noise
     cands = candidates(sel)
     verdict = [] if too_little else list(sel.accepted)
-    conclusive = not too_little and not sel.ambiguous
-    well_above = math.sqrt(final.cv_mse) > selector.model_error_factor * noise
-    if too_little or sel.ambiguous:
-        outcome = "inconclusive"     # too little data, or look-alikes the data cannot tell apart
-    elif verdict:
-        outcome = "effects_named"
-    elif not well_above and not sel.outside_class:
-        outcome = "within_noise"
-    else:
-        outcome = "unexplained"
-    cannot = list(final.cannot) + [d.extra["settled_note"] for d in problem.data if "settled_note" in d.extra]
-    if not problem.identification.given:      # what the effects could not do without those recordings
-        lost = [(cls.name, cls.lost_without_identification(problem.fitter)) for cls in effect_registry.candidates()]
-        cannot += [f"{name}: {why}" for name, why in lost if why]
+    outcome, conclusive = _outcome(selector, problem, final, verdict)
+    cannot = _cannot_conclude(problem, final)
     lead = displacement_lead(problem.data, problem.null.base_pred)
     if lead is not None:     # a column-timing fault: effects fitted to it would be confidently wrong
         cannot.append(lead.words())
@@ -81,11 +69,50 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
         explanation = (f"First, a fault in the columns: {lead.words()}"
                        + ("." if outcome == "unexplained" else "; what is named below may only compensate it.")
                        + " " + explanation)
-    fitter = problem.fitter
-    validation = validation_words(fitter, null.fit.cv_mse, selector.min_mse_ratio, selector.min_loglik_gain)
+    loo = leave_one_out_figures(problem, final)
+    ordered = sorted(cands.values(), key=lambda c: (not c.accepted, not c.testable,
+                                                    c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
+    rounds = [r.as_dict() for r in sel.rounds]
+    return Diagnosis(outcome, verdict, explanation, list(null.located), ordered, null.rms_before,
+                     math.sqrt(null.fit.cv_mse), math.sqrt(final.cv_mse), noise,
+                     _validation(selector, problem, final, loo), conclusive,
+                     cannot, final.extended, list(problem.data), list(null.base_pred), list(null.null_pred),
+                     list(final.final_pred), rounds, rounds[0]["n_eff"] if rounds else float("nan"),
+                     str(selector.initial_state), after, problem.identification.to_json(), loo)
+
+
+def _outcome(selector: Any, problem: Problem, final: Final, verdict: list[str]) -> tuple[str, bool]:
+    """The outcome (before a column-timing fault is considered), and whether it is conclusive."""
+    sel = final.selection
+    well_above = math.sqrt(final.cv_mse) > selector.model_error_factor * problem.noise
+    if problem.too_little or sel.ambiguous:
+        outcome = "inconclusive"     # too little data, or look-alikes the data cannot tell apart
+    elif verdict:
+        outcome = "effects_named"
+    elif not well_above and not sel.outside_class:
+        outcome = "within_noise"
+    else:
+        outcome = "unexplained"
+    return outcome, not problem.too_little and not sel.ambiguous
+
+
+def _cannot_conclude(problem: Problem, final: Final) -> list[str]:
+    """What the data could not decide: the selection's notes, each recording's settling note and,
+    without the identification recordings, what the effects could not do without them."""
+    cannot = list(final.cannot) + [d.extra["settled_note"] for d in problem.data if "settled_note" in d.extra]
+    if not problem.identification.given:
+        lost = [(cls.name, cls.lost_without_identification(problem.fitter)) for cls in effect_registry.candidates()]
+        cannot += [f"{name}: {why}" for name, why in lost if why]
+    return cannot
+
+
+def _validation(selector: Any, problem: Problem, final: Final, loo: dict[str, Any]) -> str:
+    """How the result was validated, in words: the held-out blocks, the rebase, leave-one-recording-out
+    and the anchor."""
+    sel, fitter = final.selection, problem.fitter
+    validation = validation_words(fitter, problem.null.fit.cv_mse, selector.min_mse_ratio, selector.min_loglik_gain)
     if not final.base_kept:
         validation += sel.rebase_note
-    loo = leave_one_out_figures(problem, final)
     if loo["applies"]:
         validation += (f" With {len(problem.data)} recordings, each was also left out in turn: every effect's law "
                        "(its parameters chosen and its gains fitted on the other recordings) had to lower the "
@@ -97,14 +124,7 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
         validation += anchor_words(problem.model, [] if final.base_kept else
                                    fitter.anchor_deviation(sel.fit.specs[2], sel.fit.coef_all),
                                    measured=bool(fitter.identification))
-    ordered = sorted(cands.values(), key=lambda c: (not c.accepted, not c.testable,
-                                                    c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
-    rounds = [r.as_dict() for r in sel.rounds]
-    return Diagnosis(outcome, verdict, explanation, list(null.located), ordered, null.rms_before,
-                     math.sqrt(null.fit.cv_mse), math.sqrt(final.cv_mse), noise, validation, conclusive,
-                     cannot, final.extended, list(problem.data), list(null.base_pred), list(null.null_pred),
-                     list(final.final_pred), rounds, rounds[0]["n_eff"] if rounds else float("nan"),
-                     str(selector.initial_state), after, problem.identification.to_json(), loo)
+    return validation
 
 
 def leave_one_out_figures(problem: Problem, final: Final) -> dict[str, Any]:
