@@ -184,11 +184,8 @@ def _parse_metadata(lines: Iterable[tuple[int, str]], source: str) -> dict[str, 
     return meta
 
 
-def read_csv(path: Path, require: Sequence[str]) -> Recording:
-    """A CSV recording: Arrow's multi-threaded C++ parser for the rows, this module's checks and
-    messages for everything else. Spreadsheet exports are understood: a UTF-8 byte-order mark is
-    dropped, and a ';'-separated file with decimal commas is read as such."""
-    source = str(path)
+def _head_lines(path: Path, source: str) -> list[str]:
+    """The first 64 KiB of a CSV file as text lines (UTF-8, a byte-order mark dropped)."""
     try:
         with open(path, "rb") as fh:
             head = fh.read(65536)
@@ -197,25 +194,34 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
     except OSError as exc:
         raise RecordingError(f"{source}: cannot read ({exc})") from None
     try:
-        text_head = head.decode("utf-8-sig")
+        return head.decode("utf-8-sig").splitlines()
     except UnicodeDecodeError:
         # a cut multi-byte character at the 64 KiB boundary is fine; anything else is not UTF-8
         try:
-            text_head = head[:-4].decode("utf-8-sig")
+            return head[:-4].decode("utf-8-sig").splitlines()
         except UnicodeDecodeError as exc:
             raise RecordingError(f"{source}: cannot read ({exc}); a recording is UTF-8 text (or .mat, .tdms, .h5)") from None
-    lines = text_head.splitlines()
+
+
+def _metadata_and_header(lines: list[str], source: str) -> tuple[list[tuple[int, str]], int]:
+    """The '#' metadata lines before the header (with their line numbers), and the header's index."""
     meta_lines: list[tuple[int, str]] = []
-    header_idx = None
     for idx, line in enumerate(lines):
         stripped = line.strip()
         if stripped.startswith("#"):
             meta_lines.append((idx + 1, stripped))
         elif stripped:
-            header_idx = idx
-            break
-    if header_idx is None:
-        raise RecordingError(f"{source}: no header line (expected e.g. 'time_s,current_A,displacement_um')")
+            return meta_lines, idx
+    raise RecordingError(f"{source}: no header line (expected e.g. 'time_s,current_A,displacement_um')")
+
+
+def read_csv(path: Path, require: Sequence[str]) -> Recording:
+    """A CSV recording: Arrow's multi-threaded C++ parser for the rows, this module's checks and
+    messages for everything else. Spreadsheet exports are understood: a UTF-8 byte-order mark is
+    dropped, and a ';'-separated file with decimal commas is read as such."""
+    source = str(path)
+    lines = _head_lines(path, source)
+    meta_lines, header_idx = _metadata_and_header(lines, source)
     header = lines[header_idx]
     first_row = next((ln for ln in lines[header_idx + 1:] if ln.strip() and not ln.lstrip().startswith("#")), "")
     delimiter, decimal = _dialect(header, first_row)
