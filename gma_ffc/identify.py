@@ -705,58 +705,11 @@ class SDPIIdentifier:
         off_degree = 0 if self.zero == "per_recording" else degree   # zeros apart: the offset is one constant
         n_zero = len(data) - 1 if self.zero == "per_recording" else 0
         n_s = len(r_s)
-        blocks, targets = [], []
-        for i, d in enumerate(data):
-            rows = self._rows(d)
-            u = (d.stress[rows] - mid) / half
-            powers = np.vstack([u ** p for p in range(degree + 1)]).T  # (rows, degree+1)
-            phi = slope_basis(d.plays[rows] @ w_h, r_s)
-            feats = (phi[:, None, :] * powers[:, :, None]).reshape(len(rows), -1)  # [p, k] order
-            own_zero = np.zeros((len(rows), n_zero))           # recordings after the first: their zero
-            if 0 < i <= n_zero:
-                own_zero[:, i - 1] = 1.0
-            blocks.append(np.hstack([feats, powers[:, : off_degree + 1], own_zero]))
-            targets.append(d.y[rows])
-        A, y = np.vstack(blocks), np.concatenate(targets)
+        A, y = self._stress_design(data, w_h, r_s, (mid, half), degree, off_degree, n_zero)
         n_coef = (degree + 1) * n_s
         col_scale = np.linalg.norm(A, axis=0)
         col_scale[col_scale == 0] = 1.0
-        As = A / col_scale
-        G, g = As.T @ As, As.T @ y
-        G += 1e-12 * np.trace(G) / len(G) * np.eye(len(G))
-
-        def slope_rows(u_pts: np.ndarray) -> np.ndarray:
-            """Linear map theta -> slopes at stresses u_pts, one row per (u, k)."""
-            rows = np.zeros((len(u_pts) * n_s, A.shape[1]))
-            for a, u in enumerate(u_pts):
-                for p in range(degree + 1):
-                    for k in range(n_s):
-                        rows[a * n_s + k, p * n_s + k] = u ** p
-            return rows / col_scale
-
-        theta_s = np.linalg.solve(G, g)
-        first_slopes = theta_s[:n_coef].copy()
-        s_scale = float(np.max(np.abs(slope_rows(np.array([0.0])) @ theta_s))) or 1.0
-        eps = 1e-3 * s_scale
-        grid = list(np.linspace(-1.0, 1.0, 21))
-        for _ in range(10):
-            C = slope_rows(np.array(grid))
-            if np.all(C @ theta_s >= eps * (1 - 1e-9)):
-                worst_u, worst_v = self._min_slope(theta_s / col_scale, degree, n_s)
-                if worst_v >= eps * (1 - 1e-6):
-                    break
-                grid.append(worst_u)
-                C = slope_rows(np.array(grid))
-            res = optimize.minimize(
-                lambda t: 0.5 * t @ G @ t - g @ t, theta_s, jac=lambda t: G @ t - g, method="SLSQP",
-                constraints=[{"type": "ineq", "fun": lambda t, C=C: C @ t - eps, "jac": lambda t, C=C: C}],
-                options={"maxiter": 500, "ftol": 1e-14})
-            theta_s = res.x
-        del first_slopes
-        if self._min_slope(theta_s / col_scale, degree, n_s)[1] < eps * (1 - 1e-6):
-            # the constrained solve did not converge to a feasible point: Proposition 3.1 as bounds
-            theta_s = _bernstein_fit(A, y, degree, n_s, eps) * col_scale
-        theta = theta_s / col_scale
+        theta = self._slopes_with_proposition_3_1(A, y, col_scale, degree, n_s) / col_scale
         slope_poly = theta[:n_coef].reshape(degree + 1, n_s)
         offset_poly = np.r_[theta[n_coef: n_coef + off_degree + 1], np.zeros(degree - off_degree)]
         for d, z in zip(data[1:], theta[n_coef + off_degree + 1:]):   # each recording onto the first's zero
@@ -777,6 +730,66 @@ class SDPIIdentifier:
         if degree >= 2:
             T[0, 2], T[1, 2], T[2, 2] = mid * mid / half ** 2, -2 * mid / half ** 2, 1.0 / half ** 2
         return T
+
+    def _stress_design(self, data: list[_Data], w_h: np.ndarray, r_s: np.ndarray, centre: tuple[float, float],
+                       degree: int, off_degree: int, n_zero: int) -> tuple[np.ndarray, np.ndarray]:
+        """The stress step's least squares (A, y): per row, each dead-zone's slope basis times the
+        powers of the normalised stress u = (sigma - mid)/half ([p, k] order), the offset's powers, and
+        for the recordings after the first their own zero."""
+        mid, half = centre
+        blocks, targets = [], []
+        for i, d in enumerate(data):
+            rows = self._rows(d)
+            u = (d.stress[rows] - mid) / half
+            powers = np.vstack([u ** p for p in range(degree + 1)]).T  # (rows, degree+1)
+            phi = slope_basis(d.plays[rows] @ w_h, r_s)
+            feats = (phi[:, None, :] * powers[:, :, None]).reshape(len(rows), -1)  # [p, k] order
+            own_zero = np.zeros((len(rows), n_zero))           # recordings after the first: their zero
+            if 0 < i <= n_zero:
+                own_zero[:, i - 1] = 1.0
+            blocks.append(np.hstack([feats, powers[:, : off_degree + 1], own_zero]))
+            targets.append(d.y[rows])
+        return np.vstack(blocks), np.concatenate(targets)
+
+    def _slopes_with_proposition_3_1(self, A: np.ndarray, y: np.ndarray, col_scale: np.ndarray, degree: int,
+                                     n_s: int) -> np.ndarray:
+        """The scaled coefficients of the least squares (A / col_scale, y) with every dead-zone slope
+        at least eps at every stress of the range: SLSQP on a grid of stresses grown by the worst
+        point, and Proposition 3.1 as simple bounds (`_bernstein_fit`) where that does not converge."""
+        As = A / col_scale
+        G, g = As.T @ As, As.T @ y
+        G += 1e-12 * np.trace(G) / len(G) * np.eye(len(G))
+
+        def slope_rows(u_pts: np.ndarray) -> np.ndarray:
+            """Linear map theta -> slopes at stresses u_pts, one row per (u, k)."""
+            rows = np.zeros((len(u_pts) * n_s, A.shape[1]))
+            for a, u in enumerate(u_pts):
+                for p in range(degree + 1):
+                    for k in range(n_s):
+                        rows[a * n_s + k, p * n_s + k] = u ** p
+            return rows / col_scale
+
+        theta_s = np.linalg.solve(G, g)
+        s_scale = float(np.max(np.abs(slope_rows(np.array([0.0])) @ theta_s))) or 1.0
+        eps = 1e-3 * s_scale
+        grid = list(np.linspace(-1.0, 1.0, 21))
+        for _ in range(10):
+            C = slope_rows(np.array(grid))
+            if np.all(C @ theta_s >= eps * (1 - 1e-9)):
+                worst_u, worst_v = self._min_slope(theta_s / col_scale, degree, n_s)
+                if worst_v >= eps * (1 - 1e-6):
+                    break
+                grid.append(worst_u)
+                C = slope_rows(np.array(grid))
+            res = optimize.minimize(
+                lambda t: 0.5 * t @ G @ t - g @ t, theta_s, jac=lambda t: G @ t - g, method="SLSQP",
+                constraints=[{"type": "ineq", "fun": lambda t, C=C: C @ t - eps, "jac": lambda t, C=C: C}],
+                options={"maxiter": 500, "ftol": 1e-14})
+            theta_s = res.x
+        if self._min_slope(theta_s / col_scale, degree, n_s)[1] < eps * (1 - 1e-6):
+            # the constrained solve did not converge to a feasible point: Proposition 3.1 as bounds
+            theta_s = _bernstein_fit(A, y, degree, n_s, eps) * col_scale
+        return theta_s
 
     @staticmethod
     def _min_slope(theta: np.ndarray, degree: int, n_s: int) -> tuple[float, float]:
