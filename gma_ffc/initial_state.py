@@ -219,29 +219,14 @@ def _fit_state(model: Any, x: np.ndarray, stress: Any, y: np.ndarray, guess: np.
     The window runs to the settled index plus a margin (at least 64 samples); NaN readings are
     ignored. Returns None when the fit does not beat the guess.
     """
-    from . import operators as ops      # numba: not needed to parse --initial-state
-
     n = len(x)
     end = min(n, max(64, settled + max(16, settled // 4)))
-    v = np.ascontiguousarray(x[:end] - model.input_offset)
-    r = model.play_thresholds
-    lo, hi = v[0] - r, v[0] + r
-    low_env = np.empty((end, model.n_play))
-    high_env = np.empty((end, model.n_play))
-    ops.play_outputs(v, r, np.ascontiguousarray(lo), low_env)
-    ops.play_outputs(v, r, np.ascontiguousarray(hi), high_env)
-    pick = np.flatnonzero(np.isfinite(y[:end]))
-    if pick.size < 8:
+    window = _envelopes(model, x, y, end, max_points)
+    if window is None:
         return None, end
-    if pick.size > max_points:
-        pick = pick[np.linspace(0, pick.size - 1, max_points).astype(int)]
-    A, B, ys = low_env[pick], high_env[pick], y[pick] * float(getattr(model, "output_sign", 1.0))
-    s = np.zeros(pick.size) if model.stress_range_MPa is None else \
-        np.asarray(model._stress_array(stress, n), dtype=float)[pick]
-    c = model.deadzone_coeffs
-    ws = c[0][None, :] + s[:, None] * (c[1][None, :] + s[:, None] * c[2][None, :])
-    oc = model.output_coeffs
-    offset = oc[0] + s * (oc[1] + s * oc[2])
+    v0, lo, hi, A, B, pick = window
+    ys = y[pick] * float(getattr(model, "output_sign", 1.0))
+    ws, offset = _deadzone_weights(model, stress, n, pick)
     r_s = model.deadzone_thresholds
     w_h = model.play_weights
     # the one-sided dead-zones (4) as one clamp: max(d, 0) where r > 0, min(d, 0) where r < 0,
@@ -269,13 +254,45 @@ def _fit_state(model: Any, x: np.ndarray, stress: Any, y: np.ndarray, guess: np.
 
     guess = np.clip(guess, lo, hi)
     guess_cost = float(costs(guess[None, :])[0])
-    states, start_costs = _starts(float(v[0]), r, guess, guess_cost, costs)
+    states, start_costs = _starts(v0, model.play_thresholds, guess, guess_cost, costs)
     results = [_descend(states[k], float(start_costs[k]), lo, hi, w_h, A, B, output, slope, ys)
                for k in np.argsort(start_costs, kind="stable")[:STARTS]]
     best_cost, p = min(results, key=lambda t: t[0])
     if best_cost >= guess_cost:
         return None, end
     return p, end
+
+
+def _envelopes(model: Any, x: np.ndarray, y: np.ndarray, end: int, max_points: int
+               ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Over the window x[:end]: the first drive (in the plays' coordinates), each play's box at it,
+    and the play outputs started from the box's bottom and top at the picked rows (the finite
+    readings, at most max_points of them, evenly spread); None with fewer than 8 finite readings."""
+    from . import operators as ops      # numba: not needed to parse --initial-state
+
+    v = np.ascontiguousarray(x[:end] - model.input_offset)
+    r = model.play_thresholds
+    lo, hi = v[0] - r, v[0] + r
+    low_env = np.empty((end, model.n_play))
+    high_env = np.empty((end, model.n_play))
+    ops.play_outputs(v, r, np.ascontiguousarray(lo), low_env)
+    ops.play_outputs(v, r, np.ascontiguousarray(hi), high_env)
+    pick = np.flatnonzero(np.isfinite(y[:end]))
+    if pick.size < 8:
+        return None
+    if pick.size > max_points:
+        pick = pick[np.linspace(0, pick.size - 1, max_points).astype(int)]
+    return float(v[0]), lo, hi, low_env[pick], high_env[pick], pick
+
+
+def _deadzone_weights(model: Any, stress: Any, n: int, pick: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The dead-zone weights (rows, n_deadzone) and the output offset (rows,) at the picked rows' stress."""
+    s = np.zeros(pick.size) if model.stress_range_MPa is None else \
+        np.asarray(model._stress_array(stress, n), dtype=float)[pick]
+    c = model.deadzone_coeffs
+    oc = model.output_coeffs
+    return (c[0][None, :] + s[:, None] * (c[1][None, :] + s[:, None] * c[2][None, :]),
+            oc[0] + s * (oc[1] + s * oc[2]))
 
 
 def _starts(v0: float, r: np.ndarray, guess: np.ndarray, guess_cost: float,
