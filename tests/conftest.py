@@ -21,6 +21,10 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if item.get_closest_marker("realtime") is not None and item.get_closest_marker("flaky") is None:
             item.add_marker(pytest.mark.flaky(reruns=REALTIME_RERUNS, reruns_delay=1.0))
+    # the long tests first, in their files' order: xdist hands tests out in this order, and the five
+    # resonance diagnoses (45-110 s each, in a file late in the alphabet) otherwise ran last, one
+    # worker finishing them while the other waited; the short tests now fill in at the end
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 @pytest.fixture(scope="session")
