@@ -20,7 +20,8 @@ and fixed (the anchor's allowance for a law's own lag), so GENERAL_FIFTH_SEED dr
 eddy-and-resonance pair's miss was known (a delay named alone) when the resonance's joint search
 beside a lag was fixed on the development draws, so GENERAL_SIXTH_SEED draws a fifth. Its creep miss
 (a time constant the identification loops could not tell) was then looked at and fixed, so
-GENERAL_SEVENTH_SEED draws a sixth.
+GENERAL_SEVENTH_SEED draws a sixth. Its saturation miss (loops wider beyond the identified range)
+was then looked at and fixed, so GENERAL_EIGHTH_SEED draws a seventh.
 """
 
 from __future__ import annotations
@@ -46,6 +47,8 @@ GENERAL_SIXTH_SEED = 20261204     # a fifth never-tuned draw (2026-11-27, third 
                                   # committed before its first run
 GENERAL_SEVENTH_SEED = 20261205   # a sixth never-tuned draw (2026-11-27, fourth session): the fifth's creep miss
                                   # was looked at and fixed; fixed and committed before its first run
+GENERAL_EIGHTH_SEED = 20261206    # a seventh never-tuned draw (2026-11-27, sixth session): the sixth's saturation
+                                  # miss was looked at and fixed; fixed and committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 

@@ -27,6 +27,7 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set general-fifth     # a fourth, drawn after the third's fix
     .venv/bin/python scripts/bench_diagnose.py --set general-sixth     # a fifth, drawn after the joint search's fix
     .venv/bin/python scripts/bench_diagnose.py --set general-seventh   # a sixth, drawn after the sixth's creep fix
+    .venv/bin/python scripts/bench_diagnose.py --set general-eighth    # a seventh, drawn after the seventh's saturation fix
 
 Beside the held-out blocks, every case is also judged on probes (`benchmarks.probes`): the same
 simulated actuator recorded again at loads, rates and drive shapes diagnose never saw; the extended
@@ -55,8 +56,9 @@ from gma_ffc.initial_state import settled_index
 from benchmarks.cases import (FS, LABELS, Case, cases, holdout_cases, make_case,  # noqa: F401  (re-exported)
                                OTHER_PLANTS_HOLDOUT_SEED, case_recordings, other_plant_cases, rising_cases,
                                rising_holdout_cases, sdp_variant_cases)
-from benchmarks.general import (GENERAL_FIFTH_SEED, GENERAL_FOURTH_SEED, GENERAL_FRESH_SEED,  # noqa: E402
-                                GENERAL_HOLDOUT_SEED, GENERAL_SEVENTH_SEED, GENERAL_SIXTH_SEED, general_cases)
+from benchmarks.general import (GENERAL_EIGHTH_SEED, GENERAL_FIFTH_SEED, GENERAL_FOURTH_SEED,  # noqa: E402
+                                GENERAL_FRESH_SEED, GENERAL_HOLDOUT_SEED, GENERAL_SEVENTH_SEED, GENERAL_SIXTH_SEED,
+                                general_cases)
 from benchmarks.probes import pooled, probe_recordings, probe_scores
 
 # the held-out-condition targets (issue 31), on the probes diagnose never saw
@@ -104,7 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--set", choices=("tuned", "holdout", "all", "sdp-variants", "plants", "plants-holdout",
                                       "rising", "rising-holdout", "general", "general-holdout", "general-fresh",
-                                      "general-fourth", "general-fifth", "general-sixth", "general-seventh"),
+                                      "general-fourth", "general-fifth", "general-sixth", "general-seventh",
+                                      "general-eighth"),
                     default="tuned",
                     help="the development cases (default), the never-tuned set, both, six more "
                          "stress-dependent play cases on plain, voltage, falling and cut recordings, or "
@@ -113,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
                          "general: every effect on the default and a drawn actuator, diagnosed with its "
                          "identification recordings (general-holdout: a second draw, never tuned; general-fresh: a "
                          "third, never tuned, drawn after the second's misses were fixed; general-fourth: a fourth, "
-                         "drawn after the third's creep misses were fixed; general-fifth, general-sixth, general-seventh: later draws); "
+                         "drawn after the third's creep misses were fixed; general-fifth to general-eighth: later draws); "
                          "rising: the rising-amplitude family (sines growing from the drive's minimum and decaying to "
                          "it; rising-holdout: drawn once, never tuned)")
     ap.add_argument("--quick", action="store_true", help="middle magnitude of each effect, two nulls, one pair")
@@ -150,7 +153,10 @@ def main(argv: list[str] | None = None) -> int:
                                general_cases(GENERAL_SIXTH_SEED, prefix="sixth"))],
             "general-seventh": [("generalisation, a seventh draw, never tuned (seed fixed and committed before its "
                                  "first run, after the sixth draw's creep miss was fixed)",
-                                 general_cases(GENERAL_SEVENTH_SEED, prefix="seventh"))]}
+                                 general_cases(GENERAL_SEVENTH_SEED, prefix="seventh"))],
+            "general-eighth": [("generalisation, an eighth draw, never tuned (seed fixed and committed before its "
+                                "first run, after the seventh draw's saturation miss was fixed)",
+                                general_cases(GENERAL_EIGHTH_SEED, prefix="eighth"))]}
     chosen = sets["tuned"] + sets["holdout"] if args.set == "all" else sets[args.set]
     ok = True
     for title, todo in chosen:
