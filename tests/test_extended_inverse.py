@@ -1,6 +1,6 @@
 """The extended model's inverse is exact when sum terms depend on the core input, not only on y_c.
 
-The plays of play_correction and stress_play and the saturation hinge are functions of this
+The plays of play_correction, stress_play and saturation and the saturation hinge are functions of this
 sample's core input, which the inverse is solving for. Taking them at the previous sample's input
 (the earlier scheme) is one fixed-point iteration per sample: where such a term's slope exceeds the
 core's, the drive oscillates at the sample rate. The inverse now solves each sample's scalar
@@ -24,10 +24,13 @@ def _sum_terms(rng: np.random.Generator, core: SDPIModel, strength: float) -> di
     """Sum-stage blocks that keep the whole model strictly increasing in the drive (so it has an
     exact inverse): play corrections with c_j <= 0 and stress plays with ds c_j <= 0 add slope in
     [0, |c|]; the saturation hinges steepen the curve beyond the range. `strength` scales them
-    against the core's own slope; above about 1 the lagged scheme oscillated."""
+    against the core's own slope; above about 1 the lagged scheme oscillated. Saturation's wide
+    plays, c_j (H_rj - H_rj at the start) with c_j >= 0, add slope in [0, c] too."""
     n = int(rng.integers(1, 5))
     th = np.sort(rng.uniform(0.02, 1.0, n))
     slope = float(core.play_weights[0])          # the r = 0 play's weight: the least slope of the core's PI part
+    wide = np.sort(rng.uniform(1.0, 3.0, 3))
+    wide_coefficients = strength * slope * rng.dirichlet(np.ones(3))
     return {
         "static": {"offset_um": float(rng.uniform(-1, 1)), "gain": float(rng.uniform(0.5, 1.5)),
                    "stress_gain_per_MPa": float(rng.uniform(-0.01, 0.01)), "quadratic_per_um": 0.0,
@@ -36,7 +39,8 @@ def _sum_terms(rng: np.random.Generator, core: SDPIModel, strength: float) -> di
                             "coefficients": (-strength * slope * rng.dirichlet(np.ones(n))).tolist()},
         "stress_play": {"thresholds": th[:1].tolist(), "coefficients_per_MPa": [float(rng.uniform(0, 0.05))]},
         "saturation": {"lo": -2.0, "hi": 3.0, "lin_lo": float(-rng.uniform(0, 1)), "quad_lo": float(-rng.uniform(0, 1)),
-                       "lin_hi": float(rng.uniform(0, 1)), "quad_hi": float(rng.uniform(0, 1))},
+                       "lin_hi": float(rng.uniform(0, 1)), "quad_hi": float(rng.uniform(0, 1)),
+                       "play_thresholds": wide.tolist(), "play_coefficients": wide_coefficients.tolist()},
         "creep": {"gain": float(rng.uniform(0, 0.05)), "tau_s": float(rng.uniform(0.005, 0.5))},
     }
 

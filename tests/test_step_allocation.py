@@ -23,7 +23,8 @@ def extended_model():
                    "center_um": 20.0, "stress_ref_MPa": -15.0},
         "creep": {"gain": 0.01, "tau_s": 2.0},
         "thermal": {"gain_um_per_A2": 0.05, "tau_s": 30.0},
-        "saturation": {"lo": 0.0, "hi": 3.0, "lin_lo": 0.1, "quad_lo": 0.01, "lin_hi": 0.1, "quad_hi": 0.01},
+        "saturation": {"lo": 0.0, "hi": 3.0, "lin_lo": 0.1, "quad_lo": 0.01, "lin_hi": 0.1, "quad_hi": 0.01,
+                       "play_thresholds": [1.6, 1.8], "play_coefficients": [0.2, 0.1]},
         "dynamics": {"f_ref_hz": 300.0, "zeta": 0.1, "beta_per_MPa": 0.0, "stress_ref_MPa": -15.0},
     }, [])
 

@@ -138,6 +138,7 @@ class FitData(Protocol):
     drive_lo: float
     drive_hi: float
     drive_span: float
+    drive_margin: float            # a drive further than this beyond the identified range is beyond it
     dt_min: float
     duration_max: float
     stress_ref: float

@@ -1,4 +1,13 @@
-"""The drive beyond the identified range, where the material's curve bends and the model goes straight on."""
+"""The drive beyond the identified range, where the material's curve bends and the model goes straight on.
+
+Two parts. A hinge: a straight and a quadratic term in how far the drive is beyond each end (zero
+inside the range). Wide plays: a loop wider than the identified range can be wider than the
+model's, whose plays a loop of that range sweeps. A play whose threshold is beyond half the
+identified span is never swept by a loop inside it, so the identification could not set its
+weight; where the recordings' loops go beyond, it is fitted. Its term is c (H_r[u] - m), the part a
+PI model's play adds once swept, its output starting at the range's middle m: a drive inside the
+range never sweeps it, so the term is zero there, and recordings inside the range cannot set it.
+"""
 
 from __future__ import annotations
 
@@ -6,10 +15,60 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
-from .base import (BatchSignals, EffectBase, FitData, Regressors, SignatureCheck, SignatureFailure, StepSignals,
-                   finite)
+from . import kernels as K
+from .base import (BatchSignals, EffectBase, FitData, OwnPlays, PlayBankState, PlayStart, Regressors, SignatureCheck,
+                   SignatureFailure, StepSignals, finite, play_weights)
 
 KEYS = ("lo", "hi", "lin_lo", "quad_lo", "lin_hi", "quad_hi")
+# how many wide plays a fit may take: none (the hinge alone) or three; held-out blocks choose
+WIDE_PLAYS = (0, 3)
+
+
+def wide_thresholds(fitter: FitData, n: int) -> np.ndarray:
+    """Thresholds of n plays that only loops wider than the identified range sweep: half the
+    identified span plus k / (n + 1) of half what the recordings reach beyond it (at 0 a loop of the
+    range sweeps the play, at 1 only a loop over the whole span, once). None unless they stand a range
+    margin apart (a drive within a margin counts as inside the range: closer plays cannot be told apart)."""
+    u_min = min(float(d.u.min()) for d in fitter.data)
+    u_max = max(float(d.u.max()) for d in fitter.data)
+    extra = (u_max - u_min) - fitter.drive_span
+    if n == 0 or 0.5 * extra / (n + 1) < fitter.drive_margin:
+        return np.zeros(0)
+    return 0.5 * fitter.drive_span + 0.5 * extra * np.arange(1, n + 1) / (n + 1)
+
+
+def swept_play_sum(u: np.ndarray, thresholds: np.ndarray, coefficients: np.ndarray, middle: float) -> np.ndarray:
+    """sum_j c_j (H_rj[u] - middle) over a batch, each play's output starting at `middle`."""
+    p0 = np.full(thresholds.size, float(middle))
+    return np.asarray((K.play_bank_from(np.ascontiguousarray(u, dtype=float), thresholds, p0) - middle)
+                      @ coefficients)
+
+
+class SweptPlays(PlayBankState):
+    """Plays stepped in plain floats (a step allocates nothing): sum_j c_j (p_j - middle), each
+    output starting at `middle` whatever the drive's start."""
+
+    def __init__(self, thresholds: np.ndarray, coefficients: np.ndarray, middle: float) -> None:
+        super().__init__(thresholds, coefficients)
+        self.middle = float(middle)
+
+    def reset(self, u: float, start: "PlayStart | None" = None) -> None:
+        for j in range(len(self.p)):
+            self.p[j] = self.middle
+
+    def advance(self, u: float) -> float:
+        acc = 0.0
+        for j in range(len(self.p)):
+            p = min(max(self.p[j], u - self.th[j]), u + self.th[j])
+            self.p[j] = p
+            acc += self.c[j] * (p - self.middle)
+        return acc
+
+    def peek(self, u: float) -> float:
+        acc = 0.0
+        for j in range(len(self.p)):
+            acc += self.c[j] * (min(max(self.p[j], u - self.th[j]), u + self.th[j]) - self.middle)
+        return acc
 
 
 class Saturation(EffectBase):
@@ -22,13 +81,19 @@ class Saturation(EffectBase):
                                                            "sample's drive when an eddy lag or delay is inverted after it)"}
     physics: ClassVar[str] = (
         "the drive goes beyond the range the model was identified on, where the material's curve bends "
-        "(towards saturation, or steeper first) while the model extrapolates straight on")
-    n_params: ClassVar[int] = 2
+        "(towards saturation, or steeper first) and its loops widen while the model extrapolates straight on")
+    n_params: ClassVar[int] = 2          # the hinge's; each wide play adds one
 
     def __init__(self, block: Mapping[str, Any]) -> None:
         super().__init__(block)
         self.lo, self.hi, self.lin_lo, self.quad_lo, self.lin_hi, self.quad_hi = \
             (finite(block, k, "saturation") for k in KEYS)
+        self.thresholds: np.ndarray
+        self.coefficients: np.ndarray
+        self.thresholds, self.coefficients = play_weights(
+            {"thresholds": block.get("play_thresholds", []), "coefficients": block.get("play_coefficients", [])},
+            "coefficients", "saturation play")
+        self.middle = 0.5 * (self.lo + self.hi)       # where the wide plays start: no drive inside sweeps them
 
     def term(self, u: float) -> float:
         """Hinge correction beyond the identified drive range, in plain floats (a step allocates nothing)."""
@@ -40,7 +105,10 @@ class Saturation(EffectBase):
         u = np.asarray(sig.drive, dtype=float)
         hi = np.maximum(u - self.hi, 0.0)
         lo = np.maximum(self.lo - u, 0.0)
-        return y + (self.lin_hi * hi + self.quad_hi * hi * hi + self.lin_lo * lo + self.quad_lo * lo * lo)
+        y = y + (self.lin_hi * hi + self.quad_hi * hi * hi + self.lin_lo * lo + self.quad_lo * lo * lo)
+        if self.thresholds.size:
+            y = y + swept_play_sum(sig.u3, self.thresholds, self.coefficients, self.middle)
+        return y
 
     def state(self, dt: float, stress_ref: float, inverse: bool) -> "_SaturationState":
         return _SaturationState(self)
@@ -48,7 +116,7 @@ class Saturation(EffectBase):
     # ---- diagnosis
     @classmethod
     def testable(cls, fitter: FitData) -> tuple[bool, str]:
-        margin = 0.02 * fitter.drive_span
+        margin = fitter.drive_margin
         n = sum(d.u.size for d in fitter.data)
         above = sum(int(np.sum(d.u > fitter.drive_hi + margin)) for d in fitter.data) / n
         below = sum(int(np.sum(d.u < fitter.drive_lo - margin)) for d in fitter.data) / n
@@ -59,15 +127,20 @@ class Saturation(EffectBase):
         return True, ""
 
     @classmethod
-    def grid(cls, fitter: FitData) -> list[bool]:
-        return [True]
+    def grid(cls, fitter: FitData) -> list[int]:
+        """How many wide plays: those the recordings' span allows (`wide_thresholds`)."""
+        return [n for n in WIDE_PLAYS if n == 0 or wide_thresholds(fitter, n).size]
+
+    @classmethod
+    def count_params(cls, fitter: FitData) -> int:
+        return cls.n_params + max(cls.grid(fitter))      # the most plays tried: the likelihood's penalty
 
     @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
         """A side's terms where some recording goes beyond the range there (the same columns for
         every recording, so their rows stack)."""
         u = r.d.u
-        margin = 0.02 * fitter.drive_span
+        margin = fitter.drive_margin
         for side, h, beyond in (("hi", np.maximum(u - fitter.drive_hi, 0.0),
                                  any(float(d.u.max()) > fitter.drive_hi + margin for d in fitter.data)),
                                 ("lo", np.maximum(fitter.drive_lo - u, 0.0),
@@ -75,6 +148,11 @@ class Saturation(EffectBase):
             if beyond:
                 r.cols += [h, h * h]
                 r.names += [f"sat_lin_{side}", f"sat_quad_{side}"]
+        wide = wide_thresholds(fitter, p)
+        if wide.size:
+            for j in range(wide.size):
+                r.cols.append(swept_play_sum(r.u3, wide[j:j + 1], np.ones(1), 0.5 * (fitter.drive_lo + fitter.drive_hi)))
+                r.names.append(f"sat_play_{j}")
 
     @classmethod
     def fitted_params(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, float]:
@@ -84,9 +162,14 @@ class Saturation(EffectBase):
 
     @classmethod
     def fitted_blocks(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, dict[str, Any]]:
-        return {"saturation": {"lo": fitter.drive_lo, "hi": fitter.drive_hi,
-                               "lin_lo": coef.get("sat_lin_lo", 0.0), "quad_lo": coef.get("sat_quad_lo", 0.0),
-                               "lin_hi": coef.get("sat_lin_hi", 0.0), "quad_hi": coef.get("sat_quad_hi", 0.0)}}
+        block: dict[str, Any] = {"lo": fitter.drive_lo, "hi": fitter.drive_hi,
+                                 "lin_lo": coef.get("sat_lin_lo", 0.0), "quad_lo": coef.get("sat_quad_lo", 0.0),
+                                 "lin_hi": coef.get("sat_lin_hi", 0.0), "quad_hi": coef.get("sat_quad_hi", 0.0)}
+        wide = wide_thresholds(fitter, p)
+        if wide.size:
+            block["play_thresholds"] = [float(v) for v in wide]
+            block["play_coefficients"] = [coef[f"sat_play_{j}"] for j in range(wide.size)]
+        return {"saturation": block}
 
     @classmethod
     def signature(cls, check: SignatureCheck) -> SignatureFailure | None:
@@ -137,24 +220,34 @@ class Saturation(EffectBase):
 
     @staticmethod
     def describe(params: Mapping[str, float], unit: str) -> str:
+        wider = ", and loops wider than the model's where the drive sweeps beyond it" \
+            if any(k.startswith("sat_play_") for k in params) else ""
         return (f"a bend of the material's curve beyond the identified drive range "
-                f"{params['drive_lo']:.3g}..{params['drive_hi']:.3g} that the model extrapolates straight through")
+                f"{params['drive_lo']:.3g}..{params['drive_hi']:.3g} that the model extrapolates straight through"
+                f"{wider}")
 
 
-class _SaturationState:
+class _SaturationState(OwnPlays):
     reads_input = True
 
     def __init__(self, m: Saturation) -> None:
         self.m = m
+        self.plays = SweptPlays(m.thresholds, m.coefficients, m.middle) if m.thresholds.size else None
 
     def reset(self, initial_drive: float) -> None:
-        pass
+        if self.plays is not None:
+            self.plays.reset(float(initial_drive))
 
     def step(self, x: StepSignals) -> None:
         x.y += self.m.term(x.u1)
+        if self.plays is not None:
+            x.y += self.plays.advance(x.u3)
 
     def inverse_step(self, x: StepSignals) -> None:
         x.const += self.m.term(x.drive_at)
+        if self.plays is not None:
+            x.const += self.plays.peek(x.u3_at)
 
     def commit(self, x: StepSignals) -> None:
-        pass
+        if self.plays is not None:
+            self.plays.advance(x.u3)
