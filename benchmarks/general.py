@@ -21,7 +21,9 @@ eddy-and-resonance pair's miss was known (a delay named alone) when the resonanc
 beside a lag was fixed on the development draws, so GENERAL_SIXTH_SEED draws a fifth. Its creep miss
 (a time constant the identification loops could not tell) was then looked at and fixed, so
 GENERAL_SEVENTH_SEED draws a sixth. Its saturation miss (loops wider beyond the identified range)
-was then looked at and fixed, so GENERAL_EIGHTH_SEED draws a seventh.
+was then looked at and fixed, so GENERAL_EIGHTH_SEED draws a seventh. Its resonance miss (a load
+law the zoom left before the polish brought the damping close) was then looked at and fixed, so
+GENERAL_NINTH_SEED draws an eighth.
 """
 
 from __future__ import annotations
@@ -49,6 +51,8 @@ GENERAL_SEVENTH_SEED = 20261205   # a sixth never-tuned draw (2026-11-27, fourth
                                   # was looked at and fixed; fixed and committed before its first run
 GENERAL_EIGHTH_SEED = 20261206    # a seventh never-tuned draw (2026-11-27, sixth session): the sixth's saturation
                                   # miss was looked at and fixed; fixed and committed before its first run
+GENERAL_NINTH_SEED = 20261207     # an eighth never-tuned draw (2026-11-27, sixth session, later): the eighth's
+                                  # resonance miss was looked at and fixed; fixed and committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 

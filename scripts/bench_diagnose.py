@@ -28,6 +28,7 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set general-sixth     # a fifth, drawn after the joint search's fix
     .venv/bin/python scripts/bench_diagnose.py --set general-seventh   # a sixth, drawn after the sixth's creep fix
     .venv/bin/python scripts/bench_diagnose.py --set general-eighth    # a seventh, drawn after the seventh's saturation fix
+    .venv/bin/python scripts/bench_diagnose.py --set general-ninth     # an eighth, drawn after the eighth's resonance fix
 
 Beside the held-out blocks, every case is also judged on probes (`benchmarks.probes`): the same
 simulated actuator recorded again at loads, rates and drive shapes diagnose never saw; the extended
@@ -57,8 +58,8 @@ from benchmarks.cases import (FS, LABELS, Case, cases, holdout_cases, make_case,
                                OTHER_PLANTS_HOLDOUT_SEED, case_recordings, other_plant_cases, rising_cases,
                                rising_holdout_cases, sdp_variant_cases)
 from benchmarks.general import (GENERAL_EIGHTH_SEED, GENERAL_FIFTH_SEED, GENERAL_FOURTH_SEED,  # noqa: E402
-                                GENERAL_FRESH_SEED, GENERAL_HOLDOUT_SEED, GENERAL_SEVENTH_SEED, GENERAL_SIXTH_SEED,
-                                general_cases)
+                                GENERAL_FRESH_SEED, GENERAL_HOLDOUT_SEED, GENERAL_NINTH_SEED, GENERAL_SEVENTH_SEED,
+                                GENERAL_SIXTH_SEED, general_cases)
 from benchmarks.probes import pooled, probe_recordings, probe_scores
 
 # the held-out-condition targets (issue 31), on the probes diagnose never saw
@@ -107,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", choices=("tuned", "holdout", "all", "sdp-variants", "plants", "plants-holdout",
                                       "rising", "rising-holdout", "general", "general-holdout", "general-fresh",
                                       "general-fourth", "general-fifth", "general-sixth", "general-seventh",
-                                      "general-eighth"),
+                                      "general-eighth", "general-ninth"),
                     default="tuned",
                     help="the development cases (default), the never-tuned set, both, six more "
                          "stress-dependent play cases on plain, voltage, falling and cut recordings, or "
@@ -116,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
                          "general: every effect on the default and a drawn actuator, diagnosed with its "
                          "identification recordings (general-holdout: a second draw, never tuned; general-fresh: a "
                          "third, never tuned, drawn after the second's misses were fixed; general-fourth: a fourth, "
-                         "drawn after the third's creep misses were fixed; general-fifth to general-eighth: later draws); "
+                         "drawn after the third's creep misses were fixed; general-fifth to general-ninth: later draws); "
                          "rising: the rising-amplitude family (sines growing from the drive's minimum and decaying to "
                          "it; rising-holdout: drawn once, never tuned)")
     ap.add_argument("--quick", action="store_true", help="middle magnitude of each effect, two nulls, one pair")
@@ -156,7 +157,10 @@ def main(argv: list[str] | None = None) -> int:
                                  general_cases(GENERAL_SEVENTH_SEED, prefix="seventh"))],
             "general-eighth": [("generalisation, an eighth draw, never tuned (seed fixed and committed before its "
                                 "first run, after the seventh draw's saturation miss was fixed)",
-                                general_cases(GENERAL_EIGHTH_SEED, prefix="eighth"))]}
+                                general_cases(GENERAL_EIGHTH_SEED, prefix="eighth"))],
+            "general-ninth": [("generalisation, a ninth draw, never tuned (seed fixed and committed before its "
+                               "first run, after the eighth draw's resonance miss was fixed)",
+                               general_cases(GENERAL_NINTH_SEED, prefix="ninth"))]}
     chosen = sets["tuned"] + sets["holdout"] if args.set == "all" else sets[args.set]
     ok = True
     for title, todo in chosen:
