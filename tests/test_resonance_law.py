@@ -115,3 +115,24 @@ def _eddy_and_resonance_diagnosed(seed: int, prefix: str):
     case = {c.name: c for c in general_cases(seed, prefix=prefix)}[f"{prefix}:rate_dependence+mechanical_dynamics"]
     model, ident, rec = case_recordings(case, scale=0.5)
     return diagnose(model, [rec], identification=ident), case_plant(case).eddy.time_constant_ms * 1e-3
+
+
+@pytest.mark.slow
+def test_the_load_law_is_zoomed_again_once_the_polish_has_brought_the_damping_close():
+    """The eighth never-tuned draw's resonance on the default actuator (damping 0.068, a falling
+    actuator; looked at once, then fixed; no longer quoted as unseen). The zoom's load-law moves
+    were scored while the damping was still the grid's 0.12; the polish then brought it to 0.07,
+    with the moving mass left at 9x the plant's: 126 Hz where the drive excites it, right, but 103 Hz
+    at the probes' heavy load where the plant has 86.5 Hz (other-rate probe 6.2 -> 4.4 um). At half
+    length, as here, the law before the fix put 101 Hz there."""
+    from benchmarks.general import GENERAL_EIGHTH_SEED
+
+    case = {c.name: c for c in general_cases(GENERAL_EIGHTH_SEED, prefix="eighth")}["eighth:mechanical_dynamics@default"]
+    model, ident, rec = case_recordings(case, scale=0.5)
+    plant = case_plant(case)
+    dg = diagnose(model, [rec], identification=ident)
+    assert dg.verdict == ["mechanical_dynamics"]
+    p = {c.effect: c.params for c in dg.candidates}["mechanical_dynamics"]
+    heavy = plant.stress_for_mass(HEAVY_KG)
+    f_heavy = p["f_ref_hz"] / math.sqrt(1.0 + p["beta_per_MPa"] * (p["stress_ref_MPa"] - heavy))
+    assert f_heavy == pytest.approx(plant.resonance_hz(HEAVY_KG), rel=0.05)     # 5 %: as above

@@ -54,9 +54,10 @@ def test_loops_wider_beyond_the_identified_range_are_saturation_and_carry_to_oth
     """The seventh never-tuned draw's saturation on a drawn actuator (looked at once, then fixed; it
     is no longer quoted as unseen). The recalibration's curvature took 1.77 -> 0.29 um, a hinge
     beside it added nothing, and the recalibration alone was left out: nothing named, probes 1.00x.
-    The residual against the drive was a loop from 1 A to 2.75 A: the plant's loop is wider there."""
+    The residual against the drive was a loop from 1 A to 2.75 A: the plant's loop is wider there.
+    At half length, as here, it fails the same way before the fix (nothing named, 1.00x)."""
     case = {c.name: c for c in general_cases(GENERAL_SEVENTH_SEED, prefix="seventh")}["seventh:saturation@other"]
-    model, ident, rec = case_recordings(case)
+    model, ident, rec = case_recordings(case, scale=0.5)
     dg = diagnose(model, [rec], identification=ident)
     assert dg.verdict == ["saturation"], dg.explanation
     assert any(k.startswith("sat_play_") for k in {c.effect: c.params for c in dg.candidates}["saturation"])
