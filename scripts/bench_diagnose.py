@@ -62,6 +62,15 @@ from benchmarks.general import (GENERAL_EIGHTH_SEED, GENERAL_FIFTH_SEED, GENERAL
                                 GENERAL_SIXTH_SEED, general_cases)
 from benchmarks.probes import pooled, probe_recordings, probe_scores
 
+# the never-tuned general draws after the first, each drawn after the misses named were fixed
+LATER_DRAWS = (("fresh", "a second", GENERAL_FRESH_SEED, "the first draw's misses were fixed"),
+               ("fourth", "a fourth", GENERAL_FOURTH_SEED, "the third draw's creep misses were fixed"),
+               ("fifth", "a fifth", GENERAL_FIFTH_SEED, "the fourth draw's resonance miss was fixed"),
+               ("sixth", "a sixth", GENERAL_SIXTH_SEED, "the resonance's joint search beside a lag was fixed"),
+               ("seventh", "a seventh", GENERAL_SEVENTH_SEED, "the sixth draw's creep miss was fixed"),
+               ("eighth", "an eighth", GENERAL_EIGHTH_SEED, "the seventh draw's saturation miss was fixed"),
+               ("ninth", "a ninth", GENERAL_NINTH_SEED, "the eighth draw's resonance miss was fixed"))
+
 # the held-out-condition targets (issue 31), on the probes diagnose never saw
 PROBE_GAIN_EACH = 1.5        # every effect case at least this much better than the base
 PROBE_GAIN_MEDIAN = 3.0      # the median effect case
@@ -106,9 +115,8 @@ def effect_free_floor(twin: Any) -> float:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--set", choices=("tuned", "holdout", "all", "sdp-variants", "plants", "plants-holdout",
-                                      "rising", "rising-holdout", "general", "general-holdout", "general-fresh",
-                                      "general-fourth", "general-fifth", "general-sixth", "general-seventh",
-                                      "general-eighth", "general-ninth"),
+                                      "rising", "rising-holdout", "general", "general-holdout")
+                    + tuple(f"general-{prefix}" for prefix, *_ in LATER_DRAWS),
                     default="tuned",
                     help="the development cases (default), the never-tuned set, both, six more "
                          "stress-dependent play cases on plain, voltage, falling and cut recordings, or "
@@ -140,27 +148,9 @@ def main(argv: list[str] | None = None) -> int:
                          general_cases())],
             "general-holdout": [("generalisation, never tuned (seed fixed and committed before its first run)",
                                  general_cases(GENERAL_HOLDOUT_SEED, prefix="unseen"))],
-            "general-fresh": [("generalisation, a second never-tuned draw (seed fixed and committed before its "
-                               "first run, after the first draw's misses were fixed)",
-                               general_cases(GENERAL_FRESH_SEED, prefix="fresh"))],
-            "general-fourth": [("generalisation, a fourth draw, never tuned (seed fixed and committed before its "
-                                "first run, after the third draw's creep misses were fixed)",
-                                general_cases(GENERAL_FOURTH_SEED, prefix="fourth"))],
-            "general-fifth": [("generalisation, a fifth draw, never tuned (seed fixed and committed before its "
-                               "first run, after the fourth draw's resonance miss was fixed)",
-                               general_cases(GENERAL_FIFTH_SEED, prefix="fifth"))],
-            "general-sixth": [("generalisation, a sixth draw, never tuned (seed fixed and committed before its "
-                               "first run, after the resonance's joint search beside a lag was fixed)",
-                               general_cases(GENERAL_SIXTH_SEED, prefix="sixth"))],
-            "general-seventh": [("generalisation, a seventh draw, never tuned (seed fixed and committed before its "
-                                 "first run, after the sixth draw's creep miss was fixed)",
-                                 general_cases(GENERAL_SEVENTH_SEED, prefix="seventh"))],
-            "general-eighth": [("generalisation, an eighth draw, never tuned (seed fixed and committed before its "
-                                "first run, after the seventh draw's saturation miss was fixed)",
-                                general_cases(GENERAL_EIGHTH_SEED, prefix="eighth"))],
-            "general-ninth": [("generalisation, a ninth draw, never tuned (seed fixed and committed before its "
-                               "first run, after the eighth draw's resonance miss was fixed)",
-                               general_cases(GENERAL_NINTH_SEED, prefix="ninth"))]}
+            **{f"general-{prefix}": [(f"generalisation, {which} draw, never tuned (seed fixed and committed before "
+                                      f"its first run, after {after})", general_cases(seed, prefix=prefix))]
+               for prefix, which, seed, after in LATER_DRAWS}}
     chosen = sets["tuned"] + sets["holdout"] if args.set == "all" else sets[args.set]
     ok = True
     for title, todo in chosen:
