@@ -138,3 +138,30 @@ def test_the_load_law_is_zoomed_again_once_the_polish_has_brought_the_damping_cl
     assert dg.verdict == ["mechanical_dynamics"]
     f_heavy, f_plant = law_at_the_heavy_load(dg, plant)
     assert f_heavy == pytest.approx(f_plant, rel=0.05)     # 5 %: as above
+
+
+class _Loads:
+    """The fitter's fields the resonance's law sweep reads: two loads, the fast drive at the heavier."""
+
+    def __init__(self) -> None:
+        t = np.arange(4000) / 2000.0
+        self.data = [type("D", (), {"u": np.where(t < 1.0, 0.5, np.sin(2 * np.pi * 60 * t)), "dt": np.full(t.size, 5e-4),
+                                    "s": np.where(t < 1.0, -12.0, -20.0)})()]
+        self.stress_top, self.stress_bottom, self.stress_ref = -12.0, -20.0, -16.0
+        self.stress_varies, self.dt_min = True, 5e-4
+
+    def static_stress(self, d, clamped=False):
+        return d.s
+
+
+def test_after_its_polish_the_load_law_is_swept_whole_with_the_resonance_held_where_it_is_excited():
+    from gma_ffc.effects.dynamics import LAW_SPREAD, LAW_SWEEP, Dynamics, _f_at, _mass_stress
+
+    fitter = _Loads()
+    points = Dynamics.after_polish(fitter, (150.0, 0.07, 0.2))
+    masses = sorted(_mass_stress(b) for _, _, b in points)
+    extent = fitter.stress_top - fitter.stress_bottom
+    assert masses[0] == pytest.approx(min(LAW_SPREAD) * extent) and masses[-1] == pytest.approx(max(LAW_SPREAD) * extent)
+    assert max(b / a for a, b in zip(masses, masses[1:])) <= LAW_SWEEP * 1.01     # whole steps over the range
+    held = [_f_at(f, b, fitter.stress_top, -20.0) for f, _, b in points]     # the fast drive is at -20 MPa
+    assert held == pytest.approx([_f_at(150.0, 0.2, fitter.stress_top, -20.0)] * len(points), rel=1e-12)

@@ -694,16 +694,18 @@ def _polish(fitter: Fitter, base: tuple[Spec, Spec, Spec], results: dict[Any, Sc
 
 
 def _zoom_again(fitter: Fitter, results: dict[Any, Score], run: Callable[[Iterable[Any]], None],
-                refine: Callable[[Fitter, Any, int], Sequence[Any] | None], zoom_levels: int) -> bool:
-    """After the polish, the zoom's first level from its point; where that finds a better one, the
-    other levels from there. A sharp resonance's load law shows only once its frequency and damping
-    are close, and the zoom's law moves were made before the polish brought them close (the eighth
-    general draw's resonance: the moving mass stayed 9x the plant's). True when the point moved."""
+                refine: Callable[[Fitter, Any, int], Sequence[Any] | None], zoom_levels: int,
+                after_polish: Callable[[Fitter, Any], Sequence[Any]] | None = None) -> bool:
+    """After the polish, the zoom's first level (and the effect's `after_polish` points) from its
+    point; where that finds a better one, the other levels from there. A sharp resonance's load law
+    shows only once its frequency and damping are close, and the zoom's law moves were made before
+    the polish brought them close (the eighth general draw's resonance: the moving mass stayed 9x
+    the plant's). True when the point moved."""
     def best() -> Any:
         return min(results, key=lambda p: results[p].all_mse)
 
     polished = best()
-    run(refine(fitter, polished, 1) or [])
+    run(list(refine(fitter, polished, 1) or []) + list(after_polish(fitter, polished) if after_polish else []))
     if best() == polished:
         return False
     for level in range(2, zoom_levels + 1):
@@ -763,7 +765,7 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
            grid: Iterable[Any], refine: Callable[[Fitter, Any, int], Sequence[Any] | None] | None = None,
            zoom_levels: int = ZOOM_LEVELS,
            polish: Callable[[Fitter, Any], tuple[int, Callable[[np.ndarray], Any]] | None] | None = None,
-           workers: int = 1) -> SearchResult:
+           workers: int = 1, after_polish: Callable[[Fitter, Any], Sequence[Any]] | None = None) -> SearchResult:
     """Grid (plus local refinement, then an optional continuous polish) over one block's
     parameters; per-fold choice by training error. The points of a grid or a zoom level are scored
     on up to `workers` threads (the kernels release the GIL): one effect's search can be most of a
@@ -792,7 +794,7 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
                 run(refine(fitter, bp, level) or [])
     if polish is not None:
         _polish(fitter, base, results, run, polish)
-        if refine is not None and _zoom_again(fitter, results, run, refine, zoom_levels):
+        if refine is not None and _zoom_again(fitter, results, run, refine, zoom_levels, after_polish):
             _polish(fitter, base, results, run, polish)
     pa = min(results, key=lambda p: results[p].train_mse(0))
     pb = min(results, key=lambda p: results[p].train_mse(1))

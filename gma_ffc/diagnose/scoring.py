@@ -118,7 +118,7 @@ def _own_search(fitter: Fitter, base: Specs, name: str, workers: int, start: Any
         return s.with_(name, p)
 
     points = ([] if start is None else [start]) + (list(cls.grid(fitter)) if grid else [])
-    return search(fitter, base, make, points, cls.refine, cls.zoom_levels, cls.polish, workers)
+    return search(fitter, base, make, points, cls.refine, cls.zoom_levels, cls.polish, workers, cls.after_polish)
 
 
 DESCENT_ROUNDS = 3     # coordinate-descent rounds at most: each is two searches (whole, then zooms)

@@ -322,6 +322,11 @@ class Effect(Protocol):
         for a continuous local search (None: the zoom is all there is)."""
 
     @classmethod
+    def after_polish(cls, fitter: FitData, p: Any) -> Sequence[Any]:
+        """Points worth scoring from the polished point p beside the zoom's first level: a parameter
+        the data show only once the others are close (a resonance's load law), swept whole."""
+
+    @classmethod
     def scaled_for_partner(cls, p: Any, k: float) -> Any:
         """Its parameter scaled by k, beside a look-alike that names it in `joint_with`."""
 
@@ -459,6 +464,10 @@ class EffectBase:
     @classmethod
     def polish(cls, fitter: FitData, p: Any) -> tuple[int, Callable[[np.ndarray], Any]] | None:
         return None
+
+    @classmethod
+    def after_polish(cls, fitter: FitData, p: Any) -> Sequence[Any]:
+        return []
 
     @classmethod
     def signature(cls, check: SignatureCheck) -> SignatureFailure | None:
