@@ -149,9 +149,11 @@ class Saturation(EffectBase):
                 r.cols += [h, h * h]
                 r.names += [f"sat_lin_{side}", f"sat_quad_{side}"]
         wide = wide_thresholds(fitter, p)
-        if wide.size:
+        if wide.size:       # one pass of the play bank: each play a column, its output less where it starts
+            middle = 0.5 * (fitter.drive_lo + fitter.drive_hi)
+            plays = K.play_bank_from(np.ascontiguousarray(r.u3, dtype=float), wide, np.full(wide.size, middle))
             for j in range(wide.size):
-                r.cols.append(swept_play_sum(r.u3, wide[j:j + 1], np.ones(1), 0.5 * (fitter.drive_lo + fitter.drive_hi)))
+                r.cols.append(plays[:, j] - middle)
                 r.names.append(f"sat_play_{j}")
 
     @classmethod
