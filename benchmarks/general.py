@@ -23,7 +23,8 @@ beside a lag was fixed on the development draws, so GENERAL_SIXTH_SEED draws a f
 GENERAL_SEVENTH_SEED draws a sixth. Its saturation miss (loops wider beyond the identified range)
 was then looked at and fixed, so GENERAL_EIGHTH_SEED draws a seventh. Its resonance miss (a load
 law the zoom left before the polish brought the damping close) was then looked at and fixed, so
-GENERAL_NINTH_SEED draws an eighth.
+GENERAL_NINTH_SEED draws an eighth. Its resonance miss (a load law left in a side basin) was then
+looked at and fixed, so GENERAL_TENTH_SEED draws a ninth.
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ GENERAL_EIGHTH_SEED = 20261206    # a seventh never-tuned draw (2026-11-27, sixt
                                   # miss was looked at and fixed; fixed and committed before its first run
 GENERAL_NINTH_SEED = 20261207     # an eighth never-tuned draw (2026-11-27, sixth session, later): the eighth's
                                   # resonance miss was looked at and fixed; fixed and committed before its first run
+GENERAL_TENTH_SEED = 20261208     # a ninth never-tuned draw (2026-11-27, seventh session): the ninth's resonance
+                                  # miss was looked at and fixed; fixed and committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
