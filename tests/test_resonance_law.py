@@ -165,3 +165,20 @@ def test_after_its_polish_the_load_law_is_swept_whole_with_the_resonance_held_wh
     assert max(b / a for a, b in zip(masses, masses[1:])) <= LAW_SWEEP * 1.01     # whole steps over the range
     held = [_f_at(f, b, fitter.stress_top, -20.0) for f, _, b in points]     # the fast drive is at -20 MPa
     assert held == pytest.approx([_f_at(150.0, 0.2, fitter.stress_top, -20.0)] * len(points), rel=1e-12)
+
+
+@pytest.mark.slow
+def test_a_delay_chosen_first_gives_way_to_eddy_currents_beside_a_resonance():
+    """A delay mimics eddy currents and a resonance's phase together, so it wins the first round; a
+    resonance beside it then gains only 10 %, short of the round's margin, and the delay alone was
+    named. A round that accepts nothing, whose best is a look-alike of the last effect, tries the
+    look-alikes together in its place (`EffectSelector._look_ahead`): the lag and the resonance
+    explain the recording far better than the delay with the resonance, so they replace it, with
+    the rig's time constant. This case was the eighth never-tuned draw's; it is development since."""
+    from benchmarks.general import GENERAL_EIGHTH_SEED
+
+    dg, tau_rig_s = _eddy_and_resonance_diagnosed(GENERAL_EIGHTH_SEED, "eighth")
+    assert sorted(dg.verdict) == ["mechanical_dynamics", "rate_dependence"]
+    assert "so it replaced time_delay" in dg.explanation
+    tau = {c.effect: c.params for c in dg.candidates}["rate_dependence"]["tau_s"]
+    assert tau == pytest.approx(tau_rig_s, rel=0.15)    # as above

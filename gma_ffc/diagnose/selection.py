@@ -10,6 +10,9 @@ penalised held-out likelihood test with the residual's effective sample count, (
 residual above the noise floor measured from the data, and (4) passes its own signature check.
 A winner that fails its signature is set aside, and tried again once another effect is accepted:
 a resonance beside eddy currents first fits as a lag, and shows its peak once a lag is in the model.
+A round that accepts nothing, whose best is a look-alike of the effect accepted last, tries that
+effect's look-alikes together in its place: a delay that won the first round as a stand-in for a
+lag and a resonance leaves the resonance too little to gain beside it.
 The null model every effect must beat is the base model with a static recalibration (gain,
 offset, curvature, stress gain, loop width): ordinary model error of that kind is never called
 an effect. With two or more accepted, a swap pass asks whether each is still the best choice for
@@ -223,6 +226,7 @@ class EffectSelector:
         trials, n_eff = score_round(problem.fitter, sel.fit.specs, sel.cur_loss, todo, rnd, self.workers)
         if not trials:
             return sel, False
+        earlier, round_best = sel.trials, trials[0]
         sel = dataclasses.replace(sel, trials={**sel.trials, **{t.effect: t for t in trials}})
         best = trials[0]
         ok = self.accepts(best, sel.cur_loss, problem.noise)
@@ -254,7 +258,7 @@ class EffectSelector:
                              best.effect if ok else None)
         sel = dataclasses.replace(sel, rounds=sel.rounds + (record,))
         if not ok:
-            return sel, False
+            return self._look_ahead(problem, sel, earlier, round_best, n_eff, say)
         ambiguous = sel.ambiguous
         if len(trials) > 1 and trials[1].loglik_gain > self.min_loglik_gain and \
                 best.loglik_gain - trials[1].loglik_gain < self.ambiguous_nats:
@@ -263,6 +267,55 @@ class EffectSelector:
         return dataclasses.replace(sel.readmitted(), accepted=sel.accepted + (best.effect,), fit=best.result,
                                    ambiguous=ambiguous, runner_note=runner,
                                    leave_one_out=fitter_loo(problem, best.result.specs[2])), True
+
+    def _look_ahead(self, problem: Problem, sel: Selection, earlier: Mapping[str, Trial], round_best: Trial,
+                    n_eff: float, say: Callable[[str], None]) -> tuple[Selection, bool]:
+        """A round that accepted nothing, whose best is a look-alike of the effect accepted last
+        (`joint_with`), significant but short of the margin: beside it, another look-alike may do
+        better in the last one's place. A delay beside a resonance takes the place of an eddy lag
+        and leaves the resonance too little to gain; the lag with the resonance may then explain
+        the recordings where the delay with it could not. Each order of the pair is searched
+        (a resonance searched first takes a lag's phase as damping); the better pair replaces the
+        last effect if it earns its place against the model as it stands, by the round's rule.
+        The selection, and whether selection goes on."""
+        last = sel.accepted[-1] if sel.accepted else ""
+        alikes = REGISTRY[last].joint_with if last else ()
+        if round_best.effect not in alikes or round_best.loglik_gain <= self.min_loglik_gain:
+            return sel, False
+        firsts = [n for n in alikes if n in earlier and n in sel.testable and earlier[n].round == round_best.round - 1
+                  and earlier[n].loglik_gain > self.min_loglik_gain]
+        pairs = [(a, b) for a in firsts for b in alikes if b != a and round_best.effect in (a, b)]
+        if not pairs:
+            return sel, False
+        say(f"trying {' and '.join(sorted(set(sum(pairs, ()))))} together in {last}'s place")
+        tried = [(earlier[a], score_round(problem.fitter, earlier[a].result.specs, earlier[a].cv_loss, [b],
+                                          round_best.round, self.workers)[0][0]) for a, b in pairs]
+        first, second = min(tried, key=lambda fs: fs[1].cv_loss)
+        extra = REGISTRY[first.effect].count_params(problem.fitter) + REGISTRY[second.effect].count_params(
+            problem.fitter) - REGISTRY[last].count_params(problem.fitter)
+        gain = loglik_gain(n_eff, sel.cur_loss, second.cv_loss, extra)
+        if not self.earns_place(second.cv_loss, gain, sel.cur_loss, problem.noise) or \
+                self._pair_fails_a_check(problem, sel, first, second):
+            return sel, False
+        return dataclasses.replace(
+            sel.readmitted(), accepted=sel.accepted[:-1] + (first.effect, second.effect), fit=second.result,
+            trials={**sel.trials, first.effect: first, second.effect: second},
+            swapped=sel.swapped + ((last, first.effect, math.sqrt(round_best.cv_mse), math.sqrt(second.cv_mse)),),
+            rounds=sel.rounds[:-1] + (dataclasses.replace(sel.rounds[-1], accepted=second.effect),),
+            leave_one_out=fitter_loo(problem, second.result.specs[2])), True
+
+    def _pair_fails_a_check(self, problem: Problem, sel: Selection, first: Trial, second: Trial) -> bool:
+        """Does either of a look-ahead's pair fail its signature (each on the model it was fitted on
+        top of), or, with two or more recordings, does the pair not improve the ones left out?"""
+        before: Specs = tuple(s.without(sel.accepted[-1]) for s in sel.fit.specs)  # type: ignore[assignment]
+        for base, trial in ((before, first), (first.result.specs, second)):
+            if REGISTRY[trial.effect].signature(
+                    SignatureCheck(problem.fitter, problem.model, base, trial.result, dict(trial.params),
+                                   problem.noise, self.slow_ratio_max, self.model_error_factor)) is not None:
+                return True
+        loo = fitter_loo(problem, second.result.specs[2])
+        return sel.leave_one_out is not None and loo is not None and \
+            loo.loss_per_sample >= sel.leave_one_out.loss_per_sample
 
     def _carries_over(self, problem: Problem, sel: Selection, best: Trial) -> tuple[Trial, str]:
         """With two or more recordings: does the effect's law, fitted on the other recordings,
