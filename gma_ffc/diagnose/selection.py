@@ -226,7 +226,7 @@ class EffectSelector:
         trials, n_eff = score_round(problem.fitter, sel.fit.specs, sel.cur_loss, todo, rnd, self.workers)
         if not trials:
             return sel, False
-        earlier, round_best = sel.trials, trials[0]
+        earlier = sel.trials
         sel = dataclasses.replace(sel, trials={**sel.trials, **{t.effect: t for t in trials}})
         best = trials[0]
         ok = self.accepts(best, sel.cur_loss, problem.noise)
@@ -258,7 +258,7 @@ class EffectSelector:
                              best.effect if ok else None)
         sel = dataclasses.replace(sel, rounds=sel.rounds + (record,))
         if not ok:
-            return self._look_ahead(problem, sel, earlier, round_best, n_eff, say)
+            return self._look_ahead(problem, sel, earlier, best, n_eff, say)
         ambiguous = sel.ambiguous
         if len(trials) > 1 and trials[1].loglik_gain > self.min_loglik_gain and \
                 best.loglik_gain - trials[1].loglik_gain < self.ambiguous_nats:
@@ -270,19 +270,21 @@ class EffectSelector:
 
     def _look_ahead(self, problem: Problem, sel: Selection, earlier: Mapping[str, Trial], round_best: Trial,
                     n_eff: float, say: Callable[[str], None]) -> tuple[Selection, bool]:
-        """A round that accepted nothing, whose best is a look-alike of the effect accepted last
-        (`joint_with`), significant but short of the margin: beside it, another look-alike may do
-        better in the last one's place. A delay beside a resonance takes the place of an eddy lag
-        and leaves the resonance too little to gain; the lag with the resonance may then explain
-        the recordings where the delay with it could not. Each order of the pair is searched
-        (a resonance searched first takes a lag's phase as damping); the better pair replaces the
-        last effect if it earns its place against the model as it stands, by the round's rule.
-        The selection, and whether selection goes on."""
+        """A round that accepted nothing, whose best (`round_best`: none of its checks failed) is a
+        look-alike of the effect accepted last (`joint_with`), significant but short of the margin:
+        beside it, another look-alike may do better in the last one's place. A delay beside a
+        resonance takes the place of an eddy lag and leaves the resonance too little to gain; the
+        lag with the resonance may then explain the recordings where the delay with it could not.
+        Each order of the pair is searched (a resonance searched first takes a lag's phase as
+        damping); the better pair replaces the last effect if it earns its place against the model
+        as it stands, by the round's rule, and passes the checks a round's winner passes. The
+        selection, and whether selection goes on."""
         last = sel.accepted[-1] if sel.accepted else ""
         alikes = REGISTRY[last].joint_with if last else ()
         if round_best.effect not in alikes or round_best.loglik_gain <= self.min_loglik_gain:
             return sel, False
-        firsts = [n for n in alikes if n in earlier and n in sel.testable and earlier[n].round == round_best.round - 1
+        listed = {row[0] for row in sel.rounds[-2].table} if len(sel.rounds) > 1 else set()   # none failed a check
+        firsts = [n for n in alikes if n in earlier and n in listed and earlier[n].round == round_best.round - 1
                   and earlier[n].loglik_gain > self.min_loglik_gain]
         pairs = [(a, b) for a in firsts for b in alikes if b != a and round_best.effect in (a, b)]
         if not pairs:
@@ -294,9 +296,12 @@ class EffectSelector:
         extra = REGISTRY[first.effect].count_params(problem.fitter) + REGISTRY[second.effect].count_params(
             problem.fitter) - REGISTRY[last].count_params(problem.fitter)
         gain = loglik_gain(n_eff, sel.cur_loss, second.cv_loss, extra)
-        if not self.earns_place(second.cv_loss, gain, sel.cur_loss, problem.noise) or \
-                self._pair_fails_a_check(problem, sel, first, second):
+        if not self.earns_place(second.cv_loss, gain, sel.cur_loss, problem.noise):
             return sel, False
+        checked = self._pair_checked(problem, sel, first, second)
+        if checked is None:
+            return sel, False
+        first, second = checked
         return dataclasses.replace(
             sel.readmitted(), accepted=sel.accepted[:-1] + (first.effect, second.effect), fit=second.result,
             trials={**sel.trials, first.effect: first, second.effect: second},
@@ -304,18 +309,25 @@ class EffectSelector:
             rounds=sel.rounds[:-1] + (dataclasses.replace(sel.rounds[-1], accepted=second.effect),),
             leave_one_out=fitter_loo(problem, second.result.specs[2])), True
 
-    def _pair_fails_a_check(self, problem: Problem, sel: Selection, first: Trial, second: Trial) -> bool:
-        """Does either of a look-ahead's pair fail its signature (each on the model it was fitted on
-        top of), or, with two or more recordings, does the pair not improve the ones left out?"""
+    def _pair_checked(self, problem: Problem, sel: Selection, first: Trial,
+                      second: Trial) -> tuple[Trial, Trial] | None:
+        """A look-ahead's pair with each one's signature checked on the model it was fitted on top
+        of, and, with two or more recordings, each one's law carried to the recordings left out (as
+        a round's winner is); None when either fails."""
         before: Specs = tuple(s.without(sel.accepted[-1]) for s in sel.fit.specs)  # type: ignore[assignment]
         for base, trial in ((before, first), (first.result.specs, second)):
             if REGISTRY[trial.effect].signature(
                     SignatureCheck(problem.fitter, problem.model, base, trial.result, dict(trial.params),
                                    problem.noise, self.slow_ratio_max, self.model_error_factor)) is not None:
-                return True
-        loo = fitter_loo(problem, second.result.specs[2])
-        return sel.leave_one_out is not None and loo is not None and \
-            loo.loss_per_sample >= sel.leave_one_out.loss_per_sample
+                return None
+        if sel.leave_one_out is None:
+            return first, second
+        first, why = self._carries_over(problem, dataclasses.replace(
+            sel, leave_one_out=fitter_loo(problem, before[2])), first)
+        if not why:
+            second, why = self._carries_over(problem, dataclasses.replace(
+                sel, leave_one_out=fitter_loo(problem, first.result.specs[2])), second)
+        return None if why else (first, second)
 
     def _carries_over(self, problem: Problem, sel: Selection, best: Trial) -> tuple[Trial, str]:
         """With two or more recordings: does the effect's law, fitted on the other recordings,
