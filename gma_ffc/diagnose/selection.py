@@ -275,10 +275,10 @@ class EffectSelector:
         beside it, another look-alike may do better in the last one's place. A delay beside a
         resonance takes the place of an eddy lag and leaves the resonance too little to gain; the
         lag with the resonance may then explain the recordings where the delay with it could not.
-        Each order of the pair is searched (a resonance searched first takes a lag's phase as
-        damping); the better pair replaces the last effect if it earns its place against the model
-        as it stands, by the round's rule, and passes the checks a round's winner passes. The
-        selection, and whether selection goes on."""
+        The pair is searched along the signal path, the effect nearer the drive first (a resonance
+        searched first takes a lag's phase as damping). The best pair replaces the last effect if
+        it earns its place against the model as it stands, by the round's rule, and passes the
+        checks a round's winner passes. The selection, and whether selection goes on."""
         last = sel.accepted[-1] if sel.accepted else ""
         alikes = REGISTRY[last].joint_with if last else ()
         if round_best.effect not in alikes or round_best.loglik_gain <= self.min_loglik_gain:
@@ -286,7 +286,8 @@ class EffectSelector:
         listed = {row[0] for row in sel.rounds[-2].table} if len(sel.rounds) > 1 else set()   # none failed a check
         firsts = [n for n in alikes if n in earlier and n in listed and earlier[n].round == round_best.round - 1
                   and earlier[n].loglik_gain > self.min_loglik_gain]
-        pairs = [(a, b) for a in firsts for b in alikes if b != a and round_best.effect in (a, b)]
+        pairs = [(a, b) for a in firsts for b in alikes           # the one nearer the drive fitted first
+                 if REGISTRY[a].position < REGISTRY[b].position and round_best.effect in (a, b)]
         if not pairs:
             return sel, False
         say(f"trying {' and '.join(sorted(set(sum(pairs, ()))))} together in {last}'s place")
