@@ -233,9 +233,7 @@ class EffectSelector:
         # signature checks: a winner without its effect's signature is set aside, and the next one checked;
         # once another effect is accepted, it is tried again on top of it
         while ok:
-            failure = REGISTRY[best.effect].signature(
-                SignatureCheck(problem.fitter, problem.model, sel.fit.specs, best.result, dict(best.params),
-                               problem.noise, self.slow_ratio_max, self.model_error_factor))
+            failure = self._signature(problem, sel.fit.specs, best)
             if failure is None:
                 best, why = self._carries_over(problem, sel, best)
                 trials = [best] + trials[1:]
@@ -316,11 +314,9 @@ class EffectSelector:
         of, and, with two or more recordings, each one's law carried to the recordings left out (as
         a round's winner is); None when either fails."""
         before: Specs = tuple(s.without(sel.accepted[-1]) for s in sel.fit.specs)  # type: ignore[assignment]
-        for base, trial in ((before, first), (first.result.specs, second)):
-            if REGISTRY[trial.effect].signature(
-                    SignatureCheck(problem.fitter, problem.model, base, trial.result, dict(trial.params),
-                                   problem.noise, self.slow_ratio_max, self.model_error_factor)) is not None:
-                return None
+        if self._signature(problem, before, first) is not None or \
+                self._signature(problem, first.result.specs, second) is not None:
+            return None
         if sel.leave_one_out is None:
             return first, second
         first, why = self._carries_over(problem, dataclasses.replace(
@@ -329,6 +325,12 @@ class EffectSelector:
             second, why = self._carries_over(problem, dataclasses.replace(
                 sel, leave_one_out=fitter_loo(problem, first.result.specs[2])), second)
         return None if why else (first, second)
+
+    def _signature(self, problem: Problem, base: Specs, trial: Trial) -> SignatureFailure | None:
+        """The trial's effect's signature check, on the model `base` it was fitted on top of."""
+        return REGISTRY[trial.effect].signature(
+            SignatureCheck(problem.fitter, problem.model, base, trial.result, dict(trial.params),
+                           problem.noise, self.slow_ratio_max, self.model_error_factor))
 
     def _carries_over(self, problem: Problem, sel: Selection, best: Trial) -> tuple[Trial, str]:
         """With two or more recordings: does the effect's law, fitted on the other recordings,
