@@ -37,11 +37,15 @@ def wide_thresholds(fitter: FitData, n: int) -> np.ndarray:
     return 0.5 * fitter.drive_span + 0.5 * extra * np.arange(1, n + 1) / (n + 1)
 
 
+def swept_plays(u: np.ndarray, thresholds: np.ndarray, middle: float) -> np.ndarray:
+    """H_rj[u] - middle over a batch, one column per play, each output starting at `middle`."""
+    p0 = np.full(thresholds.size, float(middle))
+    return np.asarray(K.play_bank_from(np.ascontiguousarray(u, dtype=float), thresholds, p0) - middle)
+
+
 def swept_play_sum(u: np.ndarray, thresholds: np.ndarray, coefficients: np.ndarray, middle: float) -> np.ndarray:
     """sum_j c_j (H_rj[u] - middle) over a batch, each play's output starting at `middle`."""
-    p0 = np.full(thresholds.size, float(middle))
-    return np.asarray((K.play_bank_from(np.ascontiguousarray(u, dtype=float), thresholds, p0) - middle)
-                      @ coefficients)
+    return np.asarray(swept_plays(u, thresholds, middle) @ coefficients)
 
 
 class SweptPlays(PlayBankState):
@@ -149,11 +153,10 @@ class Saturation(EffectBase):
                 r.cols += [h, h * h]
                 r.names += [f"sat_lin_{side}", f"sat_quad_{side}"]
         wide = wide_thresholds(fitter, p)
-        if wide.size:       # one pass of the play bank: each play a column, its output less where it starts
-            middle = 0.5 * (fitter.drive_lo + fitter.drive_hi)
-            plays = K.play_bank_from(np.ascontiguousarray(r.u3, dtype=float), wide, np.full(wide.size, middle))
+        if wide.size:       # one pass of the play bank: each play a column
+            plays = swept_plays(r.u3, wide, 0.5 * (fitter.drive_lo + fitter.drive_hi))
             for j in range(wide.size):
-                r.cols.append(plays[:, j] - middle)
+                r.cols.append(plays[:, j])
                 r.names.append(f"sat_play_{j}")
 
     @classmethod
