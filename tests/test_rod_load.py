@@ -259,7 +259,7 @@ def test_the_regressors_are_each_term_through_the_load_dynamics(m, n, f_hz, zeta
     X = rng.normal(size=(n, m))
     dt = rng.uniform(2e-4, 2e-3, n)
     s = -15.0 + np.cumsum(rng.normal(0.0, 1e-2, n))
-    got = RL.regressors(X.T, dt, s, f_hz, zeta, beta, -11.0)
+    got = RL.regressors(X.T, RL.transitions(dt, s, f_hz, zeta, beta, -11.0))
     for j in range(m):
         want = RK.forward(np.ascontiguousarray(X[:, j]), dt, s, 2 * np.pi * f_hz, zeta, beta, -11.0, X[0, j])
         np.testing.assert_allclose(got[j], want, rtol=1e-12, atol=1e-12)

@@ -35,6 +35,8 @@ CORE_CACHE_BYTES = 192 * 2 ** 20
 REGRESSOR_CACHE_BYTES = 128 * 2 ** 20
 STATIC_CACHE_BYTES = 32 * 2 ** 20
 ANCHOR_CACHE_BYTES = 96 * 2 ** 20
+TABLE_CACHE_BYTES = 32 * 2 ** 20   # per-sample tables (`cached_table`): a resonance's for an hour at 1 kHz is 115 MB,
+                                   # so long recordings keep the newest only; a recording of minutes keeps dozens
 _T = TypeVar("_T")               # what an effect keeps in the fitter's cache (`Fitter.cached`)
 
 
@@ -188,7 +190,7 @@ class Fitter:
         self.stress_bottom = min(float(self._static[id(d)].min()) for d in self.data)
 
     def _init_caches(self) -> None:
-        """Core runs, regressors, static columns and anchor designs, each bounded in bytes (`cache.py`)."""
+        """Core runs, regressors, static columns, per-sample tables and anchor designs, each bounded in bytes (`cache.py`)."""
         self._anchor_cache: BoundedCache[np.ndarray] = BoundedCache(max_bytes=ANCHOR_CACHE_BYTES)
         self._gram_cache: BoundedCache[tuple[list[np.ndarray], list[float]]] = BoundedCache()
         self._core_cache: BoundedCache[list[tuple[np.ndarray, np.ndarray]]] = BoundedCache(max_bytes=CORE_CACHE_BYTES)
@@ -198,6 +200,7 @@ class Fitter:
         self._cache: BoundedCache[Any] = BoundedCache(max_bytes=REGRESSOR_CACHE_BYTES)
         self._static_cache: BoundedCache[tuple[list[np.ndarray], list[str], dict[str, np.ndarray]]] = \
             BoundedCache(max_bytes=STATIC_CACHE_BYTES)
+        self._table_cache: BoundedCache[np.ndarray] = BoundedCache(max_bytes=TABLE_CACHE_BYTES)
 
     def _init_rows(self) -> None:
         """The least-squares rows, fold A's (of every recording) first, then fold B's (folds are
@@ -304,6 +307,12 @@ class Fitter:
         """compute() once per key (e.g. a re-run of the core an effect's regressor needs)."""
         return self._cache.get_or_compute(key, compute)
 
+    def cached_table(self, d: RecData, key: tuple, compute: Callable[[], np.ndarray]) -> np.ndarray:
+        """compute() once per recording (or anchor loop) and key: a per-sample table that an effect's
+        columns share across specs. Its own cache, so the many tables a search makes do not push
+        `cached`'s entries out."""
+        return self._table_cache.get_or_compute((id(d),) + key, compute)
+
     def stress_levels(self) -> list[float]:
         return stress_levels(self.data, gap_MPa=self.settings.min_stress_span_MPa)
 
@@ -365,13 +374,16 @@ class Fitter:
 
     def design(self, spec: Spec) -> tuple[np.ndarray, list[str]]:
         """Regressors at the least-squares rows: fold A rows of every recording, then fold B rows."""
-        part_a, part_b = [], []
+        X = np.empty((0, 0))
         names: list[str] = []
+        a_at, b_at = 0, self.n_a
         for d, (u3, yc), (ra, rb) in zip(self.data, self.core(spec), self._rows_ab):
             cols, names = self.columns(d, u3, yc, spec)
-            part_a.append(np.column_stack([c[ra] for c in cols]))
-            part_b.append(np.column_stack([c[rb] for c in cols]))
-        return np.vstack(part_a + part_b), names
+            if X.size == 0:
+                X = np.empty((self.y_rows.size, len(cols)))
+            a_at = _put_rows(X, a_at, cols, ra)
+            b_at = _put_rows(X, b_at, cols, rb)
+        return X, names
 
     def use_anchor(self, on: bool = True, fallback_tolerance_um: float = math.nan) -> None:
         """Hold every fit from now on within the base's identification error on its own loops
@@ -385,9 +397,14 @@ class Fitter:
     def anchor_design(self, spec: Spec) -> np.ndarray:
         """Regressors at the anchor's rows, each loop's offset and base output projected out."""
         def compute() -> np.ndarray:
-            runs = self.anchor_core(spec)
-            return np.vstack([_projected(q, np.column_stack([c[d.rows] for c in self.columns(d, u3, yc, spec, steady=True)[0]]))
-                              for q, d, (u3, yc) in zip(self._anchor_free, self.anchor, runs)])
+            X = np.empty((0, 0))
+            for q, d, (u3, yc), k in zip(self._anchor_free, self.anchor, self.anchor_core(spec), self._anchor_slices):
+                cols = self.columns(d, u3, yc, spec, steady=True)[0]
+                if X.size == 0:
+                    X = np.empty((self._anchor_slices[-1].stop, len(cols)))
+                _put_rows(X, k.start, cols, d.rows)
+                X[k] = _projected(q, X[k])
+            return X
 
         return self._anchor_cache.get_or_compute(spec, compute)
 
@@ -461,7 +478,7 @@ class Fitter:
         for _ in range(1 if self.delta is None else 3):
             Xw = Xs if w is None else Xs * w[:, None]
             G = Xw.T @ Xs
-            G[np.diag_indices_from(G)] += 1e-10 * max(float(np.trace(G)), 1.0) / G.shape[0]
+            G.flat[:: G.shape[0] + 1] += 1e-10 * max(float(np.trace(G)), 1.0) / G.shape[0]   # its diagonal
             b = Xw.T @ y
             c = _solve_normal(G + P, b, Xs, y)
             if self.delta is not None:
@@ -737,6 +754,15 @@ def _solve_normal(G: np.ndarray, b: np.ndarray, Xs: np.ndarray | None, y: np.nda
         if Xs is not None and y is not None:
             return np.linalg.lstsq(Xs, y, rcond=None)[0]
         return np.linalg.lstsq(G, b, rcond=None)[0]
+
+
+def _put_rows(X: np.ndarray, at: int, cols: list[np.ndarray], rows: np.ndarray) -> int:
+    """Write the columns' values at `rows` into X's rows from `at` on, column by column (no block
+    per recording to stack after); returns the row after the last written."""
+    end = at + rows.size
+    for j, c in enumerate(cols):
+        X[at:end, j] = c[rows]
+    return end
 
 
 def _projected(q: np.ndarray, a: np.ndarray) -> np.ndarray:

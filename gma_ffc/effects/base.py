@@ -161,6 +161,10 @@ class FitData(Protocol):
     def cached(self, key: tuple, compute: Callable[[], _T]) -> _T:
         """compute() once per key (the fitter's cache, bounded)."""
 
+    def cached_table(self, d: Any, key: tuple, compute: Callable[[], np.ndarray]) -> np.ndarray:
+        """compute() once per recording and key: a per-sample table (e.g. a resonance's transitions)
+        shared across specs (its own bounded cache)."""
+
     def stress_levels(self) -> list[float]:
         """Distinct stress levels the recordings dwell at."""
 

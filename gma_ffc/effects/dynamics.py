@@ -197,8 +197,9 @@ class Dynamics(EffectBase):
         f, zeta, beta = p
         d = r.d
         idx = [j for j, name in enumerate(r.names) if name != "offset"]
-        filt = RL.regressors(np.array([r.cols[j] for j in idx]), d.dt, fitter.static_stress(d),
-                             f, zeta, beta, fitter.stress_top)
+        P = fitter.cached_table(d, ("resonance", f, zeta, beta), lambda: RL.transitions(
+            d.dt, fitter.static_stress(d), f, zeta, beta, fitter.stress_top))    # shared by the specs of a search
+        filt = RL.regressors(np.array([r.cols[j] for j in idx]), P)
         for k, j in enumerate(idx):
             r.cols[j] = filt[k]
 

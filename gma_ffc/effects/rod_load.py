@@ -107,13 +107,19 @@ def inverse(y: np.ndarray, dt: np.ndarray, s_static: np.ndarray, block: Mapping[
                       *_args(block), float(yy[0]))
 
 
-def regressors(X: np.ndarray, dt: np.ndarray, s_static: np.ndarray, f_ref_hz: float, zeta: float,
-               beta_per_MPa: float, stress_ref_MPa: float) -> np.ndarray:
+def transitions(dt: np.ndarray, s_static: np.ndarray, f_ref_hz: float, zeta: float, beta_per_MPa: float,
+                stress_ref_MPa: float) -> np.ndarray:
+    """The load dynamics' state transition per sample, shape (4, samples): what `regressors` filters
+    through. It depends on the dynamics and the recording alone, so a fit that filters several sets
+    of terms through the same dynamics computes it once."""
+    return RK.transitions(np.ascontiguousarray(dt, dtype=float), np.ascontiguousarray(s_static, dtype=float),
+                          2.0 * math.pi * f_ref_hz, zeta, beta_per_MPa, stress_ref_MPa)
+
+
+def regressors(X: np.ndarray, P: np.ndarray) -> np.ndarray:
     """Every row of X (a term of the free stroke, shape (terms, samples)) through the load
-    dynamics, each at rest at its first value."""
-    return RK.forward_rows(np.ascontiguousarray(X, dtype=float), np.ascontiguousarray(dt, dtype=float),
-                           np.ascontiguousarray(s_static, dtype=float), 2.0 * math.pi * f_ref_hz, zeta,
-                           beta_per_MPa, stress_ref_MPa)
+    dynamics with transitions P (`transitions`), each at rest at its first value."""
+    return RK.forward_rows(np.ascontiguousarray(X, dtype=float), P)
 
 
 class RodLoadStepper:
