@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Install gma-ffc with its test extras into .venv, type-check, and run the whole test suite on 2 workers.
+# Install gma-ffc with its test extras into .venv, type-check, and run the whole test suite on 3 workers.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
@@ -7,4 +7,6 @@ PY=${PYTHON:-python3}
 .venv/bin/python -m pip install --quiet --upgrade pip
 .venv/bin/python -m pip install --quiet -e '.[test]'
 .venv/bin/python -m mypy          # the typed part of the package (pyproject.toml [tool.mypy]) must stay clean
-exec .venv/bin/python -m pytest -n 2 "$@"
+# Three workers on two cores: the real-time tests go to one of them, together (`--dist loadgroup`,
+# tests/conftest.py), and mostly wait on the wall clock; the other two keep the cores busy meanwhile.
+exec .venv/bin/python -m pytest -n 3 --dist loadgroup "$@"

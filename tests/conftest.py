@@ -19,12 +19,18 @@ REALTIME_RERUNS = 2
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
-        if item.get_closest_marker("realtime") is not None and item.get_closest_marker("flaky") is None:
-            item.add_marker(pytest.mark.flaky(reruns=REALTIME_RERUNS, reruns_delay=1.0))
-    # the long tests first, in their files' order: xdist hands tests out in this order, and the five
-    # resonance diagnoses (45-110 s each, in a file late in the alphabet) otherwise ran last, one
-    # worker finishing them while the other waited; the short tests now fill in at the end
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+        if item.get_closest_marker("realtime") is not None:
+            # one worker runs them all, one after another (`--dist loadgroup`, scripts/test.sh): they
+            # mostly wait on the wall clock (160 s, 61 s of it one test's sleep), and a third worker
+            # on two cores keeps both cores busy meanwhile
+            item.add_marker(pytest.mark.xdist_group("realtime"))
+            if item.get_closest_marker("flaky") is None:
+                item.add_marker(pytest.mark.flaky(reruns=REALTIME_RERUNS, reruns_delay=1.0))
+    # the real-time group first, then the long tests, in their files' order: xdist hands tests out in
+    # this order, and the five resonance diagnoses (45-110 s each, in a file late in the alphabet)
+    # otherwise ran last, one worker finishing them while the other waited; the short tests now fill
+    # in at the end
+    items.sort(key=lambda item: (item.get_closest_marker("realtime") is None, item.get_closest_marker("slow") is None))
 
 
 @pytest.fixture(scope="session")
