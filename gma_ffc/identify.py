@@ -649,9 +649,13 @@ class SDPIIdentifier:
         y = np.concatenate([d.y[self._rows(d)] for d in data])
         l = (self.n_deadzone - 1) // 2
         z_hi, z_lo = max(float(z.max()), 1e-12), min(float(z.min()), -1e-12)
-        k = np.arange(1, l + 1) / (l + 1)
-        r_s = np.r_[(k * z_lo)[::-1], 0.0, k * z_hi]
+        r_s = _intermediate_grid(z_lo, z_hi, l)
         A = np.hstack([slope_basis(z, r_s), np.ones((len(z), 1))])
+        if not _determined(A):
+            raise InputError(f"the plays' output takes too few distinct values ({np.unique(z).size}) to fix "
+                             f"{self.n_deadzone} dead-zone slopes (the drive holds a few levels): record a swept "
+                             "drive (a sine or triangle from min to max and back), or fit fewer dead-zones "
+                             f"(--deadzones {_deadzones_determined(z, z_lo, z_hi, l)})")
         scale = np.linalg.norm(A, axis=0)
         scale[scale == 0] = 1.0
         floor = 1e-3 * np.ptp(y) / max(np.ptp(z), 1e-12)
@@ -902,6 +906,30 @@ def _bernstein_fit(A: np.ndarray, y: np.ndarray, degree: int, n_s: int, eps: flo
     lower = np.r_[np.full(n_coef, eps), np.full(A.shape[1] - n_coef, -np.inf)] * scale
     b = bounded_least_squares(Ab / scale, y, lower) / scale
     return np.r_[to_poly @ b[:n_coef], b[n_coef:]]
+
+
+def _intermediate_grid(z_lo: float, z_hi: float, l: int) -> np.ndarray:
+    """2l+1 dead-zone thresholds at equal intervals over z's range on each side of 0 (`_regrid`)."""
+    k = np.arange(1, l + 1) / (l + 1)
+    return np.r_[(k * z_lo)[::-1], 0.0, k * z_hi]
+
+
+def _determined(A: np.ndarray) -> bool:
+    """Whether the data fix every coefficient of A's columns that they touch at all: a slope whose
+    piece no sample reaches has a zero column and is left at its bound, but a piece between samples
+    only adds a constant beyond it, which trades with the offset and its neighbours without limit
+    (a six-level drive's slopes went to +-6.4e13 and broke Proposition 3.1's floor)."""
+    used = np.linalg.norm(A, axis=0) > 0
+    return bool(np.linalg.matrix_rank(A[:, used]) == int(used.sum()))
+
+
+def _deadzones_determined(z: np.ndarray, z_lo: float, z_hi: float, l: int) -> int:
+    """The most dead-zones below 2l+1 whose slopes the plays' output z fixes (1 at least: one piece
+    and the offset are fixed by any z that is not constant)."""
+    for m in range(l - 1, 0, -1):
+        if _determined(np.hstack([slope_basis(z, _intermediate_grid(z_lo, z_hi, m)), np.ones((len(z), 1))])):
+            return 2 * m + 1
+    return 1
 
 
 def bounded_least_squares(A: np.ndarray, y: np.ndarray, lower: np.ndarray, max_iter: int | None = None) -> np.ndarray:

@@ -4,7 +4,8 @@ Hypothesis draws recordings of 10 to 2,000 samples from a Preisach actuator (not
 being fitted): unipolar and bipolar sines, steps, a single cycle, rising amplitudes, constant
 stretches, falling actuators, drives in volts, with and without a stress column. Each command
 ends with a result (exit 0) or a one-line refusal (exit 2): never a traceback or an internal
-error, and never NaN or inf in what it writes.
+error, no warning on the user's screen (deprecations aside, which Python hides from users), and
+never NaN or inf in what it writes.
 
 CI runs a few examples (a minute or two); `pytest tests/test_fuzz_cli.py --hypothesis-profile=slow`
 runs many (tests/conftest.py registers the profile).
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -83,8 +85,12 @@ def recordings(draw: st.DrawFn) -> Recording:
 
 
 def run(args: list[str], capsys: pytest.CaptureFixture) -> int:
-    rc = main(args)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rc = main(args)
     out, err = capsys.readouterr()
+    shown = [w for w in caught if not issubclass(w.category, (DeprecationWarning, PendingDeprecationWarning))]
+    assert not shown, (args, [f"{w.category.__name__}: {w.message} ({w.filename}:{w.lineno})" for w in shown])
     assert "Traceback" not in out + err and "internal error" not in err, (args, err)
     assert rc in (0, 2), (args, rc, err)
     if rc == 2:

@@ -111,3 +111,24 @@ def test_bounded_least_squares_shows_no_warning_of_scipys_reflective_step():
         x = bounded_least_squares(A, y, lower)
     assert np.all(np.isfinite(x)) and np.all(x >= lower)
     assert np.linalg.norm(A @ x - y) < 1e-6          # 3 equations, 9 unknowns: an exact fit exists in the box
+
+
+def test_a_drive_of_six_levels_is_refused_with_advice_that_works(tmp_path, capsys):
+    """The CLI fuzz test's deeper profile (`--hypothesis-profile=slow`, 300 draws) found this recording:
+    686 samples at 100 Hz, the current at six levels, no stress. The dead-zone fit's slopes between
+    those levels were not fixed by the data and ran to +-6.4e13, and identify stopped with an
+    internal error (exit 1). Now it refuses in one line, and the fewer dead-zones it advises fit."""
+    import lzma
+    import re
+    from pathlib import Path
+
+    csv = tmp_path / "six_levels.csv"
+    csv.write_bytes(lzma.decompress((Path(__file__).parent / "fixtures" / "fuzz_six_drive_levels.csv.xz").read_bytes()))
+    assert main(["identify", str(csv), "-o", str(tmp_path / "model.yaml")]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and "too few distinct values" in err[0], err
+    advice = re.search(r"--deadzones (\d+)", err[0])
+    assert advice is not None, err
+    assert main(["identify", str(csv), "--deadzones", advice.group(1), "-o", str(tmp_path / "model.yaml")]) == 0
+    model = load_model(tmp_path / "model.yaml")
+    assert model.n_deadzone == int(advice.group(1)) and not model.invertibility_violations()
