@@ -650,7 +650,7 @@ class SDPIIdentifier:
         l = (self.n_deadzone - 1) // 2
         z_hi, z_lo = max(float(z.max()), 1e-12), min(float(z.min()), -1e-12)
         r_s = _intermediate_grid(z_lo, z_hi, l)
-        A = np.hstack([slope_basis(z, r_s), np.ones((len(z), 1))])
+        A = _slopes_and_offset(z, r_s)
         if not _determined(A):
             raise InputError(f"the plays' output takes too few distinct values ({np.unique(z).size}) to fix "
                              f"{self.n_deadzone} dead-zone slopes (the drive holds a few levels): record a swept "
@@ -914,6 +914,11 @@ def _intermediate_grid(z_lo: float, z_hi: float, l: int) -> np.ndarray:
     return np.r_[(k * z_lo)[::-1], 0.0, k * z_hi]
 
 
+def _slopes_and_offset(z: np.ndarray, r_s: np.ndarray) -> np.ndarray:
+    """The regrid's design: the dead-zone pieces' slope basis at z (`slope_basis`) and the offset."""
+    return np.hstack([slope_basis(z, r_s), np.ones((len(z), 1))])
+
+
 def _determined(A: np.ndarray) -> bool:
     """Whether the data fix every coefficient of A's columns that they touch at all: a slope whose
     piece no sample reaches has a zero column and is left at its bound, but a piece between samples
@@ -927,7 +932,7 @@ def _deadzones_determined(z: np.ndarray, z_lo: float, z_hi: float, l: int) -> in
     """The most dead-zones below 2l+1 whose slopes the plays' output z fixes (1 at least: one piece
     and the offset are fixed by any z that is not constant)."""
     for m in range(l - 1, 0, -1):
-        if _determined(np.hstack([slope_basis(z, _intermediate_grid(z_lo, z_hi, m)), np.ones((len(z), 1))])):
+        if _determined(_slopes_and_offset(z, _intermediate_grid(z_lo, z_hi, m))):
             return 2 * m + 1
     return 1
 
