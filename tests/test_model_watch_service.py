@@ -177,7 +177,16 @@ def test_nothing_changing_stays_ok_for_ten_minutes(tmp_path, model):
                    "load_mass_kg": PlantConfig().mass_for_stress(STRESS)},
         "telemetry": {"path": None}, "monitor": {"window_s": 30.0}})
     holder = {}
-    clock = ScriptedClock([(5.0 * k, lambda: samples.append(holder["c"].status()["monitor"])) for k in range(1, 121)])
+
+    def sample(at_s):
+        # The loop waits here; the monitor is fed by the telemetry writer's thread, which on a busy
+        # machine lags the simulated clock: sample once it has seen the rows up to this tick.
+        def caught_up():
+            m = holder["c"].status()["monitor"]
+            return m if (m.get("t_s") or -1.0) >= at_s - 2.0 / RATE else None
+        return lambda: samples.append(wait(caught_up, 60, f"the monitor to reach {at_s} s"))
+
+    clock = ScriptedClock([(5.0 * k, sample(5.0 * k)) for k in range(1, 121)])
     ctrl = holder["c"] = ControllerManager(cfg, model=model, clock=clock)
     summary = ctrl.run(duration_s=600.5)
     assert summary["ok"]
