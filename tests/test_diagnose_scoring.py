@@ -85,3 +85,22 @@ def test_a_located_window_is_compared_over_scored_windows_against_a_positive_flo
     spike = np.where(scored, 0.0, 0.0)
     spike[-1] = 1.0                                              # a noise-free record: the floor is the max's share
     assert float(locate(quiet, spike, spike).where.split("(")[1].split("x the median")[0]) <= 1000.0
+
+
+def test_recordings_whose_starts_are_not_scored_share_one_note():
+    """Seven runs of a frequency sweep each start unscored: cannot_conclude says so once, naming
+    each run and how long, not seven times the same sentence; one such run keeps its own note, and
+    a recording scored from its first sample adds nothing."""
+    from gma_ffc.diagnose.data import unscored_note, unscored_starts_note
+
+    def rec(name, n, settled):
+        t = np.arange(n) / FS
+        return RecData(name, t, np.full(n, 1 / FS), 1 / FS, np.zeros(n), np.zeros(n), np.zeros(n), None,
+                       np.zeros(n, np.int8), np.arange(n), settled=settled)
+
+    runs = [rec(f"run_{k}.csv", 1000, 10 * (k + 1)) for k in range(7)]
+    note = unscored_starts_note(runs + [rec("whole.csv", 1000, 0)])
+    assert note.startswith("the starts of 7 recordings are not scored (run_0.csv: the first 0.005 s;")
+    assert note.count("hysteresis state at the start") == 1 and "whole.csv" not in note
+    assert unscored_starts_note(runs[:1]) == unscored_note(runs[0])
+    assert unscored_starts_note([rec("whole.csv", 1000, 0)]) == ""

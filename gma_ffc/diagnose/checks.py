@@ -47,18 +47,13 @@ def enough_data(data: Sequence[RecData], min_samples: int, clamped_share: float 
                 folds_filled: bool = True) -> tuple[int, bool, list[str]]:
     """Scored samples in all, whether that is too little to tell effects apart, and what cannot be
     concluded from the recordings as they are (a recording never scored, too little data, stresses
-    outside the model's range). Notes which recordings start unscored (`extra["settled_note"]`).
+    outside the model's range). Recordings scored in part are noted once, by `data.unscored_starts_note`.
     A sample is scored where the unknown initial state no longer moves the output (`data.known_samples`);
     `folds_filled` is False when a held-out fold has no scored row (it would be fitted to nothing)."""
     cannot = []
     n_samples = sum(d.n_scored for d in data)   # samples scored: where the initial state is known
     n_rev = sum(reversals(d.u[run]) for d in data for run in d.scored_runs())
-    for d in data:
-        note = unscored_note(d)
-        if d.n_scored == 0:
-            cannot.append(note)
-        elif note:
-            d.extra["settled_note"] = note
+    cannot += [unscored_note(d) for d in data if d.n_scored == 0]
     too_little = n_samples < min_samples or n_rev < MIN_REVERSALS or not folds_filled
     if too_little:
         cannot.append(

@@ -210,6 +210,11 @@ def noise_floor(y: np.ndarray) -> float:
     return sigma
 
 
+UNSCORED_WHY = ("there the model's output still depends, by more than the noise floor, on the unknown "
+                "hysteresis state at the start (until the drive has moved far enough, or reached an end of "
+                "its range, for the model to forget it)")
+
+
 def unscored_note(d: RecData) -> str:
     """What the user is told about a recording's samples that are not scored ('' when all are),
     with the recording that would be scored whole."""
@@ -220,12 +225,23 @@ def unscored_note(d: RecData) -> str:
                 "the drive's minimum), or record at least one full drive cycle")
     if d.n_scored == d.t.size:
         return ""
+    return f"{d.name}: {_unscored_part(d)} are not scored: {UNSCORED_WHY}"
+
+
+def unscored_starts_note(data: Sequence[RecData]) -> str:
+    """One note for every recording scored in part ('' when none is): several recordings' starts
+    share one sentence, so a diagnosis of seven runs does not repeat it seven times."""
+    parts = [(d.name, _unscored_part(d)) for d in data if 0 < d.n_scored < d.t.size]
+    if len(parts) <= 1:
+        return "".join(f"{name}: {where} are not scored: {UNSCORED_WHY}" for name, where in parts)
+    listed = "; ".join(f"{name}: {where}" for name, where in parts)
+    return f"the starts of {len(parts)} recordings are not scored ({listed}): {UNSCORED_WHY}"
+
+
+def _unscored_part(d: RecData) -> str:
     runs = d.scored_runs()
-    where = (f"the first {d.t[d.settled] - d.t[0]:.3g} s" if len(runs) == 1 and runs[0].stop == d.t.size
-             else f"{d.unscored_s:.3g} s of it")
-    return (f"{d.name}: {where} are not scored: there the model's output still depends, by more than the noise "
-            "floor, on the unknown hysteresis state at the start (until the drive has moved far enough, or "
-            "reached an end of its range, for the model to forget it)")
+    return (f"the first {d.t[d.settled] - d.t[0]:.3g} s" if len(runs) == 1 and runs[0].stop == d.t.size
+            else f"{d.unscored_s:.3g} s of it")
 
 
 def unscored_spans(d: RecData) -> list[tuple[float, float]]:

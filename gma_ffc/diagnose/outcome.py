@@ -13,6 +13,7 @@ from typing import Any
 
 from .. import effects as effect_registry
 from .anchor import anchor_words
+from .data import unscored_starts_note
 from .explain import drive_unit, explain, identification_rms, validation_words
 from .locate import locate
 from .problem import scored
@@ -97,9 +98,10 @@ def _outcome(selector: Any, problem: Problem, final: Final, verdict: list[str]) 
 
 
 def _cannot_conclude(problem: Problem, final: Final) -> list[str]:
-    """What the data could not decide: the selection's notes, each recording's settling note and,
+    """What the data could not decide: the selection's notes, the recordings' unscored starts and,
     without the identification recordings, what the effects could not do without them."""
-    cannot = list(final.cannot) + [d.extra["settled_note"] for d in problem.data if "settled_note" in d.extra]
+    starts = unscored_starts_note(problem.data)
+    cannot = list(final.cannot) + ([starts] if starts else [])
     if not problem.identification.given:
         lost = [(cls.name, cls.lost_without_identification(problem.fitter)) for cls in effect_registry.candidates()]
         cannot += [f"{name}: {why}" for name, why in lost if why]
