@@ -57,6 +57,7 @@ class RecordingFit:
     stroke_um: float
     max_abs_um: float
     offset_um: float = 0.0         # the error's mean: a constant the model's offset could not take up
+    max_at_s: float | None = None  # when the largest error falls (the recording's time), to look it up
 
     @property
     def shape_rms_um(self) -> float:
@@ -81,6 +82,7 @@ class _Data:
     start: int | None = None      # first fitted sample; None: after the burn-in sweep
     pred: np.ndarray = field(default_factory=lambda: np.empty(0))   # the fitted model's output, as scored
     zero_shift: float = 0.0       # added to y (fitting orientation) when each recording's zero is its own
+    t: np.ndarray | None = None   # the recording's time, to say where the largest error falls
 
     def shift_zero(self, by: float) -> None:
         self.y = self.y + by
@@ -583,7 +585,7 @@ class SDPIIdentifier:
                                  "back, so the hysteresis loop is not in the data: record at least one full "
                                  "drive cycle (min to max and back)")
             data.append(_Data(r.name, r.drive.copy(), r.displacement_um.copy(),
-                              None if r.stress_MPa is None else r.stress_MPa.copy()))
+                              None if r.stress_MPa is None else r.stress_MPa.copy(), t=r.time_s))
         return data
 
     def _stress_levels(self, data: list[_Data]) -> tuple[list[float], list[float]]:
@@ -866,7 +868,9 @@ class SDPIIdentifier:
         err = d.pred - measured[start:]
         stroke = float(d.y.max() - d.y.min())
         stress = None if d.sigma is None else float(np.median(d.sigma))
-        return RecordingFit(d.name, stress, rms(err), stroke, float(np.max(np.abs(err))), float(np.mean(err)))
+        worst = int(np.argmax(np.abs(err)))
+        at = None if d.t is None else float(d.t[start + worst])
+        return RecordingFit(d.name, stress, rms(err), stroke, float(abs(err[worst])), float(np.mean(err)), at)
 
     def _output_whatever_the_start(self, d: _Data, start: int) -> np.ndarray | None:
         """The output when no initial state changes it from `start` on, else None. The runs from every

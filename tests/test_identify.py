@@ -64,6 +64,11 @@ def test_recovers_a_known_sdpi_to_the_noise_level(preisach_data) -> None:
     assert ident.model_.kind == "sdpi"
     for fit in ident.report_:
         assert fit.rms_um < 1.3 * noise, fit
+    # a glitch of the sensor: the report says how large the worst error is, and when, to look it up
+    glitch = 2 * t.size // 3
+    recs[1].columns["displacement_um"][glitch] += 1.0
+    fit = SDPIIdentifier().fit(recs).report_[1]
+    assert fit.max_at_s == t[glitch] and fit.max_abs_um > 0.9, fit
     # and at stresses it never saw, noise-free, the model matches the truth below the noise
     for s in (-13.0, -17.3, -22.0):
         assert rms(ident.model_.simulate(t, x, s) - true.simulate(t, x, s)) < noise

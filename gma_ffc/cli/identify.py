@@ -76,10 +76,11 @@ def run(args: argparse.Namespace) -> int:
     rng = "" if model.stress_range_MPa is None else \
         f", stress {model.stress_range_MPa[0]:.4g}..{model.stress_range_MPa[1]:.4g} MPa"
     print(f"{model.kind.upper()} model, {model.n_play} plays, {model.n_deadzone} dead-zones{rng} -> {args.output}")
-    print(f"{'recording':<32} {'stress MPa':>10} {'RMS um':>9} {'% stroke':>9} {'max um':>9}")
+    print(f"{'recording':<32} {'stress MPa':>10} {'RMS um':>9} {'% stroke':>9} {'max um':>9} {'at s':>9}")
     for f in ident.report_:
         stress = "-" if f.stress_MPa is None else f"{f.stress_MPa:.4g}"
-        print(f"{f.name[:32]:<32} {stress:>10} {f.rms_um:>9.4f} {f.rms_pct_stroke:>9.3f} {f.max_abs_um:>9.4f}")
+        at = "-" if f.max_at_s is None else f"{f.max_at_s:.4g}"
+        print(f"{f.name[:32]:<32} {stress:>10} {f.rms_um:>9.4f} {f.rms_pct_stroke:>9.3f} {f.max_abs_um:>9.4f} {at:>9}")
     if args.plot:
         print(f"loops plotted to {args.plot}")
     return 0
