@@ -62,6 +62,7 @@ def serial_cfg(tmp_path, name, port, rate_hz=200, **extra):
     return validate_config(data)
 
 
+@pytest.mark.realtime   # the serial link times out on the wall clock (0.2 s): a busy machine can fault a tick
 @pytest.mark.parametrize("stress", [-15.2, -19.1])
 def test_sil_sdpi_beats_mpi_through_serial(models, amplifier, tmp_path, stress):
     rms = {}
@@ -78,6 +79,7 @@ def test_sil_sdpi_beats_mpi_through_serial(models, amplifier, tmp_path, stress):
 LINK = {"comms_timeout", "comms_error"}
 
 
+@pytest.mark.realtime   # as above: a tick can fault before the injection, and the test asserts it does not
 @pytest.mark.parametrize("spec,expected", [
     ("silent", {"comms_timeout"}), ("delay:0.6", {"comms_timeout"}), ("garbage", LINK),
     ("exception", LINK), ("drop", LINK), ("stuck:force_N", {"sensor_stale"}),

@@ -243,6 +243,7 @@ def test_modbus_exception_fault_and_clear(rig):
             client.close()
 
 
+@pytest.mark.realtime   # the recovered request must answer within a 0.3 s wall-clock timeout
 @pytest.mark.parametrize("transport", ["tcp", "rtu"])
 def test_modbus_silent_fault_no_answer_and_no_write(rig, transport):
     m = load_register_map(INT_MAP)
@@ -277,6 +278,7 @@ def test_modbus_delay_fault_answers_late(rig):
             patient.close()
 
 
+@pytest.mark.realtime   # the recovered request must answer within a 0.3 s wall-clock timeout
 def test_modbus_garbage_fault(rig):
     m = load_register_map(INT_MAP)
     with ModbusEmulator(rig, m, seed=3) as emu:

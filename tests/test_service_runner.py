@@ -149,6 +149,7 @@ def run_in_thread(svc: Service) -> tuple[threading.Thread, dict]:
     return thread, out
 
 
+@pytest.mark.realtime   # watchdog pings every 20 ms, windows of 0.15-0.4 s on the wall clock
 @pytest.mark.parametrize("abstract", [True, False], ids=["abstract", "path"])
 def test_notify_ready_status_watchdog_only_while_progressing_then_stopping(tmp_path, cfg_file, abstract):
     listener = NotifyListener(abstract, tmp_path)
@@ -188,6 +189,7 @@ def test_notify_ready_status_watchdog_only_while_progressing_then_stopping(tmp_p
         listener.close()
 
 
+@pytest.mark.realtime   # a 0.5 s grace judged in windows of 0.25-0.5 s on the wall clock
 def test_watchdog_fed_while_reconnecting_only_within_grace(tmp_path, cfg_file, monkeypatch):
     """A reconnect (no ticks, amplifier safe) is not a hang, but one that lasts too long is."""
     from gma_ffc.service import runner
