@@ -64,3 +64,26 @@ def test_a_resonance_of_a_voltage_driven_actuator_without_a_load_cell_is_named_i
     found = [w for w in ("coil", "Joule", "load cell", "compressive stress", "most compressive") if w in text]
     assert not found, (found, text)
     assert "no stress" in text and "constant mass" in text
+
+
+def test_a_delay_under_half_a_sample_beside_a_lag_or_a_resonance_is_kept_but_not_named():
+    """Beside eddy currents and a resonance, a 0.09 ms delay at 0.5 ms sampling is the samples' own
+    timing (a drive held over each interval or moving through it): not named, said why and what to
+    record. A delay of a sample or more, or one named without a lag or a resonance, is named."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.outcome import samples_timing
+    from gma_ffc.diagnose.results import Candidate
+
+    def cands(delay_s):
+        return {"time_delay": Candidate("time_delay", True, params={"delay_s": delay_s})}
+
+    data = [SimpleNamespace(dt_med=5e-4), SimpleNamespace(dt_med=2e-4)]
+    pair = ["rate_dependence", "mechanical_dynamics", "time_delay"]
+    verdict, note = samples_timing(pair, cands(9e-5), data, 0.5)
+    assert verdict == ["rate_dependence", "mechanical_dynamics"]
+    assert note.startswith("time_delay: the 0.09 ms delay found beside rate_dependence and mechanical_dynamics")
+    assert "shorter than 0.25 ms (0.5 of the 0.5 ms sample period)" in note and "record at 1.11e+04 Hz" in note
+    assert samples_timing(pair, cands(5e-4), data, 0.5) == (pair, "")
+    assert samples_timing(["time_delay"], cands(9e-5), data, 0.5) == (["time_delay"], "")
+    assert samples_timing(["mechanical_dynamics"], cands(9e-5), data, 0.5) == (["mechanical_dynamics"], "")

@@ -46,8 +46,9 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
     too_little, noise = problem.too_little, problem.noise
     cands = candidates(sel)
     verdict = [] if too_little else list(sel.accepted)
+    verdict, timing = samples_timing(verdict, cands, problem.data, selector.sample_timing_share)
     outcome, conclusive = _outcome(selector, problem, final, verdict)
-    cannot = _cannot_conclude(problem, final)
+    cannot = _cannot_conclude(problem, final) + ([timing] if timing else [])
     lead = displacement_lead(problem.data, problem.null.base_pred)
     if lead is not None:     # a column-timing fault: effects fitted to it would be confidently wrong
         cannot.append(lead.words())
@@ -80,6 +81,29 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
                      cannot, final.extended, list(problem.data), list(null.base_pred), list(null.null_pred),
                      list(final.final_pred), rounds, rounds[0]["n_eff"] if rounds else float("nan"),
                      str(selector.initial_state), after, problem.identification.to_json(), loo)
+
+
+TIMED = ("rate_dependence", "mechanical_dynamics")   # effects whose discrete form holds the drive over each sample
+
+
+def samples_timing(verdict: list[str], cands: dict[str, Candidate], data: Any, share: float) -> tuple[list[str], str]:
+    """The verdict without a delay under `share` of the sample period found beside a lag or a
+    resonance (it stays in the extended model), and what the user is told instead ('' when the rule
+    does not apply): such a delay cannot be told from the samples' own timing (`EffectSelector`)."""
+    beside = [name for name in TIMED if name in verdict]
+    delay = cands.get("time_delay")
+    if "time_delay" not in verdict or not beside or delay is None or not data:
+        return verdict, ""
+    delay_s = float(delay.params.get("delay_s", math.nan))
+    period = max(float(d.dt_med) for d in data)
+    if not delay_s < share * period:
+        return verdict, ""
+    note = (f"time_delay: the {delay_s * 1e3:.3g} ms delay found beside {' and '.join(beside)} is kept in the "
+            f"extended model but not named as physics: it is shorter than {share * period * 1e3:.3g} ms ({share:g} of "
+            f"the {period * 1e3:.3g} ms sample period), within which a drive held over each sample interval and one "
+            "moving through it differ in timing; record at "
+            f"{1.0 / delay_s:.3g} Hz or faster to tell a transport delay from the samples' timing")
+    return [name for name in verdict if name != "time_delay"], note
 
 
 def _outcome(selector: Any, problem: Problem, final: Final, verdict: list[str]) -> tuple[str, bool]:
