@@ -24,7 +24,9 @@ GENERAL_SEVENTH_SEED draws a sixth. Its saturation miss (loops wider beyond the 
 was then looked at and fixed, so GENERAL_EIGHTH_SEED draws a seventh. Its resonance miss (a load
 law the zoom left before the polish brought the damping close) was then looked at and fixed, so
 GENERAL_NINTH_SEED draws an eighth. Its resonance miss (a load law left in a side basin) was then
-looked at and fixed, so GENERAL_TENTH_SEED draws a ninth.
+looked at and fixed, so GENERAL_TENTH_SEED draws a ninth. A delay under half a sample beside a
+lag or a resonance was then left unnamed (the samples' own timing, found on the development
+draws), so GENERAL_ELEVENTH_SEED draws a tenth.
 """
 
 from __future__ import annotations
@@ -56,6 +58,9 @@ GENERAL_NINTH_SEED = 20261207     # an eighth never-tuned draw (2026-11-27, sixt
                                   # resonance miss was looked at and fixed; fixed and committed before its first run
 GENERAL_TENTH_SEED = 20261208     # a ninth never-tuned draw (2026-11-27, seventh session): the ninth's resonance
                                   # miss was looked at and fixed; fixed and committed before its first run
+GENERAL_ELEVENTH_SEED = 20261209  # a tenth never-tuned draw (2026-11-28, ninth session): after a delay under half
+                                  # a sample beside a lag or resonance was left unnamed (found on development
+                                  # draws); fixed and committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 

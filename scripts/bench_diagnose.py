@@ -30,6 +30,7 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set general-eighth    # a seventh, drawn after the seventh's saturation fix
     .venv/bin/python scripts/bench_diagnose.py --set general-ninth     # an eighth, drawn after the eighth's resonance fix
     .venv/bin/python scripts/bench_diagnose.py --set general-tenth     # a ninth, drawn after the ninth's resonance fix
+    .venv/bin/python scripts/bench_diagnose.py --set general-eleventh  # a tenth, drawn after the sample-timing rule
 
 Beside the held-out blocks, every case is also judged on probes (`benchmarks.probes`): the same
 simulated actuator recorded again at loads, rates and drive shapes diagnose never saw; the extended
@@ -60,7 +61,7 @@ from benchmarks.cases import (FS, LABELS, Case, cases, holdout_cases, make_case,
                                rising_holdout_cases, sdp_variant_cases)
 from benchmarks.general import (GENERAL_EIGHTH_SEED, GENERAL_FIFTH_SEED, GENERAL_FOURTH_SEED,  # noqa: E402
                                 GENERAL_FRESH_SEED, GENERAL_HOLDOUT_SEED, GENERAL_NINTH_SEED, GENERAL_SEVENTH_SEED,
-                                GENERAL_SIXTH_SEED, GENERAL_TENTH_SEED, general_cases)
+                                GENERAL_SIXTH_SEED, GENERAL_TENTH_SEED, GENERAL_ELEVENTH_SEED, general_cases)
 from benchmarks.probes import pooled, probe_recordings, probe_scores
 
 # the never-tuned general draws after the first, each drawn after the misses named were fixed
@@ -71,7 +72,9 @@ LATER_DRAWS = (("fresh", "a second", GENERAL_FRESH_SEED, "the first draw's misse
                ("seventh", "a seventh", GENERAL_SEVENTH_SEED, "the sixth draw's creep miss was fixed"),
                ("eighth", "an eighth", GENERAL_EIGHTH_SEED, "the seventh draw's saturation miss was fixed"),
                ("ninth", "a ninth", GENERAL_NINTH_SEED, "the eighth draw's resonance miss was fixed"),
-               ("tenth", "a tenth", GENERAL_TENTH_SEED, "the ninth draw's resonance miss was fixed"))
+               ("tenth", "a tenth", GENERAL_TENTH_SEED, "the ninth draw's resonance miss was fixed"),
+               ("eleventh", "an eleventh", GENERAL_ELEVENTH_SEED,
+                "a delay under half a sample beside a lag or a resonance was left unnamed"))
 
 # the held-out-condition targets (issue 31), on the probes diagnose never saw
 PROBE_GAIN_EACH = 1.5        # every effect case at least this much better than the base
@@ -127,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
                          "general: every effect on the default and a drawn actuator, diagnosed with its "
                          "identification recordings (general-holdout: a second draw, never tuned; general-fresh: a "
                          "third, never tuned, drawn after the second's misses were fixed; general-fourth: a fourth, "
-                         "drawn after the third's creep misses were fixed; general-fifth to general-tenth: later draws); "
+                         "drawn after the third's creep misses were fixed; general-fifth to general-eleventh: later draws); "
                          "rising: the rising-amplitude family (sines growing from the drive's minimum and decaying to "
                          "it; rising-holdout: drawn once, never tuned)")
     ap.add_argument("--quick", action="store_true", help="middle magnitude of each effect, two nulls, one pair")
