@@ -231,11 +231,11 @@ def unscored_note(d: RecData) -> str:
 def unscored_starts_note(data: Sequence[RecData]) -> str:
     """One note for every recording scored in part ('' when none is): several recordings' starts
     share one sentence, so a diagnosis of seven runs does not repeat it seven times."""
-    parts = [(d.name, _unscored_part(d)) for d in data if 0 < d.n_scored < d.t.size]
-    if len(parts) <= 1:
-        return "".join(f"{name}: {where} are not scored: {UNSCORED_WHY}" for name, where in parts)
-    listed = "; ".join(f"{name}: {where}" for name, where in parts)
-    return f"the starts of {len(parts)} recordings are not scored ({listed}): {UNSCORED_WHY}"
+    partial = [d for d in data if 0 < d.n_scored < d.t.size]
+    if len(partial) <= 1:
+        return unscored_note(partial[0]) if partial else ""
+    listed = "; ".join(f"{d.name}: {_unscored_part(d)}" for d in partial)
+    return f"the starts of {len(partial)} recordings are not scored ({listed}): {UNSCORED_WHY}"
 
 
 def _unscored_part(d: RecData) -> str:

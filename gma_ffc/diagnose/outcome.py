@@ -9,7 +9,7 @@ validated. It fits nothing. Pure maths: no I/O.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Sequence
 
 from .. import effects as effect_registry
 from .anchor import anchor_words
@@ -86,7 +86,8 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
 TIMED = ("rate_dependence", "mechanical_dynamics")   # effects whose discrete form holds the drive over each sample
 
 
-def samples_timing(verdict: list[str], cands: dict[str, Candidate], data: Any, share: float) -> tuple[list[str], str]:
+def samples_timing(verdict: list[str], cands: dict[str, Candidate], data: Sequence[Any],
+                   share: float) -> tuple[list[str], str]:
     """The verdict without a delay under `share` of the sample period found beside a lag or a
     resonance (it stays in the extended model), and what the user is told instead ('' when the rule
     does not apply): such a delay cannot be told from the samples' own timing (`EffectSelector`)."""
