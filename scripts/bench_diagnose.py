@@ -103,6 +103,11 @@ def run_case(case: Case, ident: bool = False, probes: bool = True) -> dict[str, 
     return out
 
 
+def _floor(um: float) -> str:
+    """A floor for the table: '-' where a case has no effect-free twin (nulls, saturation)."""
+    return f"{um:>8.4f}" if np.isfinite(um) else f"{'-':>8}"
+
+
 def effect_free_floor(twin: Any) -> float:
     """The base model's RMS error on the case's twin, every recording made with the plant's effects
     off (same drives, loads and noise; the twin's base model identified on its own effect-free
@@ -179,11 +184,11 @@ def summarise(todo: list[Case], ident: bool = False, probes: bool = True) -> boo
         r["ok"] = set(r["verdict"]) == set(r["truth"])
         results.append(r)
         line = (f"{r['case']:<34} {','.join(r['truth']) or '-':<40} {','.join(r['verdict']) or '-':<40} "
-                f"{r['outcome']:<14} {r['before']:>10.4f} {r['after']:>8.4f} {r['floor']:>8.4f} "
+                f"{r['outcome']:<14} {r['before']:>10.4f} {r['after']:>8.4f} {_floor(r['floor'])} "
                 f"{r['scored'] / r['samples']:>6.0%} {'yes' if r['ok'] else 'NO':>3} {r['seconds']:>5.1f}")
         if probes:
             line += (f" {r['probe_before']:>13.4f} {r['probe_after']:>8.4f} "
-                     f"{r['probe_before'] / r['probe_after']:>6.2f} {r['probe_floor']:>8.4f}")
+                     f"{r['probe_before'] / r['probe_after']:>6.2f} {_floor(r['probe_floor'])}")
         print(line, flush=True)
         if probes:
             print("    probes: " + "; ".join(f"{n}: {b:.4f} -> {e:.4f} um" for n, b, e in r["probe_each"]), flush=True)
