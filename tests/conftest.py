@@ -1,10 +1,26 @@
-"""Shared test setup: import gma_ffc first so its single-threaded BLAS default applies, and give
-the real-time tests their retries."""
+"""Shared test setup: import gma_ffc first so its single-threaded BLAS default applies, share the
+CPUs among the xdist workers, and give the real-time tests their retries."""
+
+import os
 
 import pytest
 from hypothesis import settings
 
 import gma_ffc  # noqa: F401  (sets OPENBLAS_NUM_THREADS before numpy loads)
+
+
+def _share_the_cpus() -> None:
+    """Each xdist worker gets its share of the CPUs for a diagnosis' threads (`GMA_FFC_CPUS`, also in
+    the CLI runs a test starts), unless the caller set it. Three workers on two cores already keep
+    both busy; two search threads inside each only contend (a resonance diagnosis: 190 s of CPU with
+    two threads, 113 s with one, the same result to the last digit)."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1:
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        os.environ.setdefault("GMA_FFC_CPUS", str(max(1, cpus // workers)))
+
+
+_share_the_cpus()
 
 # `pytest --hypothesis-profile=slow`: a deeper run of the property tests that read it (the fuzz
 # test through the CLI draws 300 recordings instead of CI's few)

@@ -111,6 +111,16 @@ def test_bad_input_is_one_line_and_exit_2(case_files, capsys, tmp_path, setup, w
     assert not out_dir.exists()                 # nothing half-written
 
 
+def test_a_bad_cpu_count_in_the_environment_is_one_line_and_exit_2(case_files, capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("GMA_FFC_CPUS", "all")
+    out_dir = tmp_path / "out"
+    code, out, err = _run(capsys, "diagnose", "--model", str(case_files / "model.yaml"),
+                          str(case_files / "long_run.csv"), "--out", str(out_dir))
+    assert code == 2
+    assert "GMA_FFC_CPUS='all'" in err and "Traceback" not in err and err.count("\n") == 1
+    assert not out_dir.exists()
+
+
 def test_single_short_recording_says_what_cannot_be_concluded(case_files, capsys, tmp_path):
     rec = _short(tmp_path, "short.csv", n=600)    # 0.6 s: about one loop
     code, out, err = _run(capsys, "diagnose", "--model", str(case_files / "model.yaml"), str(rec),

@@ -380,7 +380,7 @@ class Fitter:
         for d, (u3, yc), (ra, rb) in zip(self.data, self.core(spec), self._rows_ab):
             cols, names = self.columns(d, u3, yc, spec)
             if X.size == 0:
-                X = np.empty((self.y_rows.size, len(cols)))
+                X = np.empty((self.y_rows.size, len(cols)), order="F")     # filled and solved by column
             a_at = _put_rows(X, a_at, cols, ra)
             b_at = _put_rows(X, b_at, cols, rb)
         return X, names
@@ -401,7 +401,7 @@ class Fitter:
             for q, d, (u3, yc), k in zip(self._anchor_free, self.anchor, self.anchor_core(spec), self._anchor_slices):
                 cols = self.columns(d, u3, yc, spec, steady=True)[0]
                 if X.size == 0:
-                    X = np.empty((self._anchor_slices[-1].stop, len(cols)))
+                    X = np.empty((self._anchor_slices[-1].stop, len(cols)), order="F")
                 _put_rows(X, k.start, cols, d.rows)
                 X[k] = _projected(q, X[k])
             return X

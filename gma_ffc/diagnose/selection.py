@@ -39,6 +39,7 @@ from threadpoolctl import threadpool_limits
 from .. import effects as effect_registry
 from ..effects import REGISTRY
 from ..effects.base import SignatureCheck, SignatureFailure
+from ..errors import InputError
 from ..extended import ExtendedModel
 from ..recordings import Recording
 from .explain import decider, runner_up_note
@@ -120,15 +121,16 @@ class EffectSelector:
         delay takes that up. On hil_sim's rig, eddy currents before the load's dynamics show as
         0.19-0.22 ms at 0.5 ms sampling (`scripts/lag_before_dynamics.py`).
     workers (2)
-        Candidate searches in parallel threads (numba kernels and BLAS release the GIL). BLAS gets
-        the CPUs this process may use shared among them (`_blas_threads_per_worker`).
+        Candidate searches in parallel threads (numba kernels and BLAS release the GIL), at most
+        one per usable CPU (`usable_cpus`: the environment's `GMA_FFC_CPUS`, else the CPUs this
+        process may run on). BLAS gets the usable CPUs shared among them (`_blas_threads_per_worker`).
     initial_state ("estimate")
         The core's hysteresis state at each recording's first sample, by the rule every model run
         shares (`gma_ffc.initial_state`): estimated from the measured displacement by default;
         whatever the rule, nothing before the state has settled is scored.
 
-    Attributes after `fit`: `outcome_`, `verdict_`, `candidates_`, `extended_model_` and the whole
-    `diagnosis_` (`gma_ffc.diagnose.results.Diagnosis`, what the report shows).
+    Attributes after `fit`: `outcome_`, `verdict_`, `candidates_`, `extended_model_`, the search
+    threads it ran (`threads_`) and the whole `diagnosis_` (`gma_ffc.diagnose.results.Diagnosis`, what the report shows).
     """
 
     def __init__(self, max_effects: int = 3, *, min_mse_ratio: float = 0.75, min_loglik_gain: float = 6.0,
@@ -165,7 +167,8 @@ class EffectSelector:
         `identification`: the recordings the model was identified on (checked against its record, by
         their files' `fingerprints` when given, else by name), which every fit is then held to and on
         which an effect may identify the core again."""
-        with _blas_threads_per_worker(self.workers):
+        self.threads_ = _search_threads(self.workers)
+        with _blas_threads_per_worker(self.threads_):
             dg = self._diagnose(model, recordings, progress or (lambda _msg: None), identification, fingerprints)
         self.diagnosis_ = dg
         self.outcome_ = dg.outcome
@@ -231,7 +234,7 @@ class EffectSelector:
         selection after it, and whether selection goes on."""
         todo = [c.name for c in effect_registry.candidates() if c.name in sel.testable and c.name not in sel.accepted]
         say(f"round {rnd}: fitting {', '.join(todo)}")
-        trials, n_eff = score_round(problem.fitter, sel.fit.specs, sel.cur_loss, todo, rnd, self.workers)
+        trials, n_eff = score_round(problem.fitter, sel.fit.specs, sel.cur_loss, todo, rnd, self.threads_)
         if not trials:
             return sel, False
         earlier = sel.trials
@@ -298,7 +301,7 @@ class EffectSelector:
             return sel, False
         say(f"trying {' and '.join(sorted(set(sum(pairs, ()))))} together in {last}'s place")
         tried = [(earlier[a], score_round(problem.fitter, earlier[a].result.specs, earlier[a].cv_loss, [b],
-                                          round_best.round, self.workers)[0][0]) for a, b in pairs]
+                                          round_best.round, self.threads_)[0][0]) for a, b in pairs]
         first, second = min(tried, key=lambda fs: fs[1].cv_loss)
         extra = REGISTRY[first.effect].count_params(problem.fitter) + REGISTRY[second.effect].count_params(
             problem.fitter) - REGISTRY[last].count_params(problem.fitter)
@@ -376,7 +379,7 @@ class EffectSelector:
             rivals = [c.name for c in effect_registry.candidates()
                       if c.name in sel.testable and not (c.name in sel.accepted and c.name != name)]
             say(f"checking {name} against the others with the other effects in place")
-            found = search_all(fitter, others, rivals, self.workers)
+            found = search_all(fitter, others, rivals, self.threads_)
             best_name, best_res = name, None
             for cand in rivals:
                 if best_res is None or found[cand].cv_loss < best_res.cv_loss:
@@ -465,7 +468,7 @@ class EffectSelector:
                            None)
             if partner is None:
                 continue
-            found = descend(problem.fitter, sel.fit, name, partner, self.workers)
+            found = descend(problem.fitter, sel.fit, name, partner, self.threads_)
             if found.cv_loss < sel.cur_loss:
                 sel = dataclasses.replace(sel, fit=found)
         return sel
@@ -570,13 +573,34 @@ class EffectSelector:
         return ""
 
 
+CPUS_ENV = "GMA_FFC_CPUS"
+
+
+def usable_cpus() -> int:
+    """The CPUs a diagnosis may use: `GMA_FFC_CPUS` when set, else those this process may run on.
+    Set it to 1 where other processes already fill the machine (the test suite's workers, a batch
+    of diagnoses): threads inside each would only contend for the same cores. On 2 cores under
+    3 pytest workers, a resonance diagnosis took 190 s of CPU with two search threads, 107 s with one."""
+    text = os.environ.get(CPUS_ENV, "").strip()
+    if not text:
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if not text.isdigit() or int(text) < 1:
+        raise InputError(f"{CPUS_ENV}={text!r} is not a number of CPUs: give a whole number from 1 up, "
+                         f"or unset it to use every CPU this process may run on")
+    return int(text)
+
+
+def _search_threads(workers: int) -> int:
+    """The search threads a diagnosis runs: the setting, at most one per usable CPU."""
+    return max(1, min(workers, usable_cpus()))
+
+
 def _blas_threads_per_worker(workers: int) -> Any:
-    """A context giving BLAS the CPUs this process may use, shared among the search threads. With
+    """A context giving BLAS the usable CPUs, shared among the search threads. With
     OpenBLAS's own threads on top of them, BLAS threads wait (and spin) for CPUs the search threads
     hold: on 2 CPUs with two search threads, one BLAS thread each took a resonance diagnosis with
     its loops from 40.4 to 32.2 s. The limit is lifted when the diagnosis returns."""
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return threadpool_limits(limits=max(1, cpus // max(workers, 1)), user_api="blas")
+    return threadpool_limits(limits=max(1, usable_cpus() // max(workers, 1)), user_api="blas")
 
 
 def _swapped(fitter: Fitter, sel: Selection, name: str, by: str, res: SearchResult) -> Selection:
