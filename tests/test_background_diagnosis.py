@@ -77,13 +77,16 @@ def _sched(pid):
 
 
 @pytest.mark.slow
-def test_runs_a_real_diagnosis_at_nice_19_and_reports_it(tmp_path):
+def test_runs_a_real_diagnosis_at_nice_19_and_reports_it(tmp_path, monkeypatch):
+    monkeypatch.setenv("GMA_FFC_CPUS", "2")              # the service's own setting must not reach the child
     bg, _ = make(tmp_path)
     bg.poll("drifting", 0.0, 5.0)
     assert bg.current is not None and bg.child is not None
     time.sleep(1.0)                                  # past the child's first lines
     nice, policy = _sched(bg.child.pid)
     assert nice == 19 and policy == os.SCHED_OTHER
+    environ = Path(f"/proc/{bg.child.pid}/environ").read_bytes().split(b"\0")
+    assert b"GMA_FFC_CPUS=1" in environ                 # one search thread: a core stays the loop's
     end = time.monotonic() + 240
     while bg.child is not None and time.monotonic() < end:
         bg.poll("drifting", 0.0, 6.0)

@@ -30,9 +30,10 @@ log = logging.getLogger("gma_ffc.service")
 
 HOUR_S = 3600.0
 KILL_GRACE_S = 2.0          # SIGTERM, then SIGKILL after this: diagnose writes nothing worth waiting for
-# One thread each for numpy's BLAS, OpenMP and numba in the child: on the two cores of a lab PC
-# the diagnosis then never takes both, whatever its niceness.
-SINGLE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+# One thread each for the diagnosis' searches (GMA_FFC_CPUS: it also caps the BLAS threads it
+# asks for), numpy's BLAS, OpenMP and numba in the child: on the two cores of a lab PC the
+# diagnosis then never takes both, whatever its niceness.
+SINGLE_THREAD = {"GMA_FFC_CPUS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                  "NUMBA_NUM_THREADS": "1", "MPLBACKEND": "Agg", "GMA_FFC_PROGRESS": "lines"}
 
 
