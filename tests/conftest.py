@@ -14,10 +14,11 @@ def _share_the_cpus() -> None:
     the CLI runs a test starts), unless the caller set it. Three workers on two cores already keep
     both busy; two search threads inside each only contend (a resonance diagnosis: 190 s of CPU with
     two threads, 113 s with one, the same result to the last digit)."""
+    from gma_ffc.diagnose.selection import CPUS_ENV, usable_cpus
+
     workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    if workers > 1:
-        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        os.environ.setdefault("GMA_FFC_CPUS", str(max(1, cpus // workers)))
+    if workers > 1 and not os.environ.get(CPUS_ENV):
+        os.environ[CPUS_ENV] = str(max(1, usable_cpus() // workers))
 
 
 _share_the_cpus()

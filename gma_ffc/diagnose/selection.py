@@ -580,7 +580,7 @@ def usable_cpus() -> int:
     """The CPUs a diagnosis may use: `GMA_FFC_CPUS` when set, else those this process may run on.
     Set it to 1 where other processes already fill the machine (the test suite's workers, a batch
     of diagnoses): threads inside each would only contend for the same cores. On 2 cores under
-    3 pytest workers, a resonance diagnosis took 190 s of CPU with two search threads, 107 s with one."""
+    3 pytest workers, a resonance diagnosis took 190 s of CPU with two search threads, 113 s with one."""
     text = os.environ.get(CPUS_ENV, "").strip()
     if not text:
         return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
