@@ -167,8 +167,9 @@ class EffectSelector:
         `identification`: the recordings the model was identified on (checked against its record, by
         their files' `fingerprints` when given, else by name), which every fit is then held to and on
         which an effect may identify the core again."""
-        self.threads_ = _search_threads(self.workers)
-        with _blas_threads_per_worker(self.threads_):
+        cpus = usable_cpus()
+        self.threads_ = max(1, min(self.workers, cpus))      # at most one search thread per usable CPU
+        with _blas_threads_per_worker(self.threads_, cpus):
             dg = self._diagnose(model, recordings, progress or (lambda _msg: None), identification, fingerprints)
         self.diagnosis_ = dg
         self.outcome_ = dg.outcome
@@ -590,17 +591,12 @@ def usable_cpus() -> int:
     return int(text)
 
 
-def _search_threads(workers: int) -> int:
-    """The search threads a diagnosis runs: the setting, at most one per usable CPU."""
-    return max(1, min(workers, usable_cpus()))
-
-
-def _blas_threads_per_worker(workers: int) -> Any:
-    """A context giving BLAS the usable CPUs, shared among the search threads. With
+def _blas_threads_per_worker(workers: int, cpus: int) -> Any:
+    """A context giving BLAS the usable CPUs (`cpus`), shared among the search threads. With
     OpenBLAS's own threads on top of them, BLAS threads wait (and spin) for CPUs the search threads
     hold: on 2 CPUs with two search threads, one BLAS thread each took a resonance diagnosis with
     its loops from 40.4 to 32.2 s. The limit is lifted when the diagnosis returns."""
-    return threadpool_limits(limits=max(1, usable_cpus() // max(workers, 1)), user_api="blas")
+    return threadpool_limits(limits=max(1, cpus // max(workers, 1)), user_api="blas")
 
 
 def _swapped(fitter: Fitter, sel: Selection, name: str, by: str, res: SearchResult) -> Selection:
