@@ -87,3 +87,18 @@ def test_nothing_scored_then_a_recording_that_starts_at_the_drives_minimum(model
     dg = diagnose(model, [recording(rising, "rising.csv")])
     assert dg.data[0].n_scored >= 0.8 * cut.size
     assert not any("none of it is scored" in c for c in dg.cannot_conclude)
+
+
+def test_a_recording_none_of_which_is_scored_is_located_by_its_whole_residual(model):
+    """The same unscored cut, 2 um off: its located residual was reported as 0 um, '0.0x the median
+    window', while the base missed it by about 1 um (the residual handed to `locate` had every unscored
+    sample zeroed). It is the whole residual now, as rms_before and cannot_conclude describe it."""
+    t = np.arange(400) / FS
+    history = recording(np.r_[cycles(1.0, 0.8), 1.5 + 0.2 * np.sin(2 * np.pi * 10.0 * t)])
+    cols = {k: v[800:] for k, v in history.columns.items()}
+    cols["displacement_um"] = cols["displacement_um"] + 2.0
+    dg = diagnose(model, [Recording(cols, {}, "off.csv")])
+    assert dg.data[0].n_scored == 0 and dg.outcome == "inconclusive"
+    loc = dg.located[0]
+    assert loc.residual_rms_um == pytest.approx(dg.rms_before_um) and loc.residual_rms_um > 0.5      # was 0
+    assert float(loc.where.split("(")[1].split("x the median")[0]) >= 1.0

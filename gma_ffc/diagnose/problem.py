@@ -50,8 +50,10 @@ def setup(selector: Any, model: Any, recordings: Sequence[Recording], say: Calla
 
 
 def scored(d: RecData, r: np.ndarray) -> np.ndarray:
-    """The residual with the samples that are not scored set to zero (`data.known_samples`)."""
-    return d.scored_only(r)
+    """The residual with the samples that are not scored set to zero (`data.known_samples`); whole
+    for a recording none of which is scored, so that `locate` describes how far off its transient
+    is (all zeros, it would report 0 um where the base misses by micrometres)."""
+    return d.scored_only(r) if d.n_scored else r
 
 
 def _null_model(fitter: Fitter, data: list[RecData], n_samples: int, noise: float, huber_k: float,
