@@ -132,6 +132,25 @@ def test_single_short_recording_says_what_cannot_be_concluded(case_files, capsys
     assert (tmp_path / "o" / "extended_model.yaml").exists()
 
 
+def test_a_recording_none_of_which_is_scored_reports_no_held_out_figure(case_files, capsys, tmp_path):
+    """A short small oscillation mid-range, from an unknown history: no sample is scored, so nothing
+    was held out. The summary line must not call its one figure a held-out RMS (it did: 'held-out
+    RMS 3.87 um -> 3.87 um' on a 401-sample piezo cut)."""
+    n = 400
+    t = np.arange(n) / 1000.0
+    u = 1.0 + 0.05 * np.sin(2 * np.pi * 10 * t)
+    rec = tmp_path / "mid.csv"
+    write_recording(rec, Recording({"time_s": t, "current_A": u, "stress_MPa": np.full(n, -15.0),
+                                    "displacement_um": 10 * u}, {}, "mid.csv"))
+    code, out, err = _run(capsys, "diagnose", "--model", str(case_files / "model.yaml"), str(rec),
+                          "--out", str(tmp_path / "o"))
+    assert code == 0, err
+    doc = json.loads((tmp_path / "o" / "diagnosis.json").read_text())
+    assert [s["scored_share"] for s in doc["initial_state"]] == [0.0]
+    assert "held-out RMS" not in out
+    assert f"RMS {doc['rms_before_um']:.4g} um over every sample: none could be scored" in out
+
+
 def test_one_stress_cannot_test_stress_effects(case_files, capsys, tmp_path):
     rec = read_recording(case_files / "long_run.csv")
     rec.columns["stress_MPa"] = np.full(len(rec), -15.0)
