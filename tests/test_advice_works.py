@@ -102,3 +102,17 @@ def test_a_recording_none_of_which_is_scored_is_located_by_its_whole_residual(mo
     loc = dg.located[0]
     assert loc.residual_rms_um == pytest.approx(dg.rms_before_um) and loc.residual_rms_um > 0.5      # was 0
     assert float(loc.where.split("(")[1].split("x the median")[0]) >= 1.0
+
+
+def test_a_drive_beyond_the_identified_range_then_a_model_identified_over_it(model):
+    """Too little data to test saturation, on a drive a third beyond the model's range: the note
+    names the share and both ranges, and says to identify over the drive used; a model so
+    identified gets no such note."""
+    drive = cycles(3.0, 1.3, amplitude=1.5)                      # 0..4.5 A, the model 0..3 A
+    dg = diagnose(model, [recording(drive, "wide.csv")])
+    assert dg.outcome == "inconclusive"
+    note = next(c for c in dg.cannot_conclude if "beyond the range the model was identified on" in c)
+    assert "(0..3 A; this recording 0..4.5 A)" in note and "identify the model from recordings over the whole" in note
+    wide_model = SDPIIdentifier().fit([recording(cycles(3.0, 3.0, amplitude=1.5), "id_wide.csv")]).model_
+    dg = diagnose(wide_model, [recording(drive, "wide.csv")])
+    assert not any("beyond the range" in c for c in dg.cannot_conclude)

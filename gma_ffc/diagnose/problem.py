@@ -15,7 +15,7 @@ import numpy as np
 from ..errors import InputError
 from ..recordings import Recording
 from .anchor import anchor_data, measured_loops
-from .checks import check_overlap, enough_data
+from .checks import beyond_range_notes, check_overlap, enough_data
 from .data import RecData, noise_floor, prepare
 from .fitting import Fitter, FitSettings, SearchResult, Spec
 from .identification import IdentificationCheck, check
@@ -41,6 +41,8 @@ def setup(selector: Any, model: Any, recordings: Sequence[Recording], say: Calla
     # each fold needs scored rows to fit on: a fold without any would be fitted to nothing
     folds_filled = min(fitter.n_a, fitter.y_rows.size - fitter.n_a) > 0
     n_samples, too_little, cannot = enough_data(data, selector.min_samples, selector.clamped_share, folds_filled)
+    if too_little:
+        cannot += beyond_range_notes(model, data, selector.range_margin, selector.clamped_share)
     noise = float(np.median([noise_floor(d.y) for d in data]))
     fitter.use_anchor(fallback_tolerance_um=noise)
     null, jumps = _null_model(fitter, data, n_samples, noise, selector.huber_k, say, too_little)
