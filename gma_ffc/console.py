@@ -17,7 +17,11 @@ def dispatch(where: str, run: Callable[[], int | None]) -> int:
     bug); GMA_FFC_DEBUG=1 re-raises for the traceback. Shared by every console entry point;
     `where` prefixes the message ("gma-ffc simulate")."""
     try:
-        return int(run() or 0)
+        code = int(run() or 0)
+        sys.stdout.flush()                 # here, where a closed pipe is caught, not at the interpreter's exit
+        return code
+    except BrokenPipeError:
+        return _reader_gone()
     except GmaError as exc:
         if os.environ.get("GMA_FFC_DEBUG"):
             raise
@@ -37,3 +41,19 @@ def dispatch(where: str, run: Callable[[], int | None]) -> int:
         print(f"{where}: internal error: {type(exc).__name__}: {exc} "
               f"(GMA_FFC_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 1
+
+
+SIGPIPE_EXIT = 141   # 128 + SIGPIPE: what a shell reports for a command whose reader went away
+
+
+def _reader_gone() -> int:
+    """The reader of stdout closed it (`gma-ffc identify ... | head -2`): stop quietly, as Unix tools
+    do; files already written stay. stdout goes to /dev/null so the interpreter's last flush at exit
+    cannot fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):    # no file descriptor behind stdout (a test's capture): nothing to redirect
+        pass
+    return SIGPIPE_EXIT

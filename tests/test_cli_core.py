@@ -159,6 +159,21 @@ def test_console_script_usage_errors_exit_2_and_help_teaches() -> None:
     assert helptext.returncode == 0 and "example:" in helptext.stdout and "--plays" in helptext.stdout
 
 
+def test_a_reader_that_closes_the_pipe_stops_the_command_quietly_with_its_files_written(workdir: Path) -> None:
+    """`gma-ffc identify ... | head -1`: the reader closes stdout before the table is printed. That
+    printed 'gma-ffc identify: error: : Broken pipe'; a Unix tool stops quietly, with the shell's
+    141, and the model it had already written stays."""
+    out = workdir / "piped.yaml"
+    proc = subprocess.Popen([sys.executable, "-m", "gma_ffc.cli", "identify", *map(str, sorted(workdir.glob("id_*.csv"))),
+                             "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()                                   # the reader is gone before anything is printed
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141, err
+    assert "error" not in err and "Traceback" not in err and "Exception ignored" not in err
+    assert load_model(out).kind == "sdpi"
+
+
 def test_an_output_path_that_cannot_be_written_is_one_line_exit_2(workdir: Path, capsys) -> None:
     out = "/proc/no-such-dir/out.csv"  # cannot be created, even as root
     assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "id_15.2.csv"), "-o", out]) == 2
