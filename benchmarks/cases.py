@@ -17,6 +17,7 @@ from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.recordings import Recording
 
 from hil_sim.plant import GMAPlant, PlantConfig
+from hil_sim.record import run_plant, run_preconditioned
 
 FS = 2000.0
 LABELS = ("rate_dependence", "mechanical_dynamics", "thermal_drift", "creep", "time_delay",
@@ -320,25 +321,14 @@ def rising_drive(rng: np.random.Generator, peak: float, scale: float = 1.0,
     return t, i, mass
 
 
-PRECONDITION_S = 1.5   # a full-range cycle at 2 Hz and a second's rest at zero: the rig as a lab leaves it
-
-
 def record(cfg: PlantConfig, t: np.ndarray, i: np.ndarray, mass: Any, name: str, seed: int,
            preconditioned: bool = False) -> Recording:
     """A recording of the case's actuator. `preconditioned`: the rod was cycled over the drive
     range and came to rest at zero before the recording began (as after any earlier run), not
     demagnetised: hil_sim starts from a demagnetised rod, whose first rise is a virgin curve no
     hysteresis state of a loop reproduces."""
-    if preconditioned:
-        n0 = int(PRECONDITION_S * FS)
-        t0 = np.arange(n0) / FS
-        pre = np.where(t0 < 0.5, 0.5 * float(np.max(i)) * (1 - np.cos(2 * np.pi * 2.0 * t0)), 0.0)
-        m = np.broadcast_to(np.asarray(mass, dtype=float), t.shape)
-        full = GMAPlant(cfg, seed=seed).run(np.r_[t0, t + PRECONDITION_S], np.r_[pre, i],
-                                            load_mass_kg=np.r_[np.full(n0, m[0]), m])
-        out = {k: v[n0:] for k, v in full.items()}
-    else:
-        out = GMAPlant(cfg, seed=seed).run(t, i, load_mass_kg=mass)
+    run = run_preconditioned if preconditioned else run_plant
+    out = run(GMAPlant(cfg, seed=seed), t, i, mass, FS)
     return Recording({"time_s": t, "current_A": out["current_A"], "stress_MPa": out["stress_MPa"],
                       "displacement_um": out["displacement_um"]}, {}, name)
 

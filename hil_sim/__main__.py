@@ -25,6 +25,8 @@ kinds (one CSV per experiment in DIR, plus DIR/manifest.yaml):
   long            3 Hz sine for 150 s then 0 A for 90 s: the coil heats and cools, 1 kHz
   steps           current steps 0.5 1.5 2.5 1.0 2.0 0 A held 12 s each, 1 kHz
   stress_change   3 Hz sine while the load goes 0 -> 15.3 -> 30.6 -> 49.8 -> 0 kg, 2 kHz
+  rising          sines 0-3 A whose amplitude grows from 0 and decays back (3 Hz for 8 s, 20 Hz
+                  for 4 s, 60 Hz for 3 s), at -13.2 and -19.1 MPa, on a rod cycled before, 2 kHz
 
 effects (off unless --effects or the config switch them on; 'none' = all off, 'all' = all on):
   eddy       eddy currents: the rod field lags the coil (loop widens with frequency)
@@ -40,6 +42,7 @@ The recordings never say which effects were on; DIR/manifest.yaml does.
 examples:
   python -m hil_sim record --kind identification --out rec/ident --effects noise
   python -m hil_sim record --kind long --out rec/long --effects thermal,noise --seed 7
+  python -m hil_sim record --kind rising --out rec/rising --effects eddy,noise
   python -m hil_sim record --kind steps --out rec/steps --config hil_sim/configs/realistic.yaml
 """
 

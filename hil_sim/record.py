@@ -32,6 +32,11 @@ IDENTIFICATION_STRESSES_MPA = (-11.3, -13.2, -15.2, -19.1, -21.5, -24.0)
 MULTIFREQ_HZ = (1.0, 3.0, 10.0, 30.0, 50.0, 100.0, 200.0)
 STEP_LEVELS_A = (0.5, 1.5, 2.5, 1.0, 2.0, 0.0)
 STRESS_CHANGE_MASSES_KG = (0.0, 15.3, 30.6, 49.8, 0.0)
+RISING_STRESSES_MPA = (-13.2, -19.1)
+RISING_SEGMENTS = ((3.0, 8.0), (20.0, 4.0), (60.0, 3.0))
+"""(Hz, s): each a sine whose amplitude grows from 0 A to the full range and decays back."""
+PRECONDITION_S = 1.5
+"""A full-range cycle at 2 Hz, then a second at 0 A: the rod as any earlier run leaves it."""
 COLUMN_ORDER = ("time_s", "current_A", "current_cmd_A", "stress_MPa", "displacement_um",
                 "force_N", "temperature_C")
 MAX_CURRENT_A = 3.0
@@ -47,6 +52,7 @@ class Experiment:
     load_mass_kg: np.ndarray
     description: str
     extra: dict[str, Any] = field(default_factory=dict)
+    preconditioned: bool = False      # run PRECONDITION_S of cycling and rest first, not recorded
 
 
 def _sine(freq_hz: float, periods: float, fs: float, amplitudes: Sequence[float] = (1.0,)) -> tuple:
@@ -62,6 +68,15 @@ def _fmt_stress(s: float) -> str:
     return f"{s:.1f}MPa"
 
 
+def _mass_for(cfg: PlantConfig, stress_MPa: float) -> float:
+    """The load mass that puts the rod at `stress_MPa`, refused below the preload."""
+    mass = cfg.mass_for_stress(stress_MPa)
+    if mass < -1e-6:
+        raise InputError(f"stress {stress_MPa} MPa is below the preload ({cfg.rig.preload_stress_MPa} MPa): "
+                         f"a load mass cannot reduce the compression")
+    return max(mass, 0.0)
+
+
 def identification(cfg: PlantConfig, stresses: Sequence[float] = IDENTIFICATION_STRESSES_MPA,
                    minor_loops: bool = False, fs: float = 2000.0, freq_hz: float = 3.0,
                    periods: int = 4) -> list[Experiment]:
@@ -69,18 +84,41 @@ def identification(cfg: PlantConfig, stresses: Sequence[float] = IDENTIFICATION_
     amps = [1.0] + ([0.8, 0.6, 0.4] if minor_loops else [])
     out = []
     for s in stresses:
-        mass = cfg.mass_for_stress(s)
-        if mass < -1e-6:
-            raise InputError(f"stress {s} MPa is below the preload ({cfg.rig.preload_stress_MPa} MPa): "
-                             f"a load mass cannot reduce the compression")
+        mass = _mass_for(cfg, s)
         t, i = _sine(freq_hz, periods, fs)
         if minor_loops:   # full loops first, then one period per smaller amplitude
             i = np.concatenate([i, _sine(freq_hz, 1, fs, amps[1:])[1]])
             t = np.arange(i.size) / fs
-        out.append(Experiment(f"identification_{_fmt_stress(s)}", t, i, np.full(t.size, max(mass, 0.0)),
+        out.append(Experiment(f"identification_{_fmt_stress(s)}", t, i, np.full(t.size, mass),
                               f"{freq_hz:g} Hz sine 0-{MAX_CURRENT_A:g} A"
                               + (", then minor loops" if minor_loops else ""),
-                              {"load_mass_kg": round(max(mass, 0.0), 3)}))
+                              {"load_mass_kg": round(mass, 3)}))
+    return out
+
+
+def rising(cfg: PlantConfig, stresses: Sequence[float] = RISING_STRESSES_MPA,
+           segments: Sequence[tuple[float, float]] = RISING_SEGMENTS, fs: float = 2000.0) -> list[Experiment]:
+    """The identification experiment labs record: at each stress, sines whose amplitude grows from
+    0 A to the full range and decays back (a sin^2 envelope), one after the other at each (Hz, s)
+    of `segments`. The rod was cycled and came to rest before (`preconditioned`): from a
+    demagnetised rod the first rise would be a virgin curve, which no run after the first shows."""
+    parts = []
+    for f, dur in segments:
+        if not (0 < f < fs / 4 and dur > 0):
+            raise InputError(f"segment ({f} Hz, {dur} s): the frequency must be positive and below a quarter "
+                             f"of {fs:g} Hz sampling, the duration positive")
+        t = np.arange(int(round(dur * fs))) / fs
+        envelope = np.sin(np.pi * t / dur) ** 2                    # 0 at both ends, 1 in the middle
+        parts.append(0.5 * MAX_CURRENT_A * envelope * (1.0 - np.cos(2.0 * np.pi * f * t)))
+    i = np.concatenate(parts)
+    t = np.arange(i.size) / fs
+    what = ", ".join(f"{f:g} Hz for {d:g} s" for f, d in segments)
+    out = []
+    for s in stresses:
+        mass = _mass_for(cfg, s)
+        out.append(Experiment(f"rising_{_fmt_stress(s)}", t, i, np.full(t.size, mass),
+                              f"sines 0-{MAX_CURRENT_A:g} A, amplitude rising from 0 and decaying back: {what}",
+                              {"load_mass_kg": round(mass, 3)}, preconditioned=True))
     return out
 
 
@@ -137,7 +175,7 @@ def stress_change(cfg: PlantConfig, masses: Sequence[float] = STRESS_CHANGE_MASS
 
 KINDS: dict[str, Callable[..., list[Experiment]]] = {
     "identification": identification, "multifreq": multifreq, "long": long_run,
-    "steps": steps, "stress_change": stress_change,
+    "steps": steps, "stress_change": stress_change, "rising": rising,
 }
 
 
@@ -161,12 +199,29 @@ def experiments(kind: str, cfg: PlantConfig, **options: Any) -> list[Experiment]
         raise InputError(f"kind '{kind}': bad option ({exc})") from None
 
 
+def run_plant(plant: GMAPlant, t: np.ndarray, i: np.ndarray, mass: Any, fs: float) -> dict[str, np.ndarray]:
+    """The plant's run from its demagnetised start (`fs` unused: the signature `run_preconditioned`'s)."""
+    return plant.run(t, i, load_mass_kg=mass)
+
+
+def run_preconditioned(plant: GMAPlant, t: np.ndarray, i: np.ndarray, mass: Any,
+                       fs: float) -> dict[str, np.ndarray]:
+    """The plant's run after PRECONDITION_S (not returned) of one full-range cycle at 2 Hz and rest at
+    0 A under the first load: the rod as an earlier run leaves it, not demagnetised."""
+    n0 = int(round(PRECONDITION_S * fs))
+    t0 = np.arange(n0) / fs
+    pre = np.where(t0 < 0.5, 0.5 * float(np.max(i)) * (1 - np.cos(2 * np.pi * 2.0 * t0)), 0.0)
+    m = np.broadcast_to(np.asarray(mass, dtype=float), t.shape)
+    full = plant.run(np.r_[t0, t - t[0] + PRECONDITION_S], np.r_[pre, i], load_mass_kg=np.r_[np.full(n0, m[0]), m])
+    return {k: v[n0:] if k != "time_s" else t for k, v in full.items()}
+
+
 def simulate(exp: Experiment, cfg: PlantConfig, seed: int) -> Recording:
     """Run one experiment on a fresh plant and package it as a recording."""
-    plant = GMAPlant(cfg, seed=seed)
-    out = plant.run(exp.time_s, exp.current_cmd_A, load_mass_kg=exp.load_mass_kg)
-    columns = {name: out[name] for name in COLUMN_ORDER}
     fs = 1.0 / float(np.median(np.diff(exp.time_s)))
+    run = run_preconditioned if exp.preconditioned else run_plant
+    out = run(GMAPlant(cfg, seed=seed), exp.time_s, exp.current_cmd_A, exp.load_mass_kg, fs)
+    columns = {name: out[name] for name in COLUMN_ORDER}
     meta: dict[str, Any] = {
         "source": f"hil_sim simulated GMA ({exp.name})",
         "sample_rate_hz": round(fs, 6),

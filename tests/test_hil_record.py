@@ -12,8 +12,8 @@ import yaml
 from gma_ffc.errors import InputError
 from gma_ffc.recordings import read_recording
 from hil_sim.__main__ import main
-from hil_sim.plant import EFFECTS, PlantConfig
-from hil_sim.record import (COLUMN_ORDER, IDENTIFICATION_STRESSES_MPA, STRESS_CHANGE_MASSES_KG,
+from hil_sim.plant import EFFECTS, GMAPlant, PlantConfig
+from hil_sim.record import (COLUMN_ORDER, IDENTIFICATION_STRESSES_MPA, RISING_STRESSES_MPA, STRESS_CHANGE_MASSES_KG,
                             make_recording, make_recordings)
 
 REQUIRED = ("time_s", "drive", "displacement_um", "stress_MPa")
@@ -60,6 +60,34 @@ def test_other_kinds_have_their_drives() -> None:
     assert long.columns["temperature_C"].max() > long.columns["temperature_C"][0] + 3.0
     steps = make_recording("steps", levels=[1.0, 2.0], hold_s=2.0)
     assert sorted(set(steps.columns["current_cmd_A"])) == [0.0, 1.0, 2.0]
+
+
+def test_rising_amplitude_recordings_start_at_rest_on_a_cycled_rod_and_are_scored_almost_whole() -> None:
+    """The experiment labs record (issue 31): at each stress, sines whose amplitude grows from 0 A to
+    the full range and decays back. The rod was cycled before, not demagnetised, so diagnose scores
+    nearly every sample from the first (from a demagnetised rod the first rise is a virgin curve
+    no loop's state reproduces, and is left unscored)."""
+    from gma_ffc.diagnose.data import prepare
+    from gma_ffc.identify import SDPIIdentifier
+
+    segments = ((3.0, 4.0), (20.0, 2.0))
+    recs = make_recordings("rising", effects=["noise"], segments=segments)
+    assert [r.name for r in recs] == [f"rising_{s:.1f}MPa.csv" for s in RISING_STRESSES_MPA]
+    for rec, stress in zip(recs, RISING_STRESSES_MPA):
+        cmd = rec.columns["current_cmd_A"]
+        assert rec.time_s[0] == 0.0 and len(rec) == 6 * 2000
+        assert cmd[0] == 0.0 and cmd.max() == pytest.approx(3.0, abs=0.01)
+        assert cmd[:500].max() < 0.5 and cmd[3000:5000].max() > 2.9        # the amplitude grows from 0
+        assert np.mean(rec.stress_MPa) == pytest.approx(stress, abs=0.25)
+    model = SDPIIdentifier().fit(make_recordings("identification", effects=["noise"],
+                                                 stresses=RISING_STRESSES_MPA)).model_
+    cycled = prepare(recs, model)
+    assert min(d.n_scored / d.t.size for d in cycled) >= 0.95
+    virgin = make_recordings("rising", effects=["noise"], segments=segments)[0]
+    plain = GMAPlant(PlantConfig().with_effects(["noise"]), seed=0).run(
+        virgin.time_s, virgin.columns["current_cmd_A"], load_mass_kg=float(virgin.metadata["load_mass_kg"]))
+    start = slice(0, 600)                                          # the first rises, a few tenths of an A
+    assert np.max(np.abs(plain["displacement_um"][start] - virgin.displacement_um[start])) > 0.05
 
 
 def test_same_seed_same_recording_other_seed_other_noise() -> None:
@@ -133,7 +161,7 @@ def test_cli_help_teaches_kinds_and_effects(capsys: pytest.CaptureFixture[str]) 
         main(["record", "--help"])
     assert exc.value.code == 0
     text = capsys.readouterr().out
-    for word in ("identification", "multifreq", "long", "steps", "stress_change", *EFFECTS, "manifest.yaml"):
+    for word in ("identification", "multifreq", "long", "steps", "stress_change", "rising", *EFFECTS, "manifest.yaml"):
         assert word in text
 
 
