@@ -121,6 +121,11 @@ def _own_search(fitter: Fitter, base: Specs, name: str, workers: int, start: Any
     return search(fitter, base, make, points, cls.refine, cls.zoom_levels, cls.polish, workers, cls.after_polish)
 
 
+def rezoom(fitter: Fitter, base: Specs, name: str, workers: int) -> SearchResult:
+    """`name`'s zoom and polish again on top of `base`, from where `base` has it (no grid)."""
+    return _own_search(fitter, base, name, workers, start=base[2][name], grid=False)
+
+
 DESCENT_ROUNDS = 3     # coordinate-descent rounds at most: each is two searches (whole, then zooms)
 DESCENT_GAIN = 0.05    # a round that takes less than 5 % off the all-data error has converged (the zoom's
                        # last steps move a resonance's error by about that)

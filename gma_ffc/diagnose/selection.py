@@ -49,7 +49,7 @@ from .outcome import assemble
 from .problem import setup
 from .rebase import reidentify_through
 from .results import Diagnosis
-from .scoring import (Specs, build_extended, descend, effective_samples, loglik_gain, params_of, score_round,
+from .scoring import (Specs, build_extended, descend, effective_samples, loglik_gain, params_of, rezoom, score_round,
                       search_all)
 from .state import Final, Problem, RoundRecord, Selection, Trial
 
@@ -447,15 +447,16 @@ class EffectSelector:
         return dataclasses.replace(sel, rebase_note=sel.rebase_note + dropped)
 
     def _prune_after_swap(self, problem: Problem, sel: Selection) -> Selection:
-        """Backward elimination: with every other accepted effect in place, each must still earn its
-        place by the rule it was accepted by, or it is dropped. An effect accepted first takes part of
+        """Backward elimination: with every other accepted effect in place, and its look-alikes zoomed
+        again without it (`_without_rezoomed`), each must still earn its place by the rule it was
+        accepted by, or it is dropped. An effect accepted first takes part of
         what a later one explains better (a delay named before eddy currents and a resonance, which
         then share its phase lag), and forward selection alone never takes it back."""
         if len(sel.accepted) < 2:
             return sel
         sel, dropped = self._drop_unearned(problem, sel, list(reversed(sel.accepted)),   # the least important first
                                            "named before the others; with them in the model it no longer earns "
-                                           "its place")
+                                           "its place", lookalikes=True)
         return self._refit_after_drop(problem, sel) if dropped else sel
 
     def _refit_after_drop(self, problem: Problem, sel: Selection) -> Selection:
@@ -475,9 +476,10 @@ class EffectSelector:
         return sel
 
     def _drop_unearned(self, problem: Problem, sel: Selection, names: Sequence[str],
-                       why: str) -> tuple[Selection, str]:
+                       why: str, lookalikes: bool = False) -> tuple[Selection, str]:
         """Each of `names` that no longer earns its place (`earns_place`, with the others as they are
-        fitted) dropped, with `why` as its reason; the selection, and a sentence per drop."""
+        fitted, or with its look-alikes zoomed again when `lookalikes`) dropped, with `why` as its
+        reason; the selection, and a sentence per drop."""
         fitter = problem.fitter
         n_eff: float | None = None          # of the current final model's residual: found again only after a drop
         said = ""
@@ -485,21 +487,38 @@ class EffectSelector:
             without: Specs = tuple(s.without(name) for s in sel.fit.specs)  # type: ignore[assignment]
             sc = fitter.score(without, want_coef=True)
             assert sc.coef_all is not None
-            if n_eff is None:
-                n_eff = effective_samples(fitter.test_residuals(sel.fit.specs), fitter.segment_lengths)
-            gain = loglik_gain(n_eff, sc.held_out_loss, sel.cur_loss, REGISTRY[name].count_params(fitter))
-            if self.earns_place(sel.cur_loss, gain, sc.held_out_loss, problem.noise):
-                continue
-            reason = (f"{why} (held-out {math.sqrt(sel.cur_cv):.4g} um with it, "
-                      f"{math.sqrt(sc.held_out_mse):.4g} um without)")
             fit = SearchResult(without, sc.held_out_loss, sc.held_out_mse, sc.all_mse, sc.n_held_out,
                                sc.coef_all, sc.names, sel.fit.evaluated)
+            if n_eff is None:
+                n_eff = effective_samples(fitter.test_residuals(sel.fit.specs), fitter.segment_lengths)
+            if lookalikes:
+                fit = self._without_rezoomed(problem, sel, name, fit)
+            gain = loglik_gain(n_eff, fit.cv_loss, sel.cur_loss, REGISTRY[name].count_params(fitter))
+            if self.earns_place(sel.cur_loss, gain, fit.cv_loss, problem.noise):
+                continue
+            reason = (f"{why} (held-out {math.sqrt(sel.cur_cv):.4g} um with it, "
+                      f"{math.sqrt(fit.cv_mse):.4g} um without)")
             sel = dataclasses.replace(
                 sel.with_reason(name, reason), fit=fit, accepted=tuple(n for n in sel.accepted if n != name),
                 ambiguous=tuple(p for p in sel.ambiguous if name not in p))
             said += f" {name} was dropped: {reason}."
             n_eff = None
         return sel, said
+
+    def _without_rezoomed(self, problem: Problem, sel: Selection, name: str, without: SearchResult) -> SearchResult:
+        """The model without `name`, its accepted look-alikes (`joint_with`) zoomed again one after the
+        other from where they are, each kept where it predicts the held-out blocks better: a look-alike
+        searched beside `name` gave it part of its role, and must be let take that part back before
+        `name`'s place is judged, and before the model without it is kept. Beside a delay of a sample,
+        an eddy lag came out 30 % short and a resonance's load law moved; without the delay and so
+        refitted, they explained the recording better than with it (the eleventh never-tuned draw's
+        pair: held-out 0.44 -> 0.15 um)."""
+        best = without
+        for partner in [p for p in REGISTRY[name].joint_with if p in sel.accepted]:
+            found = rezoom(problem.fitter, best.specs, partner, self.threads_)
+            if found.cv_loss < best.cv_loss:
+                best = found
+        return best
 
     # ------------------------------------------------------------------ final guards
     def _guard(self, problem: Problem, sel: Selection) -> Final:
