@@ -102,6 +102,8 @@ def rising(cfg: PlantConfig, stresses: Sequence[float] = RISING_STRESSES_MPA,
     0 A to the full range and decays back (a sin^2 envelope), one after the other at each (Hz, s)
     of `segments`. The rod was cycled and came to rest before (`preconditioned`): from a
     demagnetised rod the first rise would be a virgin curve, which no run after the first shows."""
+    if not segments:
+        raise InputError("rising: give at least one (Hz, s) segment")
     parts = []
     for f, dur in segments:
         if not (0 < f < fs / 4 and dur > 0):

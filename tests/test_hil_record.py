@@ -172,3 +172,7 @@ def test_api_rejects_bad_requests() -> None:
         make_recording("identification", stress_MPa=-5.0)
     with pytest.raises(InputError, match="stress_MPa"):
         make_recording("steps", stress_MPa=-15.2)
+    with pytest.raises(InputError, match="at least one"):
+        make_recordings("rising", segments=())
+    with pytest.raises(InputError, match="below a quarter"):
+        make_recordings("rising", segments=((600.0, 1.0),))
