@@ -17,7 +17,7 @@ from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.recordings import Recording
 
 from hil_sim.plant import GMAPlant, PlantConfig
-from hil_sim.record import run_plant, run_preconditioned
+from hil_sim.record import run_plant
 
 FS = 2000.0
 LABELS = ("rate_dependence", "mechanical_dynamics", "thermal_drift", "creep", "time_delay",
@@ -327,8 +327,7 @@ def record(cfg: PlantConfig, t: np.ndarray, i: np.ndarray, mass: Any, name: str,
     range and came to rest at zero before the recording began (as after any earlier run), not
     demagnetised: hil_sim starts from a demagnetised rod, whose first rise is a virgin curve no
     hysteresis state of a loop reproduces."""
-    run = run_preconditioned if preconditioned else run_plant
-    out = run(GMAPlant(cfg, seed=seed), t, i, mass, FS)
+    out = run_plant(GMAPlant(cfg, seed=seed), t, i, mass, FS, preconditioned)
     return Recording({"time_s": t, "current_A": out["current_A"], "stress_MPa": out["stress_MPa"],
                       "displacement_um": out["displacement_um"]}, {}, name)
 

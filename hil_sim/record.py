@@ -201,15 +201,13 @@ def experiments(kind: str, cfg: PlantConfig, **options: Any) -> list[Experiment]
         raise InputError(f"kind '{kind}': bad option ({exc})") from None
 
 
-def run_plant(plant: GMAPlant, t: np.ndarray, i: np.ndarray, mass: Any, fs: float) -> dict[str, np.ndarray]:
-    """The plant's run from its demagnetised start (`fs` unused: the signature `run_preconditioned`'s)."""
-    return plant.run(t, i, load_mass_kg=mass)
-
-
-def run_preconditioned(plant: GMAPlant, t: np.ndarray, i: np.ndarray, mass: Any,
-                       fs: float) -> dict[str, np.ndarray]:
-    """The plant's run after PRECONDITION_S (not returned) of one full-range cycle at 2 Hz and rest at
-    0 A under the first load: the rod as an earlier run leaves it, not demagnetised."""
+def run_plant(plant: GMAPlant, t: np.ndarray, i: np.ndarray, mass: Any, fs: float,
+              preconditioned: bool = False) -> dict[str, np.ndarray]:
+    """The plant's run from its demagnetised start or, `preconditioned`, after PRECONDITION_S (not
+    returned) of one full-range cycle at 2 Hz and rest at 0 A under the first load: the rod as an
+    earlier run leaves it."""
+    if not preconditioned:
+        return plant.run(t, i, load_mass_kg=mass)
     n0 = int(round(PRECONDITION_S * fs))
     t0 = np.arange(n0) / fs
     pre = np.where(t0 < 0.5, 0.5 * float(np.max(i)) * (1 - np.cos(2 * np.pi * 2.0 * t0)), 0.0)
@@ -221,8 +219,8 @@ def run_preconditioned(plant: GMAPlant, t: np.ndarray, i: np.ndarray, mass: Any,
 def simulate(exp: Experiment, cfg: PlantConfig, seed: int) -> Recording:
     """Run one experiment on a fresh plant and package it as a recording."""
     fs = 1.0 / float(np.median(np.diff(exp.time_s)))
-    run = run_preconditioned if exp.preconditioned else run_plant
-    out = run(GMAPlant(cfg, seed=seed), exp.time_s, exp.current_cmd_A, exp.load_mass_kg, fs)
+    out = run_plant(GMAPlant(cfg, seed=seed), exp.time_s, exp.current_cmd_A, exp.load_mass_kg, fs,
+                    exp.preconditioned)
     columns = {name: out[name] for name in COLUMN_ORDER}
     meta: dict[str, Any] = {
         "source": f"hil_sim simulated GMA ({exp.name})",
