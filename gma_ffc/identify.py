@@ -171,6 +171,16 @@ def burn_in_end(x: np.ndarray, tol: float = 0.02) -> int:
     return end if end < len(x) - 10 else 0
 
 
+def _late_sweep_note(shares: Sequence[float]) -> str:
+    """identify's note on recordings that reach both ends of their drive late (a single cycle, a
+    cut-out window, a rising amplitude): not a fault, but their start state had to be estimated."""
+    lo, hi = 100 * min(shares), 100 * max(shares)
+    share = f"{lo:.0f} %" if round(lo) == round(hi) else f"{lo:.0f}-{hi:.0f} %"
+    return (f"{len(shares)} recording(s) reach both ends of their drive only after {share} of their samples "
+            "(a single cycle, a cut-out window or a rising amplitude): their initial hysteresis state was "
+            "estimated from the measurement, and every sample fitted")
+
+
 FAST_LOOP_HZ = 20.0
 """Above this loop rate a failed identification also names the drive's speed as a likely cause: the
 GMA's eddy-current and mechanical corner frequencies are tens to hundreds of Hz, and the paper
@@ -330,8 +340,7 @@ class SDPIIdentifier:
                 start = resolve(self.model_, d.x, d.sigma, "estimate", self.output_sign_ * d.y)
                 d.start = 0
                 self._play_outputs(d, r_h, x_c, start.play_state)
-            self.notes_.append(f"{len(short)} recording(s) start with a large share of unknown hysteresis "
-                               "history: their initial state was estimated and all their samples fitted")
+            self.notes_.append(_late_sweep_note([burn_in_end(d.x) / len(d.x) for d in short]))
             self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c, (x_lo, x_hi))
         self.zero_shifts_um_ = {d.name: 0.0 for d in data}
         if self.zero == "per_recording" and len(data) > 1:

@@ -265,3 +265,19 @@ def test_a_recording_whose_start_is_never_wiped_is_scored_from_its_estimated_sta
     x, s = recs[0].drive, recs[0].stress_MPa
     half = x.size // 8                                  # the first rise only, not a full sweep
     assert ident._output_whatever_the_start(SimpleNamespace(x=x[:half], sigma=s[:half]), 10) is None
+
+
+def test_a_rising_amplitude_is_named_as_a_late_sweep_not_unknown_history() -> None:
+    """A sine whose amplitude grows from the bottom of the drive is the standard identification
+    run; its note says when the drive first spans its range, and that every sample was fitted."""
+    rig = PreisachActuator(noise_um=0.03, seed=2)
+    t = np.arange(0.0, 2.0, 1.0 / FS)
+    envelope = np.minimum(t / 1.2, 1.0)        # full amplitude from 60 % of the run; its first top at 75 %
+    x = 1.5 * envelope * (1 - np.cos(2 * np.pi * 3.0 * t))
+    recs = [recording(t, x, rig.run(x, s), s, f"rising {s}") for s in (-11.3, -19.1)]
+    ident = SDPIIdentifier().fit(recs)
+    note = [n for n in ident.notes_ if "reach both ends of their drive" in n]
+    share = round(100 * burn_in_end(x) / x.size)
+    assert len(note) == 1 and note[0].startswith(f"2 recording(s) reach both ends of their drive only after {share} %")
+    assert 70 <= share <= 80 and "rising amplitude" in note[0] and "every sample fitted" in note[0]
+    assert not any("unknown hysteresis history" in n for n in ident.notes_)
