@@ -34,11 +34,15 @@ def play_inverse(r_h: np.ndarray, w_h: np.ndarray) -> tuple[np.ndarray, np.ndarr
     r_h = np.asarray(r_h, dtype=float)
     w_h = np.asarray(w_h, dtype=float)
     n = len(r_h)
-    r_inv = np.array([np.sum(w_h[: i + 1] * (r_h[i] - r_h[: i + 1])) for i in range(n)])
-    cum = np.cumsum(w_h)
-    w_inv = np.empty(n)
-    w_inv[0] = 1.0 / w_h[0]
-    w_inv[1:] = -w_h[1:] / (cum[1:] * cum[:-1])
+    # A model that violates Proposition 3.1 (w_h0 = 0, a partial sum at 0) or whose weights overflow
+    # gets inf/NaN here quietly: the caller's check refuses it in one line, numpy's warnings would
+    # come before that line.
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        r_inv = np.array([np.sum(w_h[: i + 1] * (r_h[i] - r_h[: i + 1])) for i in range(n)])
+        cum = np.cumsum(w_h)
+        w_inv = np.empty(n)
+        w_inv[0] = 1.0 / w_h[0]
+        w_inv[1:] = -w_h[1:] / (cum[1:] * cum[:-1])
     return r_inv, w_inv
 
 

@@ -137,6 +137,10 @@ class SDPIModel:
             raise ModelError("dead-zone thresholds must strictly increase with the centre one at 0 (paper eq. 5)")
         if self.deadzone_coeffs.shape != (3, n_s):
             raise ModelError(f"dead-zone weight coefficients must be {n_s} triples (c0, c1, c2)")
+        drive_lo, drive_hi = self.drive_range
+        if not drive_lo < drive_hi:            # NaN compares false: refused too
+            raise ModelError(f"drive range must be (low, high) with low < high, got [{drive_lo:g}, {drive_hi:g}]; "
+                             "the clamp and fault policies rely on it: write the model again with gma-ffc identify")
         if self.stress_range_MPa is not None:
             lo, hi = self.stress_range_MPa
             if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
@@ -431,6 +435,7 @@ class SDPIModel:
             raise ModelError(f"missing key {exc.args[0]!r}") from None
         except (TypeError, ValueError, IndexError) as exc:
             raise ModelError(f"malformed values ({exc})") from None
+        _check_declared_units(d, model)
         declared = d.get("kind")
         if declared not in (None, model.kind):
             raise ModelError(f"kind says {declared!r} but the stress range makes it {model.kind!r}")
@@ -440,6 +445,27 @@ class SDPIModel:
                              + ". The inverse controller cannot use it: identify the model again (gma-ffc "
                              "identify) from recordings that sweep the full drive range at every stress")
         return model
+
+
+def _check_declared_units(d: dict[str, Any], model: SDPIModel) -> None:
+    """A file's `units` and `deadzone.index_of_r0` are what identify wrote, not settings: a hand-edited
+    value the code would ignore (mA for A, mm for um) is refused, not silently read as the default."""
+    units = d.get("units")
+    if units is not None:
+        expected = {"drive": model.drive_name.rsplit("_", 1)[-1], "displacement": "um", "stress": "MPa"}
+        if not isinstance(units, dict):
+            raise ModelError(f"units must be a mapping like {expected}, got {units!r}")
+        wrong = {k: v for k, v in units.items() if k in expected and str(v) != expected[k]}
+        if wrong:
+            k, v = next(iter(wrong.items()))
+            raise ModelError(f"units.{k} is {v!r} but gma-ffc models are in {expected[k]!r} (drive_name "
+                             f"{model.drive_name!r}); convert the recordings and identify again, or restore "
+                             f"units.{k}: {expected[k]}")
+    centre = d.get("deadzone", {}).get("index_of_r0")
+    if centre is not None and centre != (model.n_deadzone - 1) // 2:
+        raise ModelError(f"deadzone.index_of_r0 is {centre!r} but the centre of {model.n_deadzone} dead-zone "
+                         f"thresholds is {(model.n_deadzone - 1) // 2}: the file was edited; write it again "
+                         "with gma-ffc identify")
 
 
 class ForwardStepper:

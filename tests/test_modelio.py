@@ -56,12 +56,28 @@ def _mutate(tmp_path: Path, model: SDPIModel, change) -> Path:
     (lambda d: d["play"]["weights"].__setitem__(0, float("nan")), "finite"),
     (lambda d: d.update(stress_range_MPa=[-10.0, -20.0]), "low < high"),
     (lambda d: d.update(drive_range=[0.0, 1.5, 3.0]), "drive range must be two values"),
+    (lambda d: d.update(drive_range=[3.0, 0.0]), r"low < high, got \[3, 0\]"),
+    (lambda d: d.update(drive_range=[float("nan"), 3.0]), r"low < high, got \[nan, 3\]"),
+    (lambda d: d["units"].update(drive="mA"), "units.drive is 'mA' but gma-ffc models are in 'A'"),
+    (lambda d: d["units"].update(displacement="mm"), "units.displacement is 'mm'"),
+    (lambda d: d.update(units="A"), "units must be a mapping"),
+    (lambda d: d["deadzone"].update(index_of_r0=30), "index_of_r0 is 30 but the centre"),
 ])
 def test_inconsistent_files_are_refused_with_the_reason(tmp_path: Path, model: SDPIModel, change, message) -> None:
     path = _mutate(tmp_path, model, change)
     with pytest.raises(ModelError, match=message) as err:
         load_model(path)
     assert str(path) in str(err.value)
+
+
+def test_a_model_violating_proposition_3_1_is_refused_without_numpy_warnings(tmp_path: Path, model: SDPIModel,
+                                                                            recwarn) -> None:
+    """A zero or overflowing first play weight made numpy print warnings before the one-line refusal."""
+    for w0 in (0.0, 1e300):
+        path = _mutate(tmp_path, model, lambda d: d["play"]["weights"].__setitem__(0, w0))
+        with pytest.raises(ModelError, match="Proposition 3.1"):
+            load_model(path)
+    assert [str(w.message) for w in recwarn] == []
 
 
 def test_damaged_yaml_and_missing_files_are_refused(tmp_path: Path) -> None:
