@@ -256,3 +256,18 @@ def test_channels_on_two_devices(models, tmp_path):
     assert np.median(rec.stress_MPa) == pytest.approx(-19.1, abs=0.3)   # from the second device
     assert len(rig_amp.history("setpoint")) >= 40 and rig_amp.last_setpoint_A == 0.0
     assert rig_cell.history("setpoint") == []
+
+
+def test_limits_the_setpoint_register_cannot_carry_are_refused_at_load():
+    """An int16 setpoint at 0.1 mA per count carries +-3.2767 A: a current_max_A of 4 A failed every write
+    above that as a comms fault, retried forever while the coil went between 0 and 2 A."""
+    amp = {"transport": "tcp", "port": 502, "register_map": load_register_map(MAPS + "amplifier_int16.yaml").to_dict()}
+    cfg = {"rate_hz": 100, "model": "m.yaml", "reference": {"kind": "sine", "frequency_hz": 3, "amplitude_um": 1},
+           "driver": {"kind": "modbus", "devices": {"amp": amp}}}
+    ok = validate_config({**cfg, "limits": {"current_min_A": 0, "current_max_A": 3.2, "slew_A_per_s": 10}})
+    assert ok.limits["current_max_A"] == 3.2
+    for key, limits in (("current_max_A", {"current_min_A": 0, "current_max_A": 4.0}),
+                        ("current_min_A", {"current_min_A": -4.0, "current_max_A": 1.0})):
+        with pytest.raises(ConfigError, match=rf"'limits\.{key}' \(-?4 A\) is beyond what the register map's "
+                                              r"'current_setpoint_A' on device 'amp' \(int16, scale 0\.0001.*-3\.2768 to 3\.2767 A"):
+            validate_config({**cfg, "limits": {**limits, "slew_A_per_s": 10}})

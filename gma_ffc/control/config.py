@@ -213,6 +213,7 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
     reference = _reference(top["reference"], base)         # sections in this order: the first error is reported
     limits = _limits(top["limits"])
     driver = _driver(top["driver"], top["clock"], base)
+    _limits_fit_the_setpoint(limits, driver)
     stress, sensor = _sensing(top["stress"], top["sensor"])
     comms = _comms(top["comms"])
     telemetry = validate_section(top["telemetry"], TELEMETRY, "telemetry")
@@ -267,6 +268,22 @@ def _driver(raw: dict[str, Any], clock: str, base: Path | None) -> dict[str, Any
         raise ConfigError(f"config key 'clock': 'simulated' never sleeps, which only suits a simulated rig; "
                           f"driver '{raw['kind']}' talks to real devices: use clock: real")
     return cls.validate_config(raw, "driver", base)
+
+
+def _limits_fit_the_setpoint(limits: dict[str, Any], driver: dict[str, Any]) -> None:
+    """Every current the limits allow must be one the driver can send: a setpoint register that
+    cannot encode current_max_A would fail each write, a comms fault the loop would retry forever."""
+    from ..drivers import driver_class
+
+    carried = getattr(driver_class(driver["kind"]), "setpoint_range_A", lambda cfg: None)(driver)
+    if carried is None:
+        return
+    lo, hi, what = carried
+    for key in ("current_min_A", "current_max_A", "safe_current_A"):
+        if not lo <= limits[key] <= hi:
+            raise ConfigError(f"config key 'limits.{key}' ({limits[key]:g} A) is beyond what {what} can carry "
+                              f"({lo:g} to {hi:g} A): bring the limit within that, or change the channel's "
+                              "type or scale to match the amplifier")
 
 
 def _sensing(stress_raw: dict[str, Any], sensor_raw: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:

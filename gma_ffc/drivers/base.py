@@ -126,6 +126,12 @@ class Driver(ABC):
     def validate_config(cls, section: dict[str, Any], prefix: str, base_dir: Path | None) -> dict[str, Any]:
         """Validated copy of the driver's config section (ConfigError naming the key)."""
 
+    @classmethod
+    def setpoint_range_A(cls, cfg: dict[str, Any]) -> tuple[float, float, str] | None:
+        """The currents the driver's setpoint can carry, and what sets them (a register's type and
+        scale), from a validated section; None when any current can be sent."""
+        return None
+
     @abstractmethod
     def open(self) -> None:
         """Connect; raise DriverError when the device cannot be reached."""

@@ -146,6 +146,16 @@ class ModbusDriver(Driver):
         out["devices"] = checked
         return out
 
+    @classmethod
+    def setpoint_range_A(cls, cfg: dict[str, Any]) -> tuple[float, float, str] | None:
+        for name, dev in cfg["devices"].items():
+            if CURRENT_SETPOINT in dev["register_map"]:
+                ch = dev["register_map"][CURRENT_SETPOINT]
+                lo, hi = ch.physical_range
+                return lo, hi, (f"the register map's '{CURRENT_SETPOINT}' on device '{name}' ({ch.type}, scale "
+                                f"{ch.scale:g}, offset {ch.offset:g})")
+        return None
+
     # ---- lifecycle ------------------------------------------------------------------------------
     def open(self) -> None:
         for dev in self.devices:
