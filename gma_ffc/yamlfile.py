@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +32,14 @@ class _UniqueKeyLoader(yaml.SafeLoader):
                 raise DuplicateKeyError(f"key {key!r} appears twice, on lines {first} and {line}")
             seen[key] = line
         return super().construct_mapping(node, deep)
+
+
+# YAML 1.1 (PyYAML) reads 1e3 and 1.0e3 as strings: its floats need a dot and a signed exponent.
+# YAML 1.2 and every other reader take them as numbers, and so do we (a config's `rate_hz: 1e3`).
+_UniqueKeyLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."))
 
 
 def read_yaml(path: str | os.PathLike, what: str, error: type[InputError] = InputError) -> Any:

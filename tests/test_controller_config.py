@@ -97,6 +97,20 @@ def test_file_errors_name_the_file_and_line(tmp_path):
         load_config(bad)
 
 
+def test_numbers_in_exponent_form_are_numbers(tmp_path):
+    """YAML 1.1 reads 1e3 and 1.0e3 as strings: 'rate_hz must be a number, got '1.0e3'' told a user
+    their number was not one."""
+    f = tmp_path / "c.yaml"
+    text = yaml.safe_dump(BASE).replace("rate_hz: 500", "rate_hz: 1.0e3").replace("slew_A_per_s: 100",
+                                                                                  "slew_A_per_s: 5e2")
+    f.write_text(text)
+    cfg = load_config(f)
+    assert cfg.rate_hz == 1000.0 and cfg.limits["slew_A_per_s"] == 500.0
+    f.write_text(text.replace("rate_hz: 1.0e3", "rate_hz: 1e"))
+    with pytest.raises(ConfigError, match="config key 'rate_hz' must be a number, got '1e'"):
+        load_config(f)
+
+
 def test_relative_paths_resolve_against_the_config_folder(tmp_path):
     f = tmp_path / "sub" / "c.yaml"
     f.parent.mkdir()
