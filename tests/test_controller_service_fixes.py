@@ -116,6 +116,41 @@ def test_status_json_with_nothing_running_is_still_json(tmp_path):
     assert doc["state"] == "not running" and out.returncode == 1
 
 
+def test_a_simulated_clock_without_an_end_is_refused_and_the_advice_works(tmp_path):
+    """The demo's configs run on a simulated clock; started as a service without --duration one ran
+    65,000 ticks a second while its status said 1000 Hz. Both pieces of advice are followed."""
+    import yaml
+
+    data = {"rate_hz": 1000, "clock": "simulated", "model": str(MODEL), "driver": {"kind": "sim"},
+            "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 10.0, "offset_um": 20.0},
+            "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
+            "telemetry": {"path": str(tmp_path / "tel.csv")}}
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(yaml.safe_dump(data))
+
+    def run(*extra):
+        return subprocess.run([sys.executable, "-m", "gma_ffc.cli", "run", "--config", str(cfg), "--no-socket",
+                               *extra], capture_output=True, text=True, timeout=120)
+
+    refused = run()
+    assert refused.returncode == 2 and "Traceback" not in refused.stderr
+    assert "config key 'clock' is 'simulated'" in refused.stderr and "give --duration S" in refused.stderr
+    assert not (tmp_path / "tel.csv").exists()
+    assert run("--duration", "0.2").returncode == 0
+    cfg.write_text(yaml.safe_dump({**data, "clock": "real"}))
+    real = subprocess.Popen([sys.executable, "-m", "gma_ffc.cli", "run", "--config", str(cfg), "--no-socket"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and real.poll() is None and \
+                len((tmp_path / "tel.csv").read_text().splitlines() if (tmp_path / "tel.csv").exists() else []) < 50:
+            time.sleep(0.1)
+        assert real.poll() is None            # set to a real clock, it runs until stopped
+    finally:
+        real.terminate()
+        real.wait(timeout=60)
+
+
 @pytest.mark.parametrize("policy", ["warn", "clamp", "fault"])
 def test_a_command_beyond_the_identified_drive_range_is_never_silent(tmp_path, policy):
     """A reference beyond the model's stroke with current limits wider than the identified range
