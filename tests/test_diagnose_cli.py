@@ -149,6 +149,11 @@ def test_a_recording_none_of_which_is_scored_reports_no_held_out_figure(case_fil
     assert [s["scored_share"] for s in doc["initial_state"]] == [0.0]
     assert "held-out RMS" not in out
     assert f"RMS {doc['rms_before_um']:.4g} um over every sample: none could be scored" in out
+    # the report, the explanation and the validation say the same: no held-out figure, no 2-fold run
+    report = (tmp_path / "o" / "report.html").read_text()
+    assert "Held-out RMS" not in report and "none could be scored, so nothing was held out" in report
+    assert "on held-out data" not in doc["explanation"] and "nothing was held out" in doc["explanation"]
+    assert doc["validation"].startswith("nothing was validated") and "2-fold" not in doc["validation"]
 
 
 def test_one_stress_cannot_test_stress_effects(case_files, capsys, tmp_path):

@@ -54,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
     from ..recordings import read_recording
     from ..diagnose.engine import diagnose
     from ..diagnose.report import write_outputs
+    from ..diagnose.results import rms_summary
 
     if args.max_effects < 1:
         raise InputError(f"--max-effects must be at least 1, got {args.max_effects}")
@@ -86,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"outcome: {doc['outcome']}: {words[doc['outcome']]}")
     verdict = ", ".join(doc["verdict"]) if doc["verdict"] else "none"
     print(f"verdict: {verdict}")
-    print(_rms_line(doc))
+    print(rms_summary(doc))
     print(f"identification recordings: {doc['identification']['note']}", file=sys.stderr)
     for state in doc["initial_state"]:
         print(f"initial state ({state['recording']}): {state['how']}", file=sys.stderr)
@@ -94,15 +95,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"cannot conclude: {note}", file=sys.stderr)
     print(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'}, {out / 'extended_model.yaml'}")
     return 0
-
-
-def _rms_line(doc: dict) -> str:
-    """Before -> after on the held-out blocks; with no sample scored, nothing was held out, and the
-    one figure is the base's miss over every sample (the start-up transient, perhaps all of it)."""
-    floor = f"(noise floor {doc['noise_floor_um']:.3g} um)"
-    if all(s["scored_share"] == 0 for s in doc["initial_state"]):
-        return f"RMS {doc['rms_before_um']:.4g} um over every sample: none could be scored, so nothing was held out {floor}"
-    return f"held-out RMS {doc['rms_before_um']:.4g} um -> {doc['rms_after_um']:.4g} um {floor}"
 
 
 def _split_paths(model: Any, recordings: list[str], ident: list[str]) -> tuple[list[str], list[str], list[dict]]:

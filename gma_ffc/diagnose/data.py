@@ -253,3 +253,9 @@ def _runs(mask: np.ndarray) -> list[slice]:
     """The contiguous stretches where `mask` is True, in order."""
     edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
     return [slice(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def none_scored(data: Sequence["RecData"]) -> bool:
+    """No sample of any recording is scored: nothing was held out, and every figure is the models'
+    miss over every sample (the start-up transient, perhaps all of it)."""
+    return all(d.n_scored == 0 for d in data)

@@ -76,10 +76,12 @@ def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[
             rms_null: float, rms_after: float, noise: float, too_little: bool, runner_note: str,
             outcome: str, unit: str, noise_factor: float, fit_rms_um: tuple[float, float] | None = None,
             located_after: list[Located] | None = None, model_error_factor: float = 3.0,
-            has_stress: bool = True) -> str:
+            has_stress: bool = True, held_out: bool = True) -> str:
     worst = max(located, key=lambda loc: loc.residual_rms_recalibrated_um)
+    where = ("on held-out data" if held_out else
+             "over every sample (none could be scored, so nothing was held out)")
     parts = [f"The base model misses the recordings by {rms_before:.4g} um RMS; a static recalibration "
-             f"(gain/offset/curvature/loop width) leaves {rms_null:.4g} um on held-out data, against a noise floor of "
+             f"(gain/offset/curvature/loop width) leaves {rms_null:.4g} um {where}, against a noise floor of "
              f"{noise:.3g} um estimated from the data. The largest residual is in {worst.recording}: {worst.where}."]
     if too_little:
         parts.append("There is too little data to tell the effects apart, so no effect is named; see "
@@ -162,8 +164,15 @@ def _zero_words(fitter: Fitter) -> str:
     return (" In every fit, the null's included, " + "; ".join(parts) + ".") if parts else ""
 
 
-def validation_words(fitter: Fitter, null_cv: float, min_mse_ratio: float, min_loglik_gain: float) -> str:
+def validation_words(fitter: Fitter, null_cv: float, min_mse_ratio: float, min_loglik_gain: float,
+                     held_out: bool = True) -> str:
     """How every figure of the diagnosis was validated."""
+    if not held_out:
+        return ("nothing was validated: no sample of any recording could be scored, since everywhere the "
+                "model's output still depends, by more than the noise floor, on the hysteresis state the "
+                "recording starts in. rms_before, rms_recalibrated and rms_after are the models' miss over "
+                f"every sample (the recalibrated base {math.sqrt(null_cv):.4g} um), not held-out figures, and "
+                "no effect could be accepted.")
     return (
         f"each recording was cut into {N_BLOCKS} contiguous time blocks; every model was fitted on the even blocks "
         "and scored on the odd ones, and the other way round (2-fold blocked cross-validation). Models are "

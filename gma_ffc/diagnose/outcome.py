@@ -13,7 +13,7 @@ from typing import Any, Sequence
 
 from .. import effects as effect_registry
 from .anchor import anchor_words
-from .data import unscored_starts_note
+from .data import none_scored, unscored_starts_note
 from .explain import drive_unit, explain, identification_rms, validation_words
 from .locate import locate
 from .problem import scored
@@ -66,7 +66,8 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
     explanation = explain(verdict, cands, list(null.located), null.rms_before, math.sqrt(null.fit.cv_mse),
                           math.sqrt(final.cv_mse), noise, too_little, runner_note.strip(), outcome,
                           drive_unit(problem.model), selector.noise_factor, identification_rms(problem.model),
-                          after, selector.model_error_factor, any(d.s_raw is not None for d in problem.data))
+                          after, selector.model_error_factor, any(d.s_raw is not None for d in problem.data),
+                          not none_scored(problem.data))
     if lead is not None:     # the fault to fix first, so it comes first
         explanation = (f"First, a fault in the columns: {lead.words()}"
                        + ("." if outcome == "unexplained" else "; what is named below may only compensate it.")
@@ -137,7 +138,8 @@ def _validation(selector: Any, problem: Problem, final: Final, loo: dict[str, An
     """How the result was validated, in words: the held-out blocks, the rebase, leave-one-recording-out
     and the anchor."""
     sel, fitter = final.selection, problem.fitter
-    validation = validation_words(fitter, problem.null.fit.cv_mse, selector.min_mse_ratio, selector.min_loglik_gain)
+    validation = validation_words(fitter, problem.null.fit.cv_mse, selector.min_mse_ratio, selector.min_loglik_gain,
+                                  not none_scored(problem.data))
     if not final.base_kept:
         validation += sel.rebase_note
     if loo["applies"]:

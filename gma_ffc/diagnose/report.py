@@ -20,7 +20,7 @@ import yaml
 from ..atomic import atomic_write
 from ..errors import FaultError
 from .data import unscored_spans
-from .results import Diagnosis
+from .results import Diagnosis, rms_summary
 
 MODEL_FILE = "extended_model.yaml"
 
@@ -271,6 +271,7 @@ def render_html(dg: Diagnosis, doc: dict) -> str:
     if any(math.isfinite(c.cv_mse) for c in dg.candidates):      # no empty chart when nothing was tried
         imgs.append(("Candidates: held-out RMS", plot_candidates(dg)))
     e = html.escape
+    summary = rms_summary(doc)
     title, colour, sentence = HEADLINES[dg.outcome]
     if dg.verdict:
         title += ": " + ", ".join(dg.verdict)
@@ -281,8 +282,7 @@ def render_html(dg: Diagnosis, doc: dict) -> str:
              "pre{white-space:pre-wrap;word-break:break-word}</style></head><body>",
              f"<h1 class='headline' style='background:{colour}'>{e(title)}</h1>",
              f"<p><b>{e(sentence)}</b></p>",
-             f"<p><b>Held-out RMS</b>: {dg.rms_before_um:.4g} um before, {dg.rms_after_um:.4g} um after "
-             f"(noise floor {dg.noise_um:.3g} um).</p>"]
+             f"<p><b>{e(summary[:1].upper() + summary[1:])}</b></p>"]
     for title, data in imgs:
         parts.append(f"<h2>{e(title)}</h2><img alt='{e(title)}' src='data:image/png;base64,{data}'>")
     parts.append(f"<h2>Explanation</h2><p>{e(dg.explanation)}</p>")

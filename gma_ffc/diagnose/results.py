@@ -101,6 +101,15 @@ class Diagnosis:
         }
 
 
+def rms_summary(doc: dict) -> str:
+    """Before -> after on the held-out blocks; with no sample scored, nothing was held out, and the
+    one figure is the base's miss over every sample."""
+    floor = f"(noise floor {doc['noise_floor_um']:.3g} um)"
+    if doc["initial_state"] and all(s["scored_share"] == 0 for s in doc["initial_state"]):
+        return f"RMS {doc['rms_before_um']:.4g} um over every sample: none could be scored, so nothing was held out {floor}"
+    return f"held-out RMS {doc['rms_before_um']:.4g} um -> {doc['rms_after_um']:.4g} um {floor}"
+
+
 def _round(v: float) -> float | None:
     """Six significant digits; a non-finite value is passed on as it is, for the check on write
     (`report.finite_document`) to refuse: every number the document must hold is a real one."""
