@@ -374,7 +374,7 @@ def case_recordings(case: Case, scale: float = 1.0,
     model = SDPIIdentifier().fit(ident_recs).model_
     if case.voltage:
         d = model.to_dict()
-        d["drive_name"] = "voltage_V"
+        d["drive_name"], d["units"]["drive"] = "voltage_V", "V"
         model = type(model).from_dict(d)
     t, i, mass = (rising_drive if rising else diagnosis_drive)(rng, case.drive_max, scale, case.loads)
     rec = _variant(record(cfg, t, i, mass, "recording.csv", case.seed, preconditioned=rising), case)

@@ -46,7 +46,7 @@ def test_a_voltage_driven_actuator_is_never_told_about_coil_heating():
     case = CASES["thermal_drift#3"]
     model, rec = bench.make_case(case, scale=0.5)
     d = model.to_dict()
-    d["drive_name"] = "voltage_V"
+    d["drive_name"], d["units"]["drive"] = "voltage_V", "V"
     volt_model = SDPIModel.from_dict(d)
     cols = {("voltage_V" if k == "current_A" else k): v for k, v in rec.columns.items() if k != "current_cmd_A"}
     volt_rec = Recording(cols, dict(rec.metadata), "volts.csv")
