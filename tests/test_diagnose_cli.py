@@ -57,6 +57,7 @@ def test_outputs_follow_the_spec(case_files, capsys, tmp_path):
     top = doc["candidates"][0]
     assert top["evidence"] > 0.9 and top["params"]["tau_s"] > 0 and top["validation_rms_um"] > 0
     assert "held" in doc["validation"] and "thermal_drift" in doc["explanation"]
+    assert not any("moves against the model" in s for s in doc["cannot_conclude"])
     page = (out_dir / "report.html").read_text()
     assert page.count("data:image/png;base64,") >= 4
     assert page.index("<img") < page.index("Explanation")          # plots before prose
@@ -154,6 +155,22 @@ def test_a_recording_none_of_which_is_scored_reports_no_held_out_figure(case_fil
     assert "Held-out RMS" not in report and "none could be scored, so nothing was held out" in report
     assert "on held-out data" not in doc["explanation"] and "nothing was held out" in doc["explanation"]
     assert doc["validation"].startswith("nothing was validated") and "2-fold" not in doc["validation"]
+
+
+def test_an_inverted_displacement_column_is_named_as_a_column_fault(case_files, capsys, tmp_path):
+    """A displacement column of the wrong sign was taken as a recalibration gain of -1, and the
+    held-out gain credited to an effect ('66.67 um -> 0.092 um')."""
+    rec = read_recording(case_files / "long_run.csv")
+    rec.columns["displacement_um"] = -rec.columns["displacement_um"]
+    write_recording(tmp_path / "flipped.csv", rec)
+    code, out, err = _run(capsys, "diagnose", "--model", str(case_files / "model.yaml"),
+                          str(tmp_path / "flipped.csv"), "--out", str(tmp_path / "o"))
+    assert code == 0, err
+    doc = json.loads((tmp_path / "o" / "diagnosis.json").read_text())
+    assert doc["outcome"] == "inconclusive" and doc["conclusive"] is False
+    fault = [s for s in doc["cannot_conclude"] if "moves against the model's" in s]
+    assert len(fault) == 1 and fault[0].startswith("flipped.csv:") and "flip the column's sign" in fault[0]
+    assert doc["explanation"].startswith("First, a fault in the columns: flipped.csv")
 
 
 def test_one_stress_cannot_test_stress_effects(case_files, capsys, tmp_path):

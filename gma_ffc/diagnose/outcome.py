@@ -19,6 +19,7 @@ from .locate import locate
 from .problem import scored
 from .results import Candidate, Diagnosis
 from .state import Final, Problem, Selection
+from .polarity import displacement_inverted
 from .timing import displacement_lead
 
 
@@ -49,9 +50,12 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
     verdict, timing = samples_timing(verdict, cands, problem.data, selector.sample_timing_share)
     outcome, conclusive = _outcome(selector, problem, final, verdict)
     cannot = _cannot_conclude(problem, final) + ([timing] if timing else [])
-    lead = displacement_lead(problem.data, problem.null.base_pred)
-    if lead is not None:     # a column-timing fault: effects fitted to it would be confidently wrong
-        cannot.append(lead.words())
+    # a column's sign or timing wrong: effects fitted to it would be confidently wrong (the sign first:
+    # a lead on an inverted column means nothing)
+    column_fault = (displacement_inverted(problem.data, problem.null.base_pred, noise)
+                    or displacement_lead(problem.data, problem.null.base_pred))
+    if column_fault is not None:
+        cannot.append(column_fault.words())
         if outcome != "unexplained":
             outcome, conclusive = "inconclusive", False
     runner_note = sel.runner_note
@@ -68,8 +72,8 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
                           drive_unit(problem.model), selector.noise_factor, identification_rms(problem.model),
                           after, selector.model_error_factor, any(d.s_raw is not None for d in problem.data),
                           not none_scored(problem.data))
-    if lead is not None:     # the fault to fix first, so it comes first
-        explanation = (f"First, a fault in the columns: {lead.words()}"
+    if column_fault is not None:     # the fault to fix first, so it comes first
+        explanation = (f"First, a fault in the columns: {column_fault.words()}"
                        + ("." if outcome == "unexplained" else "; what is named below may only compensate it.")
                        + " " + explanation)
     loo = leave_one_out_figures(problem, final)
