@@ -133,6 +133,16 @@ class ControllerManager:
         return snap
 
     # ---- lifecycle -------------------------------------------------------------------------
+    def claim_outputs(self) -> None:
+        """Take what this run writes exclusively (the telemetry file's lock) before the driver is
+        opened; ConfigError when another controller holds it. `run` calls it; the service calls it
+        first, so that refusal is exit 2 with the amplifier untouched."""
+        self.recorder.claim()
+
+    def release_outputs(self) -> None:
+        """Give back a claim when the run will not happen (the service failed to start)."""
+        self.recorder.release()
+
     def run(self, stop_event: threading.Event | None = None, duration_s: float | None = None) -> dict[str, Any]:
         """Blocking fixed-rate loop; the safe current is written on every way out."""
         self._stop_event = stop_event or threading.Event()
@@ -144,6 +154,7 @@ class ControllerManager:
         try:
             if not self.setup.law.active:         # every run starts from the safe current
                 self.setup.law.activate(self.setup.safe_A)
+            self.claim_outputs()                  # refused here, the driver was never opened
             opened = self._open()
             if opened:
                 self._start_and_loop(duration_s)
@@ -199,6 +210,7 @@ class ControllerManager:
         error = self.recorder.close()
         if error:
             self.faults.raise_fault(safety.TELEMETRY, error)
+        self.recorder.release()              # a claim no writer took over (the driver never opened)
         self.hardware.close()
         hard = [f for f in self.faults.active if exit_state(self.setup.fault_table, f) == "fault"]
         self.state = State.FAULT if hard else State.STOPPED

@@ -16,7 +16,7 @@ import numpy as np
 from ..drivers.base import CURRENT, DISPLACEMENT, FORCE
 from .prediction import FAULTED, RAMPING
 from .safety import RAMP
-from .telemetry import Telemetry
+from .telemetry import Telemetry, TelemetryLock
 from .tick import Broadcaster, Tick
 
 if TYPE_CHECKING:
@@ -60,6 +60,7 @@ class TelemetryRecorder(Broadcaster):
         self.base_metadata = {"source": "gma-ffc controller", "sample_rate_hz": cfg.rate_hz,
                               "driver": cfg.driver["kind"], "config": cfg.source}
         self.telemetry: Telemetry | None = None
+        self._claim: TelemetryLock | None = None     # the file's lock, taken before the driver opens
         self._closed = True
         self._row = np.zeros(len(FIXED) + 1)
         self._push = _not_started
@@ -71,6 +72,22 @@ class TelemetryRecorder(Broadcaster):
         # written (the model-fit monitor fills in its prediction); the block holds the file's
         # columns, then a hidden flags column (prediction.FAULTED | prediction.RAMPING).
         self.consumer: Callable[[np.ndarray], None] | None = None
+
+    def claim(self) -> None:
+        """Take the telemetry file's lock now, before the driver opens: a second controller on the
+        same file is refused (ConfigError naming the holder) before it touches the amplifier."""
+        path = self.section["path"]
+        if path is None:
+            return
+        if self._claim is None:
+            self._claim = TelemetryLock(path, self.output_dirs)
+        self._claim.acquire()
+
+    def release(self) -> None:
+        """Give back a claim no run used (the run's writer releases its own at close)."""
+        if self._claim is not None:
+            self._claim.release()
+            self._claim = None
 
     def start(self, channels: Sequence[str], setup: Setup, started_unix_s: float) -> None:
         """Open the recording (the writer refuses a file another controller holds)."""
@@ -84,7 +101,8 @@ class TelemetryRecorder(Broadcaster):
         tel = Telemetry(self.section["path"], cols, metadata, capacity=int(self.section["buffer_s"] * self.rate_hz),
                         flush_interval_s=self.section["flush_interval_s"], block_when_full=self.simulated,
                         output_dirs=self.output_dirs, hidden=1 if predicted else 0,
-                        consumer=self._consume if predicted else None)
+                        consumer=self._consume if predicted else None, lock=self._claim)
+        self._claim = None                    # the writer owns the lock now and releases it at close
         if self.writer_priority > 0:          # just below the loop (0 when the loop runs without SCHED_FIFO)
             tel.realtime_priority = self.writer_priority
         self.telemetry = tel

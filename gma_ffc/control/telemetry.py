@@ -11,9 +11,10 @@ file is always a valid recording, at worst with a torn last line that readers re
 With a real clock a full ring drops rows (counted in `dropped`, never blocking the loop); with
 a simulated clock `push` waits for the writer instead, so fast runs lose nothing.
 
-One file, one writer: `start` takes an exclusive lock (flock on FILE.lock, which names the
-holder's pid) before it truncates anything, and a second controller pointed at the same file is
-refused with the other's pid. Both files are opened by `gma_ffc.safe_files`: never through a
+One file, one writer: a `TelemetryLock` (flock on FILE.lock, which names the holder's pid) is
+taken before anything is truncated, and a second controller pointed at the same file is refused
+with the other's pid. The controller takes it before it opens its driver (`claim`), so a refused
+second controller never touches the amplifier; `start` takes it itself when nobody handed one in. Both files are opened by `gma_ffc.safe_files`: never through a
 link, never outside `output_dirs`, and an existing file is truncated only if it is this rig's
 telemetry (the same config). The header is written with the first rows, so it can carry the
 wall-clock time of the first tick (`start_unix_s`; a row's unix time is start_unix_s + time_s).
@@ -36,13 +37,49 @@ from ..errors import ConfigError
 from ..recordings import _format_meta
 
 
+class TelemetryLock:
+    """The exclusive claim on one telemetry file: flock on FILE.lock, which names the holder's pid."""
+
+    def __init__(self, path: str | os.PathLike, output_dirs: Sequence[str] = ()) -> None:
+        self.path = Path(path)
+        self.output_dirs = tuple(output_dirs)
+        self._fd: int | None = None
+
+    @property
+    def held(self) -> bool:
+        return self._fd is not None
+
+    def acquire(self) -> None:
+        """Take the lock (nothing if held already); ConfigError naming the holder if it is taken."""
+        if self._fd is not None:
+            return
+        lock_path = self.path.with_name(self.path.name + ".lock")
+        fd = safe_files.open_for_writing(lock_path, self.output_dirs, safe_files.TELEMETRY_LOCK, append=True)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise ConfigError(f"telemetry file {self.path} is being written by another controller (pid {holder}); "
+                              "give this one another telemetry.path") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)          # closing releases the flock
+            self._fd = None
+
+
 class Telemetry:
     """Ring buffer plus writer thread for one run's recording."""
 
     def __init__(self, path: str | os.PathLike | None, columns: Sequence[str], metadata: dict[str, Any],
                  capacity: int, flush_interval_s: float = 0.5, block_when_full: bool = False,
                  output_dirs: Sequence[str] = (), hidden: int = 0,
-                 consumer: Callable[[np.ndarray], None] | None = None) -> None:
+                 consumer: Callable[[np.ndarray], None] | None = None,
+                 lock: TelemetryLock | None = None) -> None:
         self.path = Path(path) if path is not None else None
         self.output_dirs = tuple(output_dirs)
         self.columns = tuple(columns)
@@ -63,7 +100,7 @@ class Telemetry:
         self._wake = threading.Event()
         self._thread: threading.Thread | None = None
         self._fh: int | None = None      # raw fd: each flush is one write() of whole lines
-        self._lock_fd: int | None = None
+        self._lock = lock                # this file's lock, taken already (`claim`) or at start
         self._header_written = False
         self._keeps = False              # rows are kept: there is a file or a consumer, and a writer thread
 
@@ -78,7 +115,9 @@ class Telemetry:
 
     def _open(self) -> None:
         assert self.path is not None
-        self._lock()
+        if self._lock is None:
+            self._lock = TelemetryLock(self.path, self.output_dirs)
+        self._lock.acquire()
         try:
             self._fh = safe_files.open_for_writing(self.path, self.output_dirs,
                                                    safe_files.telemetry_kind(str(self.metadata.get("config"))))
@@ -86,26 +125,9 @@ class Telemetry:
             self._unlock()
             raise
 
-    def _lock(self) -> None:
-        """Exclusive, non-blocking lock on FILE.lock; refuse (naming the holder) if taken."""
-        assert self.path is not None
-        lock_path = self.path.with_name(self.path.name + ".lock")
-        fd = safe_files.open_for_writing(lock_path, self.output_dirs, safe_files.TELEMETRY_LOCK, append=True)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
-            os.close(fd)
-            raise ConfigError(f"telemetry file {self.path} is being written by another controller (pid {holder}); "
-                              "give this one another telemetry.path") from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        self._lock_fd = fd
-
     def _unlock(self) -> None:
-        if self._lock_fd is not None:
-            os.close(self._lock_fd)          # closing releases the flock
-            self._lock_fd = None
+        if self._lock is not None:
+            self._lock.release()
 
     def _header(self) -> str:
         return _format_meta(self.metadata) + ",".join(self.columns) + "\n"

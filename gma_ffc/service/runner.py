@@ -184,7 +184,9 @@ class Service:
             cfg = self._load_config(self.config_path)
             self._check_outputs(cfg)
             self.controller = self._make_controller(cfg)
+            self._claim_outputs()
         except BaseException:
+            self._release_outputs()
             self._close_runtime()
             raise
         join_timeout_s = JOIN_TIMEOUT_S + _stop_ramp_s(cfg)
@@ -322,6 +324,18 @@ class Service:
             if self.runtime is not None and _read_pid(self.runtime.pid_file) == os.getpid():
                 with contextlib.suppress(FileNotFoundError):
                     self.runtime.pid_file.unlink()
+
+    def _claim_outputs(self) -> None:
+        """The telemetry file's lock, before the loop opens the driver: a second controller on the
+        same rig is refused here (one line, exit 2) and never touches the amplifier."""
+        claim = getattr(self.controller, "claim_outputs", None)
+        if claim is not None:
+            claim()
+
+    def _release_outputs(self) -> None:
+        release = getattr(self.controller, "release_outputs", None)
+        if release is not None:
+            release()
 
     def _check_outputs(self, cfg: Any) -> None:
         """Refuse, before anything starts, a file this run would write unsafely: through a link,
