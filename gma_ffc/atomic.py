@@ -43,6 +43,18 @@ def atomic_write_at(dir_fd: int, name: str, mode: str = "w", **kwargs) -> Iterat
     os.fsync(dir_fd)
 
 
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """Whether `a` and `b` name one file: the same path with links resolved, or the same device and
+    inode (a hard link, a bind mount). A path that does not exist yet matches by its path only."""
+    if os.path.realpath(a) == os.path.realpath(b):
+        return True
+    try:
+        sa, sb = os.stat(a), os.stat(b)
+    except OSError:
+        return False
+    return (sa.st_dev, sa.st_ino) == (sb.st_dev, sb.st_ino)
+
+
 def refuse_overwrite(output: str | os.PathLike, inputs: "Iterable[str | os.PathLike]", what: str = "output") -> None:
     """InputError if writing `output` would replace one of `inputs`: the same path, or the same
     file under another name (a symlink, a hard link, a bind mount: compared by device and inode).
@@ -50,17 +62,7 @@ def refuse_overwrite(output: str | os.PathLike, inputs: "Iterable[str | os.PathL
     from .errors import InputError
 
     out = Path(output)
-    try:
-        out_stat = out.stat()
-    except OSError:
-        out_stat = None
-    out_real = os.path.realpath(out)
     for src in inputs:
         p = Path(src)
-        same = os.path.realpath(p) == out_real
-        if not same and out_stat is not None:
-            with contextlib.suppress(OSError):
-                st = p.stat()
-                same = (st.st_dev, st.st_ino) == (out_stat.st_dev, out_stat.st_ino)
-        if same:
+        if same_file(out, p):
             raise InputError(f"{what} {out} is the input {p}: refusing to overwrite it; choose another output name")

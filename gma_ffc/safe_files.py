@@ -50,6 +50,7 @@ class Kind:
     what: str
     setting: str
     ours: Callable[[bytes], bool]
+    in_place: bool = False      # grows in place (telemetry, its lock, the log); else replaced by a rename
 
 
 def _digits_or_empty(head: bytes) -> bool:
@@ -75,15 +76,15 @@ def telemetry_kind(config_source: str) -> Kind:
         meta = _recording_metadata(head)
         return meta.get("source") == "gma-ffc controller" and str(meta.get("config")) == str(config_source)
 
-    return Kind(f"telemetry file of this rig (config {config_source})", "telemetry.path", ours)
+    return Kind(f"telemetry file of this rig (config {config_source})", "telemetry.path", ours, in_place=True)
 
 
-TELEMETRY_LOCK = Kind("telemetry lock file", "telemetry.path", _digits_or_empty)
+TELEMETRY_LOCK = Kind("telemetry lock file", "telemetry.path", _digits_or_empty, in_place=True)
 LEARNED = Kind("learned-correction file", "learning.file",
                lambda head: b"gma-ffc-learned-correction" in head or head.startswith(b"# gma-ffc learned"))
 STATS = Kind("stats snapshot", "--stats-json", lambda head: head.lstrip().startswith(b"{") and b'"status"' in head[:200])
 PID = Kind("pid file", "--runtime-dir", _digits_or_empty)
-LOG = Kind("log file", "--runtime-dir", lambda head: True)       # appended to, never cut
+LOG = Kind("log file", "--runtime-dir", lambda head: True, in_place=True)       # appended to, never cut
 
 
 def area_of(path: str | os.PathLike, roots: Sequence[str | os.PathLike]) -> tuple[Path, Path]:
@@ -186,6 +187,8 @@ def check_writable(path: str | os.PathLike, roots: Sequence[str | os.PathLike], 
     target = Path(os.path.abspath(path))
     root, below = area_of(target, roots)
     folder = root.joinpath(below)
+    if not os.path.lexists(target) or not kind.in_place:       # a new file, or a rename over it
+        _refuse_unwritable_folder(target, folder, kind)
     if not os.path.lexists(target):
         return
     if not os.path.isdir(folder):
@@ -199,6 +202,33 @@ def check_writable(path: str | os.PathLike, roots: Sequence[str | os.PathLike], 
         _refuse_unless_ours(fd, target, kind)
     finally:
         os.close(fd)
+    if kind.in_place and not _may_write(target):
+        raise OutputRefused(f"{target}: {_why_not_writable(target)}; choose another {kind.setting}")
+
+
+def _may_write(path: Path, mode: int = os.W_OK) -> bool:
+    return os.access(path, mode, effective_ids=os.access in os.supports_effective_ids)
+
+
+def _why_not_writable(path: Path) -> str:
+    with contextlib.suppress(OSError):
+        if os.statvfs(path).f_flag & os.ST_RDONLY:
+            return "it is on a read-only file system"
+    return "this user may not write it"
+
+
+def _refuse_unwritable_folder(target: Path, folder: Path, kind: Kind) -> None:
+    """The folder a new file (or a rename) lands in must take it: its nearest existing ancestor,
+    where the missing folders would be made. Otherwise the write fails after the run, naming a
+    temporary file."""
+    existing = folder
+    while not os.path.lexists(existing) and existing != existing.parent:
+        existing = existing.parent
+    if not os.path.isdir(existing):
+        raise OutputRefused(f"{target}: {existing} is not a folder; choose another {kind.setting}")
+    if not _may_write(existing, os.W_OK | os.X_OK):
+        raise OutputRefused(f"{target}: cannot create it in {existing}: {_why_not_writable(existing)}; "
+                            f"choose another {kind.setting}")
 
 
 @contextlib.contextmanager

@@ -3,6 +3,7 @@ the amplifier (of a controller already running on the rig) is never touched (swe
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -10,6 +11,7 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 import yaml
 
 from gma_ffc.control.config import load_config
@@ -94,3 +96,63 @@ def test_a_second_controller_on_the_rig_is_refused_before_it_touches_the_amplifi
     assert [c for c in from_second if c.kind == "output_enable"] == [], from_second
     one_line_exit_2(second, "another controller", f"pid {os.getpid()}")
     assert first.summary()["ok"], first.summary()["fault_messages"]
+
+
+@pytest.fixture
+def read_only_folder(tmp_path):
+    """A folder no new file can be made in: chmod 555 for a user; root ignores modes, so for root
+    a read-only bind mount (skipped where mounting is not allowed)."""
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    if os.geteuid() != 0:
+        folder.chmod(0o555)
+        yield folder
+        folder.chmod(0o755)
+        return
+    bind = subprocess.run(["mount", "--bind", str(folder), str(folder)], capture_output=True)
+    if bind.returncode != 0:
+        pytest.skip("cannot bind-mount here to make a read-only folder as root")
+    try:
+        if subprocess.run(["mount", "-o", "remount,bind,ro", str(folder)], capture_output=True).returncode != 0:
+            pytest.skip("cannot remount read-only here")
+        yield folder
+    finally:
+        subprocess.run(["umount", str(folder)], capture_output=True)
+
+
+def test_a_read_only_stats_json_folder_is_refused_before_the_run(tmp_path, read_only_folder):
+    """It ran, then failed naming a temporary file ('.stats.json.9e843d8f.tmp: Read-only file system')."""
+    cfg = sim_config(tmp_path)
+    out = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2",
+                  "--stats-json", str(read_only_folder / "stats.json"), cwd=tmp_path)
+    one_line_exit_2(out, str(read_only_folder / "stats.json"), "read-only", "choose another --stats-json")
+    assert not (tmp_path / "tel").exists()                 # refused before the run
+    follow = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2",
+                     "--stats-json", str(tmp_path / "stats.json"), cwd=tmp_path)
+    assert follow.returncode == 0, follow.stderr
+    assert json.loads((tmp_path / "stats.json").read_text())["status"]
+
+
+def test_a_read_only_telemetry_folder_is_refused_before_the_driver_opens(tmp_path, read_only_folder):
+    """It became a run-time fault (exit 1) after the device was opened."""
+    cfg = sim_config(tmp_path, telemetry={"path": str(read_only_folder / "tel.csv")})
+    out = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2", cwd=tmp_path)
+    one_line_exit_2(out, str(read_only_folder / "tel.csv"), "read-only", "choose another telemetry.path")
+
+
+def test_stats_json_on_the_telemetry_file_is_refused_before_the_run(tmp_path):
+    cfg = sim_config(tmp_path)
+    out = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2",
+                  "--stats-json", str(tmp_path / "tel" / "tel.csv"), cwd=tmp_path)
+    one_line_exit_2(out, "--stats-json", "telemetry.path", "choose another --stats-json")
+    assert not (tmp_path / "tel").exists()
+
+
+def test_learned_on_the_telemetry_file_names_the_option_given(tmp_path):
+    """It failed after the run, with advice naming the config key learning.file the user never set."""
+    cfg = sim_config(tmp_path, learning={"kind": "repetitive"})
+    out = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2",
+                  "--learned", str(tmp_path / "tel" / "tel.csv"), cwd=tmp_path)
+    one_line_exit_2(out, "--learned", "choose another --learned")
+    assert "learning.file" not in out.stderr
+    assert not (tmp_path / "tel").exists()

@@ -103,6 +103,7 @@ def _with_learned_file(path: str):
             raise ConfigError(f"--learned {path}: learning is off in {config_path}; add "
                               f"'learning: {{kind: repetitive}}' to use a learned correction")
         cfg.learning = dataclasses.replace(cfg.learning, file=learned)
+        cfg.learned_setting = "--learned"        # what a refusal of that file tells the user to change
         if cfg.output_dirs:      # named on the command line: its folder is named for output too
             cfg.output_dirs = (*cfg.output_dirs, str(Path(learned).parent))
         return cfg

@@ -189,6 +189,7 @@ class ControllerConfig:
     metrics: dict[str, Any] | None = None
     source: str = "<memory>"
     raw: dict[str, Any] = field(default_factory=dict, repr=False)
+    learned_setting: str = "learning.file"   # what named learning.file: the key, or run's --learned
 
     @property
     def period_s(self) -> float:

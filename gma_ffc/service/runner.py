@@ -27,6 +27,7 @@ from ..errors import FaultError, GmaError
 from .control_plane import ControlPlane
 from .control_socket import is_answering, jsonable
 from .notify import Notifier
+from .outputs import check_outputs, outputs_of
 from .paths import RuntimePaths, ensure_private_dir
 from .status import faults_of, progress_count, status_line
 from .watch import ModelOverride, ServiceWatch
@@ -339,17 +340,9 @@ class Service:
 
     def _check_outputs(self, cfg: Any) -> None:
         """Refuse, before anything starts, a file this run would write unsafely: through a link,
-        outside the config's output_dirs, over a file that is not ours (one line, exit 2)."""
-        telemetry = getattr(cfg, "telemetry", {}).get("path")
-        learned = getattr(getattr(cfg, "learning", None), "file", None)
-        dirs = getattr(cfg, "output_dirs", ())
-        if telemetry:
-            safe_files.check_writable(telemetry, dirs, safe_files.telemetry_kind(str(self.config_path)))
-            safe_files.check_writable(telemetry + ".lock", dirs, safe_files.TELEMETRY_LOCK)
-        if learned:
-            safe_files.check_writable(learned, dirs, safe_files.LEARNED)
-        if self.stats_json is not None:
-            safe_files.check_writable(self.stats_json, (), safe_files.STATS)
+        outside the config's output_dirs, over a file that is not ours, into a folder that takes
+        no new file, or two outputs on one file (one line naming what the user set, exit 2)."""
+        check_outputs(outputs_of(cfg, str(self.config_path), self.stats_json))
 
     def _install_handlers(self) -> dict[int, Any]:
         def on_stop(signum: int, _frame: Any) -> None:

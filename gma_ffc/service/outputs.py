@@ -1,0 +1,54 @@
+"""What a service run writes, checked before anything starts (before the driver opens).
+
+Each output must be writable where `gma_ffc.safe_files` allows it (no link, inside output_dirs,
+not someone else's file, in a folder that takes a new file), and no two outputs may be one file.
+A refusal is one `OutputRefused` line naming the path and the setting the user gave (exit 2), so
+nothing fails after the run naming a temporary file or a config key the user never set.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, replace
+from typing import Any, Sequence
+
+from .. import safe_files
+from ..atomic import same_file
+
+
+@dataclass(frozen=True)
+class Output:
+    """One file the run writes, where it may land, and what it is (its `kind.setting` names it)."""
+
+    path: str
+    roots: tuple[str, ...]
+    kind: safe_files.Kind
+
+
+def outputs_of(cfg: Any, config_path: str, stats_json: str | os.PathLike | None) -> list[Output]:
+    """The run's outputs in the order the user is told about them: the config's, then the options'."""
+    dirs = tuple(getattr(cfg, "output_dirs", ()))
+    out: list[Output] = []
+    telemetry = getattr(cfg, "telemetry", {}).get("path")
+    if telemetry:
+        out.append(Output(telemetry, dirs, safe_files.telemetry_kind(config_path)))
+        out.append(Output(telemetry + ".lock", dirs, safe_files.TELEMETRY_LOCK))
+    learned = getattr(getattr(cfg, "learning", None), "file", None)
+    if learned:
+        setting = getattr(cfg, "learned_setting", safe_files.LEARNED.setting)
+        out.append(Output(learned, dirs, replace(safe_files.LEARNED, setting=setting)))
+    if stats_json is not None:
+        out.append(Output(os.fspath(stats_json), (), safe_files.STATS))
+    return out
+
+
+def check_outputs(outputs: Sequence[Output]) -> None:
+    """Refuse an output that cannot be written safely, or two outputs that are one file."""
+    for output in outputs:
+        safe_files.check_writable(output.path, output.roots, output.kind)
+    for j, later in enumerate(outputs):
+        for earlier in outputs[:j]:
+            if same_file(later.path, earlier.path):
+                raise safe_files.OutputRefused(
+                    f"{later.kind.setting} {later.path} is the same file as {earlier.kind.setting}: "
+                    f"two outputs cannot share a file; choose another {later.kind.setting}")
