@@ -156,3 +156,27 @@ def test_learned_on_the_telemetry_file_names_the_option_given(tmp_path):
     one_line_exit_2(out, "--learned", "choose another --learned")
     assert "learning.file" not in out.stderr
     assert not (tmp_path / "tel").exists()
+
+
+@pytest.mark.parametrize("name", ["same path", "symlink", "hard link"])
+def test_a_playback_of_the_runs_own_telemetry_is_refused_before_it_is_truncated(tmp_path, name):
+    """Replaying a run's telemetry with the same config truncated the recording it was to play."""
+    cfg = sim_config(tmp_path)
+    assert gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2", cwd=tmp_path).returncode == 0
+    tel = tmp_path / "tel" / "tel.csv"
+    before = tel.read_bytes()
+    played = {"same path": tel, "symlink": tmp_path / "link.csv", "hard link": tmp_path / "hard.csv"}[name]
+    if name == "symlink":
+        played.symlink_to(tel)
+    elif name == "hard link":
+        os.link(tel, played)
+    cfg = sim_config(tmp_path, reference={"kind": "playback", "file": str(played)})
+    out = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2", cwd=tmp_path)
+    one_line_exit_2(out, str(tel), "reference.file", "choose another telemetry.path")
+    assert tel.read_bytes() == before
+    if name == "same path":       # the advice works: another telemetry.path plays the recording
+        cfg = sim_config(tmp_path, reference={"kind": "playback", "file": str(played)},
+                         telemetry={"path": str(tmp_path / "replay.csv")})
+        follow = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2", cwd=tmp_path)
+        assert follow.returncode == 0, follow.stderr
+        assert tel.read_bytes() == before

@@ -1,7 +1,9 @@
 """What a service run writes, checked before anything starts (before the driver opens).
 
-Each output must be writable where `gma_ffc.safe_files` allows it (no link, inside output_dirs,
-not someone else's file, in a folder that takes a new file), and no two outputs may be one file.
+No output may be a file the run reads (the model, a playback reference, the sim's plant config:
+a run replaying its own telemetry truncated the recording it played). Each output must be
+writable where `gma_ffc.safe_files` allows it (no link, inside output_dirs, not someone else's
+file, in a folder that takes a new file), and no two outputs may be one file.
 A refusal is one `OutputRefused` line naming the path and the setting the user gave (exit 2), so
 nothing fails after the run naming a temporary file or a config key the user never set.
 """
@@ -42,8 +44,25 @@ def outputs_of(cfg: Any, config_path: str, stats_json: str | os.PathLike | None)
     return out
 
 
-def check_outputs(outputs: Sequence[Output]) -> None:
-    """Refuse an output that cannot be written safely, or two outputs that are one file."""
+def inputs_of(cfg: Any) -> list[tuple[str, str]]:
+    """(config key, path) of each file the run reads and must not write over. The learned
+    correction is read and written back on purpose, so it is not here."""
+    found = [("model", getattr(cfg, "model", None))]
+    reference = getattr(cfg, "reference", {})
+    if reference.get("kind") == "playback":
+        found.append(("reference.file", reference.get("file")))
+    found.append(("driver.plant_config", getattr(cfg, "driver", {}).get("plant_config")))
+    return [(key, str(path)) for key, path in found if isinstance(path, (str, os.PathLike)) and path]
+
+
+def check_outputs(outputs: Sequence[Output], inputs: Sequence[tuple[str, str]] = ()) -> None:
+    """Refuse an output over an input, one that cannot be written safely, or two that are one file."""
+    for output in outputs:
+        for key, path in inputs:
+            if same_file(output.path, path):
+                raise safe_files.OutputRefused(
+                    f"{output.kind.setting} {output.path} is the file config key '{key}' reads ({path}): "
+                    f"the run would overwrite it; choose another {output.kind.setting}")
     for output in outputs:
         safe_files.check_writable(output.path, output.roots, output.kind)
     for j, later in enumerate(outputs):

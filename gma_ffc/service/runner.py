@@ -27,7 +27,7 @@ from ..errors import FaultError, GmaError
 from .control_plane import ControlPlane
 from .control_socket import is_answering, jsonable
 from .notify import Notifier
-from .outputs import check_outputs, outputs_of
+from .outputs import check_outputs, inputs_of, outputs_of
 from .paths import RuntimePaths, ensure_private_dir
 from .status import faults_of, progress_count, status_line
 from .watch import ModelOverride, ServiceWatch
@@ -340,9 +340,10 @@ class Service:
 
     def _check_outputs(self, cfg: Any) -> None:
         """Refuse, before anything starts, a file this run would write unsafely: through a link,
-        outside the config's output_dirs, over a file that is not ours, into a folder that takes
-        no new file, or two outputs on one file (one line naming what the user set, exit 2)."""
-        check_outputs(outputs_of(cfg, str(self.config_path), self.stats_json))
+        outside the config's output_dirs, over a file that is not ours or one the run reads, into
+        a folder that takes no new file, or two outputs on one file (one line naming what the user
+        set, exit 2)."""
+        check_outputs(outputs_of(cfg, str(self.config_path), self.stats_json), inputs_of(cfg))
 
     def _install_handlers(self) -> dict[int, Any]:
         def on_stop(signum: int, _frame: Any) -> None:
