@@ -180,3 +180,18 @@ def test_a_playback_of_the_runs_own_telemetry_is_refused_before_it_is_truncated(
         follow = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2", cwd=tmp_path)
         assert follow.returncode == 0, follow.stderr
         assert tel.read_bytes() == before
+
+
+@pytest.mark.parametrize("given", ["tel/", "tel"])
+def test_a_telemetry_path_that_is_a_folder_says_so_first(tmp_path, given):
+    """It said the folder was outside output_dirs, and adding it there only led to 'is not a
+    regular file'. The suggested file name works."""
+    (tmp_path / "tel").mkdir()
+    cfg = sim_config(tmp_path, telemetry={"path": given}, output_dirs=[str(tmp_path / "tel")])
+    out = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2", cwd=tmp_path)
+    one_line_exit_2(out, "config key 'telemetry.path'", "is a folder, not a file")
+    suggested = out.stderr.strip().rsplit("e.g. ", 1)[1]
+    cfg = sim_config(tmp_path, telemetry={"path": suggested}, output_dirs=[str(tmp_path / "tel")])
+    follow = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2", cwd=tmp_path)
+    assert follow.returncode == 0, follow.stderr
+    assert (tmp_path / suggested).is_file()

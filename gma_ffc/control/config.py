@@ -207,6 +207,17 @@ def _resolve(path: str, base: Path | None) -> str:
     return str(p)
 
 
+def _resolve_file(key: str, path: str, base: Path | None, example: str) -> str:
+    """An output file's path, resolved; a folder (an existing one, or a path ending in '/') is
+    refused here with a file name to give, before any check on where it may be written."""
+    resolved = _resolve(path, base)
+    if path.endswith(("/", os.sep)) or os.path.isdir(resolved):
+        name = path.rstrip("/" + os.sep) or "."
+        raise ConfigError(f"config key '{key}': {resolved} is a folder, not a file; name a file in it, "
+                          f"e.g. {name}/{example}")
+    return resolved
+
+
 def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | None = None) -> ControllerConfig:
     """Validate a parsed config mapping; relative file paths resolve against `base_dir`."""
     top = validate_section(data, TOP, "")
@@ -219,7 +230,7 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
     comms = _comms(top["comms"])
     telemetry = validate_section(top["telemetry"], TELEMETRY, "telemetry")
     if telemetry["path"] is not None:
-        telemetry["path"] = _resolve(telemetry["path"], base)
+        telemetry["path"] = _resolve_file("telemetry.path", telemetry["path"], base, "run.csv")
     learning = _learning(top["learning"], reference, base)
     monitor = _monitor_section(top["monitor"], top["rate_hz"], base)
     output_dirs = _output_dirs(top["output_dirs"], base, {"telemetry.path": telemetry["path"],
@@ -311,7 +322,8 @@ def _learning(raw: Any, reference: dict[str, Any], base: Path | None) -> Learnin
         raise ConfigError("config key 'learning.period_s' is required: the reference is not periodic, so the "
                           "learner cannot take its period from it")
     if learning.file is not None:
-        learning = LearningConfig(**{**learning.to_dict(), "file": _resolve(learning.file, base)})
+        learning = LearningConfig(**{**learning.to_dict(),
+                                     "file": _resolve_file("learning.file", learning.file, base, "learned.yaml")})
     return learning
 
 
