@@ -195,3 +195,18 @@ def test_a_telemetry_path_that_is_a_folder_says_so_first(tmp_path, given):
     follow = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2", cwd=tmp_path)
     assert follow.returncode == 0, follow.stderr
     assert (tmp_path / suggested).is_file()
+
+
+@pytest.mark.parametrize("command", ["run", "start"])
+def test_a_config_that_is_a_folder_says_so_and_names_a_config_in_it(tmp_path, command):
+    """It said 'config file cfg not found' of a folder that is there."""
+    folder = tmp_path / "cfg"
+    folder.mkdir()
+    sim_config(folder)
+    (folder / "a_model.yaml").write_text(MODEL.read_text())       # not a config: never suggested
+    out = gma_ffc(command, "--config", str(folder), *(["--no-socket"] if command == "run" else []), cwd=tmp_path)
+    one_line_exit_2(out, f"config file {folder} is a folder, not a file", "--config")
+    suggested = out.stderr.split("--config ", 1)[1].split(" ", 1)[0]
+    assert suggested == str(folder / "cfg.yaml")
+    follow = gma_ffc("run", "--config", suggested, "--no-socket", "--duration", "0.2", cwd=tmp_path)
+    assert follow.returncode == 0, follow.stderr

@@ -59,12 +59,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from ..control.config import check_config_file
     from ..service.paths import runtime_paths
     from ..service.runner import Service
 
     config = Path(args.config)
-    if not config.is_file():
-        raise ConfigError(f"config file {config} not found")
+    check_config_file(config)
     logging.basicConfig(stream=sys.stderr, level=getattr(logging, args.log_level),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     if args.duration is None:

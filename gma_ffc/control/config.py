@@ -360,6 +360,29 @@ def _diagnoses_of(state_dir: str | None) -> str | None:
     return None if state_dir is None else str(Path(state_dir) / "diagnoses")
 
 
+def check_config_file(path: Path) -> None:
+    """`--config` must name a file: a folder is said to be one, with a config in it to give."""
+    if path.is_dir():
+        configs = [c.name for c in sorted(path.iterdir()) if _looks_like_config(c)]
+        hint = (f"give a config file in it, e.g. --config {path / configs[0]} (configs there: "
+                f"{', '.join(configs[:5])}{', ...' if len(configs) > 5 else ''})" if configs
+                else "give a controller config's YAML file (none in that folder looks like one)")
+        raise ConfigError(f"config file {path} is a folder, not a file; {hint}")
+    if not path.is_file():
+        raise ConfigError(f"config file {path} not found")
+
+
+def _looks_like_config(path: Path) -> bool:
+    """A YAML file holding a controller config's required keys (a model file does not)."""
+    if path.suffix not in (".yaml", ".yml") or not path.is_file():
+        return False
+    try:
+        data = read_yaml(path, "config file", ConfigError)
+    except ConfigError:
+        return False
+    return isinstance(data, Mapping) and {"model", "driver"} <= set(data)
+
+
 def load_config(path: str | os.PathLike) -> ControllerConfig:
     """Read and validate a YAML config file; relative paths inside resolve against its folder."""
     p = Path(path)

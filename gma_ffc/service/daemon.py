@@ -68,9 +68,10 @@ def read_pid(path: Path) -> int | None:
 def start(config: Path, runtime: RuntimePaths, *, duration_s: float | None = None,
           timeout_s: float = 60.0, python: str = sys.executable) -> Started:
     """Spawn the service and wait until it is ready; raise with its reason if it is not."""
+    from ..control.config import check_config_file
+
     config = Path(config)
-    if not config.is_file():
-        raise ConfigError(f"config file {config} not found")
+    check_config_file(config)
     ensure_private_dir(runtime.directory)
     if is_answering(runtime.socket):
         raise FaultError(f"a controller is already running (pid {read_pid(runtime.pid_file) or '?'}, "
