@@ -210,3 +210,12 @@ def test_a_config_that_is_a_folder_says_so_and_names_a_config_in_it(tmp_path, co
     assert suggested == str(folder / "cfg.yaml")
     follow = gma_ffc("run", "--config", suggested, "--no-socket", "--duration", "0.2", cwd=tmp_path)
     assert follow.returncode == 0, follow.stderr
+
+
+def test_a_sim_plant_config_that_is_not_valid_yaml_is_refused_at_config_load(tmp_path):
+    """A missing one was refused up front; a damaged one became a fault when the driver opened (exit 1)."""
+    (tmp_path / "plant.yaml").write_text("rig: {a: [1,\n")
+    cfg = sim_config(tmp_path, driver={"kind": "sim", "load_mass_kg": 15.3, "plant_config": str(tmp_path / "plant.yaml")})
+    out = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2", cwd=tmp_path)
+    one_line_exit_2(out, "config key 'driver.plant_config'", str(tmp_path / "plant.yaml"), "not valid YAML")
+    assert not (tmp_path / "tel").exists()

@@ -37,6 +37,19 @@ SCHEMA = {
 }
 
 
+def _check_plant_config(path: Path, key: str) -> None:
+    """Read the plant config now, at config load: a damaged one is one line and exit 2, not a
+    fault when the driver opens (nothing to check without hil_sim; `open` says it is missing)."""
+    try:
+        from hil_sim.plant import PlantConfig
+    except ImportError:
+        return
+    try:
+        PlantConfig.from_yaml(path)
+    except ConfigError as exc:
+        raise ConfigError(f"config key '{key}': {exc}") from None
+
+
 class SimDriver(Driver):
     """The simulated GMA rig (hil_sim.plant.GMAPlant) behind the driver interface."""
 
@@ -60,6 +73,7 @@ class SimDriver(Driver):
                 p = base_dir / p
             if not p.is_file():
                 raise ConfigError(f"config key '{prefix}.plant_config': no such file {p}")
+            _check_plant_config(p, f"{prefix}.plant_config")
             out["plant_config"] = str(p)
         return out
 
