@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import safe_files
-from ..errors import ConfigError, FaultError, GmaError, InputError
+from ..errors import FaultError, GmaError, InputError
 from .control_socket import ask, check_socket_path, is_answering, request
 from .paths import RuntimePaths, ensure_private_dir
 
