@@ -199,6 +199,38 @@ def test_reload_to_another_model_continues_within_the_slew_limit(models, tmp_pat
     assert np.abs(np.diff(cmd)).max() <= 500.0 * 1e-3 * (1 + 1e-12)   # slew 500 A/s at 1 kHz
 
 
+def limits_cfg(tmp_path, name, **limits):
+    cfg = sim_cfg(tmp_path, name, load_mass_kg=15.0)
+    return validate_config({**cfg.raw, "limits": {**cfg.raw["limits"], "slew_A_per_s": 50.0, **limits}})
+
+
+def test_a_reload_that_moves_the_current_limits_approaches_them_within_the_slew_limit(models, tmp_path):
+    """Raising the minimum (and the safe current) to 2.5 A above the command, then lowering the
+    maximum to 0.3 A below it: the command walks to each new box at 50 A/s (0.05 A per 1 ms tick),
+    the largest one-tick change in telemetry included, where it used to jump there in one tick."""
+    reloads = {300: limits_cfg(tmp_path, "lim", current_min_A=2.5, safe_current_A=2.5),
+               700: limits_cfg(tmp_path, "lim", current_max_A=0.3)}
+    ctrl = ControllerManager(limits_cfg(tmp_path, "lim"), model=models[0])
+    orig_write, written = ctrl.driver.write, []
+
+    def write(current):
+        written.append(current)
+        if len(written) in reloads:
+            ctrl.reload(reloads[len(written)], model=models[0])
+        orig_write(current)
+
+    ctrl.driver.write = write
+    summary = ctrl.run(duration_s=1.2)
+    assert summary["ok"], summary["fault_messages"]
+    cmd = np.asarray(written)
+    step = 50.0 * 1e-3
+    assert cmd[299] < 2.0 and cmd[699] > 1.0          # both reloads move the limits past the command
+    assert np.abs(np.diff(cmd)).max() <= step * (1 + 1e-9)
+    assert cmd[300 + 60:700].min() >= 2.5 and cmd[700 + 60:].max() <= 0.3   # and reach each box (< 60 ticks)
+    tel = read_recording(ctrl.setup.cfg.telemetry["path"]).columns["current_cmd_A"]
+    assert np.abs(np.diff(tel)).max() <= step + 1e-7  # telemetry keeps 9 significant digits
+
+
 def test_reload_refuses_restart_keys_and_keeps_old(models, tmp_path):
     from gma_ffc.errors import ConfigError
 

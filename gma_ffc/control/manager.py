@@ -247,7 +247,7 @@ class ControllerManager:
         last = old.limiter.last
         new.law.take_over(old.law, last)
         new.monitor.continue_from(old.monitor)
-        new.limiter.force(last)
+        new.limiter.continue_from(old.limiter)   # new limits approached within the slew limit
         self.hardware.comms = new.cfg.comms
         self.setup = new
         for b in self.broadcasters:

@@ -164,14 +164,26 @@ class Limiter:
             self._ramp_ticks = 0
         elif self._ramp_ticks > 0:
             self._ramp_ticks -= 1
-        # Rounding can put last+max_step a hair outside the box when last sits on a bound.
-        if target > self.hi:
+        # Rounding can put last+max_step a hair outside the box when last sits on a bound; a
+        # last outside the box (a reload moved it) is approached within the slew limit instead.
+        if target > self.hi and self.last <= self.hi:
             target = self.hi
-        elif target < self.lo:
+        elif target < self.lo and self.last >= self.lo:
             target = self.lo
         self.last = target
         self.clipped = clipped
         return target
+
+    def continue_from(self, old: Limiter) -> None:
+        """A reload: the amplifier holds `old.last`. Limits that moved past it are approached
+        from there within the (new) slew limit, never in a jump; that approach counts as RAMP."""
+        self.last = old.last
+        outside = max(self.lo - old.last, old.last - self.hi, 0.0)
+        steps = outside / self.max_step if self.max_step > 0 else 0.0
+        if outside > 0.0 and math.isfinite(steps):
+            self._ramp_ticks = self._max_ramp_ticks + int(math.ceil(steps))
+        else:
+            self._ramp_ticks = old._ramp_ticks
 
     def force(self, value: float) -> None:
         """The amplifier was put at `value` outside the limiter (a safe-current write); the next
