@@ -94,28 +94,39 @@ def _stop(args: argparse.Namespace) -> int:
 
 
 def _status(args: argparse.Namespace) -> int:
+    from ..errors import NotRunningError
     from ..service.control_socket import ask, jsonable
     from ..service.paths import runtime_paths
     from ..service.status import format_table
-
-    from ..errors import NotRunningError
 
     runtime = runtime_paths(args.runtime_dir)
     try:
         status = ask(runtime.socket, {"cmd": "status"})["status"]
     except NotRunningError as exc:
-        if not args.json:
-            raise
-        # machine readers always get JSON: say that nothing runs there, and exit as before (1)
-        json.dump({"state": "not running", "socket": str(runtime.socket), "message": str(exc)}, sys.stdout, indent=2)
-        sys.stdout.write("\n")
-        return 1
+        return _not_running(args, runtime, exc)
     if args.json:
         json.dump(status, sys.stdout, indent=2, default=jsonable)
         sys.stdout.write("\n")
     else:
         print(format_table(status))
     return 0
+
+
+def _not_running(args: argparse.Namespace, runtime, exc: Exception) -> int:
+    """Nothing answers: say so, with how the last run ended when it left a record (exit 1 as before)."""
+    from ..errors import NotRunningError
+    from ..service import last_exit
+
+    record = last_exit.read(runtime)
+    if not args.json:
+        raise NotRunningError(f"{exc}; {last_exit.describe(record)}" if record else str(exc))
+    # machine readers always get JSON: say that nothing runs there, and exit as before (1)
+    doc: dict[str, object] = {"state": "not running", "socket": str(runtime.socket), "message": str(exc)}
+    if record:
+        doc.update(last_exit=record, last_exit_text=last_exit.describe(record))
+    json.dump(doc, sys.stdout, indent=2)
+    sys.stdout.write("\n")
+    return 1
 
 
 def _reload(args: argparse.Namespace) -> int:

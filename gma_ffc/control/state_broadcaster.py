@@ -60,6 +60,8 @@ class StateBroadcaster:
             "outside_model": {"drive_ticks": self.drive_outside_ticks, "stress_ticks": self.stress_outside_ticks,
                               "policy": law.drive.policy, "drive_range": [_finite(law.lo), _finite(law.hi)]},
             "reconnects": self.hardware.reconnects,
+            "at_safe_current": self.hardware.at_safe,     # the last write was the safe current
+            "safe_current_A": setup.safe_A,
             "exit_reason": exit_reason,
             "started_unix_s": started_unix_s,
             "model_kind": setup.model.kind,

@@ -24,6 +24,7 @@ from typing import Any, Callable
 
 from .. import safe_files
 from ..errors import FaultError, GmaError
+from . import last_exit
 from .control_plane import ControlPlane
 from .control_socket import is_answering, jsonable
 from .notify import Notifier
@@ -100,6 +101,7 @@ class Service:
         self._plane: ControlPlane | None = None
         self._watch: ServiceWatch | None = None
         self._model_override = ModelOverride()
+        self._exit_record: dict[str, Any] | None = None     # this run's start, once recorded
 
     # ---- requests from signals and the socket --------------------------------------------
     def request_stop(self, reason: str) -> None:
@@ -213,6 +215,7 @@ class Service:
                 signal.signal(signum, handler)
             self._watch.close()          # the diagnosis child never outlives the service
             final = self.status()
+            self._record_exit(final, thread_alive)
             self._close_runtime()
             if self.stats_json is not None:
                 self._write_stats(final)
@@ -317,6 +320,23 @@ class Service:
         self._publish()
         with safe_files.replace(runtime.pid_file, (runtime.directory,), safe_files.PID) as fh:
             fh.write(f"{os.getpid()}\n")
+        self._exit_record = last_exit.started(str(self.config_path))
+        self._write_exit_record(self._exit_record)
+
+    def _record_exit(self, final: dict[str, Any], thread_alive: bool) -> None:
+        """How this run ended, for `status` once nothing answers (only a run that recorded its start)."""
+        if self._exit_record is None:
+            return
+        how = "crashed" if thread_alive or self._error is not None else "fault" if _fault_from(final) else "stopped"
+        self._write_exit_record(last_exit.ended(str(self.config_path), self._exit_record["started_unix"],
+                                                final, how, self._stop_reason))
+
+    def _write_exit_record(self, record: dict[str, Any]) -> None:
+        assert self.runtime is not None
+        try:
+            last_exit.write(self.runtime, record)
+        except (OSError, GmaError) as exc:    # the run itself is not at stake: say so in the log
+            log.error("cannot write the last-exit record %s: %s", last_exit.path_of(self.runtime), exc)
 
     def _close_runtime(self) -> None:
         if self._plane is not None:

@@ -1,0 +1,104 @@
+"""`gma-ffc status` with nothing running says how the last run ended (the last-exit record).
+
+The service runs in-process with the real controller on the sim driver (simulated clock), a NaN
+load cell injected after some ticks; then the CLI's own `status` and `status --json` read what
+the run left in its runtime directory."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from gma_ffc.cli import main
+from gma_ffc.control.config import load_config
+from gma_ffc.control.manager import ControllerManager
+from gma_ffc.errors import FaultError
+from gma_ffc.service import last_exit
+from gma_ffc.service.paths import RuntimePaths
+from gma_ffc.service.runner import Service
+
+ROOT = Path(__file__).resolve().parents[1]
+MODEL = ROOT / "config" / "models" / "sim_sdpi.yaml"
+
+
+@pytest.fixture
+def rig(tmp_path):
+    (tmp_path / "cfg.yaml").write_text(f"""\
+rate_hz: 1000
+clock: simulated
+model: {MODEL}
+driver: {{kind: sim, load_mass_kg: 15.3}}
+reference: {{kind: sine, frequency_hz: 3, amplitude_um: 10, offset_um: 20}}
+limits: {{current_min_A: 0, current_max_A: 3, slew_A_per_s: 500}}
+telemetry: {{path: {tmp_path / 'tel.csv'}}}
+""")
+    return tmp_path, RuntimePaths(tmp_path / "rt")
+
+
+def nan_after(ticks: int):
+    """A controller factory whose load cell reads NaN from tick `ticks` on."""
+    def make(cfg):
+        ctrl = ControllerManager(cfg)
+        read, n = ctrl.driver.read, [0]
+
+        def bad_read(inputs):
+            read(inputs)
+            n[0] += 1
+            if n[0] >= ticks:
+                inputs.force_N = math.nan
+        ctrl.driver.read = bad_read
+        return ctrl
+    return make
+
+
+def status_cli(runtime: RuntimePaths, capsys, *extra: str) -> tuple[int, str, str]:
+    code = main(["status", "--runtime-dir", str(runtime.directory), *extra])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_status_after_a_fault_names_it_and_the_safe_current(rig, capsys):
+    tmp, runtime = rig
+    svc = Service(tmp / "cfg.yaml", runtime=runtime, install_signal_handlers=False,
+                  load_config=load_config, make_controller=nan_after(200))
+    with pytest.raises(FaultError, match="sensor_nan"):
+        svc.run()
+    record = last_exit.read(runtime)
+    assert record["how"] == "fault" and "sensor_nan" in record["faults"] and record["safe_current_written"]
+    code, out, err = status_cli(runtime, capsys)
+    assert code == 1 and not out
+    assert "no controller running" in err and "ended at" in err and "on a fault: sensor_nan: load-cell reading" in err
+    assert "safe current (0 A) written" in err and len(err.strip().splitlines()) == 1
+    code, out, _ = status_cli(runtime, capsys, "--json")
+    doc = json.loads(out)
+    assert code == 1 and doc["state"] == "not running" and doc["last_exit"]["how"] == "fault"
+    assert "sensor_nan" in doc["last_exit"]["faults"] and doc["last_exit"]["pid"] == record["pid"]
+
+
+def test_a_clean_stop_records_a_clean_stop(rig, capsys):
+    tmp, runtime = rig
+    svc = Service(tmp / "cfg.yaml", runtime=runtime, install_signal_handlers=False, duration_s=0.3,
+                  load_config=load_config, make_controller=ControllerManager)
+    assert svc.run() == 0
+    record = last_exit.read(runtime)
+    assert record["how"] == "stopped" and record["faults"] == {} and record["safe_current_written"]
+    code, _, err = status_cli(runtime, capsys)
+    assert code == 1 and ": stopped (" in err and "fault" not in err
+
+
+def test_a_run_that_never_recorded_its_end_says_so(rig, capsys):
+    """A kill -9 leaves the 'running' record: status does not pass it off as a clean end."""
+    _, runtime = rig
+    runtime.directory.mkdir(mode=0o700)
+    last_exit.write(runtime, {**last_exit.started("cfg.yaml"), "pid": 999999})
+    code, _, err = status_cli(runtime, capsys)
+    assert code == 1 and "left no exit record: it was killed" in err
+
+
+def test_nothing_recorded_is_the_old_answer(rig, capsys):
+    _, runtime = rig
+    code, _, err = status_cli(runtime, capsys)
+    assert code == 1 and "no controller running" in err and "last run" not in err
