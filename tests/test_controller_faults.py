@@ -204,6 +204,34 @@ def test_comms_error_reconnects_and_resumes_from_safe(models, tmp_path):
     assert np.abs(np.diff(after)).max() <= SLEW / RATE + 1e-12
 
 
+def test_a_failed_safe_write_is_cleared_once_the_safe_current_is_written_after_a_reconnect(models, tmp_path):
+    """The link drops and the first safe write fails too; after the reconnect the safe current is
+    written, so safe_write_failed is no longer active (it stayed listed until the run ended),
+    and it stays in the history and the counts."""
+    seen = {}
+
+    def inject(tick, inputs):
+        if tick == 500:
+            driver.safe = failing_once
+            raise DriverError("link down", "timeout")
+        if tick == 600:
+            seen["active"] = dict(ctrl.faults.active)
+
+    def failing_once(current_A):
+        del driver.safe                       # the next safe write goes through
+        raise DriverError("write setpoint: connection lost", "comms")
+
+    ctrl, driver, cfg = make(tmp_path, models, inject)
+    s = ctrl.run(duration_s=1.0)
+    assert s["reconnects"] == 1 and seen["active"] == {}, seen
+    assert s["state"] == "stopped" and s["faults"] == []
+    assert s["fault_counts"]["safe_write_failed"] == 1
+    assert "safe_write_failed" in [h["fault"] for h in s["fault_history"]]
+    i = driver.log.index(("safe", 0.0))               # the safe write after the reconnect
+    after = [c for k, c in driver.log[i + 1:] if k == "write"]
+    assert 0.0 < after[0] <= SLEW / RATE + 1e-12       # and the loop resumes from it
+
+
 def test_comms_error_with_stop_policy_stops(models, tmp_path):
     def inject(tick, inputs):
         if tick == 200:

@@ -66,9 +66,10 @@ class DriverSupervisor:
             except Exception:
                 pass
 
-    def reconnect(self, wait: Callable[[float], bool]) -> bool:
+    def reconnect(self, wait: Callable[[float], bool], safe_A: float | None = None) -> bool:
         """Reconnect with exponential backoff; True when the driver answers again. `wait(s)`
-        sleeps on the runner's clock and says whether a stop came meanwhile."""
+        sleeps on the runner's clock and says whether a stop came meanwhile. With `safe_A`, a safe
+        current that did not get through is written first, before the output goes on again."""
         comms = self.comms
         delay = comms["backoff_initial_s"]
         attempt = 0
@@ -78,6 +79,8 @@ class DriverSupervisor:
                 return False
             try:
                 self.driver.reconnect()
+                if safe_A is not None and not self.at_safe:
+                    self._safe_after_reconnect(safe_A)
                 self.driver.activate()         # safe() may have switched the output off
             except DriverError as exc:
                 self.driver.last_error = str(exc)
@@ -92,6 +95,13 @@ class DriverSupervisor:
             return True
         self.faults.raise_fault(safety.RECONNECT_FAILED, f"gave up after {attempt} reconnect attempts")
         return False
+
+    def _safe_after_reconnect(self, safe_A: float) -> None:
+        """The safe current the fault could not write, now the link is back: the amplifier is
+        known safe again, so `safe_write_failed` no longer holds (it stays in the history)."""
+        self.driver.safe(safe_A)
+        self.at_safe = True
+        self.faults.clear(safety.SAFE_WRITE_FAILED)
 
     def deactivate(self) -> None:
         """Output off, after the safe current; a failure is the fault `deactivate_failed`."""

@@ -222,11 +222,12 @@ class ControllerManager:
             self.tick.command_A = s.safe_A     # the amplifier's last command, for the status
         s.limiter.force(s.safe_A)
 
-    def _reconnect(self) -> bool:
-        """Reconnect with backoff; the amplifier is already safe, so the watchdog pauses."""
+    def _reconnect(self, safe_A: float | None = None) -> bool:
+        """Reconnect with backoff; the amplifier is already safe, so the watchdog pauses. With
+        `safe_A` (after a fault) a safe write that failed is made good before the output goes on."""
         self.state = State.RECONNECTING
         self.watchdog.pause()
-        return self.hardware.reconnect(self._wait)
+        return self.hardware.reconnect(self._wait, safe_A)
 
     def _wait(self, delay: float) -> bool:
         """Sleep `delay` on the controller's clock; True if a stop came meanwhile."""
@@ -421,7 +422,7 @@ class ControllerManager:
         reconnect = action.then == "reconnect" and self._mode == RUNNING
         self.setup.law.deactivate(t, f"{name}: at the safe current" + (", reconnecting" if reconnect else ""),
                                   action.freeze_learning)
-        if reconnect and self._reconnect():
+        if reconnect and self._reconnect(self.setup.safe_A):
             self.setup.law.activate(self.setup.safe_A)
             self.setup.monitor.restart()
             self.state = State.RUNNING
