@@ -242,6 +242,21 @@ def test_reload_refuses_restart_keys_and_keeps_old(models, tmp_path):
     assert ctrl.setup.cfg is cfg and ctrl.setup.model is models[0]
 
 
+@pytest.mark.parametrize("metrics", [{"host": "127.0.0.1", "port": 19472}, None])
+def test_reload_refuses_a_changed_metrics_section(models, tmp_path, metrics):
+    """The metrics server is bound at the start: a reload that moves (or drops) it would say
+    'reloaded' and keep serving the old address, so it is refused like rate_hz."""
+    from gma_ffc.errors import ConfigError
+
+    cfg = validate_config({**sim_cfg(tmp_path, "m", load_mass_kg=1.0).raw,
+                           "metrics": {"host": "127.0.0.1", "port": 19471}})
+    ctrl = ControllerManager(cfg, model=models[0])
+    with pytest.raises(ConfigError, match="'metrics' changed: that needs a restart"):
+        ctrl.reload(validate_config({**cfg.raw, "metrics": metrics}), model=models[1])
+    assert ctrl.setup.cfg is cfg and ctrl.setup.model is models[0]
+    ctrl.reload(validate_config(cfg.raw), model=models[1])     # the same section reloads
+
+
 def test_telemetry_feeds_identify(models, tmp_path):
     """A run's telemetry is a recording `identify` accepts (here: one stress, so an MPI)."""
     from gma_ffc.identify import SDPIIdentifier

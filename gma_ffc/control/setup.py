@@ -2,7 +2,7 @@
 
 The builder makes one from a config and a model; the runner holds the current one and replaces
 it whole between two ticks. What a reload cannot change (rate, clock, driver, telemetry,
-scheduler: `RESTART_KEYS`) lives outside it, with the runner.
+scheduler, metrics server: `RESTART_KEYS`) lives outside it, with the runner.
 """
 
 from __future__ import annotations
@@ -16,7 +16,9 @@ from .law import FeedforwardController
 from .reference import Reference
 from .safety import FaultAction, Limiter, SensorMonitor
 
-RESTART_KEYS = ("rate_hz", "clock", "driver", "telemetry", "scheduler")
+# `metrics`: the server is bound once, at the service's start (service/watch.py); a reload that
+# said "reloaded" kept serving the old address.
+RESTART_KEYS = ("rate_hz", "clock", "driver", "telemetry", "scheduler", "metrics")
 
 
 @dataclass(eq=False)
