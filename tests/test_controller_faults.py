@@ -12,6 +12,7 @@ import pytest
 
 from gma_ffc.control.config import validate_config
 from gma_ffc.control.manager import ControllerManager
+from gma_ffc.control.scheduler import SimulatedClock
 from gma_ffc.sil import cached_sdpi_and_mpi
 from gma_ffc.drivers import DriverError
 from gma_ffc.drivers.sim import SimDriver
@@ -256,6 +257,48 @@ def test_watchdog_trips_on_a_stalled_tick(models, tmp_path):
     assert s["ticks"] <= 31
 
 
+class StallingClock(SimulatedClock):
+    """Simulated time in which the whole process stops for `stall_s` while the loop sleeps
+    before deadline number `at` (what SIGSTOP/SIGCONT does: no tick runs, the command is held)."""
+
+    def __init__(self, at, stall_s):
+        super().__init__()
+        self.at, self.stall_s, self.sleeps = at, stall_s, 0
+
+    def sleep_until(self, deadline):
+        self.sleeps += 1
+        super().sleep_until(deadline)
+        if self.sleeps == self.at:
+            self.advance(self.stall_s)
+
+
+def test_a_whole_process_stall_longer_than_the_watchdog_goes_safe_and_names_it(models, tmp_path):
+    """A 2 s stall between two ticks (watchdog 0.5 s) is the watchdog fault: the safe current at
+    once, the run ends in 'fault', and the message gives the stall's length (2 s plus the tick
+    before it) and when it ended.
+    It used to pass unnoticed: no fault, only missed deadlines, the command held 2 s."""
+    ctrl, driver, cfg = make(tmp_path, models)
+    ctrl = ControllerManager(cfg, model=models[0], driver=driver, clock=StallingClock(at=500, stall_s=2.0))
+    s = ctrl.run(duration_s=4.0)
+    check_common(ctrl, driver, cfg, s, "watchdog")
+    message = s["fault_messages"]["watchdog"]
+    assert "stalled for 2.001 s, until t=2.499 s" in message and "(watchdog 0.5 s)" in message, message
+    assert s["ticks"] < 510 and s["exit_reason"].startswith("watchdog")
+
+
+def test_a_gap_shorter_than_the_watchdog_or_a_reconnect_is_not_a_stall(models, tmp_path):
+    """A 0.4 s stall (under watchdog_s) and a reconnect whose backoff (1 s) is longer than
+    watchdog_s (the watchdog is paused while the amplifier is safe) both run on."""
+    def inject(tick, inputs):
+        if tick == 700:
+            raise DriverError("link down", "timeout")
+
+    ctrl, driver, cfg = make(tmp_path, models, inject, comms={"backoff_initial_s": 1.0})
+    ctrl = ControllerManager(cfg, model=models[0], driver=driver, clock=StallingClock(at=300, stall_s=0.4))
+    s = ctrl.run(duration_s=2.0)
+    assert s["state"] == "stopped" and s["reconnects"] == 1 and "watchdog" not in s["fault_counts"]
+
+
 def test_driver_that_cannot_open_faults_without_output(models, tmp_path):
     ctrl, driver, cfg = make(tmp_path, models, comms={"on_fault": "stop"})
 
@@ -272,6 +315,7 @@ CHILD = r'''
 import sys, threading, time
 from gma_ffc.control.config import validate_config
 from gma_ffc.control.manager import ControllerManager
+from gma_ffc.control.scheduler import SimulatedClock
 from gma_ffc.modelio import load_model
 cfg = validate_config({"rate_hz": 500, "model": sys.argv[1], "driver": {"kind": "sim", "load_mass_kg": 15.0},
                        "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0},

@@ -265,8 +265,11 @@ class ControllerManager:
         while True:
             deadline = sched.wait()
             t_start = clock.now()
-            watchdog.heartbeat = t_start
             t = deadline - t0
+            if t_start - watchdog.heartbeat > watchdog_s and self._stalled(t_start - watchdog.heartbeat,
+                                                                            t_start - t0, t):
+                return                              # NaN (paused: a fault, a reconnect) never is
+            watchdog.heartbeat = t_start
             if self._mode == RUNNING and (t >= end_t or stop_event.is_set() or self._stop_reason is not None):
                 if self._execute(safety.STOP, t, self._stop_reason or (
                         "stop requested" if stop_event.is_set() else "duration reached")) == EXIT:
@@ -294,6 +297,16 @@ class ControllerManager:
                                            t - self._stop_started >= self.setup.cfg.limits["stop_ramp_max_s"]):
                 return
 
+    def _stalled(self, gap_s: float, until_s: float, t: float) -> bool:
+        """The loop did not run for `gap_s` > watchdog_s between two ticks, until `until_s` of
+        run time (the whole process stopped or starved: SIGSTOP, swapping, a paused VM), holding
+        the command unwatched. As `watchdog_s` promises, that is the watchdog fault: the safe
+        current at once, then the row's stop. True when the loop must end."""
+        self.faults.raise_fault(safety.WATCHDOG, (
+            f"the loop stalled for {gap_s:.3f} s, until t={until_s:.3f} s (watchdog {self.setup.cfg.watchdog_s:g} s): "
+            "the process was stopped or starved, the command held meanwhile"))
+        return self._execute(safety.WATCHDOG, t, "watchdog: the loop stalled") != RESUME
+
     def _start_schedule(self) -> tuple[Scheduler, float]:
         """The first deadline, and the wall-clock time of t = 0 from one reading of both clocks,
         so a row's unix time is start_unix_s + time_s to well within a millisecond."""
@@ -304,6 +317,7 @@ class ControllerManager:
         self.recorder.stamp_start(self.started_unix_s)
         self._mode = RUNNING
         self._read_ok = False
+        self.watchdog.heartbeat = math.nan      # a stall is measured from this run's first tick
         self.state = State.RUNNING
         return sched, t0
 

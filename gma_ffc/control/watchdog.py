@@ -59,6 +59,8 @@ class Watchdog:
         limit = self.limit_s
         while not self._stop.wait(limit / 4.0):
             hb = self.heartbeat
-            if hb == hb and self.clock.now() - hb > limit and not self.tripped:
+            idle = self.clock.now() - hb
+            if idle > limit and not self.tripped:
                 self.tripped = True
-                self.faults.raise_fault(safety.WATCHDOG, f"the loop made no progress for over {limit:g} s")
+                self.faults.raise_fault(safety.WATCHDOG, f"the loop made no progress for {idle:.3f} s "
+                                                         f"(watchdog {limit:g} s)")
