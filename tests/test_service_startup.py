@@ -219,3 +219,25 @@ def test_a_sim_plant_config_that_is_not_valid_yaml_is_refused_at_config_load(tmp
     out = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2", cwd=tmp_path)
     one_line_exit_2(out, "config key 'driver.plant_config'", str(tmp_path / "plant.yaml"), "not valid YAML")
     assert not (tmp_path / "tel").exists()
+
+
+def test_start_runs_the_installed_code_not_a_gma_ffc_folder_in_the_working_directory(tmp_path):
+    """`python -m` puts the working folder first on sys.path: started from a folder holding another
+    checkout's `gma_ffc`, the service ran that code. The runtime folder is given relative, as users do."""
+    decoy = tmp_path / "gma_ffc"
+    decoy.mkdir()
+    (decoy / "__init__.py").write_text(f"open({str(tmp_path / 'decoy_ran')!r}, 'w').close()\nraise SystemExit(3)\n")
+    cfg = sim_config(tmp_path, clock="real")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    run = lambda *a: subprocess.run([sys.executable, "-c", "import sys; sys.path.remove(''); from gma_ffc.cli import main; "
+                                     "sys.exit(main(sys.argv[1:]))", *a], capture_output=True, text=True,
+                                    timeout=120, cwd=tmp_path, env=env)
+    started = run("start", "--config", str(cfg), "--runtime-dir", "rt")
+    try:
+        assert started.returncode == 0, started.stderr
+        status = run("status", "--json", "--runtime-dir", "rt")
+        assert json.loads(status.stdout)["state"] == "running"
+    finally:
+        stopped = run("stop", "--runtime-dir", "rt")
+    assert stopped.returncode == 0, stopped.stderr
+    assert not (tmp_path / "decoy_ran").exists()

@@ -76,7 +76,7 @@ def start(config: Path, runtime: RuntimePaths, *, duration_s: float | None = Non
     if is_answering(runtime.socket):
         raise FaultError(f"a controller is already running (pid {read_pid(runtime.pid_file) or '?'}, "
                          f"socket {runtime.socket}); stop it first with 'gma-ffc stop'")
-    notify_path = runtime.directory / f"start-{os.getpid()}.notify"
+    notify_path = runtime.directory.absolute() / f"start-{os.getpid()}.notify"
     check_socket_path(notify_path)
     with contextlib.suppress(FileNotFoundError):
         notify_path.unlink()
@@ -87,10 +87,12 @@ def start(config: Path, runtime: RuntimePaths, *, duration_s: float | None = Non
     finally:
         os.umask(old_umask)
     cmd = [python, "-m", "gma_ffc.cli", "run", "--config", str(config.resolve()),
-           "--runtime-dir", str(runtime.directory)]
+           "--runtime-dir", str(runtime.directory.absolute())]
     if duration_s is not None:
         cmd += ["--duration", repr(float(duration_s))]
     env = dict(os.environ, NOTIFY_SOCKET=str(notify_path))
+    if env.get("PYTHONPATH"):        # the child runs in /: a relative entry keeps meaning the caller's folder
+        env["PYTHONPATH"] = os.pathsep.join(os.path.abspath(p) if p else p for p in env["PYTHONPATH"].split(os.pathsep))
     for key in ("WATCHDOG_USEC", "WATCHDOG_PID", "LISTEN_FDS", "LISTEN_PID"):
         env.pop(key, None)
     log_offset = runtime.log_file.stat().st_size if runtime.log_file.exists() else 0
@@ -98,7 +100,9 @@ def start(config: Path, runtime: RuntimePaths, *, duration_s: float | None = Non
         fd = safe_files.open_for_writing(runtime.log_file, (runtime.directory,), safe_files.LOG,
                                          append=True, mode=0o600)
         with os.fdopen(fd, "ab") as log:
-            child = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log,
+            # cwd /: `python -m` puts the working folder first on sys.path, so a `gma_ffc` folder
+            # there (another checkout) would be the code the service runs
+            child = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, cwd="/",
                                      env=env, start_new_session=True, close_fds=True)
         return _wait_ready(child, listener, runtime, log_offset, timeout_s)
     finally:
