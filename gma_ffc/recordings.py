@@ -134,6 +134,8 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
             raise RecordingError(
                 f"{src}, line {header_line + 1 + row}: '{name}' is {rec.columns[name][row]} "
                 f"(NaN or infinite values are not allowed in required columns)")
+    if DISPLACEMENT in rec.columns:
+        _refuse_a_spike(rec, DISPLACEMENT, header_line)
     steps = np.diff(rec.time_s)
     if (steps <= 0).any():
         row = int(np.argmax(steps <= 0)) + 1
@@ -141,6 +143,35 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
             f"{src}, line {header_line + 1 + row}: time does not increase "
             f"({rec.time_s[row - 1]:.9g} s then {rec.time_s[row]:.9g} s)")
     return rec
+
+
+SPIKE_SPREADS = 10.0
+"""A displacement sample this many times the column's spread (its 0.5-99.5 % percentile range)
+away from both its neighbours, in the same direction, is a glitch: a sensor's overload value
+(9.9e37), a dropped digit. No actuator moves ten strokes out and back within one sample."""
+SPIKE_FLOOR_UM = 1.0
+"""The least spread a spike is measured against: a column that holds still (all one value, or a
+few quantisation steps) would otherwise make a one-count blip a glitch."""
+
+
+def _refuse_a_spike(rec: Recording, name: str, header_line: int) -> None:
+    """RecordingError naming the first isolated sample far beyond the rest of the column."""
+    x = np.asarray(rec.columns[name], dtype=float)
+    if x.size < 3 or not np.isfinite(x).any():
+        return
+    lo, hi = np.nanpercentile(x, [0.5, 99.5])
+    reach = SPIKE_SPREADS * max(hi - lo, SPIKE_FLOOR_UM)
+    with np.errstate(invalid="ignore"):
+        up = (x[1:-1] - x[:-2] > reach) & (x[1:-1] - x[2:] > reach)
+        down = (x[:-2] - x[1:-1] > reach) & (x[2:] - x[1:-1] > reach)
+    spikes = np.flatnonzero(up | down)
+    if spikes.size:
+        row = int(spikes[0]) + 1
+        raise RecordingError(
+            f"{rec.source}, line {header_line + 1 + row}: '{name}' is {x[row]:.6g}, more than "
+            f"{reach:.4g} from both its neighbours ({SPIKE_SPREADS:g} times the column's spread, {hi - lo:.4g}): a sensor "
+            f"overload value or a glitch{f' ({spikes.size} such samples)' if spikes.size > 1 else ''}; "
+            "fix or remove that row")
 
 
 GAP_STEPS = 5.0     # a time step this many times the median one is a gap (a dropout), not jitter

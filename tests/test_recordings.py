@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -85,3 +86,32 @@ def test_written_metadata_is_yaml_readable(tmp_path: Path) -> None:
     write_recording(tmp_path / "m.csv", rec)
     assert read_recording(tmp_path / "m.csv").metadata == {"note": "contains: a colon", "start_unix_s": 1.7e9,
                                                            "mass_kg": 12.5}
+
+
+@pytest.mark.parametrize("glitch", [9.9e37, 1e12, 1e4, -1e4])
+def test_a_displacement_spike_is_refused_naming_its_line(tmp_path: Path, glitch: float) -> None:
+    """One overload value (9.9e37) or dropped digit sent identify in circles ('fit fewer dead-zones'
+    again and again) and gave simulate an RMS of 1.9e36 um."""
+    t = np.arange(400) / 1000.0
+    x = 1.5 - 1.5 * np.cos(2 * np.pi * 3 * t)
+    y = 20 * x + 0.03 * np.random.default_rng(1).standard_normal(t.size)
+    y[123] = glitch
+    path = tmp_path / "glitch.csv"
+    write_recording(path, Recording({"time_s": t, "current_A": x, "displacement_um": y}, {}, "glitch.csv"))
+    header = next(i for i, line in enumerate(path.read_text().splitlines(), 1) if line.startswith("time_s"))
+    with pytest.raises(RecordingError, match=rf"glitch\.csv, line {header + 124}: 'displacement_um' is "
+                                             rf"{re.escape(f'{glitch:.6g}')}, more than .* from both its neighbours.*"
+                                             r"a sensor overload value or a glitch; fix or remove"):
+        read_recording(path)
+
+
+def test_a_step_of_a_whole_stroke_is_not_a_spike(tmp_path: Path) -> None:
+    """A step drive moves the displacement a whole stroke within a sample, and a brief pulse is rare
+    among the samples: neither is a glitch."""
+    y = np.zeros(5000)
+    y[2500:2510] = 50.0                                # 10 samples up: 0.2 % of the column
+    y[4000] = 5.0                                      # one sample, a blip under the 1 um floor's reach
+    path = tmp_path / "steps.csv"
+    write_recording(path, Recording({"time_s": np.arange(5000) / 1e3, "current_A": y / 20, "displacement_um": y},
+                                    {}, "steps.csv"))
+    assert len(read_recording(path)) == 5000
