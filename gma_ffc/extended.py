@@ -211,13 +211,17 @@ class ExtendedModel:
         if self.preview_s > 0:
             r = np.interp(t + self.preview_s, t, r)
         dt = float(np.median(np.diff(t)))
-        # the actuator rests at the low end of the identified range (the core's stepper rule from there)
-        x0 = self.drive_range[0] if math.isfinite(self.drive_range[0]) else 0.0
-        inv = self.inverse_stepper(dt, initial_drive=x0)
+        inv = self.inverse_stepper(dt, initial_drive=self.inverse_start_drive)
         out = np.empty_like(r)
         for k in range(t.size):
             out[k] = inv.step(float(r[k]), None if s is None else float(s[k]))
         return out
+
+    @property
+    def inverse_start_drive(self) -> float:
+        """Where `invert` starts: the actuator at rest at the low end of the identified range (the
+        core's stepper rule from there); `simulate --initial-state drive:` this value matches it."""
+        return self.drive_range[0] if math.isfinite(self.drive_range[0]) else 0.0
 
     # ----------------------------------------------------------------- steppers
     def forward_stepper(self, dt_s: float, initial_drive: float = 0.0) -> "ForwardStepper":

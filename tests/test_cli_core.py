@@ -119,6 +119,52 @@ def test_invert_refuses_start_options_an_extended_model_does_not_take(workdir: P
     assert not (workdir / "x.csv").exists()
 
 
+@pytest.mark.parametrize("model_name, flags", [("extended.yaml", []), ("model.yaml", ["--initial-state", "drive:1.2"]),
+                                                ("model.yaml", ["--initial-state", "relaxed"])])
+def test_simulate_starts_an_inverted_drive_where_invert_did(workdir: Path, capsys, model_name, flags) -> None:
+    """An extended model's inverse starts at rest at the low end of its range; simulate's default
+    rule started the same drive elsewhere, 5.5 um off the reference at t = 0. The drive file now
+    names its start, and simulate follows it: invert then simulate gives the reference back."""
+    import gzip
+    import json
+
+    from gma_ffc.modelio import model_from_dict, save_model
+
+    if model_name == "extended.yaml":
+        fixture = Path(__file__).parent / "fixtures" / "extended_v1_all_blocks.json.gz"
+        with gzip.open(fixture, "rt") as fh:
+            save_model(model_from_dict(json.load(fh)["model"]), workdir / model_name)
+    ref_file = workdir / "ref.csv"
+    if model_name == "extended.yaml":    # beyond its reach the fixture's inverse runs away (the test below)
+        ref_file = _followed_advice(workdir, capsys, workdir / model_name)
+    drive, back = workdir / "round_drive.csv", workdir / "round_back.csv"
+    assert main(["invert", "--model", str(workdir / model_name), str(ref_file), "-o", str(drive), *flags]) == 0
+    assert main(["simulate", "--model", str(workdir / model_name), str(drive), "-o", str(back)]) == 0
+    assert "(the start `gma-ffc invert` gave this drive, from the file's metadata)" in capsys.readouterr().out
+    ref = read_recording(ref_file, require=("time_s",)).columns["reference_um"]
+    y = read_recording(back, require=("time_s",)).displacement_um
+    # the fixture's 2.5 ms delay puts its first and last samples out of reach, and its heating and
+    # dynamics blocks invert to within 0.01 um of 18 (0.06 %); the base's inverse is exact
+    edge, tol = (4, 0.02) if model_name == "extended.yaml" else (0, 1e-6)
+    assert np.max(np.abs(y - ref)[edge:len(y) - edge]) < tol
+
+
+def _followed_advice(workdir: Path, capsys, model_file: Path) -> Path:
+    """invert on a reference its extended model cannot follow: one line, exit 2, no file, and advice
+    with figures; the reference the advice describes (a 3 Hz sine from the rest output to 80 % of
+    the stroke) is followed."""
+    assert main(["invert", "--model", str(model_file), str(workdir / "ref.csv"), "-o", str(workdir / "run.csv")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "the inverse runs away from t = " in err and not (workdir / "run.csv").exists()
+    rest = float(err.split("output at rest (")[1].split(" um")[0])
+    top = float(err.split("drive range (about ")[1].split(" um")[0].split("..")[1])
+    t = np.arange(0, 1.2, 1e-3)
+    y = rest + 0.4 * (top - rest) * (1 - np.cos(2 * np.pi * 3 * t))
+    path = workdir / "ref_within_reach.csv"
+    write_recording(path, Recording({"time_s": t, "reference_um": y, "stress_MPa": np.full_like(t, -17.0)}))
+    return path
+
+
 def _bad(workdir: Path, name: str, text: str) -> Path:
     p = workdir / name
     p.write_text(text)

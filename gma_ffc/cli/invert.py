@@ -57,8 +57,10 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(args.model)
     rec = read_recording(args.reference, require=("time_s", "reference_um"), group=args.group)
     stress = stress_for(model, rec, args.stress)
-    kwargs, how = _start(model, args, rec, stress)
-    drive = model.invert(rec.time_s, rec.columns["reference_um"], stress, **kwargs)
+    kwargs, how, start_spec = _start(model, args, rec, stress)
+    with np.errstate(all="ignore"):         # a diverging inverse is refused below, in one line
+        drive = model.invert(rec.time_s, rec.columns["reference_um"], stress, **kwargs)
+    _refuse_a_diverged_inverse(drive, rec, model)
     clipped_note = ""
     if args.limit:
         lo, hi = args.limit
@@ -76,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
     if stress is not None:
         cols["stress_MPa"] = np.broadcast_to(np.asarray(stress, float), rec.time_s.shape)
     meta = {"source": f"gma-ffc invert --model {args.model}", "input": rec.name, "model_kind": model.kind}
+    if start_spec:          # simulate starts this file where the inverse did (its default rule may not)
+        meta.update(start_spec)
     write_recording(args.output, Recording(cols, meta, args.output))
     lo, hi = model.drive_range
     outside = int(np.count_nonzero((drive < lo - 1e-9) | (drive > hi + 1e-9)))
@@ -89,18 +93,57 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _start(model: Any, args: argparse.Namespace, rec: Recording, stress: Any) -> tuple[dict[str, Any], str]:
-    """How the inverse starts (`model.invert`'s keywords) and the words that say so."""
+def _refuse_a_diverged_inverse(drive: np.ndarray, rec: Recording, model: Any) -> None:
+    """An inverse asked for more than its model can give (beyond a saturation, through a lag) runs
+    away to inf and NaN: refuse, naming where it left the identified drive range for good."""
+    bad = ~np.isfinite(drive)
+    if not bad.any():
+        return
+    k = int(np.argmax(bad))
+    lo, hi = model.drive_range
+    inside = np.isfinite(drive[:k]) & (drive[:k] >= lo) & (drive[:k] <= hi)
+    start = int(np.flatnonzero(inside)[-1]) + 1 if inside.any() else 0
+    ref = rec.columns["reference_um"]
+    raise InputError(f"{rec.source}: the inverse runs away from t = {rec.time_s[start]:.6g} s (reference "
+                     f"{ref[start]:.4g} um; the drive leaves the identified range {lo:.4g}..{hi:.4g} there and is not "
+                     f"finite from t = {rec.time_s[k]:.6g} s): the model cannot follow that reference; "
+                     f"{_reach_advice(model, rec)}")
+
+
+def _reach_advice(model: Any, rec: Recording) -> str:
+    """Start the reference where the model rests and keep it within its stroke, with the figures
+    (an exact inverse of a lag turns a step at t = 0 into a drive spike)."""
+    lo, hi = model.drive_range
+    s = rec.columns.get("stress_MPa")
+    s0 = None if s is None or model.stress_range_MPa is None else float(np.clip(s[0], *model.stress_range_MPa))
+    try:
+        with np.errstate(all="ignore"):
+            y = model.simulate(np.arange(201) * 1e-3, np.linspace(lo, hi, 201), s0)
+    except Exception:      # the advice without figures rather than no refusal
+        y = np.array([np.nan])
+    if not np.all(np.isfinite(y)):
+        return "start the reference at the model's output at rest and keep it within its stroke"
+    return (f"start the reference at the model's output at rest ({y[0]:.4g} um, the drive at {lo:g}) and keep it "
+            f"within the stroke the model gives over its drive range (about {y.min():.4g}..{y.max():.4g} um)")
+
+
+def _start(model: Any, args: argparse.Namespace, rec: Recording,
+           stress: Any) -> tuple[dict[str, Any], str, dict[str, Any]]:
+    """How the inverse starts (`model.invert`'s keywords), the words that say so, and the metadata
+    that starts `simulate` there (`initial_state`, or an extended model's `initial_drive`; none when
+    simulate's default rule already does)."""
     if not isinstance(model, SDPIModel):
         if args.initial_drive is not None or args.initial_state.kind != "estimate":
             raise InputError(f"{args.model}: an {model.kind} model's inverse always starts from its core's stepper at "
                              "the low end of the identified drive; --initial-drive and --initial-state apply to sdpi "
                              "and mpi models: leave them out")
-        return {}, "the model kind's own start (its core's stepper at the low end of the identified drive)"
+        x0 = model.inverse_start_drive
+        return {}, f"the model kind's own start (its core's stepper at rest at {x0:g}, the low end of the identified " \
+                   "drive)", {"initial_drive": x0}
     spec = args.initial_state if args.initial_drive is None else InitialStateSpec("drive", args.initial_drive)
     if spec.kind == "drive":                    # relaxed there, as the help says (not the file's stepper rule)
-        return {"initial_state": spec}, f"relaxed at drive {spec.drive:g}"
+        return {"initial_state": spec}, f"relaxed at drive {spec.drive:g}", {"initial_state": f"drive:{spec.drive!r}"}
     if spec.kind == "relaxed":
-        return {"initial_state": spec}, "relaxed at the drive whose output is the reference's first value"
+        return {"initial_state": spec}, "relaxed at the drive whose output is the reference's first value", {"initial_state": "relaxed"}
     s0 = None if stress is None else float(np.ravel(stress)[0])
-    return {"initial_state": args.initial_state}, model.invert_initial_state(rec.columns["reference_um"], s0)[1]
+    return {"initial_state": args.initial_state}, model.invert_initial_state(rec.columns["reference_um"], s0)[1], {}

@@ -59,8 +59,14 @@ def run(args: argparse.Namespace) -> int:
     note_gaps([rec])
     stress = stress_for(model, rec, args.stress)
     measured = rec.displacement_um
-    start = model.resolve_initial_state(rec.drive, stress, args.initial_state, measured, rec.time_s)
-    pred = model.simulate(rec.time_s, rec.drive, stress, initial_state=start)
+    spec, rest, from_file = _initial_state_of(args.initial_state, rec, measured, model)
+    start = model.resolve_initial_state(rec.drive, stress, spec, measured, rec.time_s)
+    if rest is None:
+        pred = model.simulate(rec.time_s, rec.drive, stress, initial_state=start)
+        how = start.how
+    else:
+        pred = model.simulate(rec.time_s, rec.drive, stress, initial_drive=rest)
+        how = f"at rest at {rest:g} by the model's own stepper rule"
     cols = {"time_s": rec.time_s, rec.drive_name: rec.drive}
     if stress is not None:
         cols["stress_MPa"] = np.broadcast_to(np.asarray(stress, float), rec.time_s.shape)
@@ -81,10 +87,32 @@ def run(args: argparse.Namespace) -> int:
                        f"from t = {rec.time_s[start.settled_index]:.4g} s"
             msg += ")"
     print(msg)
-    print(f"initial state: {start.how}")
+    print(f"initial state: {how}" + (" (the start `gma-ffc invert` gave this drive, from the file's metadata)"
+                                     if from_file else ""))
     if measured is not None and bad.any():
         where = np.flatnonzero(bad)
         print(f"warning: {rec.source}: displacement_um has {where.size} NaN/missing samples (first at "
               f"t = {rec.time_s[where[0]]:.6g} s, last at t = {rec.time_s[where[-1]]:.6g} s), left out of the "
               f"RMS{'; all of them' if where.size == len(rec) else ''}", file=sys.stderr)
     return 0
+
+
+def _initial_state_of(asked: Any, rec: Any, measured: Any, model: Any) -> tuple[Any, float | None, bool]:
+    """The initial-state rule to simulate with, the drive an extended model rests at instead (None:
+    the rule), and whether they came from the file. A drive written by `gma-ffc invert` names the
+    start its inverse assumed (`initial_state`, or an extended model's `initial_drive`: at rest at the
+    low end of its range by its own stepper rule); with no measurement and no rule asked for, it is used."""
+    from ..initial_state import InitialStateSpec
+    from ..model import SDPIModel
+
+    meta = rec.metadata
+    if measured is not None or asked != InitialStateSpec():
+        return asked, None, False
+    rest = meta.get("initial_drive")
+    if not isinstance(model, SDPIModel) and isinstance(rest, (int, float)) and np.isfinite(rest):
+        return asked, float(rest), True
+    try:
+        return (InitialStateSpec.parse(meta["initial_state"]), None, True) if isinstance(
+            meta.get("initial_state"), str) else (asked, None, False)
+    except ValueError:
+        return asked, None, False
