@@ -49,7 +49,7 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
     verdict = [] if too_little else list(sel.accepted)
     verdict, timing = samples_timing(verdict, cands, problem.data, selector.sample_timing_share)
     outcome, conclusive = _outcome(selector, problem, final, verdict)
-    cannot = _cannot_conclude(problem, final) + ([timing] if timing else [])
+    cannot = _cannot_conclude(selector, problem, final) + ([timing] if timing else [])
     # a column's sign or timing wrong: effects fitted to it would be confidently wrong (the sign first:
     # a lead on an inverted column means nothing)
     column_fault = (displacement_inverted(problem.data, problem.null.base_pred, noise)
@@ -127,15 +127,35 @@ def _outcome(selector: Any, problem: Problem, final: Final, verdict: list[str]) 
     return outcome, not problem.too_little and not sel.ambiguous
 
 
-def _cannot_conclude(problem: Problem, final: Final) -> list[str]:
-    """What the data could not decide: the selection's notes, the recordings' unscored starts and,
-    without the identification recordings, what the effects could not do without them."""
+def _cannot_conclude(selector: Any, problem: Problem, final: Final) -> list[str]:
+    """What the data could not decide: the selection's notes, a smaller effect short of the margin,
+    the recordings' unscored starts and, without the identification recordings, what the effects
+    could not do without them."""
     starts = unscored_starts_note(problem.data)
-    cannot = list(final.cannot) + ([starts] if starts else [])
+    small = short_of_the_margin(selector, final.selection)
+    cannot = list(final.cannot) + ([small] if small else []) + ([starts] if starts else [])
     if not problem.identification.given:
         lost = [(cls.name, cls.lost_without_identification(problem.fitter)) for cls in effect_registry.candidates()]
         cannot += [f"{name}: {why}" for name, why in lost if why]
     return cannot
+
+
+def short_of_the_margin(selector: Any, sel: Selection) -> str:
+    """A note on the last round's best, when it is significant by the held-out likelihood and lowers
+    the held-out RMS but takes less of the held-out loss than an effect must ('' otherwise): a
+    smaller effect may be there, and the user should hear of it rather than find it in a table."""
+    last = sel.rounds[-1] if sel.rounds else None
+    if last is None or last.accepted is not None or not last.table or not sel.accepted:
+        return ""
+    effect, rms, gain = last.table[0]
+    if not (gain > selector.min_loglik_gain and rms < last.current_rms_um):
+        return ""
+    return (f"{effect}: a smaller effect may be there beside {' and '.join(sel.accepted)}: it lowers the held-out "
+            f"RMS from {last.current_rms_um:.4g} to {rms:.4g} um ({gain:.0f} nats of penalised held-out likelihood), "
+            f"but falls short of what an effect must do to be named (take {1 - selector.min_mse_ratio:.0%} of the "
+            f"held-out loss, and more than {selector.min_removed_noise:g} of the noise floor off the RMS), so it is "
+            "neither named nor in the extended model; more of the same recording does not change those shares, a "
+            "recording where it acts more strongly would")
 
 
 def _validation(selector: Any, problem: Problem, final: Final, loo: dict[str, Any]) -> str:
