@@ -5,14 +5,40 @@ from __future__ import annotations
 import contextlib
 import os
 import secrets
+import stat
 from pathlib import Path
 from typing import IO, Iterable, Iterator
+
+from .errors import InputError
+
+# What an existing output path may be besides a regular file, in words; the rename would replace it
+_NOT_A_FILE = ((stat.S_ISDIR, "a folder"), (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+               (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket"))
+
+
+def output_target(path: str | os.PathLike) -> Path:
+    """The file an output at `path` is written to: `path` itself, or the file a symlink there points
+    to (written through, as an ordinary write would; a dangling link's target is created). An
+    existing path that is not a regular file is refused: the atomic rename would replace the device,
+    FIFO, socket or folder with a regular file."""
+    target = Path(os.path.realpath(path)) if os.path.islink(path) else Path(path)
+    try:
+        mode = os.stat(target).st_mode
+    except FileNotFoundError:
+        return target
+    for test, words in _NOT_A_FILE:
+        if test(mode):
+            via = "" if target == Path(path) else f" (through the link {path})"
+            raise InputError(f"output {target}{via} is {words}, not a regular file: refusing to replace it; "
+                             "give the path of a regular file")
+    return target
 
 
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike, mode: str = "w", **kwargs) -> Iterator[IO]:
-    """Yield a temporary file beside `path`; rename it onto `path` only if the block succeeds."""
-    target = Path(path)
+    """Yield a temporary file beside `path` (beside the file a symlink there points to); rename it
+    onto that file only if the block succeeds. A path that is not a regular file is refused."""
+    target = output_target(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     dir_fd = os.open(target.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
     try:
@@ -58,9 +84,9 @@ def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
 def refuse_overwrite(output: str | os.PathLike, inputs: "Iterable[str | os.PathLike]", what: str = "output") -> None:
     """InputError if writing `output` would replace one of `inputs`: the same path, or the same
     file under another name (a symlink, a hard link, a bind mount: compared by device and inode).
-    A command that fills a folder asks once for each file it writes there (`diagnose --out`)."""
-    from .errors import InputError
-
+    A command that fills a folder asks once for each file it writes there (`diagnose --out`).
+    An output that is not a regular file (a device, a FIFO) is refused here too, before any work."""
+    output_target(output)
     out = Path(output)
     for src in inputs:
         p = Path(src)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import stat
 from pathlib import Path
 
@@ -38,3 +39,54 @@ def test_an_existing_file_survives_a_failed_rewrite(tmp_path: Path) -> None:
             fh.write("new")
             raise ValueError
     assert target.read_text() == "old"
+
+
+def _special_nodes(tmp_path: Path) -> dict[str, Path]:
+    """One of each kind of path an output must not replace (a device only as root: mknod needs it)."""
+    import socket
+
+    nodes = {"a FIFO (named pipe)": tmp_path / "fifo", "a folder": tmp_path / "dir", "a socket": tmp_path / "sock"}
+    os.mkfifo(nodes["a FIFO (named pipe)"])
+    nodes["a folder"].mkdir()
+    sock = socket.socket(socket.AF_UNIX)
+    sock.bind(str(nodes["a socket"]))
+    sock.close()
+    if os.geteuid() == 0:
+        nodes["a character device"] = tmp_path / "fakenull"
+        os.mknod(nodes["a character device"], stat.S_IFCHR | 0o644, os.makedev(1, 3))
+    return nodes
+
+
+def test_a_device_fifo_socket_or_folder_is_refused_not_replaced(tmp_path: Path) -> None:
+    """The temp-then-rename replaced /dev/null (as root) or a FIFO with a regular file, exit 0."""
+    from gma_ffc.errors import InputError
+
+    for words, node in _special_nodes(tmp_path).items():
+        kind = stat.S_IFMT(node.lstat().st_mode)
+        with pytest.raises(InputError, match=re.escape(f"is {words}, not a regular file")):
+            with atomic_write(node) as fh:
+                fh.write("x")
+        assert stat.S_IFMT(node.lstat().st_mode) == kind
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_a_symlink_is_written_through_to_its_file_and_stays_a_link(tmp_path: Path) -> None:
+    (tmp_path / "target.csv").write_text("old")
+    (tmp_path / "link.csv").symlink_to("target.csv")
+    (tmp_path / "dangling.csv").symlink_to("new.csv")
+    for link in ("link.csv", "dangling.csv"):
+        with atomic_write(tmp_path / link) as fh:
+            fh.write("new")
+        assert (tmp_path / link).is_symlink() and (tmp_path / link).read_text() == "new"
+    assert (tmp_path / "target.csv").read_text() == "new" and (tmp_path / "new.csv").read_text() == "new"
+
+
+def test_a_link_to_a_fifo_is_refused_naming_both(tmp_path: Path) -> None:
+    from gma_ffc.errors import InputError
+
+    os.mkfifo(tmp_path / "fifo")
+    (tmp_path / "out.csv").symlink_to("fifo")
+    with pytest.raises(InputError, match=r"fifo \(through the link .*out.csv\) is a FIFO"):
+        with atomic_write(tmp_path / "out.csv") as fh:
+            fh.write("x")
+    assert stat.S_ISFIFO((tmp_path / "fifo").lstat().st_mode)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -226,6 +228,26 @@ def test_an_output_path_that_cannot_be_written_is_one_line_exit_2(workdir: Path,
     err = capsys.readouterr().err
     assert err.startswith("gma-ffc simulate: error: /proc/no-such-dir") and err.count("\n") == 1
     assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("command", ["simulate", "identify"])
+def test_an_output_that_is_a_fifo_is_refused_before_the_work_and_left_alone(workdir: Path, capsys, command) -> None:
+    """`-o /dev/null` as root replaced the device with a regular file and exited 0; a FIFO the same."""
+    fifo = workdir / f"pipe_{command}"
+    os.mkfifo(fifo)
+    rec = str(workdir / "id_15.2.csv")
+    argv = ["simulate", "--model", str(workdir / "model.yaml"), rec] if command == "simulate" else ["identify", rec]
+    assert main([*argv, "-o", str(fifo)]) == 2
+    err = capsys.readouterr().err
+    assert "is a FIFO (named pipe), not a regular file" in err and err.count("\n") == 1
+    assert stat.S_ISFIFO(fifo.lstat().st_mode)
+
+
+def test_simulate_through_a_symlink_writes_the_file_it_points_to(workdir: Path) -> None:
+    (workdir / "through.csv").symlink_to("pointed_at.csv")
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "id_15.2.csv"),
+                 "-o", str(workdir / "through.csv")]) == 0
+    assert (workdir / "through.csv").is_symlink() and len(read_recording(workdir / "pointed_at.csv")) == 1200
 
 
 def test_a_dropout_in_time_is_noted_and_bridged_while_jitter_is_not(workdir: Path, capsys) -> None:
