@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import secrets
 import stat
 from pathlib import Path
-from typing import IO, Iterable, Iterator
+from typing import IO, Iterable, Iterator, Mapping
 
 from .errors import InputError
 
@@ -34,18 +35,111 @@ def output_target(path: str | os.PathLike) -> Path:
     return target
 
 
+# What to do when a write fails, by errno; anything else: write the output elsewhere
+_ADVICE = {errno.ENOSPC: "free some space on that disk or write it elsewhere",
+           errno.EDQUOT: "free some of your disk quota or write it elsewhere",
+           errno.EROFS: "that file system is read-only: write it elsewhere",
+           errno.EACCES: "no permission to write there: write it elsewhere or change the folder's permissions",
+           errno.EPERM: "no permission to write there: write it elsewhere or change the folder's permissions"}
+
+
+def write_failed(path: str | os.PathLike, exc: OSError, kept: str = "any earlier file of that name is left as it was") -> InputError:
+    """The one line for an output that could not be written: the output's own name (not the hidden
+    temporary's, nor the empty name a failed write() carries), the reason and what to do."""
+    reason = exc.strerror or str(exc)
+    return InputError(f"{path}: cannot write it: {reason} ({kept}); {_ADVICE.get(exc.errno, 'write it elsewhere')}")
+
+
+def check_writable(folder: str | os.PathLike, label: str) -> None:
+    """InputError now, before any work, if nothing can be created in `folder` (or, when it does not
+    exist yet, in the nearest folder above it that does, where it would be made): a read-only or
+    full file system, no permission, a file where a folder should be. Probes with an empty file;
+    `label` starts the message: the output as the user gave it."""
+    probe_in = Path(folder)
+    while not probe_in.exists() and probe_in != probe_in.parent:
+        probe_in = probe_in.parent
+    if not probe_in.is_dir():
+        raise InputError(f"{label}: {probe_in} is a file, not a folder; give a path in a folder")
+    probe = probe_in / f".gma-ffc-probe.{secrets.token_hex(4)}.tmp"
+    try:
+        os.close(os.open(probe, _TMP_FLAGS, 0o600))
+        os.unlink(probe)
+    except OSError as exc:
+        raise InputError(f"{label}: cannot write in {probe_in}: {exc.strerror or exc}; "
+                         f"{_ADVICE.get(exc.errno, 'write it elsewhere')}") from None
+
+
+_TMP_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike, mode: str = "w", **kwargs) -> Iterator[IO]:
     """Yield a temporary file beside `path` (beside the file a symlink there points to); rename it
-    onto that file only if the block succeeds. A path that is not a regular file is refused."""
+    onto that file only if the block succeeds. A path that is not a regular file is refused; a
+    write that fails (a full disk, a read-only mount) is an InputError naming `path`."""
     target = output_target(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    dir_fd = os.open(target.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        dir_fd = os.open(target.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    except OSError as exc:
+        raise write_failed(path, exc) from None
     try:
         with atomic_write_at(dir_fd, target.name, mode, **kwargs) as handle:
             yield handle
+    except OSError as exc:
+        raise write_failed(path, exc) from None
     finally:
         os.close(dir_fd)
+
+
+def atomic_write_all(folder: str | os.PathLike, contents: Mapping[str, bytes]) -> None:
+    """Write each of `contents` (file name -> bytes) into `folder` as a temporary file, and rename
+    them onto their names only once every one is written and synced: a failure on any leaves the
+    folder's earlier files as they were (one run's set, never a mix of two)."""
+    targets = {name: output_target(Path(folder) / name) for name in contents}
+    temps: list[Path] = []
+    try:
+        for name, data in contents.items():
+            temps.append(_write_temporary(targets[name], data))
+    except OSError as exc:
+        raise write_failed(Path(folder) / name, exc, f"none of the files in {folder} was replaced") from None
+    finally:
+        if len(temps) < len(targets):
+            for tmp in temps:
+                with contextlib.suppress(OSError):
+                    tmp.unlink()
+    for tmp, target in zip(temps, targets.values()):
+        try:
+            os.replace(tmp, target)
+        except OSError as exc:
+            raise write_failed(target, exc, "the files before it in the list were replaced") from None
+    for parent in {t.parent for t in targets.values()}:
+        _fsync_dir(parent)
+
+
+def _write_temporary(target: Path, data: bytes) -> Path:
+    """A synced temporary beside `target` holding `data` (removed again if writing it fails)."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.parent / f".{target.name}.{secrets.token_hex(4)}.tmp"
+    fd = os.open(tmp, _TMP_FLAGS, 0o666)        # 0666: the kernel applies the umask
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+    return tmp
+
+
+def _fsync_dir(folder: Path) -> None:
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 @contextlib.contextmanager
@@ -55,7 +149,7 @@ def atomic_write_at(dir_fd: int, name: str, mode: str = "w", **kwargs) -> Iterat
     crash at any moment `name` is either the old file or the whole new one."""
     tmp = f".{name}.{secrets.token_hex(4)}.tmp"
     # 0666: the kernel applies the umask, as for an ordinary open()
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666, dir_fd=dir_fd)
+    fd = os.open(tmp, _TMP_FLAGS, 0o666, dir_fd=dir_fd)
     try:
         with os.fdopen(fd, mode, **kwargs) as handle:
             yield handle

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import stat
@@ -90,3 +91,66 @@ def test_a_link_to_a_fifo_is_refused_naming_both(tmp_path: Path) -> None:
         with atomic_write(tmp_path / "out.csv") as fh:
             fh.write("x")
     assert stat.S_ISFIFO((tmp_path / "fifo").lstat().st_mode)
+
+
+def _no_space(*args, **kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def test_a_full_disk_names_the_output_not_an_empty_name_and_keeps_the_old_file(tmp_path: Path, monkeypatch) -> None:
+    """A failed write said 'error: : No space left on device' (a write() carries no file name)."""
+    from gma_ffc.errors import InputError
+
+    target = tmp_path / "out.csv"
+    target.write_text("old")
+    monkeypatch.setattr(os, "fsync", _no_space)
+    with pytest.raises(InputError, match=re.escape(f"{target}: cannot write it: No space left on device")) as info:
+        with atomic_write(target) as fh:
+            fh.write("new")
+    assert "free some space" in str(info.value) and ".tmp" not in str(info.value)
+    assert target.read_text() == "old" and not list(tmp_path.glob(".*.tmp"))
+
+
+def test_a_set_of_files_is_replaced_all_or_none(tmp_path: Path, monkeypatch) -> None:
+    """diagnose wrote its files one by one: a full disk on the second left a mix of two runs."""
+    from gma_ffc import atomic
+    from gma_ffc.errors import InputError
+
+    for name in ("a.yaml", "b.html", "c.json"):
+        (tmp_path / name).write_text("old")
+    real = atomic._write_temporary
+
+    def fail_on_b(target: Path, data: bytes) -> Path:
+        if target.name == "b.html":
+            _no_space()
+        return real(target, data)
+
+    monkeypatch.setattr(atomic, "_write_temporary", fail_on_b)
+    with pytest.raises(InputError, match=re.escape(f"{tmp_path / 'b.html'}: cannot write it: No space left")):
+        atomic.atomic_write_all(tmp_path, {"a.yaml": b"new", "b.html": b"new", "c.json": b"new"})
+    assert [p.read_text() for p in sorted(tmp_path.iterdir())] == ["old"] * 3   # and no temporaries
+    monkeypatch.setattr(atomic, "_write_temporary", real)
+    atomic.atomic_write_all(tmp_path, {"a.yaml": b"new", "b.html": b"new", "c.json": b"new"})
+    assert [p.read_text() for p in sorted(tmp_path.iterdir())] == ["new"] * 3
+
+
+def test_check_writable_finds_a_read_only_folder_and_a_file_in_the_way(tmp_path: Path, monkeypatch) -> None:
+    from gma_ffc.atomic import check_writable
+    from gma_ffc.errors import InputError
+
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="--out x: .*file is a file, not a folder"):
+        check_writable(tmp_path / "file" / "sub", "--out x")
+    check_writable(tmp_path / "new" / "deeper", "--out y")           # made later, where it can be
+    assert not (tmp_path / "new").exists() and sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+    real_open = os.open
+
+    def read_only(path, flags, *args, **kwargs):
+        if flags & os.O_CREAT:
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(path))
+        return real_open(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", read_only)
+    with pytest.raises(InputError, match=f"--out z: cannot write in {re.escape(str(tmp_path))}: Read-only file "
+                                         "system; that file system is read-only: write it elsewhere"):
+        check_writable(tmp_path / "diag", "--out z")

@@ -250,6 +250,21 @@ def test_simulate_through_a_symlink_writes_the_file_it_points_to(workdir: Path) 
     assert (workdir / "through.csv").is_symlink() and len(read_recording(workdir / "pointed_at.csv")) == 1200
 
 
+def test_a_full_disk_is_one_line_naming_the_output(workdir: Path, capsys, monkeypatch) -> None:
+    """It said 'gma-ffc simulate: error: : No space left on device', naming no file."""
+    import errno
+
+    def no_space(fd: int) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    out = workdir / "full.csv"
+    monkeypatch.setattr(os, "fsync", no_space)
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "id_15.2.csv"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"gma-ffc simulate: error: {out}: cannot write it: No space left on device")
+    assert "free some space" in err and err.count("\n") == 1 and not out.exists()
+
+
 def test_a_dropout_in_time_is_noted_and_bridged_while_jitter_is_not(workdir: Path, capsys) -> None:
     """A logger that lost 50 ms: simulate still runs (per-sample steps), and says where the gap is,
     so a residual there is not read as physics. Timestamp jitter of a tenth of a step says nothing."""

@@ -200,3 +200,58 @@ def _says_its_initial_state(doc: dict, err: str, rule: str | None, words: str) -
     (state,) = doc["initial_state"]
     assert state["rule"] == (rule or "estimate") and words in state["how"]
     assert f"initial state ({state['recording']}): {state['how']}" in err
+
+
+def test_a_read_only_out_is_refused_before_the_work(case_files, capsys, tmp_path, monkeypatch):
+    """An unwritable --out was found only after the whole analysis, naming a hidden temporary."""
+    import errno
+    import os
+
+    import gma_ffc.diagnose.engine as engine
+
+    real_open = os.open
+    ro = tmp_path / "ro"
+    ro.mkdir()
+
+    def read_only(path, flags, *args, **kwargs):
+        if flags & os.O_CREAT and str(path).startswith(str(ro)):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(path))
+        return real_open(path, flags, *args, **kwargs)
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the analysis started")
+
+    monkeypatch.setattr(os, "open", read_only)
+    monkeypatch.setattr(engine, "diagnose", no_work)
+    code, out, err = _run(capsys, "diagnose", "--model", str(case_files / "model.yaml"),
+                          str(case_files / "long_run.csv"), "--out", str(ro / "diag"))
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"{ro / 'diag'}: cannot write in {ro}: Read-only file system" in err
+
+
+def test_a_full_disk_leaves_the_earlier_diagnosis_whole(case_files, capsys, tmp_path, monkeypatch):
+    """A full disk on report.html left a new extended_model.yaml beside the old report and json,
+    and said 'error: : No space left on device'."""
+    import errno
+    import os
+
+    from gma_ffc import atomic
+
+    rec = _short(tmp_path, "short.csv", n=600)
+    argv = ("diagnose", "--model", str(case_files / "model.yaml"), str(rec), "--out", str(tmp_path / "o"))
+    assert _run(capsys, *argv)[0] == 0
+    before = {p.name: p.read_bytes() for p in (tmp_path / "o").iterdir()}
+    real = atomic._write_temporary
+
+    def full_at_report(target, data):
+        if target.name == "report.html":
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real(target, data)
+
+    monkeypatch.setattr(atomic, "_write_temporary", full_at_report)
+    (tmp_path / "o" / "diagnosis.json").write_bytes(b'{"old": true}')      # an earlier run's, to tell apart
+    before["diagnosis.json"] = b'{"old": true}'
+    code, out, err = _run(capsys, *argv)
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"{tmp_path / 'o' / 'report.html'}: cannot write it: No space left on device" in err
+    assert {p.name: p.read_bytes() for p in (tmp_path / "o").iterdir()} == before

@@ -61,10 +61,11 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out} exists and is not a folder")
-    from ..atomic import refuse_overwrite
+    from ..atomic import check_writable, refuse_overwrite
 
     for produced in ("diagnosis.json", "report.html", "extended_model.yaml"):
         refuse_overwrite(out / produced, [*args.recordings, *args.ident, args.model], "--out")
+    check_writable(out, str(out))          # now, not after the whole analysis
     model = load_model(args.model)
     if model.kind == "extended":
         raise InputError(f"{args.model} is already an extended model; diagnose its base sdpi/mpi model instead")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from ..errors import InputError
 from ..modelio import save_model
@@ -48,13 +49,15 @@ def run(args: argparse.Namespace) -> int:
     from ..identify import SDPIIdentifier
     from ..recordings import fingerprint
 
-    from ..atomic import refuse_overwrite
+    from ..atomic import check_writable, refuse_overwrite
 
     refuse_overwrite(args.output, args.recordings)
     if not args.output.endswith((".yaml", ".yml")):
         raise InputError(f"model file must end in .yaml, got {args.output}")
+    check_writable(Path(args.output).parent, args.output)     # now, not after the fit
     if args.plot:
         refuse_overwrite(args.plot, args.recordings, "plot")
+        check_writable(Path(args.plot).parent, args.plot)
     recs = read_all(args.recordings, require=("time_s", "drive", "displacement_um"), group=args.group)
     note_gaps(recs)
     with Progress("identify", total=4) as prog:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -13,7 +14,7 @@ from ..initial_state import InitialStateSpec
 from ..model import SDPIModel
 from ..modelio import load_model
 from ..recordings import Recording, read_recording, write_recording
-from ..atomic import refuse_overwrite
+from ..atomic import check_writable, refuse_overwrite
 from ._common import add_group_option, add_initial_state_option, add_stress_option, stress_for
 
 HELP = """\
@@ -52,6 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     refuse_overwrite(args.output, [args.reference, args.model])
+    check_writable(Path(args.output).parent, args.output)
     if args.limit and args.limit[0] >= args.limit[1]:
         raise InputError(f"--limit needs LO < HI, got {args.limit[0]} {args.limit[1]}")
     model = load_model(args.model)

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..modelio import load_model
 from ..recordings import Recording, write_recording
-from ..atomic import refuse_overwrite
+from ..atomic import check_writable, refuse_overwrite
 from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_drive_name, note_gaps,
                       read_while, stress_for, warm_up)
 
@@ -47,6 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     refuse_overwrite(args.output, [args.recording, args.model])
+    check_writable(Path(args.output).parent, args.output)
 
     def prepare() -> Any:      # numba is imported here (by the model), beside the read, not at --help
         model = load_model(args.model)

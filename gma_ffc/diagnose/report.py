@@ -1,7 +1,8 @@
 """Show the diagnosis: diagnosis.json, report.html (plots first, numbers behind), extended_model.yaml.
 
-Everything is rendered in memory first and then written file by file with `atomic_write`, so a
-failure while plotting never leaves a half-written output directory behind.
+Everything is rendered in memory first, then written with `atomic_write_all`: every file as a
+temporary, renamed only once all are written, so a failure while plotting or writing (a full disk)
+leaves the folder's earlier set as it was, never half-written nor a mix of two runs.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from ..atomic import atomic_write
+from ..atomic import atomic_write_all
 from ..errors import FaultError
 from .data import unscored_spans
 from .results import Diagnosis, rms_summary
@@ -348,17 +349,12 @@ def finite_document(v: Any, where: str = "diagnosis.json") -> Any:
 
 
 def write_outputs(dg: Diagnosis, out_dir: str | Path) -> dict:
-    """Render everything, then write the three files atomically; returns the JSON document."""
+    """Render everything, then write the three files atomically, all or none; returns the JSON document."""
     out = Path(out_dir)
     doc = finite_document(dg.to_json(MODEL_FILE))
     js = json.dumps(doc, indent=2, allow_nan=False)
     page = render_html(dg, doc)
     ym = model_yaml(dg)
-    out.mkdir(parents=True, exist_ok=True)
-    with atomic_write(out / MODEL_FILE, "w", encoding="utf-8") as fh:
-        fh.write(ym)
-    with atomic_write(out / "report.html", "w", encoding="utf-8") as fh:
-        fh.write(page)
-    with atomic_write(out / "diagnosis.json", "w", encoding="utf-8") as fh:
-        fh.write(js)
+    atomic_write_all(out, {MODEL_FILE: ym.encode("utf-8"), "report.html": page.encode("utf-8"),
+                           "diagnosis.json": js.encode("utf-8")})
     return doc
