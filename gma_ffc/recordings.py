@@ -554,12 +554,31 @@ def _format_meta(meta: Mapping[str, Any]) -> str:
     return "".join(out)
 
 
+# What `write_recording` writes, by suffix: the two that `read_recording` reads back as the same
+# recording (a .tdms or .h5 name would hold CSV text its reader refuses; other names mislead)
+WRITTEN_SUFFIXES = (".csv", ".mat")
+
+
+def check_output_name(path: str | Path) -> None:
+    """RecordingError, before any work, unless `path` names a recording file gma-ffc writes and can
+    read back (docs/recordings.md: every output can be fed back in): .csv or .mat."""
+    if str(path) == "-":
+        raise RecordingError("output -: recordings are written to a file, not to standard output; "
+                             "give a file name ending in .csv or .mat")
+    p = Path(path)
+    if p.suffix.lower() not in WRITTEN_SUFFIXES:
+        what = f"'{p.suffix}'" if p.suffix else "no extension"
+        raise RecordingError(f"{path}: output recordings are written as .csv or .mat (what gma-ffc reads back), "
+                             f"got {what}; name it {p.with_suffix('.csv')}")
+
+
 def write_recording(path: str | Path, rec: Recording) -> None:
-    """Write atomically: the file appears complete or not at all.
+    """Write atomically: the file appears complete or not at all. `path` ends in .csv or .mat.
 
     Every value is written in its shortest form that reads back to the same double (Arrow's
     writer), so a round trip is exact and no digit is noise.
     """
+    check_output_name(path)
     p = Path(path)
     names = list(rec.columns)
     if p.suffix.lower() == ".mat":

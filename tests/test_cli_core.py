@@ -233,7 +233,7 @@ def test_an_output_path_that_cannot_be_written_is_one_line_exit_2(workdir: Path,
 @pytest.mark.parametrize("command", ["simulate", "identify"])
 def test_an_output_that_is_a_fifo_is_refused_before_the_work_and_left_alone(workdir: Path, capsys, command) -> None:
     """`-o /dev/null` as root replaced the device with a regular file and exited 0; a FIFO the same."""
-    fifo = workdir / f"pipe_{command}"
+    fifo = workdir / f"pipe_{command}.{'csv' if command == 'simulate' else 'yaml'}"
     os.mkfifo(fifo)
     rec = str(workdir / "id_15.2.csv")
     argv = ["simulate", "--model", str(workdir / "model.yaml"), rec] if command == "simulate" else ["identify", rec]
@@ -263,6 +263,20 @@ def test_a_full_disk_is_one_line_naming_the_output(workdir: Path, capsys, monkey
     err = capsys.readouterr().err
     assert err.startswith(f"gma-ffc simulate: error: {out}: cannot write it: No space left on device")
     assert "free some space" in err and err.count("\n") == 1 and not out.exists()
+
+
+@pytest.mark.parametrize("command, output, words", [
+    ("simulate", "out.h5", "output recordings are written as .csv or .mat (what gma-ffc reads back), got '.h5'"),
+    ("invert", "out.tdms", "got '.tdms'"),
+    ("simulate", "-", "output -: recordings are written to a file, not to standard output"),
+])
+def test_an_output_it_cannot_read_back_is_refused(workdir: Path, capsys, monkeypatch, command, output, words) -> None:
+    """`-o x.h5` wrote CSV text the HDF5 reader refused; `-o -` made a file named '-'."""
+    monkeypatch.chdir(workdir)
+    inp = "ref.csv" if command == "invert" else "id_15.2.csv"
+    assert main([command, "--model", "model.yaml", inp, "-o", output]) == 2
+    err = capsys.readouterr().err
+    assert words in err and err.count("\n") == 1 and not (workdir / output).exists()
 
 
 def test_a_dropout_in_time_is_noted_and_bridged_while_jitter_is_not(workdir: Path, capsys) -> None:

@@ -115,3 +115,13 @@ def test_a_step_of_a_whole_stroke_is_not_a_spike(tmp_path: Path) -> None:
     write_recording(path, Recording({"time_s": np.arange(5000) / 1e3, "current_A": y / 20, "displacement_um": y},
                                     {}, "steps.csv"))
     assert len(read_recording(path)) == 5000
+@pytest.mark.parametrize("name, words", [
+    ("out.h5", "got '.h5'; name it {d}/out.csv"), ("out.tdms", "got '.tdms'"), ("out.txt", "got '.txt'"),
+    ("out", "got no extension; name it {d}/out.csv"),
+])
+def test_an_output_name_gma_ffc_would_not_read_back_is_refused(tmp_path: Path, name: str, words: str) -> None:
+    """`-o x.h5` wrote CSV text under a name the HDF5 reader then refused."""
+    rec = Recording({"time_s": np.arange(3.0), "current_A": np.zeros(3), "displacement_um": np.zeros(3)})
+    with pytest.raises(RecordingError, match=re.escape(words.format(d=tmp_path))):
+        write_recording(tmp_path / name, rec)
+    assert list(tmp_path.iterdir()) == []

@@ -13,7 +13,7 @@ from ..errors import InputError
 from ..initial_state import InitialStateSpec
 from ..model import SDPIModel
 from ..modelio import load_model
-from ..recordings import Recording, read_recording, write_recording
+from ..recordings import Recording, check_output_name, read_recording, write_recording
 from ..atomic import check_writable, refuse_overwrite
 from ._common import add_group_option, add_initial_state_option, add_stress_option, stress_for
 
@@ -40,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a model file from gma-ffc identify or gma-ffc diagnose (extended_model.yaml)")
     p.add_argument("reference", metavar="REF.csv", help="time_s, reference_um[, stress_MPa]")
     p.add_argument("-o", "--output", required=True, metavar="OUT.csv",
-                   help="the drive, written as a recording (never over REF)")
+                   help="the drive, written as a recording: .csv or .mat (never over REF)")
     p.add_argument("--limit", nargs=2, type=float, metavar=("LO", "HI"),
                    help="clip the drive to [LO, HI]; the command says how many samples it clipped and where")
     p.add_argument("--initial-drive", type=float, metavar="A",
@@ -52,6 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_name(args.output)
     refuse_overwrite(args.output, [args.reference, args.model])
     check_writable(Path(args.output).parent, args.output)
     if args.limit and args.limit[0] >= args.limit[1]:

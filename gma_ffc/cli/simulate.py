@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from ..modelio import load_model
-from ..recordings import Recording, write_recording
+from ..recordings import Recording, check_output_name, write_recording
 from ..atomic import check_writable, refuse_overwrite
 from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_drive_name, note_gaps,
                       read_while, stress_for, warm_up)
@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a model file from gma-ffc identify or gma-ffc diagnose (extended_model.yaml)")
     p.add_argument("recording", metavar="REC", help="recording with time_s, drive and (for SDPI) stress_MPa")
     p.add_argument("-o", "--output", required=True, metavar="OUT.csv",
-                   help="the prediction, written as a recording (never over REC)")
+                   help="the prediction, written as a recording: .csv or .mat (never over REC)")
     add_stress_option(p)
     add_initial_state_option(p)
     add_group_option(p)
@@ -47,6 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_name(args.output)
     refuse_overwrite(args.output, [args.recording, args.model])
     check_writable(Path(args.output).parent, args.output)
 
