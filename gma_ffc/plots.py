@@ -8,6 +8,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .atomic import atomic_write
+from .errors import InputError
 from .identify import burn_in_end
 from .protocols import Model
 from .recordings import Recording
@@ -20,6 +21,20 @@ def _figure(nrows: int, ncols: int, size: tuple[float, float]) -> Any:
     import matplotlib.pyplot as plt
 
     return plt.subplots(nrows, ncols, figsize=size, squeeze=False, constrained_layout=True)
+
+
+def check_plot_name(path: str | Path, option: str = "--plot") -> None:
+    """InputError, before any work, unless matplotlib writes an image format named by `path`'s
+    suffix (a name without one is saved as PNG). Its own list, so the two never disagree."""
+    suffix = Path(path).suffix.lstrip(".").lower()
+    if not suffix:
+        return
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if suffix not in formats:
+        raise InputError(f"{option} {path}: cannot save a plot as .{suffix}; name it "
+                         f"{Path(path).with_suffix('.png')} (or .{', .'.join(sorted(formats))})")
 
 
 def save_figure(fig: Any, path: str | Path) -> None:

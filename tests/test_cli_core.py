@@ -279,6 +279,21 @@ def test_an_output_it_cannot_read_back_is_refused(workdir: Path, capsys, monkeyp
     assert words in err and err.count("\n") == 1 and not (workdir / output).exists()
 
 
+def test_a_plot_format_matplotlib_cannot_write_is_refused_before_the_fit(workdir: Path, capsys, monkeypatch) -> None:
+    """`--plot loops.txt` fitted the whole model, then 'internal error: ValueError' and no model."""
+    import gma_ffc.identify
+
+    def no_fit(*args, **kwargs):
+        raise AssertionError("the fit started")
+
+    monkeypatch.setattr(gma_ffc.identify.SDPIIdentifier, "fit", no_fit)
+    assert main(["identify", str(workdir / "id_15.2.csv"), "-o", str(workdir / "p.yaml"),
+                 "--plot", str(workdir / "loops.txt")]) == 2
+    err = capsys.readouterr().err
+    assert f"--plot {workdir / 'loops.txt'}: cannot save a plot as .txt; name it {workdir / 'loops.png'}" in err
+    assert ".pdf" in err and err.count("\n") == 1 and not (workdir / "p.yaml").exists()
+
+
 def test_a_dropout_in_time_is_noted_and_bridged_while_jitter_is_not(workdir: Path, capsys) -> None:
     """A logger that lost 50 ms: simulate still runs (per-sample steps), and says where the gap is,
     so a residual there is not read as physics. Timestamp jitter of a tenth of a step says nothing."""

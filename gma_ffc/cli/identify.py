@@ -45,19 +45,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    from ..identify import SDPIIdentifier
-    from ..recordings import fingerprint
-
+def _check_outputs(args: argparse.Namespace) -> None:
+    """The model file and the plot, checked now, not after the fit: names, inputs, writable folders."""
     from ..atomic import check_writable, refuse_overwrite
 
     refuse_overwrite(args.output, args.recordings)
     if not args.output.endswith((".yaml", ".yml")):
         raise InputError(f"model file must end in .yaml, got {args.output}")
-    check_writable(Path(args.output).parent, args.output)     # now, not after the fit
+    check_writable(Path(args.output).parent, args.output)
     if args.plot:
+        from ..plots import check_plot_name
+
+        check_plot_name(args.plot)
         refuse_overwrite(args.plot, args.recordings, "plot")
         check_writable(Path(args.plot).parent, args.plot)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..identify import SDPIIdentifier
+    from ..recordings import fingerprint
+
+    _check_outputs(args)
     recs = read_all(args.recordings, require=("time_s", "drive", "displacement_um"), group=args.group)
     note_gaps(recs)
     with Progress("identify", total=4) as prog:
