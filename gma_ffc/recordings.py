@@ -399,16 +399,8 @@ def _parse_rows(body: list[str], ncols: int, source: str, header_line: int, deli
 
 
 def read_mat(path: Path, require: Sequence[str]) -> Recording:
-    import scipy.io
-
     source = str(path)
-    try:
-        raw = scipy.io.loadmat(str(path), squeeze_me=True, struct_as_record=False)
-    except NotImplementedError:
-        raise RecordingError(
-            f"{source}: MATLAB v7.3 (HDF5) files are not supported; save with `save(..., '-v7')`") from None
-    except (OSError, ValueError, TypeError) as exc:
-        raise RecordingError(f"{source}: not a readable .mat file ({exc})") from None
+    raw = _load_mat(path)
     columns: dict[str, np.ndarray] = {}
     meta: dict[str, Any] = {}
     for key, value in raw.items():
@@ -424,6 +416,26 @@ def read_mat(path: Path, require: Sequence[str]) -> Recording:
             meta[key] = str(arr)
     rec = Recording(columns, meta, source)
     return validate(rec, require, header_line=0)
+
+
+def _load_mat(path: Path) -> dict[str, Any]:
+    """scipy's loadmat, its errors as one line naming the file. An empty or cut-off file raises
+    MatReadError, IndexError, struct errors and more (scipy has no one type for a damaged file)."""
+    import scipy.io
+
+    source = str(path)
+    try:
+        return scipy.io.loadmat(str(path), squeeze_me=True, struct_as_record=False)
+    except NotImplementedError:
+        raise RecordingError(
+            f"{source}: MATLAB v7.3 (HDF5) files are not supported; save with `save(..., '-v7')`") from None
+    except FileNotFoundError:
+        raise RecordingError(f"{source}: no such file") from None
+    except Exception as exc:   # noqa: BLE001 - any damage is the file's, said in one line
+        what = "empty (0 bytes)" if path.is_file() and path.stat().st_size == 0 else \
+            f"not a readable .mat file, damaged or cut off ({type(exc).__name__}: {exc})"
+        raise RecordingError(f"{source}: {what}; save it again from MATLAB with save(..., '-v7') or "
+                             "give it as .csv") from None
 
 
 def read_tdms(path: Path, require: Sequence[str], group: str | None = None) -> Recording:

@@ -294,6 +294,22 @@ def test_a_plot_format_matplotlib_cannot_write_is_refused_before_the_fit(workdir
     assert ".pdf" in err and err.count("\n") == 1 and not (workdir / "p.yaml").exists()
 
 
+@pytest.mark.parametrize("content", [b"", b"MATLAB 5.0 MAT-file", "cut"])
+def test_an_empty_or_cut_off_mat_file_is_one_line_naming_it(workdir: Path, capsys, tmp_path, content) -> None:
+    """An empty .mat was 'internal error: MatReadError', a cut one 'internal error: IndexError'."""
+    if content == "cut":
+        write_recording(tmp_path / "whole.mat", read_recording(workdir / "id_15.2.csv"))
+        content = (tmp_path / "whole.mat").read_bytes()[:100]
+    bad = tmp_path / "bad.mat"
+    bad.write_bytes(content)
+    for argv in (["identify", str(bad), "-o", str(tmp_path / "m.yaml")],
+                 ["simulate", "--model", str(workdir / "model.yaml"), str(bad), "-o", str(tmp_path / "o.csv")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"error: {bad}: " in err and "save it again from MATLAB" in err and err.count("\n") == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name != "whole.mat") == ["bad.mat"]
+
+
 def test_a_dropout_in_time_is_noted_and_bridged_while_jitter_is_not(workdir: Path, capsys) -> None:
     """A logger that lost 50 ms: simulate still runs (per-sample steps), and says where the gap is,
     so a residual there is not read as physics. Timestamp jitter of a tenth of a step says nothing."""
