@@ -56,8 +56,8 @@ def _check_outputs(args: argparse.Namespace) -> None:
     if args.plot:
         from ..plots import check_plot_name
 
+        refuse_overwrite(args.plot, args.recordings, "plot")     # the graver mistake, said first
         check_plot_name(args.plot)
-        refuse_overwrite(args.plot, args.recordings, "plot")
         check_writable(Path(args.plot).parent, args.plot)
 
 
