@@ -292,6 +292,10 @@ def test_a_plot_format_matplotlib_cannot_write_is_refused_before_the_fit(workdir
     err = capsys.readouterr().err
     assert f"--plot {workdir / 'loops.txt'}: cannot save a plot as .txt; name it {workdir / 'loops.png'}" in err
     assert ".pdf" in err and err.count("\n") == 1 and not (workdir / "p.yaml").exists()
+    monkeypatch.chdir(workdir)                    # `--plot -` made a file named '-'
+    assert main(["identify", "id_15.2.csv", "-o", "p.yaml", "--plot", "-"]) == 2
+    assert "--plot -: plots are saved to a file, not to standard output" in capsys.readouterr().err
+    assert not (workdir / "-").exists()
 
 
 @pytest.mark.parametrize("content", [b"", b"MATLAB 5.0 MAT-file", "cut"])
