@@ -43,11 +43,16 @@ _ADVICE = {errno.ENOSPC: "free some space on that disk or write it elsewhere",
            errno.EPERM: "no permission to write there: write it elsewhere or change the folder's permissions"}
 
 
-def write_failed(path: str | os.PathLike, exc: OSError, kept: str = "any earlier file of that name is left as it was") -> InputError:
+def _advice(exc: OSError) -> str:
+    return _ADVICE.get(exc.errno or 0, "write it elsewhere")
+
+
+def write_failed(path: str | os.PathLike, exc: OSError,
+                 kept: str = "any earlier file of that name is left as it was") -> InputError:
     """The one line for an output that could not be written: the output's own name (not the hidden
     temporary's, nor the empty name a failed write() carries), the reason and what to do."""
     reason = exc.strerror or str(exc)
-    return InputError(f"{path}: cannot write it: {reason} ({kept}); {_ADVICE.get(exc.errno, 'write it elsewhere')}")
+    return InputError(f"{path}: cannot write it: {reason} ({kept}); {_advice(exc)}")
 
 
 def check_writable(folder: str | os.PathLike, label: str) -> None:
@@ -66,7 +71,7 @@ def check_writable(folder: str | os.PathLike, label: str) -> None:
         os.unlink(probe)
     except OSError as exc:
         raise InputError(f"{label}: cannot write in {probe_in}: {exc.strerror or exc}; "
-                         f"{_ADVICE.get(exc.errno, 'write it elsewhere')}") from None
+                         f"{_advice(exc)}") from None
 
 
 _TMP_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC

@@ -27,7 +27,8 @@ def check_plot_name(path: str | Path, option: str = "--plot") -> None:
     """InputError, before any work, unless matplotlib writes an image format named by `path`'s
     suffix (a name without one is saved as PNG). Its own list, so the two never disagree."""
     if str(path) == "-":
-        raise InputError(f"{option} -: plots are saved to a file, not to standard output; give a name such as loops.png")
+        raise InputError(f"{option} -: plots are saved to a file, not to standard output; "
+                         "give a name such as loops.png")
     suffix = Path(path).suffix.lstrip(".").lower()
     if not suffix:
         return
