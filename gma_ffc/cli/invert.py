@@ -52,8 +52,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    refuse_overwrite(args.output, [args.reference, args.model])     # a device or an input: said first
     check_output_name(args.output)
-    refuse_overwrite(args.output, [args.reference, args.model])
     check_writable(Path(args.output).parent, args.output)
     if args.limit and args.limit[0] >= args.limit[1]:
         raise InputError(f"--limit needs LO < HI, got {args.limit[0]} {args.limit[1]}")

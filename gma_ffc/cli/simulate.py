@@ -47,8 +47,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    refuse_overwrite(args.output, [args.recording, args.model])     # a device or an input: said first
     check_output_name(args.output)
-    refuse_overwrite(args.output, [args.recording, args.model])
     check_writable(Path(args.output).parent, args.output)
 
     def prepare() -> Any:      # numba is imported here (by the model), beside the read, not at --help
