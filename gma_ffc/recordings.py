@@ -128,12 +128,11 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
     if "drive" in require:
         required_cols.append(rec.drive_name)
     for name in required_cols:
-        bad = ~np.isfinite(rec.columns[name])
-        if bad.any():
-            row = int(np.argmax(bad))
-            raise RecordingError(
-                f"{src}, line {header_line + 1 + row}: '{name}' is {rec.columns[name][row]} "
-                f"(NaN or infinite values are not allowed in required columns)")
+        _refuse_non_finite(rec, name, header_line, "required columns")
+    if STRESS in rec.columns and STRESS not in required_cols:
+        # every model that reads stress reads every sample of it: a present column is as good as required
+        _refuse_non_finite(rec, STRESS, header_line, "stress_MPa, when a recording has the column: "
+                                                     "put the stress at that time in the cell")
     if DISPLACEMENT in rec.columns:
         _refuse_a_spike(rec, DISPLACEMENT, header_line)
     steps = np.diff(rec.time_s)
@@ -172,6 +171,15 @@ def _refuse_a_spike(rec: Recording, name: str, header_line: int) -> None:
             f"{reach:.4g} from both its neighbours ({SPIKE_SPREADS:g} times the column's spread, {hi - lo:.4g}): a sensor "
             f"overload value or a glitch{f' ({spikes.size} such samples)' if spikes.size > 1 else ''}; "
             "fix or remove that row")
+
+
+def _refuse_non_finite(rec: Recording, name: str, header_line: int, where: str) -> None:
+    """RecordingError naming the file and the line of the first NaN or infinite cell of column `name`."""
+    bad = ~np.isfinite(rec.columns[name])
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise RecordingError(f"{rec.source}, line {header_line + 1 + row}: '{name}' is {rec.columns[name][row]} "
+                             f"(NaN or infinite values are not allowed in {where})")
 
 
 GAP_STEPS = 5.0     # a time step this many times the median one is a gap (a dropout), not jitter

@@ -1,0 +1,73 @@
+"""Inputs every command refuses in one line, exit 2 (docs/cli.md): non-finite cells and option values,
+model files with non-finite offsets, a recording given twice."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gma_ffc.cli import main
+from gma_ffc.recordings import Recording, read_recording, write_recording
+from preisach import PreisachActuator
+
+STRESSES = (-11.3, -15.2, -19.1, -24.0)
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("cells")
+    rig = PreisachActuator(noise_um=0.02, seed=3)
+    t = np.arange(0, 1.2, 1e-3)
+    x = 1.5 - 1.5 * np.cos(2 * np.pi * 3 * t)
+    for s in STRESSES:
+        write_recording(d / f"id_{-s}.csv", Recording(
+            {"time_s": t, "current_A": x, "stress_MPa": np.full_like(t, s), "displacement_um": rig.run(x, s)},
+            {"source": "preisach test rig", "sample_rate_hz": 1000}))
+    ref = 22.0 + 12.0 * np.sin(2 * np.pi * 3 * t)
+    write_recording(d / "ref.csv", Recording({"time_s": t, "reference_um": ref, "stress_MPa": np.full_like(t, -17.0)}))
+    assert main(["identify", *map(str, sorted(d.glob("id_*.csv"))), "-o", str(d / "model.yaml")]) == 0
+    return d
+
+
+def _one_line_exit_2(argv: list[str], capsys, *words: str) -> str:
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err and "internal error" not in err and "Warning" not in err, err
+    for word in words:
+        assert word in err, err
+    return err
+
+
+def _with_cell(src: Path, dst: Path, column: str, row: int, text: str) -> int:
+    """`src` with the cell (row `row` of the data, `column`) replaced by `text`; the cell's line number."""
+    lines = src.read_text().splitlines(keepends=True)
+    header = next(k for k, ln in enumerate(lines) if not ln.startswith("#"))
+    col = lines[header].strip().split(",").index(column)
+    cells = lines[header + 1 + row].rstrip("\n").split(",")
+    cells[col] = text
+    lines[header + 1 + row] = ",".join(cells) + "\n"
+    dst.write_text("".join(lines))
+    return header + 2 + row
+
+
+@pytest.mark.parametrize("cell", ["nan", "inf", "-inf"])
+def test_a_non_finite_stress_cell_is_refused_by_every_command_naming_file_and_line(workdir: Path, capsys, cell) -> None:
+    bad = workdir / f"stress_{cell}.csv"
+    line = _with_cell(workdir / "id_15.2.csv", bad, "stress_MPa", 99, cell)
+    badref = workdir / f"ref_{cell}.csv"
+    refline = _with_cell(workdir / "ref.csv", badref, "stress_MPa", 5, cell)
+    others = [str(workdir / "id_11.3.csv"), str(workdir / "id_24.0.csv")]
+    model, out = str(workdir / "model.yaml"), str(workdir / f"never_{cell}.csv")
+    where = (f"{bad}, line {line}", "stress_MPa")
+    _one_line_exit_2(["identify", str(bad), *others, "-o", str(workdir / "never.yaml")], capsys, *where)
+    _one_line_exit_2(["identify", str(bad), "-o", str(workdir / "never.yaml")], capsys, *where)
+    _one_line_exit_2(["simulate", "--model", model, str(bad), "-o", out], capsys, *where)
+    _one_line_exit_2(["diagnose", "--model", model, str(bad), "--out", str(workdir / "never")], capsys, *where)
+    _one_line_exit_2(["invert", "--model", model, str(badref), "-o", out], capsys, f"{badref}, line {refline}")
+    assert not Path(out).exists() and not (workdir / "never.yaml").exists()
+    # the advice: put the stress at that time in the cell
+    _with_cell(bad, bad, "stress_MPa", 99, "-15.2")
+    assert main(["simulate", "--model", model, str(bad), "-o", out]) == 0
