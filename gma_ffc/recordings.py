@@ -45,6 +45,7 @@ class Recording:
     metadata: dict[str, Any] = field(default_factory=dict)
     source: str = "<memory>"
     notes: list[str] = field(default_factory=list)      # what reading it left out, said to the user
+    header_line: int = 0            # the header's line in the file (0: no lines, .mat/.tdms/.h5); `validate` sets it
 
     def __post_init__(self) -> None:
         self.columns = {k: np.ascontiguousarray(v, dtype=float) for k, v in self.columns.items()}
@@ -113,6 +114,7 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
              header_line: int = 1) -> Recording:
     """Check a recording against the spec; `require` may name 'drive' for current_A/voltage_V."""
     src = rec.source
+    rec.header_line = header_line
     for name in require:
         if name == "drive":
             if not any(d in rec.columns for d in DRIVE_COLUMNS):
@@ -128,11 +130,11 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
     if "drive" in require:
         required_cols.append(rec.drive_name)
     for name in required_cols:
-        _refuse_non_finite(rec, name, header_line, "required columns")
+        refuse_non_finite(rec, name, "required columns")
     if STRESS in rec.columns and STRESS not in required_cols:
         # every model that reads stress reads every sample of it: a present column is as good as required
-        _refuse_non_finite(rec, STRESS, header_line, "stress_MPa, when a recording has the column: "
-                                                     "put the stress at that time in the cell")
+        refuse_non_finite(rec, STRESS, "stress_MPa, when a recording has the column: put the stress at that "
+                                       "time in the cell")
     if DISPLACEMENT in rec.columns:
         _refuse_a_spike(rec, DISPLACEMENT, header_line)
     steps = np.diff(rec.time_s)
@@ -173,12 +175,13 @@ def _refuse_a_spike(rec: Recording, name: str, header_line: int) -> None:
             "fix or remove that row")
 
 
-def _refuse_non_finite(rec: Recording, name: str, header_line: int, where: str) -> None:
-    """RecordingError naming the file and the line of the first NaN or infinite cell of column `name`."""
+def refuse_non_finite(rec: Recording, name: str, where: str) -> None:
+    """RecordingError naming the file and the line of the first NaN or infinite cell of column `name`;
+    `where` ends the sentence "NaN or infinite values are not allowed in ..." (and says what to do)."""
     bad = ~np.isfinite(rec.columns[name])
     if bad.any():
         row = int(np.argmax(bad))
-        raise RecordingError(f"{rec.source}, line {header_line + 1 + row}: '{name}' is {rec.columns[name][row]} "
+        raise RecordingError(f"{rec.source}, line {rec.header_line + 1 + row}: '{name}' is {rec.columns[name][row]} "
                              f"(NaN or infinite values are not allowed in {where})")
 
 

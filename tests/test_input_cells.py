@@ -71,3 +71,34 @@ def test_a_non_finite_stress_cell_is_refused_by_every_command_naming_file_and_li
     # the advice: put the stress at that time in the cell
     _with_cell(bad, bad, "stress_MPa", 99, "-15.2")
     assert main(["simulate", "--model", model, str(bad), "-o", out]) == 0
+
+
+@pytest.mark.parametrize("cell", ["nan", "inf"])
+def test_simulate_refuses_a_non_finite_measured_displacement_and_writes_no_nan(workdir: Path, capsys, cell) -> None:
+    bad = workdir / f"disp_{cell}.csv"
+    line = _with_cell(workdir / "id_15.2.csv", bad, "displacement_um", 40, cell)
+    out = workdir / f"sim_{cell}.csv"
+    _one_line_exit_2(["simulate", "--model", str(workdir / "model.yaml"), str(bad), "-o", str(out)], capsys,
+                     f"{bad}, line {line}", "displacement_um", "leave the column out")
+    assert not out.exists()
+    # the advice: leave the column out to predict without a comparison
+    rec = read_recording(bad, require=("time_s", "drive"))
+    dropped = workdir / f"nodisp_{cell}.csv"
+    write_recording(dropped, Recording({k: v for k, v in rec.columns.items() if k != "displacement_um"}))
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(dropped), "-o", str(out)]) == 0
+    assert np.isfinite(read_recording(out).displacement_um).all()
+
+
+@pytest.mark.parametrize("shift, scale, warned", [(0.0, 1.0, False), (0.0, 4.7 / 3.0, True), (-1.5, 1.0, True)])
+def test_simulate_warns_when_the_drive_leaves_the_identified_range(workdir: Path, capsys, shift, scale, warned) -> None:
+    rec = read_recording(workdir / "id_15.2.csv")
+    cols = dict(rec.columns)
+    cols["current_A"] = cols["current_A"] * scale + shift
+    path = workdir / f"drive_{shift}_{scale:.3f}.csv"
+    write_recording(path, Recording(cols))
+    capsys.readouterr()
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(path), "-o", str(path.with_suffix(".out.csv"))]) == 0
+    err = capsys.readouterr().err
+    assert ("leaves the range the model was identified on" in err) == warned, err
+    if warned:
+        assert err.startswith(f"warning: {path}: the drive") and "extrapolation" in err

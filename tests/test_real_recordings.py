@@ -299,12 +299,12 @@ def test_proposition_3_1_refusal_says_what_to_do(files, capsys):
     assert "identify" in err
 
 
-def test_nan_in_the_measured_displacement_is_reported_not_averaged(files, capsys):
+def test_nan_in_the_measured_displacement_is_refused_as_identify_and_diagnose_do(files, capsys):
+    """It was taken, and written as nan into the output's measured_displacement_um."""
     d, _ = files
-    assert main(["simulate", "--model", str(d / "model.yaml"), str(d / "nan_meas.csv"), "-o", str(d / "p.csv")]) == 0
-    out, err = capsys.readouterr()
-    assert "nan" not in out.lower().replace("nan/missing", "")
-    assert "3 NaN/missing samples" in err and "RMS vs measured" in out
+    run_refused(["simulate", "--model", d / "model.yaml", d / "nan_meas.csv", "-o", d / "p.csv"], capsys,
+                "'displacement_um' is nan")
+    assert not (d / "p.csv").exists()
 
 
 def test_invert_limit_reports_what_it_clipped(files, capsys):

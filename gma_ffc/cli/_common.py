@@ -57,6 +57,26 @@ def stress_for(model: Model, rec: Recording, override: float | None) -> np.ndarr
     return None
 
 
+RANGE_MARGIN = 0.02    # a drive within 2 % of the identified range is inside it: the range was taken from noisy
+                       # recordings, to about that (as diagnose's `range_margin`)
+
+
+def beyond_drive_range(model: Model, rec: Recording) -> str | None:
+    """One sentence when `rec`'s drive leaves the range `model` was identified on (the prediction
+    there is an extrapolation), else None."""
+    lo, hi = (float(v) for v in model.drive_range)
+    wide = RANGE_MARGIN * (hi - lo)
+    outside = (rec.drive < lo - wide) | (rec.drive > hi + wide)
+    if not outside.any():
+        return None
+    unit = model.drive_name.rsplit("_", 1)[-1]
+    where = np.flatnonzero(outside)
+    return (f"{rec.source}: the drive ({float(rec.drive.min()):.4g}..{float(rec.drive.max()):.4g} {unit}) leaves the "
+            f"range the model was identified on ({lo:.4g}..{hi:.4g} {unit}) at {where.size} of {len(rec)} samples, "
+            f"first at t = {rec.time_s[where[0]]:.6g} s: the prediction there is an extrapolation; identify the "
+            "model from recordings over the whole drive range used")
+
+
 def check_drive_name(model: Model, rec: Recording) -> None:
     name = model.drive_name
     if rec.drive_name != name:

@@ -10,16 +10,17 @@ from typing import Any
 import numpy as np
 
 from ..modelio import load_model
-from ..recordings import Recording, check_output_name, write_recording
+from ..recordings import DISPLACEMENT, Recording, check_output_name, refuse_non_finite, write_recording
 from ..atomic import check_writable, refuse_overwrite
-from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_drive_name, note_gaps,
-                      read_while, stress_for, warm_up)
+from ._common import (add_group_option, add_initial_state_option, add_stress_option, beyond_drive_range,
+                      check_drive_name, note_gaps, read_while, stress_for, warm_up)
 
 HELP = """\
 Run a model (any kind: sdpi, mpi, or an extended model from `gma-ffc diagnose`) on the drive and
 stress of a recording. The output is itself a recording: the same time_s, drive and stress
 columns, displacement_um = the prediction, and the measured displacement (if the input had one)
-kept as measured_displacement_um.
+kept as measured_displacement_um. A drive beyond the range the model was identified on is
+reported (the prediction there is an extrapolation).
 
 A recording starts in the middle of a hysteresis history the file does not show. By default
 (--initial-state estimate) the model's state at the first sample is fitted to the measured
@@ -57,11 +58,13 @@ def run(args: argparse.Namespace) -> int:
         return model
 
     model, rec = read_while(prepare, args.recording, require=("time_s", "drive"), group=args.group)
-    from ..model import rms
     check_drive_name(model, rec)
+    measured = rec.displacement_um
+    if measured is not None:    # compared and fitted to at every sample, and written out: a hole cannot be
+        refuse_non_finite(rec, DISPLACEMENT, "the measured displacement_um: fill the cell in, or leave the "
+                                             "column out to predict without a comparison")
     note_gaps([rec])
     stress = stress_for(model, rec, args.stress)
-    measured = rec.displacement_um
     spec, rest, from_file = _initial_state_of(args.initial_state, rec, measured, model)
     start = model.resolve_initial_state(rec.drive, stress, spec, measured, rec.time_s)
     if rest is None:
@@ -78,26 +81,29 @@ def run(args: argparse.Namespace) -> int:
         cols["measured_displacement_um"] = measured
     meta = {"source": f"gma-ffc simulate --model {args.model}", "input": rec.name, "model_kind": model.kind}
     write_recording(args.output, Recording(cols, meta, args.output))
-    msg = f"predicted {len(rec)} samples -> {args.output}"
-    if measured is not None:
-        bad = ~np.isfinite(measured)
-        err = pred - measured
-        if not bad.all():
-            msg += f" (RMS vs measured {rms(err[~bad]):.4f} um"
-            late = ~bad & (np.arange(len(rec)) >= start.settled_index)
-            if late.any() and start.settled_index > 0:
-                msg += f"; {rms(err[late]):.4f} um once the initial state is forgotten, " \
-                       f"from t = {rec.time_s[start.settled_index]:.4g} s"
-            msg += ")"
-    print(msg)
+    note = beyond_drive_range(model, rec)
+    if note is not None:
+        print(f"warning: {note}", file=sys.stderr)
+    print(f"predicted {len(rec)} samples -> {args.output}{_fit_words(rec, pred, start)}")
     print(f"initial state: {how}" + (" (the start `gma-ffc invert` gave this drive, from the file's metadata)"
                                      if from_file else ""))
-    if measured is not None and bad.any():
-        where = np.flatnonzero(bad)
-        print(f"warning: {rec.source}: displacement_um has {where.size} NaN/missing samples (first at "
-              f"t = {rec.time_s[where[0]]:.6g} s, last at t = {rec.time_s[where[-1]]:.6g} s), left out of the "
-              f"RMS{'; all of them' if where.size == len(rec) else ''}", file=sys.stderr)
     return 0
+
+
+def _fit_words(rec: Recording, pred: np.ndarray, start: Any) -> str:
+    """" (RMS vs measured ...)", with the RMS once the initial state no longer matters; "" without a
+    measurement."""
+    from ..model import rms
+
+    measured = rec.displacement_um
+    if measured is None:
+        return ""
+    err = pred - measured
+    words = f" (RMS vs measured {rms(err):.4f} um"
+    if 0 < start.settled_index < len(rec):
+        words += f"; {rms(err[start.settled_index:]):.4f} um once the initial state is forgotten, " \
+                 f"from t = {rec.time_s[start.settled_index]:.4g} s"
+    return words + ")"
 
 
 def _initial_state_of(asked: Any, rec: Any, measured: Any, model: Any) -> tuple[Any, float | None, bool]:
