@@ -145,6 +145,11 @@ class SDPIModel:
             lo, hi = self.stress_range_MPa
             if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
                 raise ModelError(f"stress range must be two finite values, low < high, got {self.stress_range_MPa}")
+        scalars = {"input_offset": self.input_offset, "reference_stress_MPa": self.reference_stress_MPa}
+        for name, value in scalars.items():     # NaN or inf would reach every output as all-NaN (inf) drives
+            if value is not None and not np.isfinite(value):
+                raise ModelError(f"{name} must be a finite number, got {value!r}; write the model again with "
+                                 "gma-ffc identify")
         if self.output_sign not in (1.0, -1.0):
             raise ModelError(f"output_sign must be +1 (displacement rises with the drive) or -1 (falls), "
                              f"got {self.output_sign!r}")
@@ -422,7 +427,7 @@ class SDPIModel:
                 output_coeffs=np.asarray(d.get("output_offset_coeffs", [0.0, 0.0, 0.0]), dtype=float),
                 input_offset=float(d.get("input_offset", 0.0)),
                 stress_range_MPa=None if sr is None else (float(sr[0]), float(sr[1])),
-                reference_stress_MPa=d.get("reference_stress_MPa"),
+                reference_stress_MPa=None if d.get("reference_stress_MPa") is None else float(d["reference_stress_MPa"]),
                 drive_range=d.get("drive_range", (-np.inf, np.inf)),      # two floats, checked on construction
                 drive_name=str(d.get("drive_name", "current_A")),
                 initial_state=str(d.get("initial_state", "descending")),

@@ -33,7 +33,11 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _one_line_exit_2(argv: list[str], capsys, *words: str) -> str:
     capsys.readouterr()
-    assert main(argv) == 2
+    try:
+        code = main(argv)
+    except SystemExit as exc:       # argparse's own refusals
+        code = exc.code
+    assert code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err and "internal error" not in err and "Warning" not in err, err
     for word in words:
@@ -102,3 +106,26 @@ def test_simulate_warns_when_the_drive_leaves_the_identified_range(workdir: Path
     assert ("leaves the range the model was identified on" in err) == warned, err
     if warned:
         assert err.startswith(f"warning: {path}: the drive") and "extrapolation" in err
+
+
+@pytest.mark.parametrize("limit", [["nan", "3"], ["0", "nan"], ["0", "inf"], ["-1", "inf"]])
+def test_invert_refuses_a_non_finite_limit_at_parsing(workdir: Path, capsys, limit) -> None:
+    out = workdir / "drive_limit.csv"
+    _one_line_exit_2(["invert", "--model", str(workdir / "model.yaml"), str(workdir / "ref.csv"), "-o", str(out),
+                      "--limit", *limit], capsys, "--limit", "is not a finite number")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("key", ["input_offset", "reference_stress_MPa"])
+@pytest.mark.parametrize("value", [".nan", ".inf", "-.inf"])
+def test_a_model_with_a_non_finite_offset_or_reference_stress_is_refused_on_load(workdir: Path, capsys, key,
+                                                                                   value) -> None:
+    text = (workdir / "model.yaml").read_text()
+    lines = [f"{key}: {value}" if ln.startswith(f"{key}:") else ln for ln in text.splitlines()]
+    bad = workdir / f"bad_{key}{value}.yaml"
+    bad.write_text("\n".join(lines) + "\n")
+    out = workdir / f"bad_{key}{value}.csv"
+    for argv in (["invert", "--model", str(bad), str(workdir / "ref.csv")],
+                 ["simulate", "--model", str(bad), str(workdir / "id_15.2.csv")]):
+        _one_line_exit_2([*argv, "-o", str(out)], capsys, str(bad), f"{key} must be a finite number")
+    assert not out.exists()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -99,8 +100,19 @@ def _initial_state(text: str) -> Any:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def finite_float(text: str) -> float:
+    """argparse type: a number, refused when NaN or infinite (it would reach the outputs as one)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return value
+
+
 def add_stress_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--stress", type=float, metavar="MPA",
+    p.add_argument("--stress", type=finite_float, metavar="MPA",
                    help="constant stress in MPa (compression negative) for recordings without stress_MPa")
 
 

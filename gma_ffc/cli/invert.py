@@ -15,7 +15,7 @@ from ..model import SDPIModel
 from ..modelio import load_model
 from ..recordings import Recording, check_output_name, read_recording, write_recording
 from ..atomic import check_writable, refuse_overwrite
-from ._common import add_group_option, add_initial_state_option, add_stress_option, stress_for
+from ._common import add_group_option, add_initial_state_option, add_stress_option, finite_float, stress_for
 
 HELP = """\
 Compute the feedforward drive for a reference displacement with the model's analytic inverse
@@ -41,9 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("reference", metavar="REF.csv", help="time_s, reference_um[, stress_MPa]")
     p.add_argument("-o", "--output", required=True, metavar="OUT.csv",
                    help="the drive, written as a recording: .csv or .mat (never over REF)")
-    p.add_argument("--limit", nargs=2, type=float, metavar=("LO", "HI"),
+    p.add_argument("--limit", nargs=2, type=finite_float, metavar=("LO", "HI"),
                    help="clip the drive to [LO, HI]; the command says how many samples it clipped and where")
-    p.add_argument("--initial-drive", type=float, metavar="A",
+    p.add_argument("--initial-drive", type=finite_float, metavar="A",
                    help="start relaxed at this drive instead (overrides --initial-state)")
     add_initial_state_option(p)
     add_stress_option(p)
