@@ -506,19 +506,39 @@ def read_hdf5(path: Path, require: Sequence[str], group: str | None = None) -> R
         node = fh
         if group is not None:
             if group not in fh or not isinstance(fh[group], h5py.Group):
-                raise RecordingError(f"{source}: no group {group!r}; the file has: {', '.join(fh.keys()) or 'none'}")
+                raise RecordingError(f"{source}: no group {group!r}; {_hdf5_groups_hint(fh)}")
             node = fh[group]
         columns = {}
         for name, item in node.items():
-            if isinstance(item, h5py.Dataset) and item.ndim == 1 and item.dtype.kind in "fiu":
+            if _is_column(item):
                 check_column_name(name, source, 0)
                 columns[name] = np.asarray(item[()], dtype=float)
         if not columns:
-            groups = [k for k, v in fh.items() if isinstance(v, h5py.Group)]
-            hint = f"; choose a group with --group ({', '.join(groups)})" if groups else ""
-            raise RecordingError(f"{source}: no 1-D numeric datasets at {node.name}{hint}")
+            raise RecordingError(f"{source}: no 1-D numeric datasets at {node.name}; {_hdf5_groups_hint(fh)}")
         meta = {str(k): plain(v) for k, v in {**fh.attrs, **node.attrs}.items()}
     return validate(Recording(columns, meta, source), require, header_line=0)
+
+
+def _is_column(item: Any) -> bool:
+    import h5py
+
+    return isinstance(item, h5py.Dataset) and item.ndim == 1 and item.dtype.kind in "fiu"
+
+
+def _hdf5_groups_hint(fh: Any) -> str:
+    """Which groups of the file hold 1-D numeric datasets, at any depth, as --group takes them."""
+    import h5py
+
+    found: list[str] = []
+
+    def visit(name: str, item: Any) -> None:
+        if isinstance(item, h5py.Group) and any(_is_column(v) for v in item.values()):
+            found.append(name)
+
+    fh.visititems(visit)
+    if not found:
+        return "no group in the file holds any: is it a recording?"
+    return f"choose a group with --group: {', '.join(found)} hold{'s' if len(found) == 1 else ''} them"
 
 
 GROUPED_READERS = {".tdms": read_tdms, ".h5": read_hdf5, ".hdf5": read_hdf5}   # formats with groups

@@ -67,6 +67,25 @@ def test_hdf5_from_h5py(tmp_path, plain):
     assert rec.metadata["sample_rate_hz"] == 1000.0
 
 
+def test_hdf5_group_advice_names_the_groups_that_hold_datasets_and_following_it_reads(tmp_path, plain):
+    """It named the root's child groups only: `runs` for data under runs/rig2, and at /runs `runs` again."""
+    import h5py
+
+    with h5py.File(tmp_path / "deep.h5", "w") as f:
+        for path in ("runs/rig2", "runs/rig3/day1"):
+            g = f.create_group(path)
+            for k, v in plain.columns.items():
+                g[k] = v
+        f.create_group("empty/nothing")
+    for group in (None, "runs", "nope"):
+        with pytest.raises(RecordingError) as err:
+            read_recording(tmp_path / "deep.h5", group=group)
+        advice = str(err.value).split("choose a group with --group: ")[1]
+        assert advice == "runs/rig2, runs/rig3/day1 hold them", advice
+        for named in advice.split(" hold")[0].split(", "):
+            same(read_recording(tmp_path / "deep.h5", group=named), plain)
+
+
 def test_spreadsheet_csvs_bom_and_semicolon_with_decimal_commas(tmp_path, plain):
     text = (tmp_path / "plain.csv").read_text()
     (tmp_path / "bom.csv").write_bytes(b"\xef\xbb\xbf" + text.encode())
