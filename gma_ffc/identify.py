@@ -239,6 +239,14 @@ noted: far above what noise or a settling transient leaves, far below the 10-20 
 that real hysteresis loops are wide."""
 
 
+def _within(level: float | None, span: tuple[float, float] | None) -> float | None:
+    """A stress level (binned to the identifier's tolerance) moved into the model's stress range: the
+    most compressive bin of -24.33 MPa data is -24.5 MPa, outside the range the file states."""
+    if level is None or span is None:
+        return level
+    return min(max(level, span[0]), span[1])
+
+
 @dataclass
 class SDPIIdentifier:
     """Fit an SDPI (several stresses) or an MPI (one stress, or no stress column) to recordings.
@@ -402,7 +410,7 @@ class SDPIIdentifier:
         self.model_ = SDPIModel(
             play_thresholds=r_h, play_weights=w_h, deadzone_thresholds=r_s, deadzone_coeffs=coeffs,
             output_coeffs=out_coeffs, input_offset=x_c, stress_range_MPa=stress_range,
-            reference_stress_MPa=ref_level, drive_range=drive_range, output_sign=self.output_sign_,
+            reference_stress_MPa=_within(ref_level, stress_range), drive_range=drive_range, output_sign=self.output_sign_,
             drive_name=recordings[0].drive_name, initial_state=self.initial_state,
             provenance={"tool": "gma-ffc identify", "recordings": [d.name for d in data],
                         "settings": {"n_play": self.n_play, "n_deadzone": self.n_deadzone,
@@ -422,6 +430,7 @@ class SDPIIdentifier:
                    per_rec_stress: list[float]) -> tuple[float | None, list[_Data]]:
         """Step 1's stress level and recordings: the reference level's with several levels, else all
         (noting why the model will be a stress-independent MPI)."""
+        self._check_reference_stress(data)
         if len(levels) > 1:
             ref = self.reference_stress_MPa if self.reference_stress_MPa is not None else max(levels)
             ref_level = min(levels, key=lambda s: abs(s - ref))
@@ -433,14 +442,32 @@ class SDPIIdentifier:
         else:   # the range the stress really covers (a few glitch rows do not count)
             lo_s, hi_s = np.percentile(np.concatenate([d.stress for d in data]), [0.5, 99.5])
             note = (f"the stress varies ({lo_s:.3g}..{hi_s:.3g} MPa) but dwells at only "
-                    f"one level ({levels[0]:.3g} MPa): fitted a stress-independent MPI; record at least "
-                    "three levels, each held for a few drive cycles, for an SDPI"
+                    f"one level ({levels[0]:.3g} MPa, to the nearest {self.stress_tolerance_MPa:g} MPa): fitted a "
+                    "stress-independent MPI; record at least three levels, each held for a few drive cycles, for an SDPI"
                     if hi_s - lo_s > 2 * self.stress_tolerance_MPa else
-                    f"all recordings are at one stress ({levels[0]:.3g} MPa): fitted a stress-independent "
-                    "MPI; give recordings at several stresses for an SDPI")
+                    f"all recordings are at one stress (median {np.median([np.median(d.stress) for d in data]):.4g} MPa): "
+                    "fitted a stress-independent MPI; give recordings at several stresses for an SDPI")
         if note not in self.notes_:
             self.notes_.append(note)
         return (levels[0] if levels else None), data
+
+    def _check_reference_stress(self, data: list[_Data]) -> None:
+        """The reference stress asked for must be one the recordings were at (between their least and
+        most compressive samples, the model's stress range): step 1 is fitted on the recordings there."""
+        ref = self.reference_stress_MPa
+        if ref is None:
+            return
+        if data[0].sigma is None:
+            raise InputError(f"a reference stress ({ref:g} MPa) needs recordings with a stress_MPa column; "
+                             "these have none: leave it out")
+        lo = min(float(d.stress.min()) for d in data)
+        hi = max(float(d.stress.max()) for d in data)
+        if not (math.isfinite(ref) and lo <= ref <= hi):
+            # the range shown to 0.01 MPa, rounded inwards: every value the message invites is inside
+            lo_in, hi_in = math.ceil(lo * 100) / 100, math.floor(hi * 100) / 100
+            raise InputError(f"reference stress {ref:g} MPa is outside the recordings' stresses "
+                             f"({lo_in:.2f}..{hi_in:.2f} MPa); give one inside that range, or leave it out "
+                             "for the least compressive")
 
     def _step_1(self, ref_data: list[_Data]) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """Step 1, the MPI at the reference stress: play weights, dead-zone thresholds, slopes, offset."""

@@ -129,3 +129,45 @@ def test_a_model_with_a_non_finite_offset_or_reference_stress_is_refused_on_load
                  ["simulate", "--model", str(bad), str(workdir / "id_15.2.csv")]):
         _one_line_exit_2([*argv, "-o", str(out)], capsys, str(bad), f"{key} must be a finite number")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("value, message", [("nan", "is not a finite number"), ("inf", "is not a finite number"),
+                                            ("-50", "outside the recordings' stresses"),
+                                            ("5", "outside the recordings' stresses")])
+def test_identify_refuses_a_reference_stress_the_recordings_were_not_at(workdir: Path, capsys, value, message) -> None:
+    ids = [str(workdir / f"id_{-s}.csv") for s in STRESSES]
+    out = workdir / f"ref_stress_{value}.yaml"
+    err = _one_line_exit_2(["identify", *ids, "-o", str(out), f"--reference-stress={value}"], capsys, message)
+    assert not out.exists()
+    if "outside" in err:    # the advice: a value inside the range named (its ends, as shown)
+        lo, hi = (float(v) for v in err.split("stresses (")[1].split(" MPa")[0].split(".."))
+        for ref in (lo, hi):
+            assert main(["identify", *ids, "-o", str(out), f"--reference-stress={ref}"]) == 0
+            out.unlink()
+
+
+def test_identify_writes_a_reference_stress_inside_the_models_stress_range(workdir: Path) -> None:
+    """Stress levels are binned to 0.5 MPa: the most compressive level of data reaching -24.3 MPa is
+    -24.5, which was written as the reference stress, outside the file's own stress range."""
+    ids = []
+    for s in STRESSES:
+        rec = read_recording(workdir / f"id_{-s}.csv")
+        path = workdir / f"id_deep_{-s}.csv"
+        write_recording(path, Recording({**rec.columns, "stress_MPa": rec.stress_MPa - 0.3}))
+        ids.append(str(path))
+    out = workdir / "deep_ref.yaml"
+    assert main(["identify", *ids, "-o", str(out), "--reference-stress=-24.3"]) == 0
+    from gma_ffc.modelio import load_model
+
+    model = load_model(out)
+    lo, hi = model.stress_range_MPa
+    assert lo <= model.reference_stress_MPa <= hi and abs(model.reference_stress_MPa + 24.3) < 0.26
+
+
+def test_identify_at_one_stress_names_the_datas_stress_not_its_bin(workdir: Path, capsys) -> None:
+    rec = read_recording(workdir / "id_15.2.csv")
+    path = workdir / "at_15.32.csv"
+    write_recording(path, Recording({**rec.columns, "stress_MPa": np.full(len(rec), -15.32)}))
+    capsys.readouterr()
+    assert main(["identify", str(path), "-o", str(workdir / "at_15.32.yaml")]) == 0
+    assert "at one stress (median -15.32 MPa)" in capsys.readouterr().err

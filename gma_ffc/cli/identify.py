@@ -9,7 +9,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..modelio import save_model
 from ..progress import Progress
-from ._common import add_group_option, note_gaps, read_all
+from ._common import add_group_option, finite_float, note_gaps, read_all
 
 HELP = """\
 Fit a stress-dependent Prandtl-Ishlinskii model (SDPI, seed paper section 3.3) from recordings at
@@ -32,8 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plays", type=int, default=10, metavar="N", help="number of play operators (default 10)")
     p.add_argument("--deadzones", type=int, default=7, metavar="N",
                    help="number of dead-zone operators, odd (default 7)")
-    p.add_argument("--reference-stress", type=float, metavar="MPA",
-                   help="stress of the paper's step 1 (default: the least compressive in the data)")
+    p.add_argument("--reference-stress", type=finite_float, metavar="MPA",
+                   help="stress of the paper's step 1, within the recordings' stresses (default: the least "
+                        "compressive in the data)")
     p.add_argument("--no-refine", action="store_true",
                    help="skip the output-error refinement (the paper's equation-error fit (15) alone)")
     p.add_argument("--zero", choices=("shared", "per-recording"), default="shared",
