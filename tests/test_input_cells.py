@@ -171,3 +171,22 @@ def test_identify_at_one_stress_names_the_datas_stress_not_its_bin(workdir: Path
     capsys.readouterr()
     assert main(["identify", str(path), "-o", str(workdir / "at_15.32.yaml")]) == 0
     assert "at one stress (median -15.32 MPa)" in capsys.readouterr().err
+
+
+def test_a_recording_given_twice_is_refused_naming_both(workdir: Path, capsys) -> None:
+    """By path, through another path to the same file, or as a copy: in diagnose a copy kept each
+    'left-out' recording in the fit, and changed the verdict."""
+    a, b, c = (str(workdir / f"id_{-s}.csv") for s in STRESSES[1:])
+    copy = workdir / "copy_of_15.2.csv"
+    copy.write_bytes(Path(a).read_bytes())
+    dotted = f"{workdir}/./{Path(a).name}"
+    model, out = str(workdir / "model.yaml"), workdir / "twice.yaml"
+    for argv, both in ((["identify", a, b, a], (f"{a} is given twice",)),
+                       (["identify", a, b, str(copy)], (a, str(copy), "same content")),
+                       (["identify", a, dotted, b], (a, dotted, "same file"))):
+        _one_line_exit_2([*argv, "-o", str(out)], capsys, *both, "give each recording once")
+    for argv in ([a, b, a], [a, b, "--ident", str(copy), c], [a, b, "--ident", c, c]):
+        _one_line_exit_2(["diagnose", "--model", model, *argv, "--out", str(workdir / "twice")], capsys,
+                         "give each recording once")
+    assert not out.exists() and not (workdir / "twice").exists()
+    assert main(["identify", a, b, c, "-o", str(out)]) == 0        # the advice: each once

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -27,6 +28,38 @@ def existing_output_dir_parent(path: str) -> Path:
 
 def read_all(paths: Sequence[str], require: Sequence[str], group: str | None = None) -> list[Recording]:
     return [read_recording(p, require=require, group=group) for p in paths]
+
+
+def refuse_repeats(paths: Sequence[str]) -> None:
+    """InputError naming both when two of `paths` are one recording: the same file, or files with the
+    same content. A copy counts twice in a fit, and stays in it when its twin is left out."""
+    seen: dict[tuple[int, int], str] = {}                  # (device, inode) -> the path that named it
+    by_size: dict[int, list[str]] = {}
+    for path in paths:
+        try:
+            st = os.stat(path)
+        except OSError:
+            continue                                        # the read says what is wrong with it
+        first = seen.get((st.st_dev, st.st_ino))
+        if first is not None:
+            twice = f"{path} is given twice" if first == path else f"{first} and {path} are the same file"
+            raise InputError(f"{twice}: give each recording once")
+        seen[(st.st_dev, st.st_ino)] = path
+        by_size.setdefault(st.st_size, []).append(path)
+    for same_size in by_size.values():
+        if len(same_size) > 1:
+            _refuse_same_content(same_size)
+
+
+def _refuse_same_content(paths: Sequence[str]) -> None:
+    from ..recordings import fingerprint
+
+    digests: dict[str, str] = {}
+    for path in paths:
+        first = digests.setdefault(fingerprint(path)["sha256"], path)
+        if first != path:
+            raise InputError(f"{first} and {path} have the same content, one recording given twice: "
+                             "give each recording once")
 
 
 def note_gaps(recs: Sequence[Recording]) -> None:

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ._common import add_group_option, add_initial_state_option, check_drive_name, note_gaps
+from ._common import add_group_option, add_initial_state_option, check_drive_name, note_gaps, refuse_repeats
 
 HELP = """\
 Compare a model with recordings, locate where they differ (time windows, frequency bands, drive
@@ -65,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
 
     for produced in ("diagnosis.json", "report.html", "extended_model.yaml"):
         refuse_overwrite(out / produced, [*args.recordings, *args.ident, args.model], "--out")
+    refuse_repeats([*args.recordings, *args.ident])
     check_writable(out, str(out))          # now, not after the whole analysis
     model = load_model(args.model)
     if model.kind == "extended":

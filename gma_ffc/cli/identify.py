@@ -9,7 +9,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..modelio import save_model
 from ..progress import Progress
-from ._common import add_group_option, finite_float, note_gaps, read_all
+from ._common import add_group_option, finite_float, note_gaps, read_all, refuse_repeats
 
 HELP = """\
 Fit a stress-dependent Prandtl-Ishlinskii model (SDPI, seed paper section 3.3) from recordings at
@@ -67,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from ..recordings import fingerprint
 
     _check_outputs(args)
+    refuse_repeats(args.recordings)
     recs = read_all(args.recordings, require=("time_s", "drive", "displacement_um"), group=args.group)
     note_gaps(recs)
     with Progress("identify", total=4) as prog:
