@@ -113,6 +113,22 @@ def test_demo_quiet_when_piped_other_seed_and_default_folder(tmp_path):
     assert res.returncode == 0, res.stderr
     assert res.stderr == ""                                   # no progress when piped
     check_results(tmp_path / "gma-ffc-demo", res.stdout)
+    from gma_ffc.cli.demo import _refuse_a_folder_of_other_files
+    _refuse_a_folder_of_other_files(tmp_path / "gma-ffc-demo")      # an earlier demo's folder is taken again
+
+
+def test_demo_refuses_a_folder_of_the_users_files_and_leaves_them(tmp_path):
+    """--out on a folder holding the user's models/sdpi.yaml and results.json wrote over both, exit 0."""
+    mine = tmp_path / "work"
+    (mine / "models").mkdir(parents=True)
+    (mine / "models" / "sdpi.yaml").write_text("my model\n")
+    (mine / "results.json").write_text('{"mine": true}\n')
+    res = subprocess.run([*CLI, "demo", "--out", str(mine)], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert "holds files an earlier demo did not write (models, results.json...)" in res.stderr
+    assert "choose a new or empty folder" in res.stderr
+    assert (mine / "models" / "sdpi.yaml").read_text() == "my model\n"
+    assert sorted(p.name for p in mine.iterdir()) == ["models", "results.json"]
 
 
 def test_demo_bad_usage_is_one_line_exit_2(tmp_path):

@@ -80,6 +80,7 @@ def _run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a folder; choose another --out")
+    _refuse_a_folder_of_other_files(out)
     if args.seed < 0:
         raise InputError(f"--seed must be >= 0, got {args.seed}")
     steps = 1 + 2 + len(TRACKED_MODELS) * len(TRACKING_STRESSES_MPA) + 1
@@ -89,6 +90,26 @@ def _run(args: argparse.Namespace) -> int:
     print(f"\nsaved in {out}/: plots tracking_*.png and identification_fit.png, models/, "
           f"recordings/, configs/, telemetry/, results.json")
     return 0
+
+
+def _refuse_a_folder_of_other_files(out: Path) -> None:
+    """The demo writes recordings/, models/, configs/, telemetry/, plots and results.json into --out,
+    over whatever has those names: a folder is taken only when new, empty, or an earlier demo's
+    (its results.json the demo's own)."""
+    import json
+
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    try:
+        earlier = json.loads((out / "results.json").read_text(encoding="utf-8"))
+        if isinstance(earlier, dict) and {"runs", "comparison"} <= earlier.keys():
+            return
+    except (OSError, ValueError):
+        pass
+    names = ", ".join(sorted(p.name for p in out.iterdir())[:4])
+    raise InputError(f"--out {out}: the folder holds files an earlier demo did not write ({names}...), and the demo "
+                     "writes recordings/, models/, configs/, telemetry/, plots and results.json there over what has "
+                     "those names: choose a new or empty folder, e.g. --out gma-ffc-demo-2")
 
 
 def run_demo(out: Path, seed: int = 0, progress: Any = None) -> list[TrackingResult]:
