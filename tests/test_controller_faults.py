@@ -233,6 +233,27 @@ def test_a_failed_safe_write_is_cleared_once_the_safe_current_is_written_after_a
     assert 0.0 < after[0] <= SLEW / RATE + 1e-12       # and the loop resumes from it
 
 
+def test_a_link_that_comes_back_and_fails_every_write_gives_up_after_max_attempts(models, tmp_path):
+    """A device that answers each reconnect and refuses every write (a setpoint it cannot encode)
+    was reconnected forever, the coil going between the safe current and the first command."""
+    def refuse(current_A):
+        driver.log.append(("refused", current_A))
+        raise DriverError("write setpoint: illegal data value", "comms")
+
+    def inject(tick, inputs):
+        if tick == 300:
+            driver.write = refuse
+
+    ctrl, driver, cfg = make(tmp_path, models, inject, comms={"max_attempts": 3, "backoff_initial_s": 0.01})
+    s = ctrl.run(duration_s=5.0)
+    assert s["state"] == "fault" and "reconnect_failed" in s["faults"], s["fault_messages"]
+    assert "3 reconnects in a row that failed again before a command got through" in \
+        s["fault_messages"]["reconnect_failed"]
+    assert "illegal data value" in s["fault_messages"]["reconnect_failed"]
+    assert s["reconnects"] == 3 and driver.log[-1] == ("safe", 0.0)
+    assert sum(kind == "refused" for kind, _ in driver.log) == 4
+
+
 def test_comms_error_with_stop_policy_stops(models, tmp_path):
     def inject(tick, inputs):
         if tick == 200:

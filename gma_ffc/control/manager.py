@@ -90,6 +90,7 @@ class ControllerManager:
         self._read_ok = False
         self._stress_out = False
         self._has_current = False
+        self._relapses = 0          # reconnects since the last tick whose command got through
         self.setup.law.activate(self.setup.safe_A)
         for b in self.broadcasters:
             b.on_setup(self.setup)
@@ -318,6 +319,7 @@ class ControllerManager:
         self._mode = RUNNING
         self._read_ok = False
         self.watchdog.heartbeat = math.nan      # a stall is measured from this run's first tick
+        self._relapses = 0
         self.state = State.RUNNING
         return sched, t0
 
@@ -346,6 +348,7 @@ class ControllerManager:
         cmd = s.limiter.apply(u)
         self.hardware.at_safe = False
         self.driver.write(cmd)
+        self._relapses = 0
         limited = RAMP if self._mode != RUNNING else s.limiter.clipped
         if law.learner is not None:         # the tick's outcome, to the law's learner
             law.observe(t, ref_now, inputs.displacement_um, stress, limited, cmd)
@@ -413,6 +416,20 @@ class ControllerManager:
         self.faults.raise_fault(name, message)
         return self._execute(name, t, reason)
 
+    def _relapsed_too_often(self, why: str) -> bool:
+        """A link that comes back and fails again before any command gets through (a device that
+        answers a connect and refuses every write) would be reconnected forever, the coil going
+        between the safe current and the first command: after comms.max_attempts such relapses in a
+        row (0: forever, as for failed connects) that is reconnect_failed. True when it is."""
+        self._relapses += 1
+        limit = self.hardware.comms["max_attempts"]
+        if limit == 0 or self._relapses <= limit:
+            return False
+        self.faults.raise_fault(safety.RECONNECT_FAILED, (
+            f"gave up after {self._relapses - 1} reconnects in a row that failed again before a command got "
+            f"through (the last: {why})"))
+        return True
+
     def _execute(self, name: str, t: float, reason: str | None = None) -> int:
         """Execute the fault table's row for `name` (already raised, or a stop request); returns
         FLAGGED (the tick goes on), RAMPING (the loop heads for the safe current within the slew
@@ -436,6 +453,8 @@ class ControllerManager:
         reconnect = action.then == "reconnect" and self._mode == RUNNING
         self.setup.law.deactivate(t, f"{name}: at the safe current" + (", reconnecting" if reconnect else ""),
                                   action.freeze_learning)
+        if reconnect and self._relapsed_too_often(reason):
+            reconnect, reason = False, self.faults.active[safety.RECONNECT_FAILED]
         if reconnect and self._reconnect(self.setup.safe_A):
             self.setup.law.activate(self.setup.safe_A)
             self.setup.monitor.restart()
