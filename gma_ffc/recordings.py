@@ -106,6 +106,9 @@ def check_column_name(name: str, source: str, line: int) -> None:
     if _NAME_WITH_UNIT.match(name):
         return
     hint = _UNITLESS_HINTS.get(name.strip().lower())
+    ascii_name = name.replace("\u00b5", "u").replace("\u03bc", "u")      # micro sign, Greek mu: 'um' in ASCII
+    if ascii_name != name and _NAME_WITH_UNIT.match(ascii_name):
+        hint = ascii_name
     suggestion = f" (did you mean '{hint}'?)" if hint else " (names end in a unit, e.g. time_s, current_A)"
     raise RecordingError(f"{source}, line {line}: column '{name}' has no unit{suggestion}")
 

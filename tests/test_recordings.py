@@ -125,3 +125,11 @@ def test_an_output_name_gma_ffc_would_not_read_back_is_refused(tmp_path: Path, n
     with pytest.raises(RecordingError, match=re.escape(words.format(d=tmp_path))):
         write_recording(tmp_path / name, rec)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("mu", ["\u00b5", "\u03bc"])
+def test_a_micro_sign_in_a_unit_is_answered_with_its_ascii_name(tmp_path: Path, mu: str) -> None:
+    path = tmp_path / "mu.csv"
+    path.write_text(f"time_s,current_A,displacement_{mu}m\n0,0,0\n0.001,0.1,1\n", encoding="utf-8")
+    with pytest.raises(RecordingError, match=f"column 'displacement_{mu}m' has no unit \\(did you mean 'displacement_um'\\?\\)"):
+        read_recording(path)
