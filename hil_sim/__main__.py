@@ -101,6 +101,8 @@ def cmd_record(args: argparse.Namespace) -> int:
     cfg = PlantConfig.from_yaml(args.config) if args.config else PlantConfig()
     effects = parse_effects(args.effects)
     options = {"minor_loops": True} if args.minor_loops else {}
+    if args.seed < 0:       # numpy's generators take seeds from 0; a negative one overflowed with a warning
+        raise InputError(f"--seed must be a whole number from 0 up, got {args.seed}")
     if args.minor_loops and args.kind != "identification":
         raise InputError("--minor-loops only applies to --kind identification")
     count = len(experiments(args.kind, cfg, **options))

@@ -143,8 +143,9 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path: Path, capsys: pytest.Cap
         ["record", "--kind", "steps", "--out", str(tmp_path / "x"), "--effects", "warp"],
         ["record", "--kind", "long", "--out", str(tmp_path / "x"), "--minor-loops"],
         ["record", "--kind", "steps", "--out", str(tmp_path / "x"), "--config", str(tmp_path / "none.yaml")],
+        ["record", "--kind", "steps", "--out", str(tmp_path / "x"), "--seed", "-1"],
     ]
-    expected = ["dynamics.moving_mass", "warp", "--minor-loops", "none.yaml"]
+    expected = ["dynamics.moving_mass", "warp", "--minor-loops", "none.yaml", "--seed must be a whole number from 0"]
     for argv, needle in zip(cases, expected):
         assert main(argv) == 2
         err = capsys.readouterr().err.strip()
