@@ -168,7 +168,7 @@ def _refuse_a_spike(rec: Recording, name: str, header_line: int) -> None:
     with np.errstate(invalid="ignore"):
         up = (x[1:-1] - x[:-2] > reach) & (x[1:-1] - x[2:] > reach)
         down = (x[:-2] - x[1:-1] > reach) & (x[2:] - x[1:-1] > reach)
-    spikes = np.flatnonzero(up | down)
+    spikes = np.flatnonzero((up | down) & np.isfinite(x[1:-1]))     # NaN and inf: the finite-cell rules
     if spikes.size:
         row = int(spikes[0]) + 1
         raise RecordingError(
