@@ -10,25 +10,13 @@ import pytest
 
 from gma_ffc.cli import main
 from gma_ffc.recordings import Recording, read_recording, write_recording
-from preisach import PreisachActuator
-
-STRESSES = (-11.3, -15.2, -19.1, -24.0)
+from cli_workdir import STRESSES, make_cli_workdir
 
 
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("cells")
-    rig = PreisachActuator(noise_um=0.02, seed=3)
-    t = np.arange(0, 1.2, 1e-3)
-    x = 1.5 - 1.5 * np.cos(2 * np.pi * 3 * t)
-    for s in STRESSES:
-        write_recording(d / f"id_{-s}.csv", Recording(
-            {"time_s": t, "current_A": x, "stress_MPa": np.full_like(t, s), "displacement_um": rig.run(x, s)},
-            {"source": "preisach test rig", "sample_rate_hz": 1000}))
-    ref = 22.0 + 12.0 * np.sin(2 * np.pi * 3 * t)
-    write_recording(d / "ref.csv", Recording({"time_s": t, "reference_um": ref, "stress_MPa": np.full_like(t, -17.0)}))
-    assert main(["identify", *map(str, sorted(d.glob("id_*.csv"))), "-o", str(d / "model.yaml")]) == 0
-    return d
+    return make_cli_workdir(d)
 
 
 def _one_line_exit_2(argv: list[str], capsys, *words: str) -> str:
