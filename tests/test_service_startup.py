@@ -241,3 +241,5 @@ def test_start_runs_the_installed_code_not_a_gma_ffc_folder_in_the_working_direc
         stopped = run("stop", "--runtime-dir", "rt")
     assert stopped.returncode == 0, stopped.stderr
     assert not (tmp_path / "decoy_ran").exists()
+    # stop reports how the run itself ended (its last-exit record), not the status before the stop
+    assert stopped.stdout.startswith("stopped on request (pid ") and "; safe current (0 A) written" in stopped.stdout

@@ -82,14 +82,22 @@ def _start(args: argparse.Namespace) -> int:
 
 
 def _stop(args: argparse.Namespace) -> int:
+    from ..service import last_exit
     from ..service.daemon import stop
     from ..service.paths import runtime_paths
     from ..service.status import faults_of
 
-    result = stop(runtime_paths(args.runtime_dir), timeout_s=args.timeout)
-    faults = faults_of(result.final_status or {})
+    runtime = runtime_paths(args.runtime_dir)
+    result = stop(runtime, timeout_s=args.timeout)
+    record = last_exit.read(runtime)
+    if record and record.get("pid") == result.pid and record.get("how") != "running":
+        # how the run itself ended: the faults still active at its end, and the safe current
+        faults = list(record.get("faults") or {})
+        tail = f"; {last_exit.safe_words(record)}"
+    else:                                       # no record of this run: the status just before the stop
+        faults, tail = faults_of(result.final_status or {}), ""
     print(f"{result.how} (pid {result.pid or '?'})"
-          + (f"; active faults were: {', '.join(faults)}" if faults else ""))
+          + (f"; faults active at the end: {', '.join(faults)}" if faults else "") + tail)
     return 0
 
 

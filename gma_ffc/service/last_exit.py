@@ -70,10 +70,10 @@ def describe(record: Mapping[str, Any]) -> str:
     else:
         what = "on a fault" if record.get("how") == "fault" else "in a crash"
         text = f"{when} {what}: {faults or record.get('exit_reason') or record.get('reason') or '?'}"
-    return text + "; " + _safe_words(record)
+    return text + "; " + safe_words(record)
 
 
-def _safe_words(record: Mapping[str, Any]) -> str:
+def safe_words(record: Mapping[str, Any]) -> str:
     written, amps = record.get("safe_current_written"), record.get("safe_current_A")
     at = f" ({amps:g} A)" if isinstance(amps, (int, float)) else ""
     if written is None:
