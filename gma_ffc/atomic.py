@@ -55,7 +55,7 @@ def write_failed(path: str | os.PathLike, exc: OSError,
     return InputError(f"{path}: cannot write it: {reason} ({kept}); {_advice(exc)}")
 
 
-def check_writable(folder: str | os.PathLike, label: str) -> None:
+def check_folder_writable(folder: str | os.PathLike, label: str) -> None:
     """InputError now, before any work, if nothing can be created in `folder` (or, when it does not
     exist yet, in the nearest folder above it that does, where it would be made): a read-only or
     full file system, no permission, a file where a folder should be. Probes with an empty file;

@@ -135,13 +135,13 @@ def test_a_set_of_files_is_replaced_all_or_none(tmp_path: Path, monkeypatch) -> 
 
 
 def test_check_writable_finds_a_read_only_folder_and_a_file_in_the_way(tmp_path: Path, monkeypatch) -> None:
-    from gma_ffc.atomic import check_writable
+    from gma_ffc.atomic import check_folder_writable
     from gma_ffc.errors import InputError
 
     (tmp_path / "file").write_text("x")
     with pytest.raises(InputError, match="--out x: .*file is a file, not a folder"):
-        check_writable(tmp_path / "file" / "sub", "--out x")
-    check_writable(tmp_path / "new" / "deeper", "--out y")           # made later, where it can be
+        check_folder_writable(tmp_path / "file" / "sub", "--out x")
+    check_folder_writable(tmp_path / "new" / "deeper", "--out y")           # made later, where it can be
     assert not (tmp_path / "new").exists() and sorted(p.name for p in tmp_path.iterdir()) == ["file"]
     real_open = os.open
 
@@ -153,4 +153,4 @@ def test_check_writable_finds_a_read_only_folder_and_a_file_in_the_way(tmp_path:
     monkeypatch.setattr(os, "open", read_only)
     with pytest.raises(InputError, match=f"--out z: cannot write in {re.escape(str(tmp_path))}: Read-only file "
                                          "system; that file system is read-only: write it elsewhere"):
-        check_writable(tmp_path / "diag", "--out z")
+        check_folder_writable(tmp_path / "diag", "--out z")

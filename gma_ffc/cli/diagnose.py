@@ -61,12 +61,12 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out} exists and is not a folder")
-    from ..atomic import check_writable, refuse_overwrite
+    from ..atomic import check_folder_writable, refuse_overwrite
 
     for produced in ("diagnosis.json", "report.html", "extended_model.yaml"):
         refuse_overwrite(out / produced, [*args.recordings, *args.ident, args.model], "--out")
     refuse_repeats([*args.recordings, *args.ident])
-    check_writable(out, str(out))          # now, not after the whole analysis
+    check_folder_writable(out, str(out))          # now, not after the whole analysis
     model = load_model(args.model)
     if model.kind == "extended":
         raise InputError(f"{args.model} is already an extended model; diagnose its base sdpi/mpi model instead")

@@ -48,18 +48,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _check_outputs(args: argparse.Namespace) -> None:
     """The model file and the plot, checked now, not after the fit: names, inputs, writable folders."""
-    from ..atomic import check_writable, refuse_overwrite
+    from ..atomic import check_folder_writable, refuse_overwrite
 
     refuse_overwrite(args.output, args.recordings)
     if not args.output.endswith((".yaml", ".yml")):
         raise InputError(f"model file must end in .yaml, got {args.output}")
-    check_writable(Path(args.output).parent, args.output)
+    check_folder_writable(Path(args.output).parent, args.output)
     if args.plot:
         from ..plots import check_plot_name
 
         refuse_overwrite(args.plot, args.recordings, "plot")     # the graver mistake, said first
         check_plot_name(args.plot)
-        check_writable(Path(args.plot).parent, args.plot)
+        check_folder_writable(Path(args.plot).parent, args.plot)
 
 
 def run(args: argparse.Namespace) -> int:

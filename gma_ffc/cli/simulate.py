@@ -11,7 +11,7 @@ import numpy as np
 
 from ..modelio import load_model
 from ..recordings import DISPLACEMENT, Recording, check_output_name, refuse_non_finite, write_recording
-from ..atomic import check_writable, refuse_overwrite
+from ..atomic import check_folder_writable, refuse_overwrite
 from ._common import (add_group_option, add_initial_state_option, add_stress_option, beyond_drive_range,
                       check_drive_name, note_gaps, read_while, stress_for, warm_up)
 
@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     refuse_overwrite(args.output, [args.recording, args.model])     # a device or an input: said first
     check_output_name(args.output)
-    check_writable(Path(args.output).parent, args.output)
+    check_folder_writable(Path(args.output).parent, args.output)
 
     def prepare() -> Any:      # numba is imported here (by the model), beside the read, not at --help
         model = load_model(args.model)
