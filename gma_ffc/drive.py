@@ -46,3 +46,19 @@ def loop_frequency_hz(time_s: np.ndarray, u: np.ndarray) -> float:
     if n < 2 or duration <= 0:
         return float("nan")
     return (n + 1) / (2.0 * duration)
+
+
+RANGE_MARGIN = 0.02
+"""A drive within 2 % of the range a model was identified on is inside it: the range was read off
+noisy recordings, to about that."""
+
+
+def outside_range(u: np.ndarray, drive_range: tuple[float, float], margin: float = RANGE_MARGIN) -> np.ndarray:
+    """Which samples of a drive lie beyond `drive_range` widened by `margin` of its span, where a
+    model identified on that range only extrapolates (none when the range is not finite)."""
+    lo, hi = (float(v) for v in drive_range)
+    u = np.asarray(u, dtype=float)
+    if not np.isfinite(hi - lo) or hi <= lo:
+        return np.zeros(u.shape, dtype=bool)
+    wide = margin * (hi - lo)
+    return (u < lo - wide) | (u > hi + wide)

@@ -91,16 +91,13 @@ def stress_for(model: Model, rec: Recording, override: float | None) -> np.ndarr
     return None
 
 
-RANGE_MARGIN = 0.02    # a drive within 2 % of the identified range is inside it: the range was taken from noisy
-                       # recordings, to about that (as diagnose's `range_margin`)
-
-
 def beyond_drive_range(model: Model, rec: Recording) -> str | None:
     """One sentence when `rec`'s drive leaves the range `model` was identified on (the prediction
     there is an extrapolation), else None."""
+    from ..drive import outside_range
+
     lo, hi = (float(v) for v in model.drive_range)
-    wide = RANGE_MARGIN * (hi - lo)
-    outside = (rec.drive < lo - wide) | (rec.drive > hi + wide)
+    outside = outside_range(rec.drive, (lo, hi))
     if not outside.any():
         return None
     unit = model.drive_name.rsplit("_", 1)[-1]

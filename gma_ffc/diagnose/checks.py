@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any, Sequence
 
 import numpy as np
 
-from ..drive import reversals
+from ..drive import outside_range, reversals
 from ..errors import InputError
 from ..recordings import Recording
 from .data import N_BLOCKS, RecData, unscored_note
@@ -27,7 +26,7 @@ def check_overlap(model: Any, recordings: Sequence[Recording], margin: float = 0
     stress_overlap = []
     for rec in recordings:
         u = rec.drive
-        inside = (u >= lo - margin * (hi - lo)) & (u <= hi + margin * (hi - lo)) if math.isfinite(hi - lo) else np.ones(u.size, bool)
+        inside = ~outside_range(u, (lo, hi), margin)
         drive_overlap.append(float(np.mean(inside)))
         if srange is not None and rec.stress_MPa is not None:
             s = rec.stress_MPa
@@ -49,13 +48,10 @@ def beyond_range_notes(model: Any, data: Sequence[RecData], margin: float = 0.02
     only extrapolates (`EffectSelector` documents both). A 13 um miss on a piezo run at 0..150 V
     against a model identified at -75..75 V otherwise came with no word on why."""
     lo, hi = (float(v) for v in model.drive_range)
-    if not math.isfinite(hi - lo) or hi <= lo:
-        return []
     unit = model.drive_name.rsplit("_", 1)[-1]
-    wide = margin * (hi - lo)
     notes = []
     for d in data:
-        outside = (d.u < lo - wide) | (d.u > hi + wide)
+        outside = outside_range(d.u, (lo, hi), margin)
         if d.u.size and float(np.mean(outside)) > share:
             notes.append(f"{d.name}: {np.mean(outside):.0%} of the samples drive beyond the range the model was "
                          f"identified on ({lo:.3g}..{hi:.3g} {unit}; this recording {float(np.min(d.u)):.3g}.."
