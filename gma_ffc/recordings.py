@@ -139,7 +139,7 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
         refuse_non_finite(rec, STRESS, "stress_MPa, when a recording has the column: put the stress at that "
                                        "time in the cell")
     if DISPLACEMENT in rec.columns:
-        _refuse_a_spike(rec, DISPLACEMENT, header_line)
+        _refuse_a_spike(rec, DISPLACEMENT)
     steps = np.diff(rec.time_s)
     if (steps <= 0).any():
         row = int(np.argmax(steps <= 0)) + 1
@@ -158,7 +158,7 @@ SPIKE_FLOOR_UM = 1.0
 few quantisation steps) would otherwise make a one-count blip a glitch."""
 
 
-def _refuse_a_spike(rec: Recording, name: str, header_line: int) -> None:
+def _refuse_a_spike(rec: Recording, name: str) -> None:
     """RecordingError naming the first isolated sample far beyond the rest of the column."""
     x = np.asarray(rec.columns[name], dtype=float)
     if x.size < 3 or not np.isfinite(x).any():
@@ -172,7 +172,7 @@ def _refuse_a_spike(rec: Recording, name: str, header_line: int) -> None:
     if spikes.size:
         row = int(spikes[0]) + 1
         raise RecordingError(
-            f"{rec.source}, line {header_line + 1 + row}: '{name}' is {x[row]:.6g}, more than "
+            f"{rec.source}, line {rec.header_line + 1 + row}: '{name}' is {x[row]:.6g}, more than "
             f"{reach:.4g} from both its neighbours ({SPIKE_SPREADS:g} times the column's spread, {hi - lo:.4g}): a sensor "
             f"overload value or a glitch{f' ({spikes.size} such samples)' if spikes.size > 1 else ''}; "
             "fix or remove that row")
