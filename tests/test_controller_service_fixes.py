@@ -98,9 +98,15 @@ def test_a_controller_in_another_process_is_refused_naming_its_pid(tmp_path):
         assert any(f"another controller (pid {holder.pid})" in m for m in status["fault_messages"].values()), \
             status["fault_messages"]
         assert (tel.read_bytes() if tel.exists() else b"") == before
+        advice = next(m for m in status["fault_messages"].values() if "another controller" in m)
+        assert f"'kill {holder.pid}'" in advice
+        holder.terminate()                    # the advice, followed: the first goes, this one runs
+        holder.wait(timeout=60)
+        assert ControllerManager(cfg_for(tmp_path, clock="simulated")).run(duration_s=0.1)["ok"]
     finally:
-        holder.communicate("\n", timeout=60)
-    assert holder.returncode == 0
+        if holder.poll() is None:
+            holder.communicate("\n", timeout=60)
+    assert holder.returncode is not None
 
 
 def test_duplicate_config_keys_are_refused_naming_the_key_and_both_lines(tmp_path):

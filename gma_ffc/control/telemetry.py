@@ -61,7 +61,8 @@ class TelemetryLock:
             holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
             os.close(fd)
             raise ConfigError(f"telemetry file {self.path} is being written by another controller (pid {holder}); "
-                              "give this one another telemetry.path") from None
+                              f"stop it first ('gma-ffc stop', or 'kill {holder}': either leaves its amplifier "
+                              "at the safe current) or give this one another telemetry.path") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         self._fd = fd
