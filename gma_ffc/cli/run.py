@@ -67,45 +67,49 @@ def _run(args: argparse.Namespace) -> int:
     check_config_file(config)
     logging.basicConfig(stream=sys.stderr, level=getattr(logging, args.log_level),
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    if args.duration is None:
-        _refuse_a_run_without_end(config)
     runtime = None if args.no_socket else runtime_paths(args.runtime_dir)
-    extra = {} if args.learned is None else {"load_config": _with_learned_file(args.learned)}
-    service = Service(config, duration_s=args.duration, stats_json=args.stats_json, runtime=runtime, **extra)
+    loader = _config_loader(args.learned, needs_real_clock=args.duration is None)
+    service = Service(config, duration_s=args.duration, stats_json=args.stats_json, runtime=runtime,
+                      load_config=loader)
     code = service.run()
     logging.getLogger("gma_ffc.service").info("stopped: %s", service.status()["service"]["stop_reason"])
     return code
 
 
-def _refuse_a_run_without_end(config: Path) -> None:
+def _config_loader(learned: str | None, *, needs_real_clock: bool):
+    """The Service's config loader: the file as written, with --learned applied, and without
+    --duration a simulated clock refused (at start and on every reload)."""
+    from ..control.config import load_config
+
+    def load(config_path: Path):
+        cfg = load_config(config_path)
+        if needs_real_clock:
+            _refuse_a_run_without_end(config_path, cfg.clock)
+        return cfg if learned is None else _with_learned_file(cfg, config_path, learned)
+
+    return load
+
+
+def _refuse_a_run_without_end(config: Path, clock: str) -> None:
     """A simulated clock never sleeps: without --duration the run would go as fast as the CPU allows
     until stopped (65,000 ticks a second under a status claiming 1000 Hz, 35 GB of telemetry an hour).
     Tests that drive the clock themselves build the Service directly, not through this command."""
-    from ..control.config import load_config
-
-    if load_config(config).clock == "simulated":
+    if clock == "simulated":
         raise ConfigError(f"{config}: config key 'clock' is 'simulated', which runs as fast as the CPU allows "
                           "and never stops by itself: give --duration S, or set clock: real to run at rate_hz "
                           "until 'gma-ffc stop'")
 
 
-def _with_learned_file(path: str):
-    """A config loader that points learning.file at `path` (the --learned option)."""
+def _with_learned_file(cfg, config_path: Path, path: str):
+    """`cfg` with learning.file pointed at `path` (the --learned option)."""
     import dataclasses
 
-    from ..control.config import load_config
-
     learned = str(Path(path).expanduser().resolve())
-
-    def load(config_path: Path):
-        cfg = load_config(config_path)
-        if not cfg.learning.enabled:
-            raise ConfigError(f"--learned {path}: learning is off in {config_path}; add "
-                              f"'learning: {{kind: repetitive}}' to use a learned correction")
-        cfg.learning = dataclasses.replace(cfg.learning, file=learned)
-        cfg.learned_setting = "--learned"        # what a refusal of that file tells the user to change
-        if cfg.output_dirs:      # named on the command line: its folder is named for output too
-            cfg.output_dirs = (*cfg.output_dirs, str(Path(learned).parent))
-        return cfg
-
-    return load
+    if not cfg.learning.enabled:
+        raise ConfigError(f"--learned {path}: learning is off in {config_path}; add "
+                          f"'learning: {{kind: repetitive}}' to use a learned correction")
+    cfg.learning = dataclasses.replace(cfg.learning, file=learned)
+    cfg.learned_setting = "--learned"        # what a refusal of that file tells the user to change
+    if cfg.output_dirs:      # named on the command line: its folder is named for output too
+        cfg.output_dirs = (*cfg.output_dirs, str(Path(learned).parent))
+    return cfg
