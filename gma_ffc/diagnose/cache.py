@@ -48,6 +48,11 @@ class BoundedCache(Generic[V]):
     def bytes(self) -> int:
         return self._bytes
 
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+            self._bytes = 0
+
     def get(self, key: Hashable) -> V | None:
         with self._lock:
             hit = self._items.get(key)

@@ -156,6 +156,7 @@ class Fitter:
         self.delta: float | None = None   # Huber scale of the loss (None: plain least squares)
         self._init_anchor()
         self._identified: dict[Any, Any] = {}
+        self.static_off: frozenset[str] = frozenset()   # recalibration columns left out (`drop_static`)
         self._identify_lock = threading.Lock()
 
     def _init_ranges(self) -> None:
@@ -590,6 +591,49 @@ class Fitter:
             c, loss_tr, n_tr = self._fit(Xk[train], y[train], spec)
             out.append(self._left_out_score(Xk, y, train, test, np.where(keep, c, 0.0), loss_tr, n_tr))
         return out
+
+    def level_blocks(self) -> list[np.ndarray]:
+        """Where the rows of each (recording, stress level) sit in `y_rows`: each recording's rows split
+        by the stress level (`stress_levels`) nearest their stress. A load-change recording gives a
+        block per load; a recording at one load, one block."""
+        levels = np.array(self.stress_levels() or [0.0])
+        out = []
+        for d, idx, (ra, rb) in zip(self.data, self.row_blocks(), self._rows_ab):
+            s = np.concatenate([d.s[ra], d.s[rb]]) if d.s is not None else np.zeros(idx.size)
+            near = np.argmin(np.abs(s[:, None] - levels[None, :]), axis=1)
+            out += [idx[near == k] for k in range(levels.size) if np.any(near == k)]
+        return out
+
+    def left_out_blocks(self, spec: Spec, blocks: Sequence[np.ndarray], off: Sequence[str] = ()) -> list["LeftOut"]:
+        """As `left_out`, over row `blocks` (e.g. `level_blocks`), with the columns named in `off` left
+        out of every fit: each block predicted by the spec fitted on the others."""
+        X, names = self.design(spec)
+        y = self.y_rows
+        stress = self._row_stress()
+        out = []
+        for k, test in enumerate(blocks):
+            train = np.concatenate([b for j, b in enumerate(blocks) if j != k])
+            span = float(np.ptp(stress[train])) if train.size else 0.0
+            keep = self._identifiable(X[train], names, span) & ~np.isin(np.array(names), list(off))
+            Xk = np.where(keep, X, 0.0)
+            c, loss_tr, n_tr = self._fit(Xk[train], y[train], spec)
+            out.append(self._left_out_score(Xk, y, train, test, np.where(keep, c, 0.0), loss_tr, n_tr))
+        return out
+
+    def _row_stress(self) -> np.ndarray:
+        """The recorded stress at each of `y_rows` (0 without stress)."""
+        s = np.zeros(self.y_rows.size)
+        for d, idx, (ra, rb) in zip(self.data, self.row_blocks(), self._rows_ab):
+            if d.s is not None:
+                s[idx] = np.concatenate([d.s[ra], d.s[rb]])
+        return s
+
+    def drop_static(self, names: Sequence[str]) -> None:
+        """Leave the static recalibration's columns `names` out of every design from now on (the
+        caches holding them emptied)."""
+        self.static_off = frozenset(names)
+        for cache in (self._static_cache, self._anchor_cache, self._gram_cache):
+            cache.clear()
 
     def _stress_span(self, which: Sequence[int]) -> float:
         """The span of the scored stresses the model sees over the recordings `which` (0 without stress)."""

@@ -83,9 +83,15 @@ class StaticMap(EffectBase):
     @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
         yc, u3 = r.yc, r.u3
-        r.cols += [yc, (yc - fitter.yc_center) ** 2, np.ones_like(yc)]
-        r.names += ["gain", "quadratic", "offset"]
-        if fitter.stress_varies:
+        off = getattr(fitter, "static_off", frozenset())     # terms left out where they do not carry
+        r.cols += [yc]
+        r.names += ["gain"]
+        if "quadratic" not in off:
+            r.cols.append((yc - fitter.yc_center) ** 2)
+            r.names.append("quadratic")
+        r.cols.append(np.ones_like(yc))
+        r.names.append("offset")
+        if fitter.stress_varies and "stress_gain" not in off:
             r.cols.append((fitter.stress(r.d, r.spec) - fitter.stress_ref) * yc)   # the stress the model sees
             r.names.append("stress_gain")
         # the plays start from the history the core's run starts from (as every run of the model does)
@@ -105,7 +111,7 @@ class StaticMap(EffectBase):
         c = coef
         return {"static": {"offset_um": c["offset"], "gain": c["gain"],
                            "stress_gain_per_MPa": c.get("stress_gain", 0.0),
-                           "quadratic_per_um": c["quadratic"], "center_um": fitter.yc_center,
+                           "quadratic_per_um": c.get("quadratic", 0.0), "center_um": fitter.yc_center,
                            "stress_ref_MPa": fitter.stress_ref},
                 "play_correction": {"thresholds": [float(v) for v in fitter.play_thresholds],
                                     "coefficients": [c[f"play_{j}"] for j in range(fitter.play_thresholds.size)]}}
