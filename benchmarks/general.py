@@ -26,7 +26,8 @@ law the zoom left before the polish brought the damping close) was then looked a
 GENERAL_NINTH_SEED draws an eighth. Its resonance miss (a load law left in a side basin) was then
 looked at and fixed, so GENERAL_TENTH_SEED draws a ninth. A delay under half a sample beside a
 lag or a resonance was then left unnamed (the samples' own timing, found on the development
-draws), so GENERAL_ELEVENTH_SEED draws a tenth.
+draws), so GENERAL_ELEVENTH_SEED draws a tenth. Its heating-with-creep miss (a recalibration
+that did not carry to other loads) was then looked at and fixed, so GENERAL_TWELFTH_SEED draws an eleventh.
 """
 
 from __future__ import annotations
@@ -61,6 +62,9 @@ GENERAL_TENTH_SEED = 20261208     # a ninth never-tuned draw (2026-11-27, sevent
 GENERAL_ELEVENTH_SEED = 20261209  # a tenth never-tuned draw (2026-11-28, ninth session): after a delay under half
                                   # a sample beside a lag or resonance was left unnamed (found on development
                                   # draws); fixed and committed before its first run
+GENERAL_TWELFTH_SEED = 20261229   # an eleventh never-tuned draw (2026-11-29, branch recal-carry): after the
+                                  # recalibration's curvature and stress gain were kept only where they carry
+                                  # to a stress level left out; fixed and committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
