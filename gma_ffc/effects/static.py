@@ -83,7 +83,7 @@ class StaticMap(EffectBase):
     @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
         yc, u3 = r.yc, r.u3
-        off = getattr(fitter, "static_off", frozenset())     # terms left out where they do not carry
+        off: frozenset[str] = getattr(fitter, "static_off", frozenset())   # terms left out where they do not carry
         r.cols += [yc]
         r.names += ["gain"]
         if "quadratic" not in off:
