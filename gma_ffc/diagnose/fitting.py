@@ -579,18 +579,7 @@ class Fitter:
         """Each recording predicted by the spec fitted on the other recordings alone (gains only: its
         nonlinear parameters as given), its own nuisance (its sensor zero and jumps: columns no
         other recording has, and a constant) fitted on it. Held by the anchor like every fit."""
-        X, names = self.design(spec)
-        y = self.y_rows
-        blocks = self.row_blocks()
-        out = []
-        for k, test in enumerate(blocks):
-            others = [j for j in range(len(blocks)) if j != k]
-            train = np.concatenate([blocks[j] for j in others])
-            keep = self._identifiable(X[train], names, self._stress_span(others))
-            Xk = np.where(keep, X, 0.0)
-            c, loss_tr, n_tr = self._fit(Xk[train], y[train], spec)
-            out.append(self._left_out_score(Xk, y, train, test, np.where(keep, c, 0.0), loss_tr, n_tr))
-        return out
+        return self.left_out_blocks(spec, self.row_blocks())
 
     def level_blocks(self) -> list[np.ndarray]:
         """Where the rows of each (recording, stress level) sit in `y_rows`: each recording's rows split
@@ -605,8 +594,9 @@ class Fitter:
         return out
 
     def left_out_blocks(self, spec: Spec, blocks: Sequence[np.ndarray], off: Sequence[str] = ()) -> list["LeftOut"]:
-        """As `left_out`, over row `blocks` (e.g. `level_blocks`), with the columns named in `off` left
-        out of every fit: each block predicted by the spec fitted on the others."""
+        """Each of the row `blocks` (a recording's rows: `row_blocks`; a stress level's: `level_blocks`)
+        predicted by the spec fitted on the others, with the columns named in `off` left out of every
+        fit; a column the training rows do not determine (a stress gain over one stress) is left out too."""
         X, names = self.design(spec)
         y = self.y_rows
         stress = self._row_stress()
@@ -634,12 +624,6 @@ class Fitter:
         self.static_off = frozenset(names)
         for cache in (self._static_cache, self._anchor_cache, self._gram_cache):
             cache.clear()
-
-    def _stress_span(self, which: Sequence[int]) -> float:
-        """The span of the scored stresses the model sees over the recordings `which` (0 without stress)."""
-        s = [self.data[j].s[self.data[j].rows] for j in which if self.data[j].s is not None]
-        s = [v for v in s if v.size]
-        return float(max(v.max() for v in s) - min(v.min() for v in s)) if s else 0.0
 
     def _identifiable(self, X: np.ndarray, names: Sequence[str], stress_span: float) -> np.ndarray:
         """Which columns the training rows X determine, in design order (a column that the earlier

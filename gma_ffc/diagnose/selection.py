@@ -559,9 +559,11 @@ class EffectSelector:
         assert sc.coef_all is not None
         fit = SearchResult(sel.fit.specs, sc.held_out_loss, sc.held_out_mse, sc.all_mse, sc.n_held_out, sc.coef_all,
                            sc.names, sel.fit.evaluated)
-        note = (f" The recalibration's {' and '.join(t.replace('_', ' ') for t in off)} were left out: fitted "
-                f"without each of the {len(blocks)} stress levels, the model predicted the level left out no worse "
-                "without them, so they would not carry to other loads.")
+        what = " and ".join(t.replace("_", " ") for t in off)
+        were, them, they = ("were", "them", "they") if len(off) > 1 else ("was", "it", "it")
+        note = (f" The recalibration's {what} {were} left out: fitted without each of the {len(blocks)} stress "
+                f"levels, the model predicted the level left out no worse without {them}, so {they} would not "
+                "carry to other loads.")
         return dataclasses.replace(sel, fit=fit, rebase_note=sel.rebase_note + note,
                                    leave_one_out=fitter_loo(problem, spec) if sel.leave_one_out is not None
                                    else None)
