@@ -586,10 +586,10 @@ class Fitter:
         by the stress level (`stress_levels`) nearest their stress. A load-change recording gives a
         block per load; a recording at one load, one block."""
         levels = np.array(self.stress_levels() or [0.0])
+        stress = self._row_stress()
         out = []
-        for d, idx, (ra, rb) in zip(self.data, self.row_blocks(), self._rows_ab):
-            s = np.concatenate([d.s[ra], d.s[rb]]) if d.s is not None else np.zeros(idx.size)
-            near = np.argmin(np.abs(s[:, None] - levels[None, :]), axis=1)
+        for idx in self.row_blocks():
+            near = np.argmin(np.abs(stress[idx][:, None] - levels[None, :]), axis=1)
             out += [idx[near == k] for k in range(levels.size) if np.any(near == k)]
         return out
 
