@@ -242,10 +242,23 @@ def loop_gain(fitter: FitData, tau: float) -> float:
 
 
 def _with_loop_gain(fitter: FitData, tau: float) -> tuple[float, float]:
-    """(tau, the loops' gain at it), tau to four significant digits: one identification per point,
-    and zooms from two best points that land on the same tau share it."""
-    tau = float(f"{tau:.4g}")
+    """(tau, the loops' gain at it), tau on the lattice of the grid and its zooms, to four significant
+    digits: one identification per point, and zooms from two best points that land on the same tau
+    share it (rounding alone let 4.208 s and 4.207 s, one point, be identified twice)."""
+    tau = float(f"{_on_lattice(fitter, tau):.4g}")
     return tau, fitter.cached(("creep_gain", tau), lambda: loop_gain(fitter, tau))
+
+
+ZOOM_LATTICE = 9      # two zoom levels of geom_refine (3 ** 2 steps per grid spacing)
+
+
+def _on_lattice(fitter: FitData, tau: float) -> float:
+    """tau snapped to the nearest point of creep's grid zoomed twice (`geom_refine`'s steps of a
+    ninth of the grid's spacing, in log): a zoom point reached from two rounded centres is one."""
+    g = time_constants(fitter)
+    log_ratio = np.log(grid_ratio(g[0], g[-1], g.size))
+    steps = round(float(np.log(tau / g[0]) / log_ratio) * ZOOM_LATTICE) / ZOOM_LATTICE
+    return float(g[0] * np.exp(steps * log_ratio))
 
 
 def _linear_family(fitter: FitData, d: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
