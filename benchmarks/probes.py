@@ -22,14 +22,14 @@ scores both on the same samples (after the base's state has settled) and pools t
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from gma_ffc.initial_state import settled_index
 from gma_ffc.recordings import Recording
 
-from .cases import FS, Case, _variant, case_plant, record
+from .cases import FS, Case, _variant, case_plant, case_recordings, record
 
 PROBE_SEED = 31031   # fixed before the probes were first run (issue 31); mixed with each case's seed
 PROBES = ("other_rate", "other_shape", "history")
@@ -133,3 +133,17 @@ def pooled(scores: Sequence[ProbeScore], which: str) -> float:
     """The RMS over every scored sample of all probes."""
     sq = sum(getattr(s, which) ** 2 * s.samples for s in scores)
     return float(np.sqrt(sq / max(sum(s.samples for s in scores), 1)))
+
+
+def two_models_on_probes(case: Case, other: Callable[[Any], Any]) -> tuple[Any, float, float, float]:
+    """A case diagnosed with its identification loops (as `scripts/bench_diagnose.py --set general`
+    does), and the pooled probe RMS, in um, of the base, of the diagnosis' extended model, and of the
+    model `other(diagnosis)` gives (a variant of it, or the one before a fitting step)."""
+    from gma_ffc.diagnose.engine import diagnose
+
+    model, ident, rec = case_recordings(case)
+    dg = diagnose(model, [rec], identification=ident)
+    probes = probe_recordings(case)
+    fitted = probe_scores(model, dg.extended, probes)
+    second = probe_scores(model, other(dg), probes)
+    return dg, pooled(fitted, "base_um"), pooled(fitted, "extended_um"), pooled(second, "extended_um")

@@ -27,10 +27,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.cases import case_recordings  # noqa: E402
 from benchmarks.general import general_cases  # noqa: E402
-from benchmarks.probes import pooled, probe_recordings, probe_scores  # noqa: E402
-from gma_ffc.diagnose.engine import diagnose  # noqa: E402
+from benchmarks.probes import two_models_on_probes  # noqa: E402
 from gma_ffc.effects.static import StaticMap  # noqa: E402
 
 
@@ -53,12 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     cases = [c for c in general_cases() if c.name.split(":")[-1].startswith(tuple(args.only))]
     print(f"{'case':45s} {'verdict':38s} {'base':>7} {'fitted':>7} {'affine':>7} {'gain':>6} {'affine':>6}")
     for case in cases:
-        model, ident, rec = case_recordings(case)
-        dg = diagnose(model, [rec], identification=ident)
-        probes = probe_recordings(case)
-        fitted = probe_scores(model, dg.extended, probes)
-        cut = probe_scores(model, affine_only(dg.extended), probes)
-        base, fit, aff = pooled(fitted, "base_um"), pooled(fitted, "extended_um"), pooled(cut, "extended_um")
+        dg, base, fit, aff = two_models_on_probes(case, lambda dg: affine_only(dg.extended))
         print(f"{case.name:45s} {','.join(dg.verdict) or '-':38s} {base:7.4f} {fit:7.4f} {aff:7.4f} "
               f"{base / fit:6.2f} {base / aff:6.2f}", flush=True)
     return 0

@@ -19,11 +19,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.cases import case_recordings  # noqa: E402
 from benchmarks.general import GENERAL_SEED, general_cases  # noqa: E402
-from benchmarks.probes import pooled, probe_recordings, probe_scores  # noqa: E402
+from benchmarks.probes import two_models_on_probes  # noqa: E402
 from gma_ffc.diagnose import selection as S  # noqa: E402
-from gma_ffc.diagnose.engine import diagnose  # noqa: E402
 from gma_ffc.diagnose.scoring import build_extended  # noqa: E402
 
 SEEN: dict[str, Any] = {}
@@ -50,14 +48,8 @@ def main(argv: list[str] | None = None) -> int:
              if not args.only or c.name.split(":")[-1].startswith(tuple(args.only))]
     print(f"{'case':34s} {'verdict':34s} {'base':>7} {'before':>7} {'after':>7} {'gain':>6} {'after':>6}  left out")
     for case in cases:
-        SEEN.clear()
-        model, ident, rec = case_recordings(case)
-        dg = diagnose(model, [rec], identification=ident)
-        probes = probe_recordings(case)
-        after = probe_scores(model, dg.extended, probes)
-        old = SEEN["before"] if SEEN.get("off") else dg.extended     # the same model where nothing was left out
-        before = probe_scores(model, old, probes)
-        base, b, a = pooled(after, "base_um"), pooled(before, "extended_um"), pooled(after, "extended_um")
+        SEEN.clear()     # the same model before as after where nothing was left out
+        dg, base, a, b = two_models_on_probes(case, lambda dg: SEEN["before"] if SEEN.get("off") else dg.extended)
         print(f"{case.name:34s} {','.join(dg.verdict) or '-':34s} {base:7.4f} {b:7.4f} {a:7.4f} "
               f"{base / b:6.2f} {base / a:6.2f}  {','.join(SEEN.get('off', [])) or '-'}", flush=True)
     return 0
