@@ -60,9 +60,7 @@ def check_folder_writable(folder: str | os.PathLike, label: str) -> None:
     exist yet, in the nearest folder above it that does, where it would be made): a read-only or
     full file system, no permission, a file where a folder should be. Probes with an empty file;
     `label` starts the message: the output as the user gave it."""
-    probe_in = Path(folder)
-    while not probe_in.exists() and probe_in != probe_in.parent:
-        probe_in = probe_in.parent
+    probe_in = nearest_existing(Path(folder))
     if not probe_in.is_dir():
         raise InputError(f"{label}: {probe_in} is a file, not a folder; give a path in a folder")
     probe = probe_in / f".gma-ffc-probe.{secrets.token_hex(4)}.tmp"
@@ -72,6 +70,14 @@ def check_folder_writable(folder: str | os.PathLike, label: str) -> None:
     except OSError as exc:
         raise InputError(f"{label}: cannot write in {probe_in}: {exc.strerror or exc}; "
                          f"{_advice(exc)}") from None
+
+
+def nearest_existing(folder: Path) -> Path:
+    """`folder`, or its nearest ancestor that exists (a link counts, dangling or not): where the
+    missing folders would be made."""
+    while not os.path.lexists(folder) and folder != folder.parent:
+        folder = folder.parent
+    return folder
 
 
 _TMP_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
@@ -125,18 +131,35 @@ def atomic_write_all(folder: str | os.PathLike, contents: Mapping[str, bytes]) -
 def _write_temporary(target: Path, data: bytes) -> Path:
     """A synced temporary beside `target` holding `data` (removed again if writing it fails)."""
     target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.parent / f".{target.name}.{secrets.token_hex(4)}.tmp"
-    fd = os.open(tmp, _TMP_FLAGS, 0o666)        # 0666: the kernel applies the umask
+    dir_fd = os.open(target.parent, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
     try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
+        with _synced_temporary(dir_fd, target.name, "wb") as (handle, tmp):
+            handle.write(data)
+    finally:
+        os.close(dir_fd)
+    return target.parent / tmp
+
+
+@contextlib.contextmanager
+def _synced_temporary(dir_fd: int, name: str, mode: str, **kwargs) -> Iterator[tuple[IO, str]]:
+    """(handle, its name): a temporary for `name` in the open directory, created exclusively (never
+    through a link), flushed and synced when the block ends, and removed if the block fails."""
+    tmp = f".{name}.{secrets.token_hex(4)}.tmp"
+    # 0666: the kernel applies the umask, as for an ordinary open()
+    fd = os.open(tmp, _TMP_FLAGS, 0o666, dir_fd=dir_fd)
+    try:
+        with os.fdopen(fd, mode, **kwargs) as handle:
+            yield handle, tmp
+            handle.flush()
+            os.fsync(handle.fileno())
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
+        _remove(tmp, dir_fd)
         raise
-    return tmp
+
+
+def _remove(tmp: str, dir_fd: int) -> None:
+    with contextlib.suppress(FileNotFoundError):
+        os.unlink(tmp, dir_fd=dir_fd)
 
 
 def _fsync_dir(folder: Path) -> None:
@@ -152,18 +175,12 @@ def atomic_write_at(dir_fd: int, name: str, mode: str = "w", **kwargs) -> Iterat
     """`atomic_write` inside an open directory: the temporary file is created there (exclusively,
     never through a link), synced, renamed onto `name`, and the directory synced, so after a
     crash at any moment `name` is either the old file or the whole new one."""
-    tmp = f".{name}.{secrets.token_hex(4)}.tmp"
-    # 0666: the kernel applies the umask, as for an ordinary open()
-    fd = os.open(tmp, _TMP_FLAGS, 0o666, dir_fd=dir_fd)
+    with _synced_temporary(dir_fd, name, mode, **kwargs) as (handle, tmp):
+        yield handle
     try:
-        with os.fdopen(fd, mode, **kwargs) as handle:
-            yield handle
-            handle.flush()
-            os.fsync(handle.fileno())
         os.replace(tmp, name, src_dir_fd=dir_fd, dst_dir_fd=dir_fd)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp, dir_fd=dir_fd)
+        _remove(tmp, dir_fd)
         raise
     os.fsync(dir_fd)
 

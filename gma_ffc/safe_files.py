@@ -33,7 +33,7 @@ from typing import IO, Callable, Iterator, Sequence
 
 import yaml
 
-from .atomic import atomic_write_at
+from .atomic import atomic_write_at, nearest_existing
 from .errors import InputError
 
 HEAD_BYTES = 8192          # an existing file's first bytes: enough for a recording's metadata lines
@@ -221,9 +221,7 @@ def _refuse_unwritable_folder(target: Path, folder: Path, kind: Kind) -> None:
     """The folder a new file (or a rename) lands in must take it: its nearest existing ancestor,
     where the missing folders would be made. Otherwise the write fails after the run, naming a
     temporary file."""
-    existing = folder
-    while not os.path.lexists(existing) and existing != existing.parent:
-        existing = existing.parent
+    existing = nearest_existing(folder)
     if not os.path.isdir(existing):
         raise OutputRefused(f"{target}: {existing} is not a folder; choose another {kind.setting}")
     if not _may_write(existing, os.W_OK | os.X_OK):
