@@ -452,9 +452,23 @@ def _joint_polish(p: np.ndarray, best_cost: float, lo: np.ndarray, hi: np.ndarra
 
 def box_least_squares(resid: Any, jac: Any, q: np.ndarray, max_nfev: int) -> tuple[np.ndarray, float]:
     """Least squares of resid(q) over the unit box, from q, with the exact Jacobian `jac`:
-    scipy's trust-region reflective solver. Returns (q, sum of squares)."""
-    from scipy.optimize import least_squares
+    scipy's trust-region reflective solver, then one exact active-set step (BVLS) on the model
+    linearised where it ended, kept if the residuals themselves confirm it. The reflective steps
+    crawl along a face where the box binds most variables: on one row of eleven, 220 evaluations
+    ended 1.05e-4 above the optimum. Returns (q, sum of squares)."""
+    from scipy.optimize import least_squares, lsq_linear
 
     sol = least_squares(resid, q, jac=jac, bounds=(0.0, 1.0), method="trf", xtol=1e-14, ftol=1e-14, gtol=1e-14,
                         max_nfev=max_nfev)
-    return sol.x, float(2.0 * sol.cost)
+    q, cost = sol.x, float(2.0 * sol.cost)
+    J = np.asarray(jac(q), dtype=float)
+    live = np.any(J != 0.0, axis=0)          # a clipped state moves nothing here: it keeps its value
+    if not live.any():
+        return q, cost
+    J = J[:, live]
+    step = lsq_linear(J, J @ q[live] - resid(q), bounds=(0.0, 1.0), method="bvls", tol=1e-12)
+    q_step = q.copy()
+    q_step[live] = np.clip(step.x, 0.0, 1.0)      # BVLS may end a rounding outside (-1.1e-16)
+    r = resid(q_step)
+    cost_step = float(r @ r)
+    return (q_step, cost_step) if cost_step < cost else (q, cost)
