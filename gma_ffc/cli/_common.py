@@ -14,7 +14,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..protocols import Model
-from ..recordings import Recording, gap_note, read_recording
+from ..atomic import check_folder_writable, refuse_overwrite
+from ..recordings import Recording, check_output_name, gap_note, read_recording
 
 T = TypeVar("T")
 
@@ -24,6 +25,15 @@ def existing_output_dir_parent(path: str) -> Path:
     if p.parent and not p.parent.exists():
         raise InputError(f"output folder {p.parent} does not exist")
     return p
+
+
+def check_recording_output(output: str, inputs: Sequence[str]) -> None:
+    """Before any work, for a command that writes one recording: the output is none of the inputs
+    (nor a device: said first, the graver mistake), is named .csv or .mat, and its folder takes a
+    new file."""
+    refuse_overwrite(output, inputs)
+    check_output_name(output)
+    check_folder_writable(Path(output).parent, output)
 
 
 def read_all(paths: Sequence[str], require: Sequence[str], group: str | None = None) -> list[Recording]:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -13,9 +12,9 @@ from ..errors import InputError
 from ..initial_state import InitialStateSpec
 from ..model import SDPIModel
 from ..modelio import load_model
-from ..recordings import Recording, check_output_name, read_recording, write_recording
-from ..atomic import check_folder_writable, refuse_overwrite
-from ._common import add_group_option, add_initial_state_option, add_stress_option, finite_float, stress_for
+from ..recordings import Recording, read_recording, write_recording
+from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_recording_output, finite_float,
+                      stress_for)
 
 HELP = """\
 Compute the feedforward drive for a reference displacement with the model's analytic inverse
@@ -52,9 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    refuse_overwrite(args.output, [args.reference, args.model])     # a device or an input: said first
-    check_output_name(args.output)
-    check_folder_writable(Path(args.output).parent, args.output)
+    check_recording_output(args.output, [args.reference, args.model])
     if args.limit and args.limit[0] >= args.limit[1]:
         raise InputError(f"--limit needs LO < HI, got {args.limit[0]} {args.limit[1]}")
     model = load_model(args.model)

@@ -4,16 +4,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..modelio import load_model
-from ..recordings import DISPLACEMENT, Recording, check_output_name, refuse_non_finite, write_recording
-from ..atomic import check_folder_writable, refuse_overwrite
+from ..recordings import DISPLACEMENT, Recording, refuse_non_finite, write_recording
 from ._common import (add_group_option, add_initial_state_option, add_stress_option, beyond_drive_range,
-                      check_drive_name, note_gaps, read_while, stress_for, warm_up)
+                      check_drive_name, check_recording_output, note_gaps, read_while, stress_for, warm_up)
 
 HELP = """\
 Run a model (any kind: sdpi, mpi, or an extended model from `gma-ffc diagnose`) on the drive and
@@ -48,9 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    refuse_overwrite(args.output, [args.recording, args.model])     # a device or an input: said first
-    check_output_name(args.output)
-    check_folder_writable(Path(args.output).parent, args.output)
+    check_recording_output(args.output, [args.recording, args.model])
 
     def prepare() -> Any:      # numba is imported here (by the model), beside the read, not at --help
         model = load_model(args.model)
