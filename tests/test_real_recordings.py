@@ -143,10 +143,11 @@ def test_the_state_fit_on_a_case_hypothesis_drew_in_ci():
 def test_the_joint_polish_finds_the_bounded_least_squares_optimum(seed, n, m):
     """On linear residuals (the state fit's model within one piece), the polish's settings (its
     tolerances, 20 evaluations per play) reach the box-constrained optimum that scipy's exact
-    active-set solver finds, from any start, to 1e-4 of its cost: the state fit's own tolerance
-    (issue 34: the fits agree within 1e-4 of the stroke). 2000 problems: the worst ended 3.4e-6
+    active-set solver finds, from any start, to 1e-9 of its cost (the state fit itself needs 1e-4,
+    issue 34: the fits agree within 1e-4 of the stroke). Before the last step, 2000 problems: the worst ended 3.4e-6
     above it; clean-clone runs later drew one row of nine variables that ended 7.1e-5 above, and
-    one of eleven 1.05e-4 above: the polish now ends with an exact active-set step."""
+    one of eleven 1.05e-4 above. The polish now ends with an exact active-set step, so on these
+    problems it reaches the optimum to rounding (4000 problems: the worst 2.2e-14 above)."""
     from scipy.optimize import lsq_linear
 
     from gma_ffc.initial_state import box_least_squares
@@ -156,7 +157,7 @@ def test_the_joint_polish_finds_the_bounded_least_squares_optimum(seed, n, m):
     best = lsq_linear(A, b, bounds=(0.0, 1.0), method="bvls", tol=1e-12)
     q, cost = box_least_squares(lambda q: A @ q - b, lambda q: A, rng.uniform(size=n), max_nfev=20 * n)
     assert np.all((q >= 0.0) & (q <= 1.0))
-    assert cost <= float(np.sum((A @ best.x - b) ** 2)) * (1 + 1e-4) + 1e-12
+    assert cost <= float(np.sum((A @ best.x - b) ** 2)) * (1 + 1e-9) + 1e-12     # the last step is exact here
 
 
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])

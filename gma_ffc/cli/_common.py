@@ -20,13 +20,6 @@ from ..recordings import Recording, check_output_name, gap_note, read_recording
 T = TypeVar("T")
 
 
-def existing_output_dir_parent(path: str) -> Path:
-    p = Path(path)
-    if p.parent and not p.parent.exists():
-        raise InputError(f"output folder {p.parent} does not exist")
-    return p
-
-
 def check_recording_output(output: str, inputs: Sequence[str]) -> None:
     """Before any work, for a command that writes one recording: the output is none of the inputs
     (nor a device: said first, the graver mistake), is named .csv or .mat, and its folder takes a

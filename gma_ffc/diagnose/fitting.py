@@ -707,8 +707,6 @@ class LeaveOneOut:
 
 RANK_TOL = 1e-9         # a column whose part outside the earlier ones is below this share of its norm adds
                         # nothing the rows can tell (double precision's rounding on ~1e4 rows is ~1e-12)
-_gesv = lapack.dgesv     # (lu, piv, x, info); info > 0: singular
-
 ANCHOR_BISECTIONS = 16   # on the log of the anchor weight over 16 decades: 2.4e-4 of a decade
 POLISH_EVALS = 15     # per free coordinate: Nelder-Mead from the zoom's best point
 POLISH_STEP = 0.03    # its first simplex: 3 % moves (the zoom's last steps are 0.5-1.5 %)
@@ -775,6 +773,9 @@ def _least_departure(T: np.ndarray) -> np.ndarray:
     if T.shape[0] > 1:
         c[1:] = -np.linalg.lstsq(T[1:, 1:], T[1:, 0], rcond=None)[0]
     return c
+
+
+_gesv = lapack.dgesv     # (lu, piv, x, info); info > 0: singular
 
 
 def _solve_normal(G: np.ndarray, b: np.ndarray, Xs: np.ndarray | None, y: np.ndarray | None) -> np.ndarray:
