@@ -13,8 +13,8 @@ from ..initial_state import InitialStateSpec
 from ..model import SDPIModel
 from ..modelio import load_model
 from ..recordings import Recording, read_recording, write_recording
-from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_recording_output, finite_float,
-                      stress_for)
+from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_recording_output,
+                      finite_float, stress_for)
 
 HELP = """\
 Compute the feedforward drive for a reference displacement with the model's analytic inverse
