@@ -145,9 +145,10 @@ def test_the_joint_polish_finds_the_bounded_least_squares_optimum(seed, n, m):
     tolerances, 20 evaluations per play) reach the box-constrained optimum that scipy's exact
     active-set solver finds, from any start, to 1e-9 of its cost (the state fit itself needs 1e-4,
     issue 34: the fits agree within 1e-4 of the stroke). Before the last step, 2000 problems: the
-    worst ended 3.4e-6 above it; clean-clone runs later drew one row of nine variables that ended 7.1e-5 above, and
-    one of eleven 1.05e-4 above. The polish now ends with an exact active-set step, so on these
-    problems it reaches the optimum to rounding (4000 problems: the worst 2.2e-14 above)."""
+    worst ended 3.4e-6 above it; clean-clone runs later drew one row of nine variables that ended
+    7.1e-5 above, and one of eleven 1.05e-4 above. The polish now ends with an exact active-set
+    step, so on these problems it reaches the optimum to rounding (4000 problems: the worst 2.2e-14
+    above)."""
     from scipy.optimize import lsq_linear
 
     from gma_ffc.initial_state import box_least_squares
