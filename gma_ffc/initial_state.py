@@ -466,7 +466,7 @@ def box_least_squares(resid: Any, jac: Any, q: np.ndarray, max_nfev: int) -> tup
     if not live.any():
         return q, cost
     J = J[:, live]
-    step = lsq_linear(J, J @ q[live] - resid(q), bounds=(0.0, 1.0), method="bvls", tol=1e-12)
+    step = lsq_linear(J, J @ q[live] - sol.fun, bounds=(0.0, 1.0), method="bvls", tol=1e-12)   # sol.fun: resid(q)
     q_step = q.copy()
     q_step[live] = np.clip(step.x, 0.0, 1.0)      # BVLS may end a rounding outside (-1.1e-16)
     r = resid(q_step)
