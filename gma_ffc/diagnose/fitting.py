@@ -714,7 +714,8 @@ POLISH_STEP = 0.03    # its first simplex: 3 % moves (the zoom's last steps are 
 
 def _polish(fitter: Fitter, base: tuple[Spec, Spec, Spec], results: dict[Any, Score],
             run: Callable[[Iterable[Any]], None],
-            polish: Callable[[Fitter, Any], tuple[int, Callable[[np.ndarray], Any]] | None]) -> None:
+            polish: Callable[[Fitter, Any], tuple[int, Callable[[np.ndarray], Any]] | None],
+            evals: int = POLISH_EVALS) -> None:
     """Nelder-Mead on the all-data training error from the best point so far; every point it
     visits joins `results`, so the folds choose among them too. Only for an effect whose best point
     already beats the spec without it on held-out blocks: polishing one that explains nothing
@@ -735,7 +736,7 @@ def _polish(fitter: Fitter, base: tuple[Spec, Spec, Spec], results: dict[Any, Sc
     f0 = results[best].all_mse
     simplex = np.vstack([np.zeros(n), POLISH_STEP * np.eye(n)])
     minimize(cost, np.zeros(n), method="Nelder-Mead",
-             options={"initial_simplex": simplex, "maxfev": POLISH_EVALS * n, "xatol": 1e-3,
+             options={"initial_simplex": simplex, "maxfev": evals * n, "xatol": 1e-3,
                       "fatol": 1e-3 * max(f0, 1e-300)})
 
 
@@ -825,9 +826,10 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
            grid: Iterable[Any], refine: Callable[[Fitter, Any, int], Sequence[Any] | None] | None = None,
            zoom_levels: int = ZOOM_LEVELS,
            polish: Callable[[Fitter, Any], tuple[int, Callable[[np.ndarray], Any]] | None] | None = None,
-           workers: int = 1, after_polish: Callable[[Fitter, Any], Sequence[Any]] | None = None) -> SearchResult:
-    """Grid (plus local refinement, then an optional continuous polish) over one block's
-    parameters; per-fold choice by training error. The points of a grid or a zoom level are scored
+           workers: int = 1, after_polish: Callable[[Fitter, Any], Sequence[Any]] | None = None,
+           polish_evals: int = POLISH_EVALS) -> SearchResult:
+    """Grid (plus local refinement, then an optional continuous polish of at most `polish_evals`
+    evaluations per coordinate) over one block's parameters; per-fold choice by training error. The points of a grid or a zoom level are scored
     on up to `workers` threads (the kernels release the GIL): one effect's search can be most of a
     round (a resonance's 90-point grid took 24 s of a 26 s round on 2 cores, the other thread idle)."""
     results: dict[Any, Score] = {}
@@ -853,9 +855,9 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
             for bp in best_points:
                 run(refine(fitter, bp, level) or [])
     if polish is not None:
-        _polish(fitter, base, results, run, polish)
+        _polish(fitter, base, results, run, polish, polish_evals)
         if refine is not None and _zoom_again(fitter, results, run, refine, zoom_levels, after_polish):
-            _polish(fitter, base, results, run, polish)
+            _polish(fitter, base, results, run, polish, polish_evals)
     pa = min(results, key=lambda p: results[p].train_mse(0))
     pb = min(results, key=lambda p: results[p].train_mse(1))
     pall = min(results, key=lambda p: results[p].all_mse)
