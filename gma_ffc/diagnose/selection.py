@@ -378,8 +378,7 @@ class EffectSelector:
                 continue
             others: Specs = tuple(s.without(name) for s in sel.fit.specs)  # type: ignore[assignment]
             o_cv = fitter.score(others).held_out_loss
-            rivals = [c.name for c in effect_registry.candidates()
-                      if c.name in sel.testable and not (c.name in sel.accepted and c.name != name)]
+            rivals = [c for c in _slot_rivals(name) if c in sel.testable and not (c in sel.accepted and c != name)]
             say(f"checking {name} against the others with the other effects in place")
             found = search_all(fitter, others, rivals, self.threads_)
             best_name, best_res = name, None
@@ -664,6 +663,17 @@ def _blas_threads_per_worker(workers: int, cpus: int) -> Any:
     hold: on 2 CPUs with two search threads, one BLAS thread each took a resonance diagnosis with
     its loops from 40.4 to 32.2 s. The limit is lifted when the diagnosis returns."""
     return threadpool_limits(limits=max(1, cpus // max(workers, 1)), user_api="blas")
+
+
+def _slot_rivals(name: str) -> list[str]:
+    """The candidates that may take `name`'s slot in the swap pass: its look-alikes (`joint_with`)
+    when it has any, else every candidate without look-alikes. A phase lag (delay, eddy currents, a
+    resonance) is only ever mistaken for another phase lag: on six development pairs every swap was
+    between look-alikes, and heating, creep and stress-dependent play ended 1.09-8.8x behind in a
+    lag's slot; searching them there was a third of a pair's diagnosis."""
+    alikes = REGISTRY[name].joint_with
+    return [c.name for c in effect_registry.candidates()
+            if c.name == name or (c.name in alikes if alikes else not c.joint_with)]
 
 
 def _swapped(fitter: Fitter, sel: Selection, name: str, by: str, res: SearchResult) -> Selection:
