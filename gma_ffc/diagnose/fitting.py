@@ -26,6 +26,7 @@ from ..effects.base import CoreAround, Effect, Regressors
 from ..effects.static import StaticMap
 from .cache import BoundedCache
 from .data import RecData, mean_stress, stress_levels, stress_span
+from . import lsq_kernels as LK
 from .jumps import Jump
 from .rebase import identify_on
 
@@ -470,23 +471,23 @@ class Fitter:
         """Least squares (plus c' penalty c); with a Huber scale, two reweighting passes so a few
         bursts (a load change the core cannot follow) do not steer the fit. Returns the coefficients
         and the last pass's scaled normal equations (G, b, column scale) for cheap re-solves."""
+        X = np.asfortranarray(X)     # a fold's rows of the design: the kernels run down whole columns
+        m = X.shape[1]
         scale = np.sqrt(np.einsum("ij,ij->j", X, X) / X.shape[0])   # the columns' RMS; np.mean(X * X, axis=0)
         scale[scale == 0] = 1.0                                       # took 3x as long (a strided reduction)
-        Xs = X / scale
-        P = np.zeros((X.shape[1], X.shape[1])) if penalty is None else penalty / np.outer(scale, scale)
-        w = None
-        c = np.zeros(X.shape[1])
-        G, b = P, np.zeros(X.shape[1])
+        inv = 1.0 / scale
+        P = np.zeros((m, m)) if penalty is None else penalty / np.outer(scale, scale)
+        G, b, c = np.empty((m, m)), np.empty(m), np.zeros(m)
+        w, r = np.ones(X.shape[0]), np.empty(X.shape[0])
         for _ in range(1 if self.delta is None else 3):
-            Xw = Xs if w is None else Xs * w[:, None]
-            G = Xw.T @ Xs
-            G.flat[:: G.shape[0] + 1] += 1e-10 * max(float(np.trace(G)), 1.0) / G.shape[0]   # its diagonal
-            b = Xw.T @ y
-            c = _solve_normal(G + P, b, Xs, y)
+            LK.weighted_normal(X, inv, w, y, G, b)
+            G.flat[:: m + 1] += 1e-10 * max(float(np.trace(G)), 1.0) / m   # its diagonal
+            c, info = _gesv(G + P, b)[2:]
+            if info != 0:                   # singular: least squares on the scaled rows
+                c = np.linalg.lstsq(X * inv, y, rcond=None)[0]
             if self.delta is not None:
-                a = np.abs(y - Xs @ c)
-                w = np.where(a <= self.delta, 1.0, self.delta / np.maximum(a, 1e-300))
-        return c / scale, G, b, scale
+                LK.huber_weights(X, c * inv, y, self.delta, r, w)
+        return c * inv, G, b, scale
 
     def _fit(self, X: np.ndarray, y: np.ndarray, spec: Spec) -> tuple[np.ndarray, float, int]:
         """Coefficients on data rows (X, y), held near the base on the anchor's loops; the training
@@ -510,10 +511,10 @@ class Fitter:
                 total = np.sum(scaled, axis=0)
                 lam0 = float(np.trace(G)) / max(float(np.trace(total)), 1e-300)
                 lo, hi = -8.0, 8.0          # the departures fall as the weight grows; bisect on its log
-                best = _solve_normal(G + lam0 * 1e8 * total, b, None, None)
+                best = _solve_normal(G + lam0 * 1e8 * total, b)
                 for _ in range(ANCHOR_BISECTIONS):
                     mid = 0.5 * (lo + hi)
-                    cs = _solve_normal(G + lam0 * 10.0 ** mid * total, b, None, None)
+                    cs = _solve_normal(G + lam0 * 10.0 ** mid * total, b)
                     if worst(cs) > 1.0:
                         lo = mid
                     else:
@@ -779,16 +780,12 @@ def _least_departure(T: np.ndarray) -> np.ndarray:
 _gesv = lapack.dgesv     # (lu, piv, x, info); info > 0: singular
 
 
-def _solve_normal(G: np.ndarray, b: np.ndarray, Xs: np.ndarray | None, y: np.ndarray | None) -> np.ndarray:
-    """Solve G c = b; if G is singular, least squares on the rows (when given) or on G. LAPACK's
-    gesv, as numpy.linalg.solve calls it, without numpy's wrapping: the anchor's bisection solves
-    a small system half a million times in a diagnosis, and the wrapping was four fifths of each."""
+def _solve_normal(G: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve G c = b (least squares on G if it is singular). LAPACK's gesv, as numpy.linalg.solve
+    calls it, without numpy's wrapping: the anchor's bisection solves a small system half a
+    million times in a diagnosis, and the wrapping was four fifths of each."""
     c, info = _gesv(G, b)[2:]
-    if info == 0:
-        return c
-    if Xs is not None and y is not None:
-        return np.linalg.lstsq(Xs, y, rcond=None)[0]
-    return np.linalg.lstsq(G, b, rcond=None)[0]
+    return c if info == 0 else np.linalg.lstsq(G, b, rcond=None)[0]
 
 
 def _put_rows(X: np.ndarray, at: int, cols: list[np.ndarray], rows: np.ndarray) -> int:
