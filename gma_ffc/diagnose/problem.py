@@ -17,11 +17,12 @@ from ..recordings import Recording
 from .anchor import anchor_data, measured_loops
 from .checks import beyond_range_notes, check_overlap, enough_data
 from .data import RecData, noise_floor, prepare
-from .fitting import Fitter, FitSettings, SearchResult, Spec
+from .fitting import Fitter, FitSettings, Spec
 from .identification import IdentificationCheck, check
 from .jumps import jump_words, sensor_jumps
 from .locate import locate
 from .noise import mad_sigma
+from .search import SearchResult
 from .state import NullFit, Problem
 
 

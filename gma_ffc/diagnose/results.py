@@ -10,7 +10,7 @@ import numpy as np
 
 from ..extended import ExtendedModel
 from .data import RecData
-from .fitting import SearchResult
+from .search import SearchResult
 from .locate import Located
 
 

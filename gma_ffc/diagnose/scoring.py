@@ -18,7 +18,8 @@ from ..effects import REGISTRY
 from ..effects.base import geom_refine
 from ..effects.static import StaticMap
 from ..extended import ExtendedModel
-from .fitting import Fitter, SearchResult, Spec, search
+from .fitting import Fitter, Spec
+from .search import SearchResult, search
 from .state import Trial
 
 Specs = tuple[Spec, Spec, Spec]          # fold A's, fold B's and the all-data spec

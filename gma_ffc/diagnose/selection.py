@@ -43,7 +43,7 @@ from ..errors import InputError
 from ..extended import ExtendedModel
 from ..recordings import Recording
 from .explain import decider, runner_up_note
-from .fitting import Fitter, LeaveOneOut, SearchResult, Spec, leave_one_out_search
+from .fitting import Fitter, LeaveOneOut, Spec
 from .identification import check
 from .outcome import assemble
 from .problem import setup
@@ -51,6 +51,7 @@ from .rebase import reidentify_through
 from .results import Diagnosis
 from .scoring import (Specs, build_extended, descend, effective_samples, loglik_gain, params_of, rezoom, score_round,
                       search_all)
+from .search import SearchResult, leave_one_out_search
 from .state import Final, Problem, RoundRecord, Selection, Trial
 
 

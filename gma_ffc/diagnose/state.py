@@ -21,9 +21,10 @@ import numpy as np
 
 from ..extended import ExtendedModel
 from .data import RecData
-from .fitting import Fitter, LeaveOneOut, SearchResult
+from .fitting import Fitter, LeaveOneOut
 from .identification import IdentificationCheck
 from .locate import Located
+from .search import SearchResult
 
 
 @dataclass(frozen=True)
