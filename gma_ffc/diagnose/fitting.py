@@ -23,9 +23,9 @@ from scipy.linalg import lapack
 from ..effects import path_order
 from ..effects.base import CoreAround, Effect, Regressors
 from ..effects.static import StaticMap
+from . import lsq_kernels as LK
 from .cache import BoundedCache
 from .data import RecData, mean_stress, stress_levels, stress_span
-from . import lsq_kernels as LK
 from .jumps import Jump
 from .rebase import identify_on
 

@@ -10,8 +10,8 @@ import numpy as np
 
 from ..extended import ExtendedModel
 from .data import RecData
-from .search import SearchResult
 from .locate import Located
+from .search import SearchResult
 
 
 @dataclass

@@ -128,8 +128,8 @@ def rezoom(fitter: Fitter, base: Specs, name: str, workers: int) -> SearchResult
 
 
 JOINT_POLISH_EVALS = 40    # per free coordinate of the pair's joint polish: its valley is coupled (a lag's time
-                           # constant against a resonance's damping), and on the fourth draw's eddy-and-resonance
-                           # pair the polish converged in 82-160 evaluations of its 160
+                           # constant against a resonance's damping); on the fourth draw's eddy-and-resonance pair
+                           # its four polishes stopped after 82-160 evaluations (three converged, one at the cap)
 
 
 def _descend(fitter: Fitter, base: Specs, joint: SearchResult, name: str, partner: str,
