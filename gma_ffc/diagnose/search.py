@@ -17,6 +17,7 @@ import numpy as np
 
 from .fitting import Fitter, LeaveOneOut, LeftOut, Score, Spec
 
+ZOOM_LEVELS = 3       # zoom levels of a search unless the effect says otherwise
 POLISH_EVALS = 15     # per free coordinate: Nelder-Mead from the zoom's best point
 POLISH_STEP = 0.03    # its first simplex: 3 % moves (the zoom's last steps are 0.5-1.5 %)
 
@@ -69,9 +70,6 @@ def _zoom_again(fitter: Fitter, results: dict[Any, Score], run: Callable[[Iterab
     return True
 
 
-ZOOM_LEVELS = 3
-
-
 @dataclass
 class SearchResult:
     specs: tuple[Spec, Spec, Spec]      # fold A, fold B, all data (each with the block's best parameters)
@@ -92,8 +90,9 @@ def search(fitter: Fitter, base: tuple[Spec, Spec, Spec], make: Callable[[Spec, 
            polish_evals: int = POLISH_EVALS) -> SearchResult:
     """Grid (plus local refinement, then an optional continuous polish of at most `polish_evals`
     evaluations per coordinate) over one block's parameters; per-fold choice by training error.
-    The points of a grid or a zoom level are scored on up to `workers` threads (the kernels release the GIL): one effect's search can be most of a
-    round (a resonance's 90-point grid took 24 s of a 26 s round on 2 cores, the other thread idle)."""
+    The points of a grid or a zoom level are scored on up to `workers` threads (the kernels release
+    the GIL): one effect's search can be most of a round (a resonance's 90-point grid took 24 s of a
+    26 s round on 2 cores, the other thread idle)."""
     results: dict[Any, Score] = {}
 
     def score(p: Any) -> Score:

@@ -614,6 +614,15 @@ class OwnPlays:
             self.plays.reset(float(initial_drive), start)
 
 
+POLISH_LOG_REACH = 0.7   # a polish's log-moves, clipped: e^0.7 ~ 2x either way; it refines the zoom's point,
+                         # it does not search anew (that is the grid's job)
+
+
+def polish_factor(x: Any) -> Any:
+    """The multiplier a polish coordinate (a log-move, clipped to POLISH_LOG_REACH) stands for."""
+    return np.exp(np.clip(x, -POLISH_LOG_REACH, POLISH_LOG_REACH))
+
+
 def geom_refine(p: float, ratio: float, level: int = 1) -> list[float]:
     """Points around p on a log scale for zoom level 1, 2, ... of a grid of spacing `ratio`."""
     step = 3.0 ** -level

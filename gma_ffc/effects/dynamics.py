@@ -19,7 +19,7 @@ from ..errors import ModelError
 from . import kernels as K
 from . import rod_load as RL
 from .base import (BatchSignals, EffectBase, FitData, Regressors, SignatureCheck, SignatureFailure, StepSignals,
-                   positive)
+                   polish_factor, positive)
 
 MAX_ZETA = 0.5   # a resonance must peak; heavier damping is a lag/delay look-alike and is left to those
 LAW_SWEEP = 1.2    # after the polish, moving masses over LAW_SPREAD's range about 20 % apart: with frequency and
@@ -163,7 +163,7 @@ class Dynamics(EffectBase):
         law = fitter.stress_varies and not math.isinf(s0)
 
         def at(x: np.ndarray) -> tuple[float, float, float]:
-            k = np.exp(np.clip(x, -0.7, 0.7))
+            k = polish_factor(x)
             return _point_held(fitter, f_held * k[0], held, z * k[1], s0 * k[2] if law else s0)
 
         return (3 if law else 2), at
