@@ -88,8 +88,7 @@ class Creep(EffectBase):
         if not isinstance(p, tuple):
             r.cols.append(relaxation(r.yc, r.d.dt, p))
             r.names.append("creep_gain")
-        since = r.d.t - r.d.t[0]
-        decay = np.mean([np.exp(-since / (tau * k)) for k in CREEP_SPREAD], axis=0)
+        decay = fitter.cached_table(r.d, ("creep_start", tau), lambda: start_decay(r.d.t, tau))   # shared by a search's specs
         for i, owner in enumerate(fitter.data):
             r.cols.append(decay if owner is r.d else np.zeros_like(decay))
             r.names.append(f"creep_start_{i}")
@@ -152,6 +151,12 @@ def creep_inverse(y: np.ndarray, dt: np.ndarray, gain: float, tau_s: float) -> n
     taus = np.array([tau_s * k for k in CREEP_SPREAD])
     return K.creep_inverse(np.ascontiguousarray(y, dtype=float), np.ascontiguousarray(dt, dtype=float),
                            float(gain), taus)
+
+
+def start_decay(t: np.ndarray, tau_s: float) -> np.ndarray:
+    """mean_k exp(-(t - t_0) / (tau s_k)): how the creep under way at a recording's start dies away."""
+    since = t - t[0]
+    return np.mean([np.exp(-since / (tau_s * k)) for k in CREEP_SPREAD], axis=0)
 
 
 def relaxation(yc: np.ndarray, dt: np.ndarray, tau_s: float) -> np.ndarray:
