@@ -38,8 +38,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if item.get_closest_marker("realtime") is not None:
             # one worker runs them all, one after another (`--dist loadgroup`, scripts/test.sh): they
-            # mostly wait on the wall clock (160 s, 61 s of it one test's sleep), and a third worker
-            # on two cores keeps both cores busy meanwhile
+            # mostly wait on the wall clock (about 270 s of wall for 90 s of CPU), and a third
+            # worker on two cores keeps both cores busy meanwhile
             item.add_marker(pytest.mark.xdist_group("realtime"))
             if item.get_closest_marker("flaky") is None:
                 item.add_marker(pytest.mark.flaky(reruns=REALTIME_RERUNS, reruns_delay=1.0))
