@@ -15,7 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..effects import REGISTRY
-from ..effects.base import POLISH_LOG_REACH, geom_refine
+from ..effects.base import geom_refine, polish_factor
 from ..effects.static import StaticMap
 from ..extended import ExtendedModel
 from .fitting import Fitter, Spec
@@ -174,7 +174,7 @@ def _joint_polish(fitter: Fitter, found: SearchResult, name: str, partner: str, 
     own = float(found.specs[2][name])
 
     def at(x: np.ndarray) -> tuple[Any, float]:
-        return partner_at(x[:n]), own * math.exp(float(np.clip(x[n], -POLISH_LOG_REACH, POLISH_LOG_REACH)))
+        return partner_at(x[:n]), own * float(polish_factor(x[n]))
 
     def make(s: Spec, p: tuple[Any, float]) -> Spec:
         return s.with_(partner, p[0]).with_(name, p[1])
