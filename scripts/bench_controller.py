@@ -245,9 +245,13 @@ def _load_as(src: Path, name: str) -> Any:
     return mod
 
 
-def _simulated(pkg: str, rate: float, model_dict: dict[str, Any]) -> Any:
+def _simulated(pkg: str, rate: float, model_dict: dict[str, Any], telemetry: Path | None = None,
+               real_clock: bool = False) -> Any:
     """A controller of package `pkg` on the sim rig and a simulated clock, warmed up; each
-    part (model, driver) is the package's own, so nothing of the other package runs."""
+    part (model, driver) is the package's own, so nothing of the other package runs. With
+    `telemetry` (a file), it records there, as the shipped configs do; without, it records nothing.
+    `real_clock`: ticks at the rate on the real clock, sleeping without the final spin (so the
+    loop thread's CPU time is its work, and threads beside it run at the service's pace)."""
     import importlib
 
     config = importlib.import_module(f"{pkg}.control.config")
@@ -256,13 +260,14 @@ def _simulated(pkg: str, rate: float, model_dict: dict[str, Any]) -> Any:
     except ImportError:
         manager = importlib.import_module(f"{pkg}.control.controller").Controller
     cfg = config.validate_config({
-        "rate_hz": rate, "clock": "simulated", "model": "unused.yaml", "driver": {"kind": "sim", "load_mass_kg": 15.3},
+        "rate_hz": rate, "clock": "real" if real_clock else "simulated", "model": "unused.yaml", "driver": {"kind": "sim", "load_mass_kg": 15.3},
         "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0},
         "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
-        "telemetry": {"path": None}, "watchdog_s": 1.0})
+        "telemetry": {"path": None if telemetry is None else str(telemetry)}, "watchdog_s": 1.0})
     model = importlib.import_module(f"{pkg}.model").SDPIModel.from_dict(model_dict)
     driver = importlib.import_module(f"{pkg}.drivers.sim").SimDriver(cfg.driver, cfg.period_s)
-    ctrl = manager(cfg, model=model, driver=driver)
+    clock = importlib.import_module(f"{pkg}.control.scheduler").MonotonicClock(spin_s=0.0) if real_clock else None
+    ctrl = manager(cfg, model=model, driver=driver, clock=clock)
     ctrl.run(duration_s=0.3)
     return ctrl
 
