@@ -20,6 +20,7 @@ DIR holds a gma_ffc package, e.g. `git archive d0686ce | tar -x -C DIR`.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import statistics
 import sys
@@ -37,6 +38,7 @@ def controllers(baseline: Path, rate: float, folder: Path | None, real_clock: bo
 
     bench._load_as(baseline.resolve(), "gma_ffc_baseline")
     model = bench._models()[0].to_dict()
+
     def file(name: str) -> Path | None:
         return None if folder is None else folder / f"{name}.csv"
 
@@ -67,25 +69,43 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--real-clock", action="store_true",
                     help="tick on the real clock at the rate (sleeping, no spin), so the writer thread's "
                          "work beside the loop comes at the service's pace, not compressed into a fast run")
+    ap.add_argument("--child", action="store_true",
+                    help="with --real-clock: a real `gma-ffc diagnose` child (nice 19, restarted as it ends) "
+                         "runs while the monitor's variant runs, as the service's background diagnosis would")
     args = ap.parse_args(argv)
+    if args.child and not args.real_clock:
+        raise SystemExit("--child needs --real-clock: on the simulated clock a run lasts ~30 ms, less than "
+                         "the child takes to start")
     if not (args.baseline_src / "gma_ffc" / "__init__.py").is_file():
         raise SystemExit(f"--baseline-src {args.baseline_src}: no gma_ffc package there; make one with "
                          "`git archive <commit> | tar -x -C DIR`")
     with tempfile.TemporaryDirectory(prefix="gma-ffc-bench-") as folder:
-        return _measure(args, controllers(args.baseline_src, args.rate, Path(folder) if args.telemetry else None,
-                                         args.real_clock))
+        ctrls = controllers(args.baseline_src, args.rate, Path(folder) if args.telemetry else None, args.real_clock)
+        child = _child(Path(folder)) if args.child else contextlib.nullcontext
+        return _measure(args, ctrls, child)
 
 
-def _measure(args: argparse.Namespace, ctrls: dict[str, Any]) -> int:
+def _child(folder: Path) -> Any:
+    """A context that keeps a diagnosis child running (bench_monitor's, on its 30 s window)."""
+    import bench_monitor
+
+    files = bench_monitor._child_files(bench._models()[0], folder)
+    return lambda: bench_monitor.DiagnosisChild(*files)
+
+
+def _measure(args: argparse.Namespace, ctrls: dict[str, Any], child: Any) -> int:
     per_tick: dict[str, list[float]] = {k: [] for k in ctrls}
+    children = 0
     for _ in range(args.rounds):
         for name, ctrl in ctrls.items():
-            seen, started = ctrl.stats.count, time.thread_time()
-            summary = ctrl.run(duration_s=args.seconds)
-            per_tick[name].append((time.thread_time() - started) / (summary["ticks"] - seen) * 1e6)
+            with child() if name == "after, monitor on" else contextlib.nullcontext() as running:
+                seen, started = ctrl.stats.count, time.thread_time()
+                summary = ctrl.run(duration_s=args.seconds)
+                per_tick[name].append((time.thread_time() - started) / (summary["ticks"] - seen) * 1e6)
+            children += getattr(running, "runs", 0)
     before = statistics.median(per_tick["before"])
     print(f"CPU per tick of the loop thread at {args.rate:g} Hz, {args.rounds} interleaved rounds "
-          f"(load average {os.getloadavg()[0]:.1f}):")
+          f"(load average {os.getloadavg()[0]:.1f}" + (f"; {children} diagnosis children started):" if args.child else "):"))
     for name, values in per_tick.items():
         median = statistics.median(values)
         print(f"  {name:<20} median {median:6.2f} us ({median / before:.2f}x before), min {min(values):.2f} us")
