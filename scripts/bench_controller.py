@@ -260,7 +260,8 @@ def _simulated(pkg: str, rate: float, model_dict: dict[str, Any], telemetry: Pat
     except ImportError:
         manager = importlib.import_module(f"{pkg}.control.controller").Controller
     cfg = config.validate_config({
-        "rate_hz": rate, "clock": "real" if real_clock else "simulated", "model": "unused.yaml", "driver": {"kind": "sim", "load_mass_kg": 15.3},
+        "rate_hz": rate, "clock": "real" if real_clock else "simulated", "model": "unused.yaml",
+        "driver": {"kind": "sim", "load_mass_kg": 15.3},
         "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0},
         "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
         "telemetry": {"path": None if telemetry is None else str(telemetry)}, "watchdog_s": 1.0})

@@ -5,7 +5,8 @@ The loop thread's CPU time (`time.thread_time`) counts only this thread's work, 
 processes on the core do not enter the figure. Issue 34 asks the split controller to cost within
 1.1x of the old one; issue 30 asks the same of the monitor.
 
-    python scripts/bench_loop_cpu.py --baseline-src DIR [--rounds 16] [--rate 1000] [--telemetry] [--real-clock]
+    python scripts/bench_loop_cpu.py --baseline-src DIR [--rounds 16] [--rate 1000]
+                                     [--telemetry] [--real-clock [--child]]
 
 On the simulated clock a run of 3000 ticks takes ~30 ms, so the telemetry writer's work (with the
 monitor on: the prediction and the residual) is squeezed beside the loop, and the ring's
@@ -13,6 +14,7 @@ back-pressure (a simulated loop waits for a full ring to drain) puts wake-ups on
 monitor on reads ~1.25x off there, though the loop's own Python work is 1.02x. `--telemetry
 --real-clock` runs every variant as the service does (recording; ticks at the rate, sleeping
 without the final spin): the loop thread's CPU is then its work plus the wake-up from each sleep.
+`--child` adds what the service adds: a background diagnosis running while the monitor's variant runs.
 
 DIR holds a gma_ffc package, e.g. `git archive d0686ce | tar -x -C DIR`.
 """
@@ -62,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--baseline-src", type=Path, required=True, metavar="DIR", help="a tree with the old gma_ffc")
     ap.add_argument("--rounds", type=int, default=16, help="interleaved rounds (default 16)")
     ap.add_argument("--rate", type=float, default=1000.0, help="loop rate, Hz (default 1000)")
-    ap.add_argument("--seconds", type=float, default=3.0, help="simulated seconds per run (default 3)")
+    ap.add_argument("--seconds", type=float, default=3.0, help="seconds of loop time per run (default 3)")
     ap.add_argument("--telemetry", action="store_true",
                     help="every variant records telemetry (a temporary file), as the shipped configs do; "
                          "without it, only the monitor's variant keeps rows (for its watch)")
@@ -86,7 +88,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _child(folder: Path) -> Any:
-    """A context that keeps a diagnosis child running (bench_monitor's, on its 30 s window)."""
+    """A maker of contexts, each keeping a diagnosis child running while it is open (bench_monitor's
+    child, on its 30 s window)."""
     import bench_monitor
 
     files = bench_monitor._child_files(bench._models()[0], folder)
@@ -104,8 +107,9 @@ def _measure(args: argparse.Namespace, ctrls: dict[str, Any], child: Any) -> int
                 per_tick[name].append((time.thread_time() - started) / (summary["ticks"] - seen) * 1e6)
             children += getattr(running, "runs", 0)
     before = statistics.median(per_tick["before"])
+    started_children = f"; {children} diagnosis children started" if args.child else ""
     print(f"CPU per tick of the loop thread at {args.rate:g} Hz, {args.rounds} interleaved rounds "
-          f"(load average {os.getloadavg()[0]:.1f}" + (f"; {children} diagnosis children started):" if args.child else "):"))
+          f"(load average {os.getloadavg()[0]:.1f}{started_children}):")
     for name, values in per_tick.items():
         median = statistics.median(values)
         print(f"  {name:<20} median {median:6.2f} us ({median / before:.2f}x before), min {min(values):.2f} us")
