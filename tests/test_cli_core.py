@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import stat
 import subprocess
 import sys
@@ -319,3 +320,22 @@ def test_a_dropout_in_time_is_noted_and_bridged_while_jitter_is_not(workdir: Pat
     assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "jitter.csv"),
                  "-o", str(workdir / "jitter_sim.csv")]) == 0
     assert "gap" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("option, bad", [("--plays", "0"), ("--deadzones", "0"), ("--deadzones", "4"),
+                                         ("--deadzones", "-3")])
+def test_an_operator_count_refused_names_the_option_and_its_advice_works(workdir: Path, capsys, option, bad) -> None:
+    """The refusal names the option typed (not the identifier's `n_play`), and the number it
+    suggests identifies a model."""
+    out = workdir / f"counts_{option[2:]}_{bad}.yaml"
+    argv = ["identify", str(workdir / "id_15.2.csv"), "-o", str(out)]
+    with pytest.raises(SystemExit) as refused:         # argparse's own exit, as for every option it refuses
+        main(argv + [option, bad])
+    assert refused.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {option}:" in err and err.count("\n") == 1 and not out.exists()
+    advice = re.search(r"try (\d+)", err)
+    assert advice is not None
+    assert main(argv + [option, advice.group(1)]) == 0
+    counts = {"--plays": "n_play", "--deadzones": "n_deadzone"}
+    assert getattr(load_model(out), counts[option]) == int(advice.group(1))

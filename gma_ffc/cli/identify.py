@@ -24,13 +24,38 @@ example:
 """
 
 
+def play_count(text: str) -> int:
+    """argparse type for --plays: a whole number, at least 1 (the zero-threshold play)."""
+    n = _whole(text)
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: a model needs at least 1 play (try 10, the default)")
+    return n
+
+
+def deadzone_count(text: str) -> int:
+    """argparse type for --deadzones: an odd whole number (2l+1: l negative, one centre, l positive)."""
+    n = _whole(text)
+    if n < 1 or n % 2 == 0:
+        hint = f"try {n + 1 if n >= 0 else 1}" if n % 2 == 0 else "try 7, the default"
+        raise argparse.ArgumentTypeError(f"{text!r}: the dead-zones come as l below the centre, one at it and "
+                                         f"l above, so their number is odd ({hint})")
+    return n
+
+
+def _whole(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("identify", help="fit an SDPI/MPI model from recordings", description=HELP,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("recordings", nargs="+", metavar="REC", help="recording files (.csv or .mat)")
     p.add_argument("-o", "--output", required=True, metavar="MODEL.yaml", help="model file to write")
-    p.add_argument("--plays", type=int, default=10, metavar="N", help="number of play operators (default 10)")
-    p.add_argument("--deadzones", type=int, default=7, metavar="N",
+    p.add_argument("--plays", type=play_count, default=10, metavar="N", help="number of play operators (default 10)")
+    p.add_argument("--deadzones", type=deadzone_count, default=7, metavar="N",
                    help="number of dead-zone operators, odd (default 7)")
     p.add_argument("--reference-stress", type=finite_float, metavar="MPA",
                    help="stress of the paper's step 1, within the recordings' stresses (default: the least "
