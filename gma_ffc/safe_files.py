@@ -71,10 +71,13 @@ def _recording_metadata(head: bytes) -> dict:
 
 
 def telemetry_kind(config_source: str) -> Kind:
-    """A telemetry recording written by the controller running the config at `config_source`."""
+    """A telemetry recording written by the controller running the config at `config_source`: the
+    same file however it was named (the demo's relative path, `gma-ffc run`'s absolute one; a file
+    that recorded a relative path is resolved against the current folder, as it was written)."""
     def ours(head: bytes) -> bool:
         meta = _recording_metadata(head)
-        return meta.get("source") == "gma-ffc controller" and str(meta.get("config")) == str(config_source)
+        return (meta.get("source") == "gma-ffc controller" and meta.get("config") is not None
+                and os.path.realpath(str(meta["config"])) == os.path.realpath(str(config_source)))
 
     return Kind(f"telemetry file of this rig (config {config_source})", "telemetry.path", ours, in_place=True)
 

@@ -87,6 +87,26 @@ def test_this_rigs_own_telemetry_is_overwritten(tmp_path):
     assert (tmp_path / "tel.csv").read_text().count("# source: gma-ffc controller") == 1
 
 
+def test_this_rigs_telemetry_is_its_own_however_the_config_was_named(tmp_path, monkeypatch):
+    """The demo ran its configs by a relative path; `gma-ffc run` names them by an absolute one. A
+    run of the same config from another folder, or by either name, is still this rig's: it was
+    refused as another rig's."""
+    (tmp_path / "rig").mkdir()
+    cfg = write_config(tmp_path / "rig" / "rig.yaml", "tel.csv")
+    telemetry = tmp_path / "rig" / "tel.csv"
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "--config", "rig/rig.yaml", "--no-socket", "--duration", "0.2"]) == 0
+    monkeypatch.chdir(tmp_path / "rig")
+    assert main(["run", "--config", "rig.yaml", "--no-socket", "--duration", "0.2"]) == 0
+    assert main(["run", "--config", str(cfg), "--no-socket", "--duration", "0.2"]) == 0
+    # a file written before the source was recorded in full: its relative name, from where it ran
+    text = telemetry.read_text()
+    telemetry.write_text(text.replace(f"# config: {cfg}", "# config: rig.yaml", 1))
+    assert "# config: rig.yaml" in telemetry.read_text()
+    assert main(["run", "--config", str(cfg), "--no-socket", "--duration", "0.2"]) == 0
+    assert telemetry.read_text().count("# source: gma-ffc controller") == 1
+
+
 def test_telemetry_outside_the_named_output_dirs_is_refused(tmp_path, capsys):
     cfg = write_config(tmp_path / "rig.yaml", str(tmp_path / "elsewhere" / "tel.csv"),
                        f"output_dirs: [{tmp_path / 'data'}]\n")

@@ -390,6 +390,8 @@ def load_config(path: str | os.PathLike) -> ControllerConfig:
     if not isinstance(data, Mapping):
         raise ConfigError(f"{p}: the config must be a mapping of keys to values")
     try:
-        return validate_config(data, source=str(p), base_dir=p.parent)
+        # the source as an absolute path: telemetry records it, and a later run from another folder
+        # must still know that file as its own (`safe_files.telemetry_kind`)
+        return validate_config(data, source=os.path.abspath(p), base_dir=p.parent)
     except ConfigError as exc:
         raise ConfigError(f"{p}: {exc}") from None
