@@ -220,9 +220,10 @@ class SDPIModel:
         lo, hi = self.stress_range_MPa
         tol = 1e-6 * max(1.0, abs(lo), abs(hi))
         if s.min() < lo - tol or s.max() > hi + tol:
+            beyond = max(lo - float(s.min()), float(s.max()) - hi)
             raise ModelError(
-                f"stress {s.min():.3g}..{s.max():.3g} MPa is outside the model's identified range "
-                f"{lo:.3g}..{hi:.3g} MPa; identify with recordings covering it")
+                f"stress {s.min():.4g}..{s.max():.4g} MPa reaches {beyond:.2g} MPa outside the model's identified "
+                f"range {lo:.4g}..{hi:.4g} MPa; identify with recordings covering it")
         return np.ascontiguousarray(np.clip(s, lo, hi))
 
     def forward_state(self, initial_drive: float, play_state: Any = None) -> np.ndarray:

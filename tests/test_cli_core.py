@@ -339,3 +339,26 @@ def test_an_operator_count_refused_names_the_option_and_its_advice_works(workdir
     assert main(argv + [option, advice.group(1)]) == 0
     counts = {"--plays": "n_play", "--deadzones": "n_deadzone"}
     assert getattr(load_model(out), counts[option]) == int(advice.group(1))
+
+
+def test_stress_readings_beyond_the_range_by_noise_are_clamped_and_a_load_beyond_it_refused(workdir: Path, capsys):
+    """A recording at the lightest identified load reads a little beyond that load's own extremes,
+    by the load cell's noise: simulate runs it (clamped, and says so) and writes the readings as
+    they were; a reading a whole load away is refused, saying by how much."""
+    rec = read_recording(workdir / "id_11.3.csv")
+    noise = np.random.default_rng(5).normal(0.0, 0.01, len(rec))          # a load cell's noise, 0.01 MPa
+    cols = dict(rec.columns)
+    cols["stress_MPa"] = -11.3 + noise - noise.max() + 0.02               # at most 0.02 MPa (2 sigma) above -11.3
+    write_recording(workdir / "noisy_11.3.csv", Recording(cols, dict(rec.metadata)))
+    out = workdir / "noisy_predicted.csv"
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "noisy_11.3.csv"), "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "outside the model's identified range" in err and "clamped into it" in err
+    assert np.array_equal(read_recording(out).stress_MPa, read_recording(workdir / "noisy_11.3.csv").stress_MPa)
+    cols["stress_MPa"] = cols["stress_MPa"] + 1.0                         # another load: 1 MPa lighter
+    write_recording(workdir / "lighter.csv", Recording(cols, dict(rec.metadata)))
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "lighter.csv"),
+                 "-o", str(workdir / "lighter_predicted.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "reaches 1 MPa outside the model's identified range" in err and err.count("\n") == 1
+    assert not (workdir / "lighter_predicted.csv").exists()

@@ -81,17 +81,48 @@ def add_group_option(p: argparse.ArgumentParser) -> None:
                    help="for .tdms and .h5 recordings: the group holding the channels (needed when there are several)")
 
 
+READING_NOISE_MARGIN = 5.0
+"""Stress readings beyond the model's identified range by at most this many times the recording's
+own load-cell noise are noise about a load the model knows, not another load: the range's ends are
+the identification loops' noisiest readings, and the largest of a million Gaussian readings is about
+5 sigma above their mean. They are clamped into the range (as the controller does by default), and
+the command says so; a reading further out is another load, and refused."""
+
+
 def stress_for(model: Model, rec: Recording, override: float | None) -> np.ndarray | float | None:
-    """The stress to run `model` at for `rec`: --stress wins, else the recording's column."""
+    """The stress to run `model` at for `rec`: --stress wins, else the recording's column (its
+    readings just beyond the identified range by noise clamped into it: `READING_NOISE_MARGIN`)."""
     if override is not None:
         return float(override)
     if rec.stress_MPa is not None:
-        return rec.stress_MPa
+        return _noise_clamped(model, rec, rec.stress_MPa)
     if model.stress_range_MPa is not None:
         lo, hi = model.stress_range_MPa
         raise InputError(f"{rec.source}: no stress_MPa column, and this {model.kind} model depends on stress "
                          f"(identified on {lo:.3g}..{hi:.3g} MPa); add the column or pass --stress MPA")
     return None
+
+
+def _noise_clamped(model: Model, rec: Recording, s: np.ndarray) -> np.ndarray:
+    """`s` with the readings that leave the model's stress range by noise alone clamped into it
+    (said on stderr); any other stress as it is, for the model to judge (a model that reads the
+    load cell through its own dynamics, whose inertial force may leave the range, sees it raw)."""
+    from ..diagnose.noise import second_difference_sigma
+
+    rng = model.stress_range_MPa
+    if rng is None or not np.all(np.isfinite(s)) or any(getattr(e, "transforms_stress", False)
+                                                         for e in getattr(model, "chain", ())):
+        return s
+    lo, hi = rng
+    beyond = max(lo - float(s.min()), float(s.max()) - hi, 0.0)
+    noise = second_difference_sigma(np.asarray(s, dtype=float))
+    if beyond == 0.0 or beyond > READING_NOISE_MARGIN * noise:
+        return s
+    outside = int(np.count_nonzero((s < lo) | (s > hi)))
+    print(f"note: {rec.name}: {outside} stress readings lie up to {beyond:.2g} MPa outside the model's identified "
+          f"range {lo:.4g}..{hi:.4g} MPa, within {READING_NOISE_MARGIN:g} x the load cell's noise "
+          f"({noise:.2g} MPa): clamped into it", file=sys.stderr)
+    return np.clip(s, lo, hi)
 
 
 def beyond_drive_range(model: Model, rec: Recording) -> str | None:

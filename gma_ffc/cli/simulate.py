@@ -70,8 +70,9 @@ def run(args: argparse.Namespace) -> int:
         pred = model.simulate(rec.time_s, rec.drive, stress, initial_drive=rest)
         how = f"at rest at {rest:g} by the model's own stepper rule"
     cols = {"time_s": rec.time_s, rec.drive_name: rec.drive}
-    if stress is not None:
-        cols["stress_MPa"] = np.broadcast_to(np.asarray(stress, float), rec.time_s.shape)
+    if stress is not None:      # the recording's own readings, not the ones clamped for the model
+        written = rec.stress_MPa if args.stress is None and rec.stress_MPa is not None else stress
+        cols["stress_MPa"] = np.broadcast_to(np.asarray(written, float), rec.time_s.shape)
     cols["displacement_um"] = pred
     if measured is not None:
         cols["measured_displacement_um"] = measured
