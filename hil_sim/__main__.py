@@ -15,6 +15,9 @@ Simulated giant magnetostrictive actuator (Jiles-Atherton + stress, phi 7 mm Ter
 -11.3 MPa preload, up to 50 kg load) for testing gma-ffc without hardware.
 
   record    write CSV recordings (docs/recordings.md format) for one experiment kind
+
+The same actuator behind the protocols real amplifiers speak (Modbus TCP/RTU, serial), for
+`gma-ffc run` against it: `python -m hil_sim.emulators --help`.
 """
 
 RECORD_EPILOG = """\
