@@ -109,8 +109,7 @@ def _prediction(model: Any, rec: Recording) -> np.ndarray:
     rng = model.stress_range_MPa
     s = None
     if rng is not None:
-        transforms = any(getattr(e, "transforms_stress", False) for e in getattr(model, "chain", ()))
-        s = rec.stress_MPa if transforms else np.clip(rec.stress_MPa, *rng)
+        s = rec.stress_MPa if getattr(model, "transforms_stress", False) else np.clip(rec.stress_MPa, *rng)
     return np.asarray(model.simulate(rec.time_s, rec.drive, s, measured_um=rec.displacement_um), dtype=float)
 
 

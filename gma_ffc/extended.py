@@ -170,10 +170,16 @@ class ExtendedModel:
             start = PlayStart.of_core_rule(self.core, float(initial_drive))
         return self.output_from_core(t, u, u3, yc, stress_MPa, initial_drive, start)
 
+    @property
+    def transforms_stress(self) -> bool:
+        """True when an effect supplies the stress the core sees (the rod_load dynamics read the load
+        cell, inertial force and all, and take the load's static stress from it)."""
+        return any(getattr(e, "transforms_stress", False) for e in self.chain)
+
     def seen_stress(self, time_s: np.ndarray, stress_MPa: Any) -> Any:
         """The stress the core and the output stages see: as given, unless an effect transforms it
         (the rod_load dynamics: the load's static stress)."""
-        if not any(getattr(e, "transforms_stress", False) for e in self.chain):
+        if not self.transforms_stress:
             return stress_MPa
         t = np.asarray(time_s, dtype=float)
         dt, _ = time_steps(t)

@@ -103,6 +103,13 @@ def stress_for(model: Model, rec: Recording, override: float | None) -> np.ndarr
     return None
 
 
+def recorded_stress(rec: Recording, stress: Any, override: float | None) -> np.ndarray:
+    """The stress column an output recording keeps: the input's own readings (not those
+    `stress_for` clamped for the model), or --stress where it was given or there is no column."""
+    written = rec.stress_MPa if override is None and rec.stress_MPa is not None else stress
+    return np.broadcast_to(np.asarray(written, float), rec.time_s.shape)
+
+
 def _noise_clamped(model: Model, rec: Recording, s: np.ndarray) -> np.ndarray:
     """`s` with the readings that leave the model's stress range by noise alone clamped into it
     (said on stderr); any other stress as it is, for the model to judge (a model that reads the
@@ -110,8 +117,7 @@ def _noise_clamped(model: Model, rec: Recording, s: np.ndarray) -> np.ndarray:
     from ..diagnose.noise import second_difference_sigma
 
     rng = model.stress_range_MPa
-    if rng is None or not np.all(np.isfinite(s)) or any(getattr(e, "transforms_stress", False)
-                                                         for e in getattr(model, "chain", ())):
+    if rng is None or not np.all(np.isfinite(s)) or getattr(model, "transforms_stress", False):
         return s
     lo, hi = rng
     beyond = max(lo - float(s.min()), float(s.max()) - hi, 0.0)

@@ -14,7 +14,7 @@ from ..model import SDPIModel
 from ..modelio import load_model
 from ..recordings import Recording, read_recording, write_recording
 from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_recording_output,
-                      finite_float, stress_for)
+                      finite_float, recorded_stress, stress_for)
 
 HELP = """\
 Compute the feedforward drive for a reference displacement with the model's analytic inverse
@@ -75,9 +75,8 @@ def run(args: argparse.Namespace) -> int:
         drive = np.clip(drive, lo, hi)
     name = model.drive_name
     cols = {"time_s": rec.time_s, name: drive, "reference_um": rec.columns["reference_um"]}
-    if stress is not None:      # the recording's own readings, not the ones clamped for the model
-        written = rec.stress_MPa if args.stress is None and rec.stress_MPa is not None else stress
-        cols["stress_MPa"] = np.broadcast_to(np.asarray(written, float), rec.time_s.shape)
+    if stress is not None:
+        cols["stress_MPa"] = recorded_stress(rec, stress, args.stress)
     meta = {"source": f"gma-ffc invert --model {args.model}", "input": rec.name, "model_kind": model.kind}
     if start_spec:          # simulate starts this file where the inverse did (its default rule may not)
         meta.update(start_spec)

@@ -11,7 +11,8 @@ import numpy as np
 from ..modelio import load_model
 from ..recordings import DISPLACEMENT, Recording, refuse_non_finite, write_recording
 from ._common import (add_group_option, add_initial_state_option, add_stress_option, beyond_drive_range,
-                      check_drive_name, check_recording_output, note_gaps, read_while, stress_for, warm_up)
+                      check_drive_name, check_recording_output, note_gaps, read_while, recorded_stress, stress_for,
+                      warm_up)
 
 HELP = """\
 Run a model (any kind: sdpi, mpi, or an extended model from `gma-ffc diagnose`) on the drive and
@@ -70,9 +71,8 @@ def run(args: argparse.Namespace) -> int:
         pred = model.simulate(rec.time_s, rec.drive, stress, initial_drive=rest)
         how = f"at rest at {rest:g} by the model's own stepper rule"
     cols = {"time_s": rec.time_s, rec.drive_name: rec.drive}
-    if stress is not None:      # the recording's own readings, not the ones clamped for the model
-        written = rec.stress_MPa if args.stress is None and rec.stress_MPa is not None else stress
-        cols["stress_MPa"] = np.broadcast_to(np.asarray(written, float), rec.time_s.shape)
+    if stress is not None:
+        cols["stress_MPa"] = recorded_stress(rec, stress, args.stress)
     cols["displacement_um"] = pred
     if measured is not None:
         cols["measured_displacement_um"] = measured
