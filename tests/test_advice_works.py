@@ -116,3 +116,33 @@ def test_a_drive_beyond_the_identified_range_then_a_model_identified_over_it(mod
     wide_model = SDPIIdentifier().fit([recording(cycles(3.0, 3.0, amplitude=1.5), "id_wide.csv")]).model_
     dg = diagnose(wide_model, [recording(drive, "wide.csv")])
     assert not any("beyond the range" in c for c in dg.cannot_conclude)
+
+
+def test_a_start_the_drive_never_forgets_then_a_cycle_over_the_whole_range(request):
+    """The demo's SDPI on hil_sim's rig, whose rod starts demagnetised, a state no history inside the drive range leaves, and a
+    quiet sensor (2 nm) shows it. A run tracking in the lower part of the range (as a controller's
+    telemetry) never forgets that start, so none of it was scored, and the advice was to start at an
+    end of the range or record a full drive cycle: the run did both. The advice now names the cycle
+    that makes the model forget the start; with it before the same run, the run is scored."""
+    from gma_ffc.sil import cached_sdpi_and_mpi
+    from hil_sim.plant import GMAPlant, PlantConfig
+
+    cfg = PlantConfig().with_effects(["noise"])
+    cfg.noise.displacement_std_um, cfg.noise.displacement_quantum_um = 0.002, 0.001
+
+    def rig(drive: np.ndarray, name: str) -> Recording:
+        t = np.arange(drive.size) / FS
+        out = GMAPlant(cfg, seed=1).run(t, drive, load_mass_kg=cfg.mass_for_stress(-15.2))
+        return Recording({k: out[k] for k in ("current_A", "stress_MPa", "displacement_um")} | {"time_s": t}, {}, name)
+
+    model = cached_sdpi_and_mpi(request.config.cache.mkdir("gma_ffc_sil_models"))[0]
+    tracking = 0.6 * cycles(3.0, 3.0)                                     # 0 .. 1.8 A of 0 .. 3 A
+    dg = diagnose(model, [rig(tracking, "tracking.csv")])
+    note = next(c for c in dg.cannot_conclude if "none of it is scored" in c)
+    m = re.search(r"drive one full cycle from (\S+) to (\S+) A and back before the run", note)
+    assert m is not None, note
+    lo, hi = float(m.group(1)), float(m.group(2))
+    cycle = lo + (hi - lo) * 0.5 * (1 - np.cos(2 * np.pi * np.arange(int(FS)) / FS))     # one cycle in 1 s
+    dg = diagnose(model, [rig(np.r_[cycle, tracking], "cycled_first.csv")])
+    assert not any("none of it is scored" in c for c in dg.cannot_conclude)
+    assert dg.data[0].n_scored >= 0.8 * tracking.size

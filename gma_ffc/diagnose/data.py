@@ -49,6 +49,7 @@ class RecData:
     settled: int = 0          # first scored sample: nothing before it is scored (len(t) when none is)
     jumps: Jumps = field(default_factory=Jumps)   # steps of the sensor's zero (`jumps.py`), each fitted as an offset change
     scored: np.ndarray | None = None   # per sample, is it scored (module doc); None: from `settled` on
+    never_forgotten: str = ""  # why a start the measurement tells apart is never forgotten, and what to record ('' if not)
 
     def __post_init__(self) -> None:
         if self.scored is None:
@@ -114,7 +115,7 @@ def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "e
         block = np.minimum((np.arange(n) * N_BLOCKS) // max(n, 1), N_BLOCKS - 1)
         core = getattr(model, "base", model)
         stress = s if srange is not None else None
-        start, scored = start_and_scored(core, rec.drive, stress, initial_state, rec.displacement_um, t)
+        start, scored, outside = start_and_scored(core, rec.drive, stress, initial_state, rec.displacement_um, t)
         rows = np.arange(0, n, stride)
         rows = rows[scored[rows]]
         first = np.flatnonzero(scored)
@@ -126,13 +127,28 @@ def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "e
             rows=rows, clamped_fraction=clamped,
             extra={"temperature_C": rec.columns.get("temperature_C"),
                    "drive_symbol": "V" if rec.drive_name.endswith("_V") else "I"}, start=start,
-            settled=int(first[0]) if first.size else n, scored=scored))
+            settled=int(first[0]) if first.size else n, scored=scored,
+            never_forgotten=whole_range_advice(rec, core.drive_range) if outside and not scored.any() else ""))
     return out
 
 
+def whole_range_advice(rec: Recording, drive_range: tuple[float, float]) -> str:
+    """What to record when a run starts in a state no history inside the drive range leaves (a
+    demagnetised rod: the measurement fits it better than the nearest such state) and its drive never swings
+    far enough to forget it: the model's whole range once, which sets every play to a known state."""
+    unit = rec.drive_name.rsplit("_", 1)[-1]
+    lo, hi = (float(v) for v in drive_range)
+    return (f"it starts in a state that no history inside the drive range leaves (a demagnetised rod, or one "
+            f"driven beyond the range: the measurement shows it), and its drive ({float(np.min(rec.drive)):.3g} to "
+            f"{float(np.max(rec.drive)):.3g} {unit}) never spans the model's range, which would make the model "
+            f"forget that state; drive one full cycle from {lo:.3g} to {hi:.3g} {unit} and back before the run, "
+            f"then record")
+
+
 def start_and_scored(core: Any, drive: np.ndarray, stress: Any, rule: Any, measured_um: np.ndarray,
-                     time_s: np.ndarray) -> tuple[Any, np.ndarray]:
-    """The core's initial state by `rule`, and the samples to score (module doc): where the output
+                     time_s: np.ndarray) -> tuple[Any, np.ndarray, bool]:
+    """The core's initial state by `rule`, the samples to score, and whether that state lies outside
+    the admissible box and stays there, because the measurement tells them apart. Scored (module doc): where the output
     band over every admissible initial state, the state the run starts from included, is no wider
     than the noise floor the measurement shows. There the unknown start moves the prediction by
     less than the sensor's own noise, which no fit can tell from it; a start-up transient lies
@@ -155,16 +171,16 @@ def start_and_scored(core: Any, drive: np.ndarray, stress: Any, rule: Any, measu
     start = core.resolve_initial_state(drive, stress, rule, aligned, time_s)
     scored = output_band(core, drive, stress, also=start.play_state).known(floor)
     if InitialStateSpec.parse(rule).kind != "estimate" or np.array_equal(scored, known):
-        return start, scored                           # a rule the user chose, or an estimate inside the box
+        return start, scored, False                    # a rule the user chose, or an estimate inside the box
     held = np.clip(start.play_state, *admissible_corners(core, drive))
     runs = [np.asarray(core.simulate(None, drive, stress, initial_play_state=p), dtype=float)
             for p in (start.play_state, held)]
     matters = ~scored                                  # where the estimate's start still shows
     gain = float(np.mean((aligned - runs[1])[matters] ** 2) - np.mean((aligned - runs[0])[matters] ** 2))
     if gain > floor ** 2:
-        return start, scored
+        return start, scored, True
     return dataclasses.replace(start, play_state=held, how=start.how + "; held within the states a history "
-                               "inside the drive range leaves, which the measurement does not tell from it"), known
+                               "inside the drive range leaves, which the measurement does not tell from it"), known, False
 
 
 def stress_span(data: Sequence[RecData]) -> float:
@@ -218,6 +234,8 @@ UNSCORED_WHY = ("there the model's output still depends, by more than the noise 
 def unscored_note(d: RecData) -> str:
     """What the user is told about a recording's samples that are not scored ('' when all are),
     with the recording that would be scored whole."""
+    if d.n_scored == 0 and d.never_forgotten:
+        return f"{d.name}: none of it is scored: {d.never_forgotten}"
     if d.n_scored == 0:
         return (f"{d.name}: none of it is scored: everywhere the model's output still depends, by more than the "
                 "noise floor, on the hysteresis state the recording starts in, which the file does not show; "
