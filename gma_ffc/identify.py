@@ -245,6 +245,43 @@ noted: far above what noise or a settling transient leaves, far below the 10-20 
 that real hysteresis loops are wide."""
 
 
+BUTTERFLY_SHARE = 1.0 / 3.0
+"""A recording the model cannot explain is called a butterfly when its displacement moves against
+the drive over at least this share of its travel: a symmetric butterfly does over half of it, a
+play model never does, and lags and noise after reversals reach a few per cent."""
+
+BRANCH_BINS = 20
+"""`travel_against_drive` reads each branch (rising, falling drive) as its mean displacement in this
+many bins of the drive's span: enough to draw a butterfly's fall and rise, and each bin averages
+many samples, so noise does not make a mean step against the drive."""
+
+BRANCHES_EXPLAIN = 0.5
+"""...and it reads them only where those branch means explain at least half the displacement's
+variance: a displacement unrelated to the drive (noise, a wrong column) steps against it as often
+as with it, and is not a butterfly."""
+
+
+def travel_against_drive(x: np.ndarray, y: np.ndarray) -> float:
+    """The share of the displacement's travel that goes against the drive, read from its mean over
+    each branch (rising, falling drive) in BRANCH_BINS bins of the drive's span: 0 for a play model's
+    output, about 1/2 for a symmetric butterfly, and 0 where the branches do not explain the
+    displacement (BRANCHES_EXPLAIN) or the drive does not move."""
+    dx = np.diff(x)
+    if x.size < 3 or np.ptp(x) <= 0 or np.var(y) <= 0:
+        return 0.0
+    rising = np.r_[dx[0] >= 0, dx >= 0]
+    bins = np.minimum(((x - x.min()) / np.ptp(x) * BRANCH_BINS).astype(int), BRANCH_BINS - 1)
+    cell = bins + BRANCH_BINS * rising
+    counts = np.bincount(cell, minlength=2 * BRANCH_BINS)
+    means = np.bincount(cell, weights=y, minlength=2 * BRANCH_BINS) / np.maximum(counts, 1)
+    if 1.0 - float(np.var(y - means[cell])) / float(np.var(y)) < BRANCHES_EXPLAIN:
+        return 0.0
+    steps = np.concatenate([np.diff(means[k * BRANCH_BINS:(k + 1) * BRANCH_BINS][counts[k * BRANCH_BINS:(k + 1) * BRANCH_BINS] > 0])
+                            for k in (0, 1)])
+    travel = float(np.sum(np.abs(steps)))
+    return float(np.sum(-steps[steps < 0])) / travel if travel > 0 else 0.0
+
+
 def _within(level: float | None, span: tuple[float, float] | None) -> float | None:
     """A stress level (binned to the identifier's tolerance) moved into the model's stress range: the
     most compressive bin of -24.33 MPa data is -24.5 MPa, outside the range the file states."""
@@ -573,6 +610,15 @@ class SDPIIdentifier:
         stroke = float(np.ptp(pred))
         if explained < 0.5 or stroke <= 0:
             names = ", ".join(d.name for d in data)
+            against = max(travel_against_drive(d.x, d.y) for d in data)
+            if against >= BUTTERFLY_SHARE:
+                raise InputError(
+                    f"{names}: the displacement moves against the drive over {100 * against:.0f} % of its travel, "
+                    "falling on part of each rising sweep and rising on part of each falling one: a butterfly, as a "
+                    "ferroelectric ceramic's strain when a bipolar drive passes its coercive field. A play model's "
+                    "displacement follows its drive, so none fits this (it explains "
+                    f"{100 * max(explained, 0):.0f} % of the variance); identify from a unipolar drive, from 0 to "
+                    "the peak on the side the ceramic is poled, where the displacement follows the drive")
             raise InputError(f"{names}: the displacement hardly follows the drive (the model explains "
                              f"{100 * max(explained, 0):.0f} % of its variance, stroke {stroke:.3g} um): check that "
                              "the columns are the drive and the displacement of one actuator, and record with a "

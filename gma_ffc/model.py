@@ -173,15 +173,22 @@ class SDPIModel:
 
         Play weights: w_h0 >= eps, w_hi >= 0. Dead-zones: every cumulative weight from the centre
         outwards (the slope of each linear piece) >= eps at every stress in the range.
+
+        By default each eps is a billionth of its own weights' scale, in their units: the play
+        weights' sum for w_h0, the largest dead-zone weight for the slopes. Data fix only the
+        product of play and dead-zone weights, so a fit may move scale between them; measured
+        against each other (as before), a model whose w_h0 held its share of the plays was refused
+        (a butterfly loop: w_h0 1.7e-9 of 4.5e-8, dead-zone weights up to 8.7e4).
         """
         w_h = self.play_weights
         c = self.deadzone_coeffs
         centre = (self.n_deadzone - 1) // 2
+        eps_w = 1e-9 * max(float(np.sum(np.abs(w_h))), 1e-300) if eps is None else eps
         if eps is None:
-            eps = 1e-9 * max(abs(w_h[0]), abs(c[0, centre]), 1e-300)
+            eps = 1e-9 * max(float(np.max(np.abs(c[0]))), 1e-300)
         out = []
-        if w_h[0] < eps:
-            out.append(Violation("w_h0", None, float(w_h[0]), eps))
+        if w_h[0] < eps_w:
+            out.append(Violation("w_h0", None, float(w_h[0]), eps_w))
         for i in np.flatnonzero(w_h[1:] < 0) + 1:
             out.append(Violation(f"w_h{i}", None, float(w_h[i]), 0.0))
         cum_pos = np.cumsum(c[:, centre:], axis=1)

@@ -163,3 +163,23 @@ def test_invertibility_check_names_the_constraint_and_the_stress() -> None:
     assert bad[0].stress_MPa == pytest.approx(-11.3)
     assert bad[0].value == pytest.approx(1.0 - 1.2 - 0.05 * (-11.3 + 20))
     assert "short by" in str(bad[0])
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), log_k=st.floats(-9.0, 9.0))
+def test_moving_scale_from_the_plays_to_the_dead_zones_changes_neither_output_nor_verdict(seed, log_k):
+    """Data fix only the product of play and dead-zone weights: plays k w with dead-zone thresholds
+    k r_s and weights c / k give the same output. The check must agree: it held w_h0 to a billionth
+    of a dead-zone weight, so a fit that moved the scale (a butterfly loop: w_h0 1.7e-9 of plays
+    summing to 4.5e-8, a central dead-zone weight of 15) was refused as violating Proposition 3.1."""
+    rng = np.random.default_rng(seed)
+    model = sdpi_from_rng(rng, int(rng.integers(2, 12)), int(rng.integers(0, 4)))
+    k = 10.0 ** log_k
+    moved = SDPIModel(model.play_thresholds, k * model.play_weights, k * model.deadzone_thresholds,
+                      model.deadzone_coeffs / k, output_coeffs=model.output_coeffs, input_offset=model.input_offset,
+                      stress_range_MPa=STRESS, drive_range=(-3.0, 4.0))
+    x = rng.uniform(-3.0, 4.0, 40)
+    s = rng.uniform(*STRESS, 40)
+    scale = max(float(np.ptp(model.simulate(None, x, s))), 1e-9)
+    assert np.max(np.abs(moved.simulate(None, x, s) - model.simulate(None, x, s))) <= 1e-9 * scale
+    assert model.invertibility_violations() == [] and moved.invertibility_violations() == []
