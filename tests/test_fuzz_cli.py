@@ -2,10 +2,10 @@
 
 Hypothesis draws recordings of 10 to 2,000 samples from a Preisach actuator (not the model class
 being fitted): unipolar and bipolar sines, steps, a single cycle, rising amplitudes, constant
-stretches, falling actuators, drives in volts, with and without a stress column. Each command
-ends with a result (exit 0) or a one-line refusal (exit 2): never a traceback or an internal
-error, no warning on the user's screen (deprecations aside, which Python hides from users), and
-never NaN or inf in what it writes.
+stretches, falling actuators, drives in volts, butterflies (a bipolar ceramic's strain), with and
+without a stress column. Each command ends with a result (exit 0) or a one-line refusal (exit 2):
+never a traceback or an internal error, no warning on the user's screen (deprecations aside, which
+Python hides from users), and never NaN or inf in what it writes.
 
 CI runs a few examples (a minute or two); `pytest tests/test_fuzz_cli.py --hypothesis-profile=slow`
 runs many (tests/conftest.py registers the profile).
@@ -75,6 +75,8 @@ def recordings(draw: st.DrawFn) -> Recording:
     y = rig.run(drive, -15.0 if s is None else float(s[0]))
     if s is not None and stress_kind == "two":
         y = np.where(s < -15.0, 1.2 * y, y)
+    if shape == "bipolar" and draw(st.booleans()):               # a ceramic's strain: a butterfly
+        y = np.ptp(y) * (2.0 * (y - y.min()) / max(float(np.ptp(y)), 1e-12) - 1.0) ** 2
     if draw(st.booleans()):
         y = -y                                             # mounted to fall as the drive rises
     cols = {"time_s": np.arange(n) / fs, ("voltage_V" if peak > 10 else "current_A"): drive,

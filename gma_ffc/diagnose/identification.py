@@ -16,11 +16,10 @@ from typing import Any, Mapping, Sequence
 from ..errors import InputError
 
 LOST_WITHOUT = (
-    "without the identification recordings (--ident) every fit is held near the base model's own output on "
-    "its loops, which is known only to within its identification error; the core cannot be identified again "
-    "on measured loops (through an eddy lag or a delay, or with a loop width that follows stress), so "
-    "stress_dependent_play's loop-width law is fitted to these recordings alone rather than on the "
-    "identification loops at every load")
+    "Without them (--ident), every fit is held near the base model's own output on its loops, known only to "
+    "within its identification error. The core cannot be identified again on measured loops (through an eddy "
+    "lag or a delay, or with a loop width that follows stress). So stress_dependent_play's loop-width law is "
+    "fitted to these recordings alone, not on the identification loops at every load")
 
 
 @dataclass(frozen=True)
@@ -44,7 +43,7 @@ class IdentificationCheck:
         """One sentence for the report and the CLI."""
         if not self.given:
             known = f" ({', '.join(self.recorded)})" if self.recorded else ""
-            return f"The identification recordings{known} were not given: {LOST_WITHOUT}."
+            return f"The identification recordings{known} were not given. {LOST_WITHOUT}."
         how = "name, size and content" if self.verified else "name"
         if self.status == "unchecked":
             return (f"{len(self.given)} identification recording(s) given; the model keeps no record of the "
