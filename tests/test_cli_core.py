@@ -76,6 +76,23 @@ def test_invert_then_simulate_follows_the_reference(workdir: Path) -> None:
     assert rms(rig_y[200:] - d.columns["reference_um"][200:]) < 0.02 * 24.0
 
 
+def test_invert_beyond_reach_names_the_limit_to_add_and_that_limit_keeps_the_drive_inside(workdir: Path, capsys) -> None:
+    """A reference beyond the identified stroke: the warning said 'consider --limit', which alone is
+    refused (the option takes two numbers). It names the two, and with them the drive stays inside."""
+    ref = read_recording(workdir / "ref.csv", require=("time_s",))
+    far = workdir / "ref_far.csv"
+    write_recording(far, Recording({**ref.columns, "reference_um": 2.0 * ref.columns["reference_um"]}, {}))
+    out = workdir / "drive_far.csv"
+    assert main(["invert", "--model", str(workdir / "model.yaml"), str(far), "-o", str(out)]) == 0
+    m = re.search(r"add --limit (\S+) (\S+) to clip the drive", capsys.readouterr().err)
+    assert m is not None
+    assert main(["invert", "--model", str(workdir / "model.yaml"), str(far), "-o", str(out),
+                 "--limit", m.group(1), m.group(2)]) == 0
+    assert "leaves the identified range" not in capsys.readouterr().err
+    d = read_recording(out, require=("time_s", "drive")).drive
+    assert d.min() >= float(m.group(1)) - 1e-9 and d.max() <= float(m.group(2)) + 1e-9
+
+
 def test_invert_initial_drive_starts_relaxed_at_that_drive_as_its_help_says(workdir: Path, capsys) -> None:
     """--initial-drive A is --initial-state drive:A; it started from the model file's stepper rule
     (descending: every play A + r), while saying 'relaxed'."""

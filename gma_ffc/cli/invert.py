@@ -82,10 +82,12 @@ def run(args: argparse.Namespace) -> int:
         meta.update(start_spec)
     write_recording(args.output, Recording(cols, meta, args.output))
     lo, hi = model.drive_range
-    outside = int(np.count_nonzero((drive < lo - 1e-9) | (drive > hi + 1e-9)))
+    slack = 1e-6 * (hi - lo)      # the range as printed below (6 digits): a drive that far out is inside
+    outside = int(np.count_nonzero((drive < lo - slack) | (drive > hi + slack)))
     if outside:
-        print(f"warning: the drive leaves the identified range {lo:.4g}..{hi:.4g} at {outside} of "
-              f"{len(drive)} samples (extrapolation); consider --limit", file=sys.stderr)
+        print(f"warning: the drive leaves the identified range {lo:.6g}..{hi:.6g} at {outside} of "
+              f"{len(drive)} samples (extrapolation): the reference asks for more than the actuator gave "
+              f"when identified; add --limit {lo:.6g} {hi:.6g} to clip the drive to that range", file=sys.stderr)
     if clipped_note:
         print(clipped_note, file=sys.stderr)
     print(f"drive {drive.min():.4g}..{drive.max():.4g} for {len(drive)} samples -> {args.output}")
