@@ -146,3 +146,12 @@ def test_a_start_the_drive_never_forgets_then_a_cycle_over_the_whole_range(reque
     dg = diagnose(model, [rig(np.r_[cycle, tracking], "cycled_first.csv")])
     assert not any("none of it is scored" in c for c in dg.cannot_conclude)
     assert dg.data[0].n_scored >= 0.8 * tracking.size
+
+
+def test_a_model_diagnosed_on_its_own_identification_recording_is_told_to_give_it_with_ident(model):
+    """Identified on id.csv and diagnosed on id.csv: the note said 'the identification recordings
+    (id.csv) were not given', beside the very file."""
+    dg = diagnose(model, [recording(cycles(3.0, 3.0), "id.csv")])
+    note = dg.to_json()["identification"]["note"]
+    assert note.startswith("id.csv bears the name of one of the model's identification recordings")
+    assert "not given" not in note

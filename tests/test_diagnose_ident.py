@@ -12,6 +12,8 @@ and leave-one-recording-out selection.
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import math
 import shutil
@@ -63,6 +65,12 @@ def test_the_check_matches_names_sizes_and_hashes_and_says_what_is_missing() -> 
         check(model, ["c.csv"], [_fp("c.csv", 10, "aa")])
     none = check(model, [])
     assert none.status == "not_given" and "--ident" in none.words() and "a.csv" in none.words()
+    # an identification recording given to diagnose (the measured piezo, identified and diagnosed
+    # alone) was told "the identification recordings (a.csv) were not given"
+    own = dataclasses.replace(none, diagnosed=("a.csv",))
+    assert "a.csv bears the name of one of the model's identification recordings" in own.words()
+    assert "Give a.csv with --ident, and diagnose other runs" in own.words() and "not given" not in own.words()
+    assert own.to_json()["diagnosed"] == ["a.csv"]
     # a model written before identify kept fingerprints: names only, and said so
     old = check(_Model({"recordings": ["a.csv"]}), ["a.csv"], [_fp("a.csv", 1, "x")])
     assert old.status == "match" and not old.verified and "by name" in old.words()

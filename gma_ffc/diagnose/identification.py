@@ -30,6 +30,7 @@ class IdentificationCheck:
     recorded: tuple[str, ...]           # names the model's provenance lists
     verified: bool                      # sizes and hashes were compared (the model records them)
     missing: tuple[str, ...] = ()       # recorded but not given
+    diagnosed: tuple[str, ...] = ()     # recordings given to diagnose that bear a recorded name
 
     @property
     def status(self) -> str:
@@ -41,6 +42,12 @@ class IdentificationCheck:
 
     def words(self) -> str:
         """One sentence for the report and the CLI."""
+        if not self.given and self.diagnosed:
+            names, one = ", ".join(self.diagnosed), len(self.diagnosed) == 1
+            return (f"{names} {'bears the name of one' if one else 'bear the names'} of the model's identification "
+                    f"recordings, and {'is' if one else 'are'} given to diagnose, not with --ident. On the data the base "
+                    f"was fitted to, a diagnosis shows only what its class misses there. Give {names} with --ident, "
+                    "and diagnose other runs.")
         if not self.given:
             known = f" ({', '.join(self.recorded)})" if self.recorded else ""
             return f"The identification recordings{known} were not given. {LOST_WITHOUT}."
@@ -55,7 +62,8 @@ class IdentificationCheck:
 
     def to_json(self) -> dict[str, Any]:
         return {"status": self.status, "given": list(self.given), "recorded": list(self.recorded),
-                "verified": self.verified, "missing": list(self.missing), "note": self.words()}
+                "verified": self.verified, "missing": list(self.missing), "diagnosed": list(self.diagnosed),
+                "note": self.words()}
 
 
 def recorded_files(model: Any) -> tuple[list[dict[str, Any]], list[str]]:

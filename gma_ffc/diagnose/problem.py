@@ -8,6 +8,8 @@ beat (the base with a static recalibration). Steps after it only read it. Pure m
 
 from __future__ import annotations
 
+import dataclasses
+
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -48,6 +50,7 @@ def setup(selector: Any, model: Any, recordings: Sequence[Recording], say: Calla
     fitter.use_anchor(fallback_tolerance_um=noise)
     null, jumps = _null_model(fitter, data, n_samples, noise, selector.huber_k, say, too_little)
     checked = checked or check(model, [r.name for r in identification])
+    checked = dataclasses.replace(checked, diagnosed=tuple(r.name for r in recordings if r.name in checked.recorded))
     return Problem(model, model, tuple(data), fitter, noise, n_samples, too_little, tuple(cannot + jumps), null,
                    checked)
 
