@@ -276,8 +276,8 @@ def travel_against_drive(x: np.ndarray, y: np.ndarray) -> float:
     means = np.bincount(cell, weights=y, minlength=2 * BRANCH_BINS) / np.maximum(counts, 1)
     if 1.0 - float(np.var(y - means[cell])) / float(np.var(y)) < BRANCHES_EXPLAIN:
         return 0.0
-    steps = np.concatenate([np.diff(means[k * BRANCH_BINS:(k + 1) * BRANCH_BINS][counts[k * BRANCH_BINS:(k + 1) * BRANCH_BINS] > 0])
-                            for k in (0, 1)])
+    filled = counts.reshape(2, BRANCH_BINS) > 0           # (falling, rising) x bins along the drive
+    steps = np.concatenate([np.diff(m[f]) for m, f in zip(means.reshape(2, BRANCH_BINS), filled)])
     travel = float(np.sum(np.abs(steps)))
     return float(np.sum(-steps[steps < 0])) / travel if travel > 0 else 0.0
 

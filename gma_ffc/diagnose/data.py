@@ -134,8 +134,8 @@ def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "e
 
 def whole_range_advice(rec: Recording, drive_range: tuple[float, float]) -> str:
     """What to record when a run starts in a state no history inside the drive range leaves (a
-    demagnetised rod: the measurement fits it better than the nearest such state) and its drive never swings
-    far enough to forget it: the model's whole range once, which sets every play to a known state."""
+    demagnetised rod: the measurement fits it better than the nearest such state) and its drive
+    never swings far enough to forget it: the model's whole range once, which sets every play."""
     unit = rec.drive_name.rsplit("_", 1)[-1]
     lo, hi = (float(v) for v in drive_range)
     return (f"it starts in a state that no history inside the drive range leaves (a demagnetised rod, or one "
@@ -148,10 +148,11 @@ def whole_range_advice(rec: Recording, drive_range: tuple[float, float]) -> str:
 def start_and_scored(core: Any, drive: np.ndarray, stress: Any, rule: Any, measured_um: np.ndarray,
                      time_s: np.ndarray) -> tuple[Any, np.ndarray, bool]:
     """The core's initial state by `rule`, the samples to score, and whether that state lies outside
-    the admissible box and stays there, because the measurement tells them apart. Scored (module doc): where the output
-    band over every admissible initial state, the state the run starts from included, is no wider
-    than the noise floor the measurement shows. There the unknown start moves the prediction by
-    less than the sensor's own noise, which no fit can tell from it; a start-up transient lies
+    the admissible box and stays there (the measurement tells them apart).
+
+    Scored (module doc): where the output band over every admissible initial state, the state the
+    run starts from included, is no wider than the noise floor the measurement shows. There the
+    unknown start moves the prediction by less than the sensor's own noise, which no fit can tell from it; a start-up transient lies
     outside by construction.
 
     The estimate is fitted to the measurement moved onto the model's zero: by the mean difference

@@ -41,7 +41,7 @@ class IdentificationCheck:
         return "match" if not self.missing else "partial"
 
     def words(self) -> str:
-        """One sentence for the report and the CLI."""
+        """The note for the report and the CLI: what was given, and what that means."""
         if not self.given and self.diagnosed:
             names, one = ", ".join(self.diagnosed), len(self.diagnosed) == 1
             return (f"{names} {'bears the name of one' if one else 'bear the names'} of the model's identification "

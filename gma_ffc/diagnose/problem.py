@@ -9,7 +9,6 @@ beat (the base with a static recalibration). Steps after it only read it. Pure m
 from __future__ import annotations
 
 import dataclasses
-
 from typing import Any, Callable, Sequence
 
 import numpy as np
