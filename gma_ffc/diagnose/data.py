@@ -152,8 +152,8 @@ def start_and_scored(core: Any, drive: np.ndarray, stress: Any, rule: Any, measu
 
     Scored (module doc): where the output band over every admissible initial state, the state the
     run starts from included, is no wider than the noise floor the measurement shows. There the
-    unknown start moves the prediction by less than the sensor's own noise, which no fit can tell from it; a start-up transient lies
-    outside by construction.
+    unknown start moves the prediction by less than the sensor's own noise, which no fit can tell
+    from it; a start-up transient lies outside by construction.
 
     The estimate is fitted to the measurement moved onto the model's zero: by the mean difference
     over the samples the drive alone decides (where any admissible state gives the same output,
