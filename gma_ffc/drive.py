@@ -1,4 +1,5 @@
-"""What a drive history looks like: its turning points and the loop rate they imply. Pure maths."""
+"""What a drive history looks like: its turning points, the loop rate they imply, and its holds.
+Pure maths."""
 
 from __future__ import annotations
 
@@ -46,6 +47,31 @@ def loop_frequency_hz(time_s: np.ndarray, u: np.ndarray) -> float:
     if n < 2 or duration <= 0:
         return float("nan")
     return (n + 1) / (2.0 * duration)
+
+
+HOLD_BAND = 0.02
+"""A drive that stays within this share of its span holds: well above a current or voltage
+sensor's noise over a drive's whole span, well below a step of a step test."""
+
+
+def holds(time_s: np.ndarray, u: np.ndarray, min_s: float) -> int:
+    """Stretches of at least `min_s` seconds in which the drive stays within HOLD_BAND of its span
+    (each after a step or a turn: a step test's levels, a sine's pauses), counted once each."""
+    t, u = np.asarray(time_s, dtype=float), np.asarray(u, dtype=float)
+    band = HOLD_BAND * float(np.ptp(u))
+    if u.size < 2 or band <= 0:
+        return 0
+    count, start, lo, hi = 0, 0, float(u[0]), float(u[0])
+    for k in range(1, u.size + 1):
+        if k < u.size:
+            v = float(u[k])
+            if max(hi, v) - min(lo, v) <= band:
+                lo, hi = min(lo, v), max(hi, v)
+                continue
+        count += int(t[k - 1] - t[start] >= min_s)
+        if k < u.size:
+            start, lo, hi = k, float(u[k]), float(u[k])
+    return count
 
 
 RANGE_MARGIN = 0.02

@@ -32,11 +32,19 @@ class Violation:
     stress_MPa: float | None
     value: float
     required: float
+    upper: bool = False        # the required value is a bound from above (an overflow), not from below
 
     def __str__(self) -> str:
         where = "" if self.stress_MPa is None else f" at {self.stress_MPa:.3g} MPa"
+        if self.upper:
+            return f"{self.constraint} = {self.value:.6g}{where}, needs <= {self.required:.3g} (its inverse overflows)"
         return f"{self.constraint} = {self.value:.6g}{where}, needs >= {self.required:.3g} " \
                f"(short by {self.required - self.value:.3g})"
+
+
+MAX_PLAY_WEIGHT_SUM = float(np.sqrt(np.finfo(float).max)) * 1e-3
+"""The inverse's play weights (9) divide by the square of partial sums of the play weights: a sum
+beyond this (1.3e151) would overflow there, with a thousandfold margin for the products after it."""
 
 
 @dataclass(eq=False)
@@ -189,6 +197,9 @@ class SDPIModel:
         out = []
         if w_h[0] < eps_w:
             out.append(Violation("w_h0", None, float(w_h[0]), eps_w))
+        total = float(np.sum(np.abs(w_h)))
+        if not total <= MAX_PLAY_WEIGHT_SUM:
+            out.append(Violation("sum w_h", None, total, MAX_PLAY_WEIGHT_SUM, upper=True))
         for i in np.flatnonzero(w_h[1:] < 0) + 1:
             out.append(Violation(f"w_h{i}", None, float(w_h[i]), 0.0))
         cum_pos = np.cumsum(c[:, centre:], axis=1)

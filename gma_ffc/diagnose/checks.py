@@ -6,7 +6,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..drive import outside_range, reversals
+from ..drive import holds, outside_range, reversals
 from ..errors import InputError
 from ..recordings import Recording
 from .data import N_BLOCKS, RecData, unscored_note
@@ -14,6 +14,10 @@ from .data import N_BLOCKS, RecData, unscored_note
 MIN_REVERSALS = 2 * N_BLOCKS   # drive turning points in all: on average a full drive cycle per time block, or a
                                # held-out block is a piece of one branch that the neighbouring training blocks
                                # interpolate, and blocked cross-validation tests interpolation, not prediction
+MIN_HOLDS = 4                  # ...short of them, the slow effects (heating, creep) are still tested where the drive
+                               # holds this many times: each hold a step response and a heating level of its own,
+                               # so both folds hold parts of several, and a law fitted on one predicts the other's
+HOLD_S = 1.0                   # a hold this long shows creep's fastest central time constant (effects.creep)
 
 
 def check_overlap(model: Any, recordings: Sequence[Recording], margin: float = 0.02,
@@ -62,17 +66,28 @@ def beyond_range_notes(model: Any, data: Sequence[RecData], margin: float = 0.02
 
 
 def enough_data(data: Sequence[RecData], min_samples: int, clamped_share: float = 0.01,
-                folds_filled: bool = True) -> tuple[int, bool, list[str]]:
-    """Scored samples in all, whether that is too little to tell effects apart, and what cannot be
-    concluded from the recordings as they are (a recording never scored, too little data, stresses
-    outside the model's range). Recordings scored in part are noted once, by `data.unscored_starts_note`.
-    A sample is scored where the unknown initial state no longer moves the output (`data.known_samples`);
-    `folds_filled` is False when a held-out fold has no scored row (it would be fitted to nothing)."""
+                folds_filled: bool = True) -> tuple[int, bool, bool, list[str]]:
+    """Scored samples in all, whether that is too little to tell effects apart, whether only the
+    slow effects can be told apart (too few drive reversals for loops, but holds enough: a step
+    test), and what cannot be concluded from the recordings as they are (a recording never scored,
+    too little data, stresses outside the model's range). Recordings scored in part are noted once,
+    by `data.unscored_starts_note`. A sample is scored where the unknown initial state no longer
+    moves the output (`data.known_samples`); `folds_filled` is False when a held-out fold has no
+    scored row (it would be fitted to nothing)."""
     cannot = []
     n_samples = sum(d.n_scored for d in data)   # samples scored: where the initial state is known
     n_rev = sum(reversals(d.u[run]) for d in data for run in d.scored_runs())
+    n_holds = sum(holds(d.t[run], d.u[run], HOLD_S) for d in data for run in d.scored_runs())
     cannot += [unscored_note(d) for d in data if d.n_scored == 0]
-    too_little = n_samples < min_samples or n_rev < MIN_REVERSALS or not folds_filled
+    enough_scored = n_samples >= min_samples and folds_filled
+    slow_only = enough_scored and n_rev < MIN_REVERSALS and n_holds >= MIN_HOLDS
+    too_little = not enough_scored or (n_rev < MIN_REVERSALS and not slow_only)
+    if slow_only:
+        cannot.append(
+            f"too few drive reversals ({n_rev}) to test the effects that show in loops (rate dependence, resonance, "
+            f"delay, stress-dependent play, saturation); heating and creep are tested on the drive's {n_holds} "
+            f"holds. Record at least a few cycles (>= {MIN_REVERSALS // 2} full loops) at two or more drive "
+            "frequencies to test the others")
     if too_little:
         cannot.append(
             f"too little data to tell effects apart ({n_samples} samples, {n_rev} drive reversals in all): "
@@ -82,4 +97,4 @@ def enough_data(data: Sequence[RecData], min_samples: int, clamped_share: float 
         if d.clamped_fraction > clamped_share:
             cannot.append(f"{d.name}: {d.clamped_fraction:.0%} of the samples are at stresses outside the "
                           "model's range; they were compared at the nearest stress of the range")
-    return n_samples, too_little, cannot
+    return n_samples, too_little, slow_only, cannot

@@ -42,7 +42,8 @@ def setup(selector: Any, model: Any, recordings: Sequence[Recording], say: Calla
                                                      tuple(selector.recalibration_plays), selector.range_margin))
     # each fold needs scored rows to fit on: a fold without any would be fitted to nothing
     folds_filled = min(fitter.n_a, fitter.y_rows.size - fitter.n_a) > 0
-    n_samples, too_little, cannot = enough_data(data, selector.min_samples, selector.clamped_share, folds_filled)
+    n_samples, too_little, slow_only, cannot = enough_data(data, selector.min_samples, selector.clamped_share,
+                                                           folds_filled)
     if too_little:
         cannot += beyond_range_notes(model, data, selector.range_margin, selector.clamped_share)
     noise = float(np.median([noise_floor(d.y) for d in data]))
@@ -51,7 +52,7 @@ def setup(selector: Any, model: Any, recordings: Sequence[Recording], say: Calla
     checked = checked or check(model, [r.name for r in identification])
     checked = dataclasses.replace(checked, diagnosed=tuple(r.name for r in recordings if r.name in checked.recorded))
     return Problem(model, model, tuple(data), fitter, noise, n_samples, too_little, tuple(cannot + jumps), null,
-                   checked)
+                   checked, slow_only)
 
 
 def scored(d: RecData, r: np.ndarray) -> np.ndarray:

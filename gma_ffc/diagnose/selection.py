@@ -217,14 +217,16 @@ class EffectSelector:
             ok, why = cls.testable(fitter)
             if problem.too_little:
                 ok, why = False, why or "too little data"
+            elif problem.slow_only and not cls.slow:
+                ok, why = False, "too few drive reversals to test it: see the note on them for the recording that would"
             elif ok and cls.slow and fitter.duration_max < self.slow_duration_s:
                 why = (f"the longest recording lasts {fitter.duration_max:.3g} s: slow effects "
                        "(heating, creep) with time constants beyond it are hard to separate; "
                        "a run of several minutes with drive on/off phases would decide")
             if ok:
                 testable.add(cls.name)
-            elif why and not problem.too_little:
-                cannot.append(f"{cls.name}: {why}")
+            elif why and not problem.too_little and not (problem.slow_only and not cls.slow):
+                cannot.append(f"{cls.name}: {why}")     # (the loop effects of a step test: one note, from checks)
             reasons[cls.name] = why
         loo = fitter_loo(problem, problem.null.fit.specs[2])
         return Selection(problem.null.fit, frozenset(testable), reasons, cannot=tuple(cannot), leave_one_out=loo,

@@ -53,6 +53,7 @@ class Problem:
     cannot: tuple[str, ...]               # what cannot be concluded, found before any fit
     null: NullFit
     identification: IdentificationCheck   # the identification recordings given, against the model's record
+    slow_only: bool = False               # too few drive reversals for loop effects: only slow ones are tested
 
 
 @dataclass(frozen=True)
