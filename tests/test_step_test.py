@@ -9,6 +9,7 @@ from __future__ import annotations
 import pytest
 
 from gma_ffc.diagnose.engine import diagnose
+from gma_ffc.diagnose.report import render_html
 from gma_ffc.identify import SDPIIdentifier
 from hil_sim.record import make_recording, make_recordings
 
@@ -28,6 +29,9 @@ def test_a_step_test_names_heating_and_creep_and_says_the_loop_effects_were_not_
     assert "heating and creep are tested on the drive's" in note and "at two or more drive frequencies" in note
     untested = {c.effect for c in dg.candidates if c.reason and "too few drive reversals" in c.reason}
     assert untested == {"rate_dependence", "mechanical_dynamics", "time_delay", "stress_dependent_play", "saturation"}
+    # the report draws no loop chart: where the drive sweeps no loop it was a scribble of holds
+    page = render_html(dg, dg.to_json())
+    assert "Residual over time" in page and "Candidates: held-out RMS" in page and "Loops where" not in page
 
 
 @pytest.mark.slow

@@ -201,6 +201,13 @@ def plot_overlays(dg: Diagnosis, render: Any = None) -> Any:
 
 
 def plot_loops(dg: Diagnosis, render: Any = None) -> Any:
+    """Displacement against drive where the residual (or its fall) is largest; None when the drive
+    sweeps no loop anywhere (a step test), where such a chart would show a scribble."""
+    named = bool(dg.verdict)
+    shown = [_shown(d, loc, _fall(d, yb, yf) if named else np.square(d.y - yf), sweep=True)
+             for d, loc, yb, yf in zip(dg.data, dg.located, dg.base_predictions, dg.final_predictions)]
+    if not any(sweeps for _, sweeps in shown):
+        return None
     plt = _plt()
     n = len(dg.data)
     cols = min(n, 2)
@@ -208,9 +215,7 @@ def plot_loops(dg: Diagnosis, render: Any = None) -> Any:
     fig, axes = plt.subplots(rows, cols, figsize=(6 * cols, 3.4 * rows + 0.4), squeeze=False,
                              constrained_layout=True)
     same = _unchanged(dg)
-    named = bool(dg.verdict)
-    for ax, d, loc, yb, yf in zip(axes.flat, dg.data, dg.located, dg.base_predictions, dg.final_predictions):
-        w, sweeps = _shown(d, loc, _fall(d, yb, yf) if named else np.square(d.y - yf), sweep=True)
+    for ax, d, yb, yf, (w, sweeps) in zip(axes.flat, dg.data, dg.base_predictions, dg.final_predictions, shown):
         ax.plot(d.u[w], d.y[w], lw=1.2, color="k", label="measured")
         if not same:
             ax.plot(d.u[w], yb[w], lw=0.9, ls="--", color="0.55", label="base")
@@ -269,6 +274,7 @@ def render_html(dg: Diagnosis, doc: dict) -> str:
             (overlay, plot_overlays(dg)),
             ("Loops where the named effects help most: displacement against drive" if dg.verdict else
              "Loops where the residual is largest: displacement against drive", plot_loops(dg))]
+    imgs = [(title, img) for title, img in imgs if img is not None]      # no loop chart without a loop
     if any(math.isfinite(c.cv_mse) for c in dg.candidates):      # no empty chart when nothing was tried
         imgs.append(("Candidates: held-out RMS", plot_candidates(dg)))
     e = html.escape
