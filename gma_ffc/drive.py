@@ -49,6 +49,12 @@ def loop_frequency_hz(time_s: np.ndarray, u: np.ndarray) -> float:
     return (n + 1) / (2.0 * duration)
 
 
+def drive_unit(drive_name: str) -> str:
+    """The unit a drive column's name ends in (`current_A` -> `A`): units are part of the name
+    (docs/recordings.md)."""
+    return drive_name.rsplit("_", 1)[-1]
+
+
 HOLD_BAND = 0.02
 """A drive that stays within this share of its span holds: well above a current or voltage
 sensor's noise over a drive's whole span, well below a step of a step test."""
@@ -62,16 +68,14 @@ def holds(time_s: np.ndarray, u: np.ndarray, min_s: float) -> int:
     if u.size < 2 or band <= 0:
         return 0
     count, start, lo, hi = 0, 0, float(u[0]), float(u[0])
-    for k in range(1, u.size + 1):
-        if k < u.size:
-            v = float(u[k])
-            if max(hi, v) - min(lo, v) <= band:
-                lo, hi = min(lo, v), max(hi, v)
-                continue
-        count += int(t[k - 1] - t[start] >= min_s)
-        if k < u.size:
-            start, lo, hi = k, float(u[k]), float(u[k])
-    return count
+    for k in range(1, u.size):
+        v = float(u[k])
+        if max(hi, v) - min(lo, v) <= band:          # still holding: the stretch grows
+            lo, hi = min(lo, v), max(hi, v)
+            continue
+        count += int(t[k - 1] - t[start] >= min_s)   # the stretch ends: was it long enough?
+        start, lo, hi = k, v, v
+    return count + int(t[-1] - t[start] >= min_s)   # the last stretch ends with the recording
 
 
 RANGE_MARGIN = 0.02

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 
 from . import operators as ops
+from .drive import drive_unit
 from .errors import ModelError
 from .inverse import deadzone_inverse, play_forward_state, play_inverse, play_inverse_initial_state
 
@@ -400,7 +401,7 @@ class SDPIModel:
             "format": "gma-ffc-model",
             "version": 2,
             "kind": self.kind,
-            "units": {"drive": self.drive_name.rsplit("_", 1)[-1], "displacement": "um", "stress": "MPa"},
+            "units": {"drive": drive_unit(self.drive_name), "displacement": "um", "stress": "MPa"},
             "drive_name": self.drive_name,
             "output_sign": int(self.output_sign),
             "input_offset": float(self.input_offset),
@@ -476,7 +477,7 @@ def _check_declared_units(d: dict[str, Any], model: SDPIModel) -> None:
     value the code would ignore (mA for A, mm for um) is refused, not silently read as the default."""
     units = d.get("units")
     if units is not None:
-        expected = {"drive": model.drive_name.rsplit("_", 1)[-1], "displacement": "um", "stress": "MPa"}
+        expected = {"drive": drive_unit(model.drive_name), "displacement": "um", "stress": "MPa"}
         if not isinstance(units, dict):
             raise ModelError(f"units must be a mapping like {expected}, got {units!r}")
         wrong = {k: v for k, v in units.items() if k in expected and str(v) != expected[k]}

@@ -8,6 +8,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .atomic import atomic_write
+from .drive import drive_unit
 from .errors import InputError
 from .identify import burn_in_end
 from .protocols import Model
@@ -68,7 +69,7 @@ def plot_loops(model: Model, recordings: Sequence[Recording], path: str | Path |
         # the same number, rounded the same way, as identify's table
         title = rec.name if rec.stress_MPa is None else f"{np.median(rec.stress_MPa):.4g} MPa"
         ax.set_title(f"{title}  (RMS {err:.3f} um)", fontsize=9)
-        unit = rec.drive_name.rsplit("_", 1)[-1]
+        unit = drive_unit(rec.drive_name)
         ax.set_xlabel(f"{rec.drive_name.rsplit('_', 1)[0]} ({unit})")
         ax.set_ylabel("displacement (um)")
         ax.grid(alpha=0.3)

@@ -12,6 +12,7 @@ from typing import Any, Callable, Sequence, TypeVar
 
 import numpy as np
 
+from ..drive import drive_unit
 from ..errors import InputError
 from ..protocols import Model
 from ..atomic import check_folder_writable, refuse_overwrite
@@ -140,7 +141,7 @@ def beyond_drive_range(model: Model, rec: Recording) -> str | None:
     outside = outside_range(rec.drive, (lo, hi))
     if not outside.any():
         return None
-    unit = model.drive_name.rsplit("_", 1)[-1]
+    unit = drive_unit(model.drive_name)
     where = np.flatnonzero(outside)
     return (f"{rec.source}: the drive ({float(rec.drive.min()):.4g}..{float(rec.drive.max()):.4g} {unit}) leaves the "
             f"range the model was identified on ({lo:.4g}..{hi:.4g} {unit}) at {where.size} of {len(rec)} samples, "

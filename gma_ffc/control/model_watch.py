@@ -28,6 +28,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..drive import drive_unit
 from ..drivers.base import DISPLACEMENT
 from ..protocols import Model
 from .fit_monitor import OFF, FitMonitor, identification_error_um
@@ -215,7 +216,7 @@ class ModelWatch:
             return {"state": OFF, "reason": self.off_reason}
         self.evaluate()
         out = self.fit.status()
-        out["drive_unit"] = self.model.drive_name.rsplit("_", 1)[-1]
+        out["drive_unit"] = drive_unit(self.model.drive_name)
         out["prediction"] = self.replay
         return out
 

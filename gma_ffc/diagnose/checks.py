@@ -6,7 +6,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..drive import holds, outside_range, reversals
+from ..drive import drive_unit, holds, outside_range, reversals
 from ..errors import InputError
 from ..recordings import Recording
 from .data import N_BLOCKS, RecData, unscored_note
@@ -52,7 +52,7 @@ def beyond_range_notes(model: Any, data: Sequence[RecData], margin: float = 0.02
     only extrapolates (`EffectSelector` documents both). A 13 um miss on a piezo run at 0..150 V
     against a model identified at -75..75 V otherwise came with no word on why."""
     lo, hi = (float(v) for v in model.drive_range)
-    unit = model.drive_name.rsplit("_", 1)[-1]
+    unit = drive_unit(model.drive_name)
     notes = []
     for d in data:
         outside = outside_range(d.u, (lo, hi), margin)

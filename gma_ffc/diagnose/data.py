@@ -19,6 +19,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ..drive import drive_unit
 from ..effects.base import time_steps
 from ..errors import InputError
 from ..recordings import Recording
@@ -136,7 +137,7 @@ def whole_range_advice(rec: Recording, drive_range: tuple[float, float]) -> str:
     """What to record when a run starts in a state no history inside the drive range leaves (a
     demagnetised rod: the measurement fits it better than the nearest such state) and its drive
     never swings far enough to forget it: the model's whole range once, which sets every play."""
-    unit = rec.drive_name.rsplit("_", 1)[-1]
+    unit = drive_unit(rec.drive_name)
     lo, hi = (float(v) for v in drive_range)
     return (f"it starts in a state that no history inside the drive range leaves (a demagnetised rod, or one "
             f"driven beyond the range: the measurement shows it), and its drive ({float(np.min(rec.drive)):.3g} to "

@@ -215,9 +215,10 @@ class EffectSelector:
         testable, reasons, cannot = set(), {}, []
         for cls in effect_registry.candidates():
             ok, why = cls.testable(fitter)
+            loops_untested = problem.slow_only and not cls.slow     # a step test's loop effects: one note, from checks
             if problem.too_little:
                 ok, why = False, why or "too little data"
-            elif problem.slow_only and not cls.slow:
+            elif loops_untested:
                 ok, why = False, "too few drive reversals to test it: see the note on them for the recording that would"
             elif ok and cls.slow and fitter.duration_max < self.slow_duration_s:
                 why = (f"the longest recording lasts {fitter.duration_max:.3g} s: slow effects "
@@ -225,8 +226,8 @@ class EffectSelector:
                        "a run of several minutes with drive on/off phases would decide")
             if ok:
                 testable.add(cls.name)
-            elif why and not problem.too_little and not (problem.slow_only and not cls.slow):
-                cannot.append(f"{cls.name}: {why}")     # (the loop effects of a step test: one note, from checks)
+            elif why and not problem.too_little and not loops_untested:
+                cannot.append(f"{cls.name}: {why}")
             reasons[cls.name] = why
         loo = fitter_loo(problem, problem.null.fit.specs[2])
         return Selection(problem.null.fit, frozenset(testable), reasons, cannot=tuple(cannot), leave_one_out=loo,
