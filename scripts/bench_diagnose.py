@@ -58,8 +58,8 @@ sys.path.insert(0, str(ROOT))      # benchmarks/ is a checkout folder, not part 
 from gma_ffc.diagnose.engine import diagnose
 from gma_ffc.initial_state import settled_index
 from benchmarks.cases import (FS, LABELS, Case, cases, holdout_cases, make_case,  # noqa: F401  (re-exported)
-                               OTHER_PLANTS_HOLDOUT_SEED, case_recordings, other_plant_cases, rising_cases,
-                               rising_holdout_cases, sdp_variant_cases)
+                               OTHER_PLANTS_HOLDOUT_SEED, SHORT_FAST_S, SHORT_SLOW_S, case_recordings, other_plant_cases, rising_cases,
+                               rising_holdout_cases, sdp_variant_cases, short_runs)
 from benchmarks.general import (GENERAL_EIGHTH_SEED, GENERAL_FIFTH_SEED, GENERAL_FOURTH_SEED,  # noqa: E402
                                 GENERAL_FRESH_SEED, GENERAL_HOLDOUT_SEED, GENERAL_NINTH_SEED, GENERAL_SEVENTH_SEED,
                                 GENERAL_SIXTH_SEED, GENERAL_TENTH_SEED, GENERAL_ELEVENTH_SEED,
@@ -86,15 +86,15 @@ PROBE_GAIN_MEDIAN = 3.0      # the median effect case
 PROBE_GAIN_RESONANCE = 3.0   # every case with a resonance
 
 
-def run_case(case: Case, ident: bool = False, probes: bool = True) -> dict[str, Any]:
+def run_case(case: Case, ident: bool = False, probes: bool = True, short: bool = False) -> dict[str, Any]:
     model, ident_recs, rec = case_recordings(case)
-    t = rec.time_s
+    recs = short_runs(rec) if short else [rec]
     t0 = time.perf_counter()
-    dg = diagnose(model, [rec], identification=ident_recs if ident else ())
+    dg = diagnose(model, recs, identification=ident_recs if ident else ())
     elapsed = time.perf_counter() - t0
     out = {"case": case.name, "truth": case.truth, "verdict": tuple(dg.verdict), "outcome": dg.outcome,
            "before": dg.rms_before_um, "after": dg.rms_after_um, "noise": dg.noise_um, "seconds": elapsed,
-           "samples": t.size, "conclusive": dg.conclusive,
+           "samples": sum(r.time_s.size for r in recs), "conclusive": dg.conclusive,
            "scored": sum(d.n_scored for d in dg.data)}
     twin = None if not case.truth or "saturation" in case.truth else case_recordings(case, effect_free=True)
     out["floor"] = effect_free_floor(twin)
@@ -148,7 +148,13 @@ def main(argv: list[str] | None = None) -> int:
                     help="give diagnose the identification recordings (--ident); always on for the general sets")
     ap.add_argument("--no-probes", action="store_true",
                     help="skip the probes (other loads, rates and drive shapes diagnose never saw)")
+    ap.add_argument("--short", action="store_true",
+                    help="diagnose two short runs cut from each case's recording instead of the whole of it: "
+                         f"{SHORT_SLOW_S:g} s of its slow sine and {SHORT_FAST_S:g} s of its faster one "
+                         "(mixed-drive sets only; heating, and a play that changes with load, need more)")
     args = ap.parse_args(argv)
+    if args.short and args.set.startswith("rising"):
+        ap.error("--short cuts the mixed drive's sines; the rising family has none (choose another --set)")
     sets = {"tuned": [("development cases (thresholds were developed on these)", cases())],
             "holdout": [("never-tuned set (seed fixed in advance; quoted apart)", holdout_cases())],
             "sdp-variants": [("stress-dependent play variants (development; quoted apart)", sdp_variant_cases())],
@@ -175,16 +181,17 @@ def main(argv: list[str] | None = None) -> int:
             todo = [c for c in todo if c.name.split(":")[-1].startswith(pre)]
         if todo:
             print(f"\n=== {title}: {len(todo)} cases ===")
-            ok &= summarise(todo, ident=args.ident or args.set.startswith("general"), probes=not args.no_probes)
+            ok &= summarise(todo, ident=args.ident or args.set.startswith("general"), probes=not args.no_probes,
+                            short=args.short)
     return 0 if ok else 1
 
 
-def summarise(todo: list[Case], ident: bool = False, probes: bool = True) -> bool:
+def summarise(todo: list[Case], ident: bool = False, probes: bool = True, short: bool = False) -> bool:
     results = []
     print(f"{'case':<34} {'truth':<40} {'verdict':<40} {'outcome':<14} {'RMS before':>10} {'after':>8} {'floor':>8} "
           f"{'scored':>6} {'ok':>3} {'s':>5}" + (f" {'probes before':>13} {'after':>8} {'gain':>6} {'floor':>8}" if probes else ""))
     for case in todo:
-        r = run_case(case, ident, probes)
+        r = run_case(case, ident, probes, short)
         r["ok"] = set(r["verdict"]) == set(r["truth"])
         results.append(r)
         line = (f"{r['case']:<34} {','.join(r['truth']) or '-':<40} {','.join(r['verdict']) or '-':<40} "
