@@ -5,7 +5,7 @@ it to rounding."""
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from gma_ffc.diagnose import lsq_kernels as LK
@@ -27,6 +27,7 @@ def a_design(seed: int, rows: int, cols: int, layout: str) -> tuple[np.ndarray, 
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2 ** 32 - 1), rows=st.integers(1, 400), cols=st.integers(1, 12),
        layout=st.sampled_from(["F", "C", "fold"]))
+@example(seed=33, rows=33, cols=1, layout="fold")    # drawn in a full run on 2026-11-30: b off by 5e-12 of itself
 def test_weighted_normal_equations_are_numpys(seed, rows, cols, layout):
     X, y = a_design(seed, rows, cols, layout)
     rng = np.random.default_rng(seed + 1)
@@ -38,7 +39,10 @@ def test_weighted_normal_equations_are_numpys(seed, rows, cols, layout):
     G_np, b_np = (Xs * w[:, None]).T @ Xs, (Xs * w[:, None]).T @ y
     assert np.array_equal(G, G.T)
     np.testing.assert_allclose(G, G_np, rtol=1e-12, atol=1e-12 * np.abs(G_np).max())
-    np.testing.assert_allclose(b, b_np, rtol=1e-12, atol=1e-12 * np.abs(b_np).max() + 1e-300)
+    # each b_j is a sum whose terms (a Cauchy target's outliers) may cancel: its rounding is bounded by
+    # the sum of the terms' sizes, not by the result (seed 33, 33 rows: b = -3.5e-4, off by 1.8e-15)
+    terms = np.abs(Xs * w[:, None]).T @ np.abs(y)
+    assert np.all(np.abs(b - b_np) <= 1e-12 * terms + 1e-300), (b, b_np, terms)
 
 
 @settings(max_examples=60, deadline=None)
