@@ -44,3 +44,5 @@ def test_two_short_runs_of_a_creeping_actuator_are_not_called_heating():
     assert "thermal_drift" not in dg.verdict
     heating = next(c for c in dg.candidates if c.effect == "thermal_drift")
     assert "fastest time constant heating may have" in heating.reason
+    # and the user is told what would decide (the whole recording, 39 s with on/off phases, names creep)
+    assert any("slow effects (heating, creep)" in c and "several minutes" in c for c in dg.cannot_conclude)

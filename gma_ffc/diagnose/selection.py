@@ -213,6 +213,9 @@ class EffectSelector:
         """The selection before any round: the null model, and which effects the data can test."""
         fitter = problem.fitter
         testable, reasons, cannot = set(), {}, []
+        short_for_slow = (f"the longest recording lasts {fitter.duration_max:.3g} s: slow effects (heating, creep) "
+                          "with time constants beyond it are hard to separate; a run of several minutes with drive "
+                          "on/off phases would decide") if fitter.duration_max < self.slow_duration_s else ""
         for cls in effect_registry.candidates():
             ok, why = cls.testable(fitter)
             loops_untested = problem.slow_only and not cls.slow     # a step test's loop effects: one note, from checks
@@ -220,15 +223,15 @@ class EffectSelector:
                 ok, why = False, why or "too little data"
             elif loops_untested:
                 ok, why = False, "too few drive reversals to test it: see the note on them for the recording that would"
-            elif ok and cls.slow and fitter.duration_max < self.slow_duration_s:
-                why = (f"the longest recording lasts {fitter.duration_max:.3g} s: slow effects "
-                       "(heating, creep) with time constants beyond it are hard to separate; "
-                       "a run of several minutes with drive on/off phases would decide")
+            elif ok and cls.slow and short_for_slow:
+                why = short_for_slow
             if ok:
                 testable.add(cls.name)
             elif why and not problem.too_little and not loops_untested:
                 cannot.append(f"{cls.name}: {why}")
             reasons[cls.name] = why
+        if short_for_slow and any(REGISTRY[name].slow for name in testable):
+            cannot.append(short_for_slow)        # once, for both: the caveat holds whether or not one is named
         loo = fitter_loo(problem, problem.null.fit.specs[2])
         return Selection(problem.null.fit, frozenset(testable), reasons, cannot=tuple(cannot), leave_one_out=loo,
                          null_leave_one_out=loo)
