@@ -397,7 +397,8 @@ def _variant(rec: Recording, case: Case) -> Recording:
 
 
 SHORT_SLOW_S = 2.0      # of the mixed drive's first sine (3-5 Hz): 6-10 cycles
-SHORT_FAST_S = 0.8      # of its second (15-25 Hz, from 8 s): 12-20 cycles; together 36 reversals or more, over diagnose's 32
+SHORT_FAST_S = 0.8      # of its second (15-25 Hz, from 8 s): 12-20 cycles; 36 reversals or more in all, over
+                        # diagnose's floor of 32
 FAST_SINE_AT_S = 8.0    # where `diagnosis_drive`'s second sine starts (at scale 1)
 
 
@@ -406,8 +407,9 @@ def short_runs(rec: Recording) -> list[Recording]:
     slow sine and a fraction of a second of its faster one, each a recording of its own (two
     frequencies: at one, a lag fits any phase-like class error, tests/test_diagnose_trust.py)."""
     t0 = float(rec.time_s[0])
+    spans = (("slow.csv", t0, t0 + SHORT_SLOW_S), ("fast.csv", FAST_SINE_AT_S, FAST_SINE_AT_S + SHORT_FAST_S))
     out = []
-    for name, a, b in (("slow.csv", t0, t0 + SHORT_SLOW_S), ("fast.csv", FAST_SINE_AT_S, FAST_SINE_AT_S + SHORT_FAST_S)):
+    for name, a, b in spans:
         keep = (rec.time_s >= a) & (rec.time_s < b)
         out.append(Recording({k: v[keep] for k, v in rec.columns.items()}, dict(rec.metadata), name))
     return out

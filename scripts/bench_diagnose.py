@@ -18,6 +18,7 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set holdout  # the never-tuned set, quoted apart
     .venv/bin/python scripts/bench_diagnose.py --set all      # both, each summarised on its own
     .venv/bin/python scripts/bench_diagnose.py --set sdp-variants  # stress-dependent play on six more recordings
+    .venv/bin/python scripts/bench_diagnose.py --set holdout --short  # each case as two short runs
     .venv/bin/python scripts/bench_diagnose.py --set rising   # amplitude growing from the drive's minimum
     .venv/bin/python scripts/bench_diagnose.py --set rising-holdout  # the same family, never tuned
     .venv/bin/python scripts/bench_diagnose.py --set general   # generalisation (development), with --ident
@@ -58,8 +59,8 @@ sys.path.insert(0, str(ROOT))      # benchmarks/ is a checkout folder, not part 
 from gma_ffc.diagnose.engine import diagnose
 from gma_ffc.initial_state import settled_index
 from benchmarks.cases import (FS, LABELS, Case, cases, holdout_cases, make_case,  # noqa: F401  (re-exported)
-                               OTHER_PLANTS_HOLDOUT_SEED, SHORT_FAST_S, SHORT_SLOW_S, case_recordings, other_plant_cases, rising_cases,
-                               rising_holdout_cases, sdp_variant_cases, short_runs)
+                               OTHER_PLANTS_HOLDOUT_SEED, SHORT_FAST_S, SHORT_SLOW_S, case_recordings,
+                               other_plant_cases, rising_cases, rising_holdout_cases, sdp_variant_cases, short_runs)
 from benchmarks.general import (GENERAL_EIGHTH_SEED, GENERAL_FIFTH_SEED, GENERAL_FOURTH_SEED,  # noqa: E402
                                 GENERAL_FRESH_SEED, GENERAL_HOLDOUT_SEED, GENERAL_NINTH_SEED, GENERAL_SEVENTH_SEED,
                                 GENERAL_SIXTH_SEED, GENERAL_TENTH_SEED, GENERAL_ELEVENTH_SEED,
