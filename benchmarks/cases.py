@@ -380,7 +380,7 @@ def case_recordings(case: Case, scale: float = 1.0,
     rec = _variant(record(cfg, t, i, mass, "recording.csv", case.seed, preconditioned=rising), case)
     if case.start_s > 0:
         keep = rec.time_s >= rec.time_s[0] + case.start_s
-        rec = Recording({k: v[keep] for k, v in rec.columns.items()}, dict(rec.metadata), rec.name)
+        rec = rec.rows(keep, rec.name)
     if case.voltage:
         ident_recs = [_variant(r, dataclasses.replace(case, falling=False)) for r in ident_recs]
     return model, ident_recs, rec
@@ -408,8 +408,4 @@ def short_runs(rec: Recording) -> list[Recording]:
     frequencies: at one, a lag fits any phase-like class error, tests/test_diagnose_trust.py)."""
     t0 = float(rec.time_s[0])
     spans = (("slow.csv", t0, t0 + SHORT_SLOW_S), ("fast.csv", FAST_SINE_AT_S, FAST_SINE_AT_S + SHORT_FAST_S))
-    out = []
-    for name, a, b in spans:
-        keep = (rec.time_s >= a) & (rec.time_s < b)
-        out.append(Recording({k: v[keep] for k, v in rec.columns.items()}, dict(rec.metadata), name))
-    return out
+    return [rec.rows((rec.time_s >= a) & (rec.time_s < b), name) for name, a, b in spans]

@@ -95,6 +95,12 @@ class Recording:
         """Median sample period (sampling need not be uniform)."""
         return float(np.median(np.diff(self.time_s))) if len(self) > 1 else float("nan")
 
+    def rows(self, keep: np.ndarray, source: str | None = None) -> "Recording":
+        """A copy of the samples where `keep` is True (a window of a run, a stretch cut out), named
+        `source` (default: this recording's own)."""
+        return Recording({k: v[keep] for k, v in self.columns.items()}, dict(self.metadata),
+                         self.source if source is None else source)
+
     def with_column(self, name: str, values: np.ndarray) -> "Recording":
         """A copy with one column added or replaced (for predictions and drives)."""
         cols = dict(self.columns)

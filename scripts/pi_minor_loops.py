@@ -52,7 +52,7 @@ def other_shape_probe(case) -> tuple[Recording, np.ndarray]:
 
 def two_tone(case) -> Recording:
     probe, keep = other_shape_probe(case)
-    return Recording({k: v[keep] for k, v in probe.columns.items()}, dict(probe.metadata), "two_tone")
+    return probe.rows(keep, "two_tone")
 
 
 def relay_states(drive: np.ndarray, levels: int) -> np.ndarray:

@@ -17,7 +17,7 @@ CASES = {c.name: c for c in bench.cases()}
 
 def window(rec: Recording, a: float, b: float = np.inf, name: str = "") -> Recording:
     keep = (rec.time_s >= a) & (rec.time_s < b)
-    return Recording({k: v[keep] for k, v in rec.columns.items()}, dict(rec.metadata), name or f"from_{a:g}s")
+    return rec.rows(keep, name or f"from_{a:g}s")
 
 
 @pytest.mark.parametrize("start_s", [0.0, 1.5, 3.4, 3.73, 4.4])

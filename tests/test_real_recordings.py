@@ -24,7 +24,7 @@ from test_inverse import drive_from_rng, histories, sdpi_from_rng, sdpi_models
 
 def cut(rec: Recording, a: float, b: float = np.inf, name: str | None = None) -> Recording:
     keep = (rec.time_s >= a) & (rec.time_s < b)
-    return Recording({k: v[keep] for k, v in rec.columns.items()}, dict(rec.metadata), name or f"cut_{a:g}")
+    return rec.rows(keep, name or f"cut_{a:g}")
 
 
 # ---- the measured piezo recording: simulate over the whole of any window -----------------------

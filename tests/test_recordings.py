@@ -133,3 +133,14 @@ def test_a_micro_sign_in_a_unit_is_answered_with_its_ascii_name(tmp_path: Path, 
     path.write_text(f"time_s,current_A,displacement_{mu}m\n0,0,0\n0.001,0.1,1\n", encoding="utf-8")
     with pytest.raises(RecordingError, match=f"column 'displacement_{mu}m' has no unit \\(did you mean 'displacement_um'\\?\\)"):
         read_recording(path)
+
+
+def test_rows_keeps_every_column_and_the_metadata_of_the_samples_kept() -> None:
+    t = np.arange(10) * 0.1
+    rec = Recording({"time_s": t, "current_A": t * 2, "displacement_um": t * 3}, {"load_kg": 12.0}, "/data/run.csv")
+    keep = (t >= 0.25) & (t < 0.75)
+    part = rec.rows(keep, "part.csv")
+    assert part.name == "part.csv" and part.metadata == {"load_kg": 12.0} and part.metadata is not rec.metadata
+    assert set(part.columns) == set(rec.columns)
+    assert np.array_equal(part.time_s, t[keep]) and np.array_equal(part.drive, 2 * t[keep])
+    assert rec.rows(keep).source == "/data/run.csv"
