@@ -1,5 +1,5 @@
 """A step test (drive levels held 12 s each, hil_sim's `steps` kind), the classic creep and heating
-experiment, has two drive reversals. diagnose asked for 32 and concluded nothing, even with 2 um
+experiment, has few drive reversals (three here). diagnose asked for 32 and concluded nothing, even with 2 um
 of drift against a 0.02 um noise floor. Its holds now let it test the slow effects (heating,
 creep) while the loop effects stay untested, and it says so. On a rig with neither, nothing is
 named."""
