@@ -28,6 +28,8 @@ looked at and fixed, so GENERAL_TENTH_SEED draws a ninth. A delay under half a s
 lag or a resonance was then left unnamed (the samples' own timing, found on the development
 draws), so GENERAL_ELEVENTH_SEED draws a tenth. Its heating-with-creep miss (a recalibration
 that did not carry to other loads) was then looked at and fixed, so GENERAL_TWELFTH_SEED draws an eleventh.
+Heating fitted at the search's fastest time constant was then refused as a look-alike (found on the
+short runs of a development case), so GENERAL_THIRTEENTH_SEED draws a twelfth.
 """
 
 from __future__ import annotations
@@ -65,6 +67,9 @@ GENERAL_ELEVENTH_SEED = 20261209  # a tenth never-tuned draw (2026-11-28, ninth 
 GENERAL_TWELFTH_SEED = 20261229   # an eleventh never-tuned draw (2026-11-29, branch recal-carry): after the
                                   # recalibration's curvature and stress gain were kept only where they carry
                                   # to a stress level left out; fixed and committed before its first run
+GENERAL_THIRTEENTH_SEED = 20261230  # a twelfth never-tuned draw (2026-11-30, twenty-first session): after heating
+                                    # at the fastest time constant searched was refused as a look-alike (found
+                                    # on a development case's short runs); fixed and committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
