@@ -55,6 +55,11 @@ def drive_unit(drive_name: str) -> str:
     return drive_name.rsplit("_", 1)[-1]
 
 
+def drive_quantity(drive_name: str) -> str:
+    """What a drive column measures, its unit taken off (`voltage_V` -> `voltage`)."""
+    return drive_name.rsplit("_", 1)[0]
+
+
 HOLD_BAND = 0.02
 """A drive that stays within this share of its span holds: well above a current or voltage
 sensor's noise over a drive's whole span, well below a step of a step test."""

@@ -8,7 +8,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .atomic import atomic_write
-from .drive import drive_unit
+from .drive import drive_quantity, drive_unit
 from .errors import InputError
 from .identify import burn_in_end
 from .protocols import Model
@@ -70,7 +70,7 @@ def plot_loops(model: Model, recordings: Sequence[Recording], path: str | Path |
         title = rec.name if rec.stress_MPa is None else f"{np.median(rec.stress_MPa):.4g} MPa"
         ax.set_title(f"{title}  (RMS {err:.3f} um)", fontsize=9)
         unit = drive_unit(rec.drive_name)
-        ax.set_xlabel(f"{rec.drive_name.rsplit('_', 1)[0]} ({unit})")
+        ax.set_xlabel(f"{drive_quantity(rec.drive_name)} ({unit})")
         ax.set_ylabel("displacement (um)")
         ax.grid(alpha=0.3)
         axr.plot(rec.time_s, measured - pred, lw=0.7, color="tab:red")
