@@ -37,6 +37,21 @@ _UNITLESS_HINTS = {
 _NAME_WITH_UNIT = re.compile(r"^[A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)*_[A-Za-z%]+[A-Za-z0-9]*$")
 
 
+
+DEFAULT_TIME_STEP_S = 1e-3   # a time's resolution when none is known: a millisecond, finer than any window quoted
+
+
+def time_text(t_s: float, step_s: float) -> str:
+    """A recording's time as text, to `step_s` (a sample period, a window's hundredth): fixed point,
+    so that a logger's absolute timestamps (1.7e9 s) keep the digits that tell two times apart,
+    where a number of significant digits would print both as 1.7e+09."""
+    if not math.isfinite(step_s) or step_s <= 0:
+        step_s = DEFAULT_TIME_STEP_S
+    # a step a hair under a power of ten is that power (a period of 0.01 s differenced from timestamps
+    # near 1.7e9 s comes out 0.00999999): allow 0.1 % in the logarithm
+    decimals = min(9, max(0, math.ceil(-math.log10(step_s) - 1e-3)))
+    return f"{t_s:.{decimals}f}"
+
 @dataclass
 class Recording:
     """One experiment: columns of equal length keyed by their unit-bearing names, plus metadata."""
@@ -95,6 +110,10 @@ class Recording:
         """Median sample period (sampling need not be uniform)."""
         return float(np.median(np.diff(self.time_s))) if len(self) > 1 else float("nan")
 
+    def time_text(self, index: int) -> str:
+        """Sample `index`'s time as text, to the sample period (`time_text`)."""
+        return time_text(float(self.time_s[index]), self.sample_period_s)
+
     def rows(self, keep: np.ndarray, source: str | None = None) -> "Recording":
         """A copy of the samples where `keep` is True (a window of a run, a stretch cut out), named
         `source` (default: this recording's own)."""
@@ -151,7 +170,7 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
         row = int(np.argmax(steps <= 0)) + 1
         raise RecordingError(
             f"{src}, line {header_line + 1 + row}: time does not increase "
-            f"({rec.time_s[row - 1]:.9g} s then {rec.time_s[row]:.9g} s)")
+            f"({time_text(float(rec.time_s[row - 1]), 1e-9)} s then {time_text(float(rec.time_s[row]), 1e-9)} s)")
     return rec
 
 
@@ -214,7 +233,8 @@ def gap_note(rec: Recording) -> str | None:
     if not gaps:
         return None
     start, length = max(gaps, key=lambda g: g[1])
-    return (f"{rec.source}: {len(gaps)} gap(s) in time_s, the longest {length:.4g} s at t = {start:.6g} s "
+    return (f"{rec.source}: {len(gaps)} gap(s) in time_s, the longest {length:.4g} s at t = "
+            f"{time_text(start, rec.sample_period_s)} s "
             f"({length / rec.sample_period_s:.0f} sample steps): each is bridged as if the drive moved in a straight line, so "
             "what happened there is not in the fit; check the logger if the gaps were not intended")
 

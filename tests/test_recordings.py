@@ -144,3 +144,27 @@ def test_rows_keeps_every_column_and_the_metadata_of_the_samples_kept() -> None:
     assert set(part.columns) == set(rec.columns)
     assert np.array_equal(part.time_s, t[keep]) and np.array_equal(part.drive, 2 * t[keep])
     assert rec.rows(keep).source == "/data/run.csv"
+
+
+# ---- times as text: a logger's absolute timestamps keep their digits
+from hypothesis import given, strategies as st  # noqa: E402
+
+from gma_ffc.recordings import gap_note, time_text  # noqa: E402
+
+
+@given(st.floats(0.0, 2e9), st.floats(1e-6, 10.0))
+def test_a_time_as_text_reads_back_to_within_half_its_step(t, step):
+    assert abs(float(time_text(t, step)) - t) <= step / 2 * 1.003 + 1e-15 * t   # 0.1 % in the log: time_text
+
+
+def test_two_samples_of_an_absolute_timestamp_read_apart():
+    """Significant digits printed 1.7e+09 for both ends of a located window."""
+    t0 = 1_700_000_000.0
+    assert time_text(t0, 5e-4) != time_text(t0 + 5e-4, 5e-4)
+    assert time_text(33.6234, 0.042) == "33.62"        # a window's ends, as before, on a recording from zero
+
+
+def test_a_gap_in_a_timestamped_recording_is_placed_to_the_sample():
+    t = 1_700_000_000.0 + np.r_[np.arange(0, 10, 0.01), np.arange(12, 20, 0.01)]
+    rec = Recording({"time_s": t, "current_A": np.zeros(t.size), "displacement_um": np.zeros(t.size)}, {}, "log.csv")
+    assert "at t = 1700000009.99 s" in gap_note(rec)

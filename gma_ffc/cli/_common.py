@@ -145,7 +145,7 @@ def beyond_drive_range(model: Model, rec: Recording) -> str | None:
     where = np.flatnonzero(outside)
     return (f"{rec.source}: the drive ({float(rec.drive.min()):.4g}..{float(rec.drive.max()):.4g} {unit}) leaves the "
             f"range the model was identified on ({lo:.4g}..{hi:.4g} {unit}) at {where.size} of {len(rec)} samples, "
-            f"first at t = {rec.time_s[where[0]]:.6g} s: the prediction there is an extrapolation; identify the "
+            f"first at t = {rec.time_text(where[0])} s: the prediction there is an extrapolation; identify the "
             "model from recordings over the whole drive range used")
 
 

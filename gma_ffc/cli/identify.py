@@ -9,6 +9,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..modelio import save_model
 from ..progress import Progress
+from ..recordings import DEFAULT_TIME_STEP_S, time_text
 from ._common import add_group_option, finite_float, note_gaps, read_all, refuse_repeats
 
 HELP = """\
@@ -114,11 +115,12 @@ def run(args: argparse.Namespace) -> int:
     rng = "" if model.stress_range_MPa is None else \
         f", stress {model.stress_range_MPa[0]:.4g}..{model.stress_range_MPa[1]:.4g} MPa"
     print(f"{model.kind.upper()} model, {model.n_play} plays, {model.n_deadzone} dead-zones{rng} -> {args.output}")
-    print(f"{'recording':<32} {'stress MPa':>10} {'RMS um':>9} {'% stroke':>9} {'max um':>9} {'at s':>9}")
-    for f in ident.report_:
+    at = ["-" if f.max_at_s is None else time_text(f.max_at_s, DEFAULT_TIME_STEP_S) for f in ident.report_]
+    w = max([9] + [len(a) for a in at])          # a logger's absolute timestamps are wider than 9
+    print(f"{'recording':<32} {'stress MPa':>10} {'RMS um':>9} {'% stroke':>9} {'max um':>9} {'at s':>{w}}")
+    for f, a in zip(ident.report_, at):
         stress = "-" if f.stress_MPa is None else f"{f.stress_MPa:.4g}"
-        at = "-" if f.max_at_s is None else f"{f.max_at_s:.4g}"
-        print(f"{f.name[:32]:<32} {stress:>10} {f.rms_um:>9.4f} {f.rms_pct_stroke:>9.3f} {f.max_abs_um:>9.4f} {at:>9}")
+        print(f"{f.name[:32]:<32} {stress:>10} {f.rms_um:>9.4f} {f.rms_pct_stroke:>9.3f} {f.max_abs_um:>9.4f} {a:>{w}}")
     if args.plot:
         print(f"loops plotted to {args.plot}")
     return 0

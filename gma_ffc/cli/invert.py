@@ -69,8 +69,8 @@ def run(args: argparse.Namespace) -> int:
             where = np.flatnonzero(clipped)
             clipped_note = (f"warning: --limit clipped {where.size} of {len(drive)} samples "
                             f"({100 * where.size / len(drive):.1f} %; {np.count_nonzero(drive < lo)} below {lo:g}, "
-                            f"{np.count_nonzero(drive > hi)} above {hi:g}), first at t = {rec.time_s[where[0]]:.6g} s, "
-                            f"last at t = {rec.time_s[where[-1]]:.6g} s: the actuator will not follow the "
+                            f"{np.count_nonzero(drive > hi)} above {hi:g}), first at t = {rec.time_text(where[0])} s, "
+                            f"last at t = {rec.time_text(where[-1])} s: the actuator will not follow the "
                             "reference there")
         drive = np.clip(drive, lo, hi)
     name = model.drive_name
@@ -106,9 +106,9 @@ def _refuse_a_diverged_inverse(drive: np.ndarray, rec: Recording, model: Any) ->
     inside = np.isfinite(drive[:k]) & (drive[:k] >= lo) & (drive[:k] <= hi)
     start = int(np.flatnonzero(inside)[-1]) + 1 if inside.any() else 0
     ref = rec.columns["reference_um"]
-    raise InputError(f"{rec.source}: the inverse runs away from t = {rec.time_s[start]:.6g} s (reference "
+    raise InputError(f"{rec.source}: the inverse runs away from t = {rec.time_text(start)} s (reference "
                      f"{ref[start]:.4g} um; the drive leaves the identified range {lo:.4g}..{hi:.4g} there and is not "
-                     f"finite from t = {rec.time_s[k]:.6g} s): the model cannot follow that reference; "
+                     f"finite from t = {rec.time_text(k)} s): the model cannot follow that reference; "
                      f"{_reach_advice(model, rec)}")
 
 

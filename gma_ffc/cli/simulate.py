@@ -99,7 +99,7 @@ def _fit_words(rec: Recording, pred: np.ndarray, start: Any) -> str:
     words = f" (RMS vs measured {rms(err):.4f} um"
     if 0 < start.settled_index < len(rec):
         words += f"; {rms(err[start.settled_index:]):.4f} um once the initial state is forgotten, " \
-                 f"from t = {rec.time_s[start.settled_index]:.4g} s"
+                 f"from t = {rec.time_text(start.settled_index)} s"
     return words + ")"
 
 

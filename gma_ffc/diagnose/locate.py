@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..effects import kernels as K
+from ..recordings import time_text
 from .data import RecData, noise_floor
 from .jumps import Jumps, jump_words
 from .lines import Line, line_words, spectral_line
@@ -143,7 +144,9 @@ def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows
         if fin.sum() > 10:
             cond["after_steps"] = _corr(size[fin], -np.log(since[fin] + d.dt_med))
     band_txt = (f"{band[0]:g}-{band[1]:g} Hz" if np.isfinite(band[1]) else f"above {band[0]:g} Hz")
-    where = f"t = {win[0]:.4g}-{win[1]:.4g} s ({ratio:.1f}x the median window); {shares[b]:.0%} of its power at {band_txt}"
+    step = max((win[1] - win[0]) / 100, d.dt_med)      # a hundredth of the window: its ends to about 1 %
+    where = (f"t = {time_text(win[0], step)}-{time_text(win[1], step)} s ({ratio:.1f}x the median window); "
+             f"{shares[b]:.0%} of its power at {band_txt}")
     if not d.n_scored:
         where += "; none of it is scored (the start-up transient may be all this is)"
     line = spectral_line(residual, d.u, d.dt_med)
