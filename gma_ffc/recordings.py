@@ -289,7 +289,7 @@ def _metadata_and_header(lines: list[str], source: str) -> tuple[list[tuple[int,
 def read_csv(path: Path, require: Sequence[str]) -> Recording:
     """A CSV recording: Arrow's multi-threaded C++ parser for the rows, this module's checks and
     messages for everything else. Spreadsheet exports are understood: a UTF-8 byte-order mark is
-    dropped, and a ';'-separated file with decimal commas is read as such."""
+    dropped, and a ';'- or tab-separated file, with decimal commas or points, is read as such."""
     source = str(path)
     lines = _head_lines(path, source)
     meta_lines, header_idx = _metadata_and_header(lines, source)
@@ -371,9 +371,11 @@ def _arrow_buffer(data: bytes) -> Any:
 
 
 def _dialect(header: str, first_row: str) -> tuple[str, str]:
-    """(delimiter, decimal mark): ',' and '.', or a spreadsheet's ';' and ',' (European locale)."""
-    if ";" in header and "," not in header:
-        return ";", ("," if "," in first_row else ".")
+    """(delimiter, decimal mark): ',' and '.'; a spreadsheet's ';' (decimal commas in a European
+    locale); or tabs, LabVIEW's spreadsheet files (decimal commas too, in that locale)."""
+    for delimiter in (";", "\t"):
+        if delimiter in header and "," not in header:
+            return delimiter, ("," if "," in first_row else ".")
     return ",", "."
 
 

@@ -1,6 +1,6 @@
 """The formats labs have (issue 11): TDMS and HDF5 written by their own libraries, a
-spreadsheet CSV with a byte-order mark, and a ';'-separated one with decimal commas all give the
-same recording as the plain CSV; bad files get one clear message."""
+spreadsheet CSV with a byte-order mark, a ';'-separated one with decimal commas and LabVIEW's
+tab-separated text all give the same recording as the plain CSV; bad files get one clear message."""
 
 from __future__ import annotations
 
@@ -94,6 +94,16 @@ def test_spreadsheet_csvs_bom_and_semicolon_with_decimal_commas(tmp_path, plain)
     semi = "\n".join(line.replace(",", ";").replace(".", ",") for line in body) + "\n"
     (tmp_path / "semi.csv").write_bytes(b"\xef\xbb\xbf" + semi.encode())
     same(read_recording(tmp_path / "semi.csv"), plain)
+
+
+@pytest.mark.parametrize("decimal", [".", ","])
+def test_labview_tab_separated_text_with_decimal_points_or_commas(tmp_path, plain, decimal):
+    """LabVIEW's spreadsheet files separate cells by tabs (decimal commas in a European locale);
+    read as commas, the whole header was one column 'with no unit'."""
+    body = [line for line in (tmp_path / "plain.csv").read_text().splitlines() if not line.startswith("#")]
+    tab = "\n".join(line.replace(",", "\t").replace(".", decimal) for line in body) + "\n"
+    (tmp_path / "rig.txt").write_text(tab)
+    same(read_recording(tmp_path / "rig.txt"), plain)
 
 
 def test_bad_files_of_each_format_get_one_clear_message(tmp_path):
