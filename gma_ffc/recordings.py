@@ -35,7 +35,12 @@ _UNITLESS_HINTS = {
     "temperature": "temperature_C", "temp": "temperature_C",
 }
 _NAME_WITH_UNIT = re.compile(r"^[A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)*_[A-Za-z%]+[A-Za-z0-9]*$")
-
+_UNIT_IN_BRACKETS = re.compile(r"^\s*([A-Za-z][A-Za-z0-9 _]*?)\s*[\(\[]\s*([^\)\]\s]+)\s*[\)\]]\s*$")   # 'Time (s)'
+# the units a lab may log a required quantity in, as multiples of the unit gma-ffc reads
+_OTHER_UNITS = {
+    "s": {"ms": 1e-3, "us": 1e-6, "min": 60.0}, "A": {"mA": 1e-3}, "V": {"mV": 1e-3, "kV": 1e3},
+    "um": {"nm": 1e-3, "mm": 1e3, "m": 1e6}, "MPa": {"kPa": 1e-3, "Pa": 1e-6, "GPa": 1e3},
+}
 
 
 DEFAULT_TIME_STEP_S = 1e-3   # a time's resolution when none is known: a millisecond, finer than any window quoted
@@ -134,8 +139,31 @@ def check_column_name(name: str, source: str, line: int) -> None:
     ascii_name = name.replace("\u00b5", "u").replace("\u03bc", "u")      # micro sign, Greek mu: 'um' in ASCII
     if ascii_name != name and _NAME_WITH_UNIT.match(ascii_name):
         hint = ascii_name
+    bracketed = _UNIT_IN_BRACKETS.match(ascii_name)
+    if bracketed:                          # 'Time (s)', 'Displacement [um]': the unit after an underscore
+        want = f"{'_'.join(bracketed.group(1).lower().split())}_{bracketed.group(2)}"
+        raise RecordingError(f"{source}, line {line}: column '{name}': a unit follows an underscore in a column "
+                             f"name; rename it '{want}' (and the other columns likewise)")
     suggestion = f" (did you mean '{hint}'?)" if hint else " (names end in a unit, e.g. time_s, current_A)"
     raise RecordingError(f"{source}, line {line}: column '{name}' has no unit{suggestion}")
+
+
+def rename_advice(found: Iterable[str], wanted: Sequence[str]) -> str:
+    """'' or what to do with a column that is one of `wanted` in another case or another unit
+    ('; Time_s: rename it time_s (names are case-sensitive)', '; time_ms is in ms: ...')."""
+    for have in found:
+        for want in wanted:
+            quantity, unit = want.rsplit("_", 1)
+            if "_" not in have:
+                continue
+            q, u = have.rsplit("_", 1)
+            if have.lower() == want.lower():
+                return f"; {have}: rename it {want} (names are case-sensitive)"
+            factor = _OTHER_UNITS.get(unit, {}).get(u)
+            if q.lower() == quantity and factor is not None:
+                op = f"multiply it by {factor:g}" if factor >= 1 else f"divide it by {1 / factor:g}"
+                return f"; {have} is in {u}, gma-ffc reads {unit}: {op} into a column named {want}"
+    return ""
 
 
 def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEMENT),
@@ -148,10 +176,12 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
             if not any(d in rec.columns for d in DRIVE_COLUMNS):
                 raise RecordingError(
                     f"{src}, line {header_line}: missing drive column: need current_A "
-                    f"(or voltage_V for a voltage-driven actuator); found {', '.join(rec.columns)}")
+                    f"(or voltage_V for a voltage-driven actuator); found {', '.join(rec.columns)}"
+                    f"{rename_advice(rec.columns, DRIVE_COLUMNS)}")
         elif name not in rec.columns:
             raise RecordingError(
-                f"{src}, line {header_line}: missing required column '{name}'; found {', '.join(rec.columns)}")
+                f"{src}, line {header_line}: missing required column '{name}'; found {', '.join(rec.columns)}"
+                f"{rename_advice(rec.columns, [name])}")
     if len(rec) < 2:
         raise RecordingError(f"{src}: needs at least two samples, has {len(rec)}")
     required_cols = [TIME] + [c for c in require if c != "drive" and c != TIME]
@@ -165,6 +195,10 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
                                        "time in the cell")
     if DISPLACEMENT in rec.columns:
         _refuse_a_spike(rec, DISPLACEMENT)
+    else:
+        advice = rename_advice(rec.columns, [DISPLACEMENT])
+        if advice:                   # optional here, so not refused: but the user meant it to be read
+            rec.notes.append(f"{src}: no {DISPLACEMENT} column, so nothing is compared with a measurement{advice}")
     steps = np.diff(rec.time_s)
     if (steps <= 0).any():
         row = int(np.argmax(steps <= 0)) + 1
