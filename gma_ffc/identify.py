@@ -354,6 +354,11 @@ class SDPIIdentifier:
         data = self._prepare(recordings)
         self.output_sign_ = self._orientation(data)
         self._check_loop_direction(data)
+        stresses = [r.stress_MPa for r in recordings if r.stress_MPa is not None]
+        if stresses and all(float(np.min(s)) > 0.0 for s in stresses):
+            self.notes_.append("stress_MPa is positive in every recording, and compression is negative in gma-ffc's "
+                               "recordings (docs/recordings.md): if these are the compressive loads an actuator is "
+                               "held under, negate the column before identifying")
         fast = max(loop_rates_hz(recordings), default=math.nan)
         if fast > FAST_LOOP_HZ:
             self.notes_.append(f"the drive loops at up to {fast:.3g} Hz: eddy currents, a delay or the load's dynamics "

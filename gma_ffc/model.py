@@ -48,6 +48,23 @@ MAX_PLAY_WEIGHT_SUM = float(np.sqrt(np.finfo(float).max)) * 1e-3
 beyond this (1.3e151) would overflow there, with a thousandfold margin for the products after it."""
 
 
+
+SIGN_FLIP_SHARE = 0.5   # the share of readings that, negated, fall in the model's range: most of them, so a
+                        # recording merely at other loads is not told to flip its sign
+
+
+def stress_sign_advice(stress: np.ndarray, stress_range: tuple[float, float]) -> str:
+    """'' or, when the readings negated would mostly lie in `stress_range`, that compression is
+    negative here and how to read a load cell that logs it as positive."""
+    lo, hi = stress_range
+    s = np.asarray(stress, dtype=float)
+    tol = 0.02 * max(hi - lo, 1.0)          # the overlap checks' margin (diagnose.checks)
+    flipped = np.mean((-s >= lo - tol) & (-s <= hi + tol)) if s.size else 0.0
+    if flipped < SIGN_FLIP_SHARE or np.mean((s >= lo - tol) & (s <= hi + tol)) >= SIGN_FLIP_SHARE:
+        return ""
+    return ("the readings negated lie in it: compression is negative in gma-ffc's recordings (docs/recordings.md); "
+            "if the load cell logs compression as positive, negate the stress_MPa column")
+
 @dataclass(eq=False)
 class SDPIModel:
     """y = c(sigma) + sum_j w_sj(sigma) S_{r_sj}[ sum_i w_hi H_{r_hi}[x - x_c] ].
@@ -242,7 +259,7 @@ class SDPIModel:
             beyond = max(lo - float(s.min()), float(s.max()) - hi)
             raise ModelError(
                 f"stress {s.min():.4g}..{s.max():.4g} MPa reaches {beyond:.2g} MPa outside the model's identified "
-                f"range {lo:.4g}..{hi:.4g} MPa; identify with recordings covering it")
+                f"range {lo:.4g}..{hi:.4g} MPa; {stress_sign_advice(s, (lo, hi)) or 'identify with recordings covering it'}")
         return np.ascontiguousarray(np.clip(s, lo, hi))
 
     def forward_state(self, initial_drive: float, play_state: Any = None) -> np.ndarray:

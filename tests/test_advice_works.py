@@ -155,3 +155,27 @@ def test_a_model_diagnosed_on_its_own_identification_recording_is_told_to_give_i
     note = dg.to_json()["identification"]["note"]
     assert note.startswith("id.csv bears the name of one of the model's identification recordings")
     assert "not given" not in note
+
+
+def test_a_load_cell_logging_compression_as_positive_then_the_column_negated():
+    """Compression is negative in recordings; a rig that logs it positive is told to negate the
+    column (not to identify anew), and negated it runs. At other loads it is not told to."""
+    from gma_ffc.errors import ModelError
+    from gma_ffc.model import stress_sign_advice
+
+    recs = []
+    for k, sigma in enumerate((-12.0, -16.0, -20.0)):
+        d = cycles(3.0, 2.0)
+        recs.append(Recording({"time_s": np.arange(d.size) / FS, "current_A": d, "stress_MPa": np.full(d.size, sigma),
+                               "displacement_um": RIG.run(d, sigma)}, {}, f"id{k}.csv"))
+    sdpi = SDPIIdentifier().fit(recs).model_
+    drive = cycles(3.0, 1.0)
+    logged = np.full(drive.size, 15.0)                    # 15 MPa of compression, logged positive
+    with pytest.raises(ModelError, match="negate the stress_MPa column"):
+        sdpi.simulate(None, drive, logged)
+    assert np.all(np.isfinite(sdpi.simulate(None, drive, -logged)))
+    assert stress_sign_advice(np.full(10, -30.0), sdpi.stress_range_MPa) == ""    # another load: no flip advised
+    assert stress_sign_advice(np.full(10, -15.0), sdpi.stress_range_MPa) == ""    # inside: nothing to advise
+    flipped = [Recording({**r.columns, "stress_MPa": -r.columns["stress_MPa"]}, {}, r.source) for r in recs]
+    assert any("negate the column before identifying" in n for n in SDPIIdentifier().fit(flipped).notes_)
+    assert not any("negate the column" in n for n in SDPIIdentifier().fit(recs).notes_)

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..drive import drive_unit, holds, outside_range, reversals
 from ..errors import InputError
+from ..model import stress_sign_advice
 from ..recordings import Recording
 from .data import N_BLOCKS, RecData, unscored_note
 
@@ -41,9 +42,11 @@ def check_overlap(model: Any, recordings: Sequence[Recording], margin: float = 0
             f"cannot conclude anything: the recordings' drive never enters the range the model was identified on "
             f"({lo:.3g}..{hi:.3g}); record inside that range, or identify a model from recordings covering these drives")
     if stress_overlap and max(stress_overlap) < min_overlap:
+        stress = np.concatenate([r.stress_MPa for r in recordings if r.stress_MPa is not None])
         raise InputError(
             f"cannot conclude anything: every recording's stress lies outside the model's range "
-            f"({srange[0]:.3g}..{srange[1]:.3g} MPa); record at loads inside that range, or identify an SDPI that covers these stresses")
+            f"({srange[0]:.3g}..{srange[1]:.3g} MPa); " + (stress_sign_advice(stress, srange) or
+            "record at loads inside that range, or identify an SDPI that covers these stresses"))
 
 
 def beyond_range_notes(model: Any, data: Sequence[RecData], margin: float = 0.02, share: float = 0.01) -> list[str]:
