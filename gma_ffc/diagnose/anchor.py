@@ -93,7 +93,7 @@ def anchor_data(model: Any, dt: float, freq_hz: float | None = None) -> list[Rec
         if srange is not None:
             cols["stress_MPa"] = np.full(n, s)
         recs.append(Recording(cols, {}, f"anchor@{s:.3g}MPa"))
-    out = prepare(recs, model, "relaxed")
+    out = prepare(recs, model, "relaxed", measured=False)
     for d, (_, err) in zip(out, loops):
         d.y = np.asarray(model.simulate(d.t, d.u, d.s if srange is not None else None, initial_state=d.start),
                          dtype=float)

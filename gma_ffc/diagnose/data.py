@@ -25,6 +25,7 @@ from ..errors import InputError
 from ..recordings import Recording
 from ..initial_state import InitialStateSpec
 from ..state_band import admissible_corners, output_band
+from .clipping import clipped_samples
 from .jumps import Jumps
 from .noise import second_difference_sigma
 
@@ -51,20 +52,30 @@ class RecData:
     jumps: Jumps = field(default_factory=Jumps)   # steps of the sensor's zero (`jumps.py`), each fitted as an offset change
     scored: np.ndarray | None = None   # per sample, is it scored (module doc); None: from `settled` on
     never_forgotten: str = ""  # why a start the measurement tells apart is never forgotten, and what to record ('' if not)
+    clipped: np.ndarray | None = None   # per sample, does the sensor sit at the end of its range (`clipping.py`)
 
     def __post_init__(self) -> None:
         if self.scored is None:
             self.scored = np.arange(self.t.size) >= self.settled
 
     @property
-    def mask(self) -> np.ndarray:
-        """The scored samples as a boolean array (never None after construction)."""
+    def state_known(self) -> np.ndarray:
+        """Where the unknown initial state no longer moves the output (never None after construction)."""
         assert self.scored is not None
         return self.scored
 
     @property
+    def mask(self) -> np.ndarray:
+        """The scored samples as a boolean array: the state known, the sensor inside its range."""
+        return self.state_known if self.clipped is None else self.state_known & ~self.clipped
+
+    @property
     def n_scored(self) -> int:
         return int(np.count_nonzero(self.mask))
+
+    @property
+    def n_state_known(self) -> int:
+        return int(np.count_nonzero(self.state_known))
 
     def scored_runs(self) -> list[slice]:
         """The contiguous stretches of scored samples, in order."""
@@ -89,9 +100,12 @@ class RecData:
         return float(self.t[-1] - self.t[0])
 
 
-def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "estimate") -> list[RecData]:
+def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "estimate",
+            measured: bool = True) -> list[RecData]:
     """Arrays per recording; stresses outside the model's range are clamped (and counted). The
-    core's state at each first sample follows `initial_state` (`gma_ffc.initial_state`)."""
+    core's state at each first sample follows `initial_state` (`gma_ffc.initial_state`). A
+    `measured` displacement is searched for a sensor at the end of its range (`clipping.py`);
+    a placeholder (the anchor's loops, simulated afterwards) is not."""
     total = sum(len(r) for r in recordings)
     stride = max(1, int(np.ceil(total / MAX_FIT_ROWS)))
     out: list[RecData] = []
@@ -117,13 +131,15 @@ def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "e
         core = getattr(model, "base", model)
         stress = s if srange is not None else None
         start, scored, outside = start_and_scored(core, rec.drive, stress, initial_state, rec.displacement_um, t)
+        y = np.ascontiguousarray(rec.displacement_um, dtype=float)
+        clipped = clipped_samples(y, np.asarray(rec.drive, dtype=float)) if measured else np.zeros(n, dtype=bool)
         rows = np.arange(0, n, stride)
-        rows = rows[scored[rows]]
+        rows = rows[scored[rows] & ~clipped[rows]]
         first = np.flatnonzero(scored)
         out.append(RecData(
             name=rec.name, t=t, dt=dt, dt_med=dt_med,
             u=np.ascontiguousarray(rec.drive, dtype=float),
-            y=np.ascontiguousarray(rec.displacement_um, dtype=float),
+            y=y, clipped=clipped,
             s=np.ascontiguousarray(s), s_raw=s_raw, fold=(block % 2).astype(np.int8),
             rows=rows, clamped_fraction=clamped,
             extra={"temperature_C": rec.columns.get("temperature_C"),
@@ -236,14 +252,14 @@ UNSCORED_WHY = ("there the model's output still depends, by more than the noise 
 def unscored_note(d: RecData) -> str:
     """What the user is told about a recording's samples that are not scored ('' when all are),
     with the recording that would be scored whole."""
-    if d.n_scored == 0 and d.never_forgotten:
+    if d.n_state_known == 0 and d.never_forgotten:
         return f"{d.name}: none of it is scored: {d.never_forgotten}"
-    if d.n_scored == 0:
+    if d.n_state_known == 0:
         return (f"{d.name}: none of it is scored: everywhere the model's output still depends, by more than the "
                 "noise floor, on the hysteresis state the recording starts in, which the file does not show; "
                 "start a recording at rest at an end of the drive range (e.g. a sine whose amplitude grows from "
                 "the drive's minimum), or record at least one full drive cycle")
-    if d.n_scored == d.t.size:
+    if d.n_state_known == d.t.size:
         return ""
     return f"{d.name}: {_unscored_part(d)} are not scored: {UNSCORED_WHY}"
 
@@ -251,7 +267,7 @@ def unscored_note(d: RecData) -> str:
 def unscored_starts_note(data: Sequence[RecData]) -> str:
     """One note for every recording scored in part ('' when none is): several recordings' starts
     share one sentence, so a diagnosis of seven runs does not repeat it seven times."""
-    partial = [d for d in data if 0 < d.n_scored < d.t.size]
+    partial = [d for d in data if 0 < d.n_state_known < d.t.size]
     if len(partial) <= 1:
         return unscored_note(partial[0]) if partial else ""
     listed = "; ".join(f"{d.name}: {_unscored_part(d)}" for d in partial)
@@ -259,9 +275,11 @@ def unscored_starts_note(data: Sequence[RecData]) -> str:
 
 
 def _unscored_part(d: RecData) -> str:
-    runs = d.scored_runs()
+    """How much of `d` the unknown start leaves unscored (the sensor's clipping has its own note)."""
+    runs = _runs(d.state_known)
+    unknown_s = float(np.sum(d.dt[~d.state_known])) if d.t.size > 1 else 0.0
     return (f"the first {d.t[d.settled] - d.t[0]:.3g} s" if len(runs) == 1 and runs[0].stop == d.t.size
-            else f"{d.unscored_s:.3g} s of it")
+            else f"{unknown_s:.3g} s of it")
 
 
 def unscored_spans(d: RecData) -> list[tuple[float, float]]:

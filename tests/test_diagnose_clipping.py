@@ -1,0 +1,66 @@
+"""A displacement sensor at the end of its range holds its largest (or smallest) reading while the
+drive moves on. Those samples are the sensor's: diagnose leaves them unscored and says why, with
+the recording to make. The rig is a Preisach actuator, not the model class fitted."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gma_ffc.diagnose.clipping import CLIP_DRIVE_SHARE, clipped_samples
+from gma_ffc.diagnose.engine import diagnose
+from gma_ffc.identify import SDPIIdentifier
+from gma_ffc.recordings import Recording
+from preisach import PreisachActuator
+
+FS = 1000.0
+RIG = PreisachActuator(noise_um=0.02, seed=4)
+
+
+def sine(seconds: float, freq_hz: float) -> np.ndarray:
+    t = np.arange(int(seconds * FS)) / FS
+    return 1.5 * (1 - np.cos(2 * np.pi * freq_hz * t))
+
+
+def test_a_flat_top_over_a_moving_drive_is_clipping():
+    u = sine(2.0, 2.0)
+    y = 30.0 * u / 3.0
+    top = float(np.quantile(y, 0.9))
+    got = clipped_samples(np.minimum(y, top), u)
+    assert np.array_equal(got, y >= top)
+
+
+def test_a_quantised_turning_point_and_a_held_drive_are_not():
+    u = sine(2.0, 2.0)
+    y = np.round(30.0 * u / 3.0, 2)                       # a sensor of 10 nm steps: the peak repeats
+    assert np.sum(y == y.max()) > 1 and not clipped_samples(y, u).any()
+    held = np.r_[u, np.full(500, u[-1])]                   # the drive held: the reading may hold too
+    assert not clipped_samples(np.r_[y, np.full(500, y.max() + 1.0)], held).any()
+    # a flat top over less drive than CLIP_DRIVE_SHARE of its span is left alone (its reason: the
+    # clipping it hides is small), one over more is found
+    smooth = 30.0 * u / 3.0
+    for share, found in ((0.5 * CLIP_DRIVE_SHARE, False), (2.0 * CLIP_DRIVE_SHARE, True)):
+        assert clipped_samples(np.minimum(smooth, 30.0 * (1 - share)), u).any() == found
+
+
+@pytest.fixture(scope="module")
+def model():
+    rec = Recording({"time_s": np.arange(3000) / FS, "current_A": sine(3.0, 3.0),
+                     "displacement_um": RIG.run(sine(3.0, 3.0), -11.3)}, {}, "id.csv")
+    return SDPIIdentifier().fit([rec]).model_
+
+
+def test_diagnose_leaves_a_clipped_top_unscored_and_says_what_to_record(model):
+    t = np.arange(12000) / FS
+    drive = 1.5 * (1 - np.cos(2 * np.pi * np.where(t < 6, 2.0, 7.0) * t))
+    y = RIG.run(drive, -11.3)
+    whole = Recording({"time_s": t, "current_A": drive, "displacement_um": y}, {}, "run.csv")
+    top = float(np.quantile(y, 0.92))
+    clipped = Recording({**whole.columns, "displacement_um": np.minimum(y, top)}, {}, "clipped.csv")
+    dg_whole, dg_clipped = diagnose(model, [whole]), diagnose(model, [clipped])
+    note = next(n for n in dg_clipped.cannot_conclude if "the sensor at the end of its range" in n)
+    assert f"{top:.6g} um, its largest value" in note and "record with the sensor's range covering" in note
+    assert dg_clipped.data[0].n_scored < dg_whole.data[0].n_scored - 0.05 * t.size    # about the 8 % clipped
+    # the base's error is judged on what the sensor saw, not on the clipped tops
+    assert dg_clipped.rms_before_um == pytest.approx(dg_whole.rms_before_um, rel=0.15)
+    assert not any("the sensor at the end of its range" in n for n in dg_whole.cannot_conclude)
