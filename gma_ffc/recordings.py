@@ -331,6 +331,8 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
     first_row = next((ln for ln in lines[header_idx + 1:] if ln.strip() and not ln.lstrip().startswith("#")), "")
     delimiter, decimal = _dialect(header, first_row)
     names = [n.strip().strip('"') for n in header.split(delimiter)]
+    trailing = len(names) > 1 and names[-1] == ""      # a spreadsheet's export ends every line with a delimiter
+    names = names[:-1] if trailing else names
     header_line = header_idx + 1
     for name in names:
         check_column_name(name, source, header_line)
@@ -338,7 +340,7 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
         dup = next(n for n in names if names.count(n) > 1)
         raise RecordingError(f"{source}, line {header_line}: column '{dup}' appears twice")
     meta = _parse_metadata(meta_lines, source)
-    torn = _torn_last_line(path, meta, len(names), delimiter, decimal)
+    torn = _torn_last_line(path, meta, len(names), delimiter, decimal, trailing)
     data_source: Any = path
     notes = []
     if torn is not None:                 # read up to the last whole line, and say so
@@ -346,7 +348,7 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
             data_source = _arrow_buffer(fh.read(torn[0]))
         notes.append(f"{source}: the last line (line {torn[1]}) is incomplete, as when its writer was cut off "
                      "mid-line (a killed controller's last flush); it was left out")
-    columns = _parse_rows_fast(data_source, header_idx, names, delimiter, decimal)
+    columns = _parse_rows_fast(data_source, header_idx, names, delimiter, decimal, trailing)
     if columns is None:      # Arrow could not: the careful parser finds the line and says what is wrong
         try:
             raw = path.read_bytes()[:torn[0]] if torn is not None else path.read_bytes()
@@ -354,6 +356,8 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
         except (OSError, UnicodeDecodeError) as exc:
             raise RecordingError(f"{source}: cannot read ({exc})") from None
         body = text.splitlines()[header_idx + 1:]
+        if trailing:
+            body = [ln.rstrip()[:-1] if ln.rstrip().endswith(delimiter) else ln for ln in body]
         data = _parse_rows(body, len(names), source, header_line, delimiter, decimal)
         columns = {n: data[:, k] for k, n in enumerate(names)}
     rec = Recording(columns, meta, source, notes)
@@ -364,7 +368,7 @@ TORN_TAIL_BYTES = 65536      # a data line is far shorter than this
 
 
 def _torn_last_line(path: Path, meta: Mapping[str, Any], ncols: int, delimiter: str,
-                    decimal: str) -> tuple[int, int] | None:
+                    decimal: str, trailing: bool = False) -> tuple[int, int] | None:
     """(bytes up to it, its line number) when the file's last line is torn: not ended by a newline,
     and either written by gma-ffc (whose every line ends in one) or not a whole row. A spreadsheet
     export that only lacks its final newline keeps its last row."""
@@ -379,6 +383,8 @@ def _torn_last_line(path: Path, meta: Mapping[str, Any], ncols: int, delimiter: 
     if newline < 0:
         return None                      # one line only: the header's own problem, said elsewhere
     last = tail[newline + 1:].decode("utf-8", "replace")
+    if trailing and last.rstrip().endswith(delimiter):
+        last = last.rstrip()[:-1]
     if not (str(meta.get("source", "")).startswith("gma-ffc") or not _whole_row(last, ncols, delimiter, decimal)):
         return None
     with open(path, "rb") as fh:
@@ -414,7 +420,7 @@ def _dialect(header: str, first_row: str) -> tuple[str, str]:
 
 
 def _parse_rows_fast(path: Any, header_idx: int, names: list[str], delimiter: str,
-                     decimal: str) -> dict[str, np.ndarray] | None:
+                     decimal: str, trailing: bool = False) -> dict[str, np.ndarray] | None:
     """The columns as float arrays via pyarrow.csv, or None if anything is not plainly numeric
     (empty cells, words, ragged rows, comment lines among the rows): the slow path explains.
     Each column is copied once, out of Arrow's chunks into one contiguous array (no row-major
@@ -425,9 +431,10 @@ def _parse_rows_fast(path: Any, header_idx: int, names: list[str], delimiter: st
     try:
         table = pacsv.read_csv(
             path,
-            read_options=pacsv.ReadOptions(skip_rows=header_idx + 1, column_names=names, encoding="utf8"),
+            read_options=pacsv.ReadOptions(skip_rows=header_idx + 1, encoding="utf8",
+                                           column_names=names + ([" trailing"] if trailing else [])),
             parse_options=pacsv.ParseOptions(delimiter=delimiter, ignore_empty_lines=True),
-            convert_options=pacsv.ConvertOptions(column_types={n: pa.float64() for n in names},
+            convert_options=pacsv.ConvertOptions(column_types={n: pa.float64() for n in names}, include_columns=names,
                                                  decimal_point=decimal, strings_can_be_null=False,
                                                  null_values=[], quoted_strings_can_be_null=False))
     except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError, OSError):
@@ -440,6 +447,14 @@ def _parse_rows_fast(path: Any, header_idx: int, names: list[str], delimiter: st
         arr = col.to_numpy()              # one chunk: a read-only view of Arrow's buffer; several: a copy
         columns[n] = arr.copy() if col.num_chunks == 1 or not arr.flags.writeable else arr
     return columns
+
+
+def _is_number(cell: str, decimal: str) -> bool:
+    try:
+        float(cell.replace(",", ".") if decimal == "," else cell)
+    except ValueError:
+        return False
+    return True
 
 
 def _parse_rows(body: list[str], ncols: int, source: str, header_line: int, delimiter: str = ",",
@@ -465,12 +480,14 @@ def _parse_rows(body: list[str], ncols: int, source: str, header_line: int, deli
             more = ("; a ';'-separated file with decimal commas is read as such only when its header "
                     "uses ';' too") if delimiter == "," and ";" in line else ""
             raise RecordingError(f"{source}, line {lineno}: {len(cells)} cells, header has {ncols}{more}")
-        for col, cell in enumerate(cells):
-            try:
-                float(cell.replace(",", ".") if decimal == "," else cell)
-            except ValueError:
-                raise RecordingError(
-                    f"{source}, line {lineno}: cell {col + 1} '{cell.strip()}' is not a number") from None
+        numeric = [_is_number(cell, decimal) for cell in cells]
+        if not any(numeric):             # a units row, or a second header: nothing in it is data
+            raise RecordingError(f"{source}, line {lineno}: no cell is a number ('{line.strip()[:60]}'); a row of "
+                                 "units or a second header? Units belong in the column names (time_s, current_A): "
+                                 "delete the line")
+        if not all(numeric):
+            col = numeric.index(False)
+            raise RecordingError(f"{source}, line {lineno}: cell {col + 1} '{cells[col].strip()}' is not a number")
     raise RecordingError(f"{source}: could not parse the data rows")
 
 

@@ -115,3 +115,24 @@ def test_bad_files_of_each_format_get_one_clear_message(tmp_path):
         with pytest.raises(RecordingError, match=msg) as err:
             read_recording(tmp_path / name)
         assert name in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("final_newline", [True, False])
+def test_a_spreadsheet_that_ends_every_line_with_a_delimiter(tmp_path, plain, final_newline):
+    """An export with an empty last column (every line ends in ','): the column is dropped, the last
+    row kept whether or not the file ends in a newline."""
+    body = [line for line in (tmp_path / "plain.csv").read_text().splitlines() if not line.startswith("#")]
+    text = "\n".join(line + "," for line in body) + ("\n" if final_newline else "")
+    (tmp_path / "export.csv").write_text(text)
+    same(read_recording(tmp_path / "export.csv"), plain)
+    (tmp_path / "commented.csv").write_text(text.replace("\n", "\n# a note\n", 3))    # the careful parser too
+    same(read_recording(tmp_path / "commented.csv"), plain)
+
+
+def test_a_units_row_is_named_and_deleting_it_reads(tmp_path, plain):
+    lines = [line for line in (tmp_path / "plain.csv").read_text().splitlines() if not line.startswith("#")]
+    (tmp_path / "units.csv").write_text("\n".join([lines[0], "s,A,um,MPa"] + lines[1:]) + "\n")
+    with pytest.raises(RecordingError, match=r"line 2: no cell is a number .* a row of units .* delete the line"):
+        read_recording(tmp_path / "units.csv")
+    (tmp_path / "units.csv").write_text("\n".join(lines) + "\n")          # the line deleted, as advised
+    same(read_recording(tmp_path / "units.csv"), plain)
