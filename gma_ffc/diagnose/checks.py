@@ -98,8 +98,9 @@ def enough_data(data: Sequence[RecData], min_samples: int, clamped_share: float 
             "any effect would be fitted to the same few loops it is judged on; record at least a few cycles "
             f"(>= {MIN_REVERSALS // 2} full loops, >= {min_samples} samples) at two or more drive frequencies")
     for d in data:
-        if d.clipped is not None:
-            cannot += [note for note in [clipping_note(d.name, d.y, d.clipped)] if note]
+        clipping = clipping_note(d.name, d.y, d.clipped) if d.clipped is not None else ""
+        if clipping:
+            cannot.append(clipping)
         if d.clamped_fraction > clamped_share:
             cannot.append(f"{d.name}: {d.clamped_fraction:.0%} of the samples are at stresses outside the "
                           "model's range; they were compared at the nearest stress of the range")
