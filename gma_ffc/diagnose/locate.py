@@ -143,10 +143,7 @@ def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows
         fin = np.isfinite(since) & keep
         if fin.sum() > 10:
             cond["after_steps"] = _corr(size[fin], -np.log(since[fin] + d.dt_med))
-    band_txt = (f"{band[0]:g}-{band[1]:g} Hz" if np.isfinite(band[1]) else f"above {band[0]:g} Hz")
-    step = max((win[1] - win[0]) / 100, d.dt_med)      # a hundredth of the window: its ends to about 1 %
-    where = (f"t = {time_text(win[0], step)}-{time_text(win[1], step)} s ({ratio:.1f}x the median window); "
-             f"{shares[b]:.0%} of its power at {band_txt}")
+    where = _window_words(win, ratio, float(shares[b]), band, d.dt_med)
     if not d.n_scored:
         where += "; none of it is scored (the start-up transient may be all this is)"
     line = spectral_line(residual, d.u, d.dt_med)
@@ -160,3 +157,12 @@ def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows
         where += "; residual " + ", ".join(follows)
     return Located(d.name, where, float(np.sqrt(np.mean(raw_residual[keep] ** 2))),
                    float(np.sqrt(np.mean(residual[keep] ** 2))), win, band, float(shares[b]), cond, line, d.jumps)
+
+
+def _window_words(win: tuple[float, float], ratio: float, share: float, band: tuple[float, float],
+                  dt: float) -> str:
+    """Where the largest residual sits, its size against the median window and its band."""
+    band_txt = f"{band[0]:g}-{band[1]:g} Hz" if np.isfinite(band[1]) else f"above {band[0]:g} Hz"
+    step = max((win[1] - win[0]) / 100, dt)      # a hundredth of the window: its ends to about 1 %
+    return (f"t = {time_text(win[0], step)}-{time_text(win[1], step)} s ({ratio:.1f}x the median window); "
+            f"{share:.0%} of its power at {band_txt}")
