@@ -43,6 +43,18 @@ def test_a_quantised_turning_point_and_a_held_drive_are_not():
         assert clipped_samples(np.minimum(smooth, 30.0 * (1 - share)), u).any() == found
 
 
+@pytest.mark.parametrize("freq_hz", [4.0, 6.0])
+def test_a_slow_quantised_sensor_logged_faster_is_not_clipping(freq_hz):
+    """A 100 Hz sensor of 50 nm steps in 1 kHz rows repeats each reading ten times, and its peaks
+    repeat the same value, while the drive moves over 1 % of its span: ten of the sensor's steps
+    (CLIP_STEPS) are more than that, so it is not clipping. Its top clipped is."""
+    u = sine(2.0, freq_hz)
+    y = np.repeat(np.round(30.0 * u / 3.0 / 0.05)[::10] * 0.05, 10)
+    assert np.sum(y == y.max()) > 10
+    assert not clipped_samples(y, u).any()
+    assert clipped_samples(np.minimum(y, float(np.quantile(y, 0.7))), u).any()
+
+
 @pytest.fixture(scope="module")
 def model():
     rec = Recording({"time_s": np.arange(3000) / FS, "current_A": sine(3.0, 3.0),
