@@ -163,6 +163,8 @@ def rename_advice(found: Iterable[str], wanted: Sequence[str]) -> str:
             if q.lower() == quantity and factor is not None:
                 op = f"multiply it by {factor:g}" if factor >= 1 else f"divide it by {1 / factor:g}"
                 return f"; {have} is in {u}, gma-ffc reads {unit}: {op} into a column named {want}"
+    if REFERENCE in wanted and DISPLACEMENT in found:
+        return f"; to follow a measured run, copy its {DISPLACEMENT} into a column named {REFERENCE}"
     return ""
 
 

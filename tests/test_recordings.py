@@ -217,3 +217,12 @@ def test_a_displacement_in_mm_is_not_read_silently(tmp_path):
     path = _logged(tmp_path, "time_s,current_A,displacement_mm")
     rec = read_recording(path, require=("time_s", "drive"))
     assert any("displacement_mm is in mm, gma-ffc reads um: multiply it by 1000" in n for n in rec.notes)
+
+
+def test_invert_on_a_measured_run_says_how_to_make_it_a_reference(tmp_path):
+    path = _logged(tmp_path, "time_s,current_A,displacement_um")
+    with pytest.raises(RecordingError, match="copy its displacement_um into a column named reference_um"):
+        read_recording(path, require=("time_s", "reference_um"))
+    t, _, disp = np.loadtxt(path, delimiter=",", skiprows=1, unpack=True)            # done as advised
+    write_recording(tmp_path / "ref.csv", Recording({"time_s": t, "reference_um": disp}, {}, "ref.csv"))
+    assert len(read_recording(tmp_path / "ref.csv", require=("time_s", "reference_um"))) == 50
