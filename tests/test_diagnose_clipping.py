@@ -7,7 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gma_ffc.diagnose.clipping import CLIP_DRIVE_SHARE, clipped_samples
+from gma_ffc.diagnose.clipping import CLIP_DRIVE_SHARE, REPEATS_RARE, held_samples
+
+
+def clipped_samples(y, u):
+    return held_samples(y, u)[0]
 from gma_ffc.diagnose.engine import diagnose
 from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.recordings import Recording
@@ -55,6 +59,32 @@ def test_a_slow_quantised_sensor_logged_faster_is_not_clipping(freq_hz):
     assert clipped_samples(np.minimum(y, float(np.quantile(y, 0.7))), u).any()
 
 
+def _stall(y: np.ndarray, at: int, rows: int) -> np.ndarray:
+    out = y.copy()
+    out[at: at + rows] = y[at]
+    return out
+
+
+def test_a_stalled_reading_inside_the_range_is_found_where_repeats_are_otherwise_rare():
+    u = sine(2.0, 2.0)
+    y = 30.0 * u / 3.0 + np.random.default_rng(5).normal(0, 0.01, u.size)
+    clipped, stalled = held_samples(_stall(y, 350, 40), u)          # 40 ms frozen on the way down
+    assert not clipped.any() and np.flatnonzero(stalled).tolist() == list(range(350, 390))
+    # just after the drive turns, hysteresis itself holds the output (AFTER_REVERSAL): not called a stall
+    assert not held_samples(_stall(y, 255, 40), u)[1].any()
+    assert not any(held_samples(y, u)[1])                           # nothing stalls: nothing found
+
+
+def test_where_the_sensor_repeats_itself_a_hold_inside_the_range_is_not_called_a_stall():
+    """A sensor slower than the logger, or noise-free data, repeats most rows: REPEATS_RARE's gate."""
+    u = sine(2.0, 2.0)
+    slow = np.repeat((30.0 * u / 3.0 + np.random.default_rng(5).normal(0, 0.01, u.size))[::4], 4)
+    assert np.mean(np.diff(slow) == 0) > REPEATS_RARE
+    assert not held_samples(_stall(slow, 300, 40), u)[1].any()
+    steps = np.floor(30.0 * u / 3.0)                                 # noise-free, in 1 um steps: holds between them
+    assert not held_samples(steps, u)[1].any()
+
+
 @pytest.fixture(scope="module")
 def model():
     rec = Recording({"time_s": np.arange(3000) / FS, "current_A": sine(3.0, 3.0),
@@ -76,3 +106,13 @@ def test_diagnose_leaves_a_clipped_top_unscored_and_says_what_to_record(model):
     # the base's error is judged on what the sensor saw, not on the clipped tops
     assert dg_clipped.rms_before_um == pytest.approx(dg_whole.rms_before_um, rel=0.15)
     assert not any("the sensor at the end of its range" in n for n in dg_whole.cannot_conclude)
+
+
+def test_diagnose_leaves_a_stalled_logger_unscored_and_says_so(model):
+    t = np.arange(12000) / FS
+    drive = 1.5 * (1 - np.cos(2 * np.pi * np.where(t < 6, 2.0, 7.0) * t))
+    y = RIG.run(drive, -11.3)
+    stalled = _stall(_stall(y, 2125, 60), 8320, 30)                 # each well after the drive turned
+    dg = diagnose(model, [Recording({"time_s": t, "current_A": drive, "displacement_um": stalled}, {}, "log.csv")])
+    note = next(n for n in dg.cannot_conclude if "a stalled sensor or logger" in n)
+    assert "stops changing 2 time(s)" in note and "0.8% of the samples" in note     # 90 of 12,000 rows

@@ -10,7 +10,7 @@ from ..drive import drive_unit, holds, outside_range, reversals
 from ..errors import InputError
 from ..model import stress_sign_advice
 from ..recordings import Recording
-from .clipping import clipping_note
+from .clipping import held_notes
 from .data import N_BLOCKS, RecData, unscored_note
 
 MIN_REVERSALS = 2 * N_BLOCKS   # drive turning points in all: on average a full drive cycle per time block, or a
@@ -98,9 +98,8 @@ def enough_data(data: Sequence[RecData], min_samples: int, clamped_share: float 
             "any effect would be fitted to the same few loops it is judged on; record at least a few cycles "
             f"(>= {MIN_REVERSALS // 2} full loops, >= {min_samples} samples) at two or more drive frequencies")
     for d in data:
-        clipping = clipping_note(d.name, d.y, d.clipped) if d.clipped is not None else ""
-        if clipping:
-            cannot.append(clipping)
+        if d.clipped is not None and d.stalled is not None:
+            cannot += held_notes(d.name, d.y, d.clipped, d.stalled)
         if d.clamped_fraction > clamped_share:
             cannot.append(f"{d.name}: {d.clamped_fraction:.0%} of the samples are at stresses outside the "
                           "model's range; they were compared at the nearest stress of the range")

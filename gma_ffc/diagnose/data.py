@@ -25,7 +25,7 @@ from ..errors import InputError
 from ..recordings import Recording
 from ..initial_state import InitialStateSpec
 from ..state_band import admissible_corners, output_band
-from .clipping import clipped_samples
+from .clipping import held_samples
 from .jumps import Jumps
 from .noise import second_difference_sigma
 
@@ -53,6 +53,7 @@ class RecData:
     scored: np.ndarray | None = None   # per sample, is it scored (module doc); None: from `settled` on
     never_forgotten: str = ""  # why a start the measurement tells apart is never forgotten, and what to record ('' if not)
     clipped: np.ndarray | None = None   # per sample, does the sensor sit at the end of its range (`clipping.py`)
+    stalled: np.ndarray | None = None   # per sample, has the sensor or its logger stalled inside the range
 
     def __post_init__(self) -> None:
         if self.scored is None:
@@ -67,7 +68,15 @@ class RecData:
     @property
     def mask(self) -> np.ndarray:
         """The scored samples as a boolean array: the state known, the sensor inside its range."""
-        return self.state_known if self.clipped is None else self.state_known & ~self.clipped
+        held = self.sensor_held
+        return self.state_known if held is None else self.state_known & ~held
+
+    @property
+    def sensor_held(self) -> np.ndarray | None:
+        """Where the reading held while the drive moved (clipped or stalled), or None when not looked for."""
+        if self.clipped is None or self.stalled is None:
+            return self.clipped if self.stalled is None else self.stalled
+        return self.clipped | self.stalled
 
     @property
     def n_scored(self) -> int:
@@ -132,14 +141,15 @@ def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "e
         stress = s if srange is not None else None
         start, scored, outside = start_and_scored(core, rec.drive, stress, initial_state, rec.displacement_um, t)
         y = np.ascontiguousarray(rec.displacement_um, dtype=float)
-        clipped = clipped_samples(y, np.asarray(rec.drive, dtype=float)) if measured else np.zeros(n, dtype=bool)
+        no = np.zeros(n, dtype=bool)
+        clipped, stalled = held_samples(y, np.asarray(rec.drive, dtype=float)) if measured else (no, no)
         rows = np.arange(0, n, stride)
-        rows = rows[scored[rows] & ~clipped[rows]]
+        rows = rows[scored[rows] & ~clipped[rows] & ~stalled[rows]]
         first = np.flatnonzero(scored)
         out.append(RecData(
             name=rec.name, t=t, dt=dt, dt_med=dt_med,
             u=np.ascontiguousarray(rec.drive, dtype=float),
-            y=y, clipped=clipped,
+            y=y, clipped=clipped, stalled=stalled,
             s=np.ascontiguousarray(s), s_raw=s_raw, fold=(block % 2).astype(np.int8),
             rows=rows, clamped_fraction=clamped,
             extra={"temperature_C": rec.columns.get("temperature_C"),
