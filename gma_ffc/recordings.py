@@ -57,6 +57,7 @@ def time_text(t_s: float, step_s: float) -> str:
     decimals = min(9, max(0, math.ceil(-math.log10(step_s) - 1e-3)))
     return f"{t_s:.{decimals}f}"
 
+
 @dataclass
 class Recording:
     """One experiment: columns of equal length keyed by their unit-bearing names, plus metadata."""
