@@ -45,6 +45,7 @@ from .initial_state import first_direction, monotone_play_state, resolve
 from .inverse import deadzone_inverse
 from .model import SDPIModel, rms
 from .recordings import Recording
+from .sensor_holds import held_notes, held_samples
 
 
 @dataclass
@@ -290,6 +291,23 @@ def _within(level: float | None, span: tuple[float, float] | None) -> float | No
     return min(max(level, span[0]), span[1])
 
 
+def _column_notes(recordings: Sequence[Recording]) -> list[str]:
+    """What the columns show that the fit cannot undo: a sensor's reading held while the drive
+    moved (its limit or a stall, fitted as the actuator's), and stresses logged positive."""
+    notes = []
+    for r in recordings:
+        y = r.displacement_um
+        if y is not None:
+            notes += held_notes(r.name, y, *held_samples(y, r.drive),
+                                fate="The model is fitted to them as if the actuator held still there")
+    stresses = [r.stress_MPa for r in recordings if r.stress_MPa is not None]
+    if stresses and all(float(np.min(s)) > 0.0 for s in stresses):
+        notes.append("stress_MPa is positive in every recording, and compression is negative in gma-ffc's "
+                     "recordings (docs/recordings.md): if these are the compressive loads an actuator is "
+                     "held under, negate the column before identifying")
+    return notes
+
+
 @dataclass
 class SDPIIdentifier:
     """Fit an SDPI (several stresses) or an MPI (one stress, or no stress column) to recordings.
@@ -354,11 +372,7 @@ class SDPIIdentifier:
         data = self._prepare(recordings)
         self.output_sign_ = self._orientation(data)
         self._check_loop_direction(data)
-        stresses = [r.stress_MPa for r in recordings if r.stress_MPa is not None]
-        if stresses and all(float(np.min(s)) > 0.0 for s in stresses):
-            self.notes_.append("stress_MPa is positive in every recording, and compression is negative in gma-ffc's "
-                               "recordings (docs/recordings.md): if these are the compressive loads an actuator is "
-                               "held under, negate the column before identifying")
+        self.notes_ += _column_notes(recordings)
         fast = max(loop_rates_hz(recordings), default=math.nan)
         if fast > FAST_LOOP_HZ:
             self.notes_.append(f"the drive loops at up to {fast:.3g} Hz: eddy currents, a delay or the load's dynamics "

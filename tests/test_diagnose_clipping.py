@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gma_ffc.diagnose.clipping import CLIP_DRIVE_SHARE, REPEATS_RARE, held_samples
+from gma_ffc.sensor_holds import CLIP_DRIVE_SHARE, REPEATS_RARE, held_samples
 
 
 def clipped_samples(y, u):
@@ -116,3 +116,14 @@ def test_diagnose_leaves_a_stalled_logger_unscored_and_says_so(model):
     dg = diagnose(model, [Recording({"time_s": t, "current_A": drive, "displacement_um": stalled}, {}, "log.csv")])
     note = next(n for n in dg.cannot_conclude if "a stalled sensor or logger" in n)
     assert "stops changing 2 time(s)" in note and "0.8% of the samples" in note     # 90 of 12,000 rows
+
+
+def test_identify_says_when_it_fits_a_sensor_at_the_end_of_its_range(model):
+    drive = sine(3.0, 3.0)
+    y = RIG.run(drive, -11.3)
+    top = float(np.quantile(y, 0.85))
+    clipped = Recording({"time_s": np.arange(drive.size) / FS, "current_A": drive,
+                         "displacement_um": np.minimum(y, top)}, {}, "id_clipped.csv")
+    notes = SDPIIdentifier().fit([clipped]).notes_
+    assert any(f"id_clipped.csv: the displacement holds at {top:.6g} um" in n and "fitted to them" in n for n in notes)
+    assert not any("the sensor at the end of its range" in n for n in model.provenance.get("notes", []))

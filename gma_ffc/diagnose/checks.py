@@ -10,7 +10,7 @@ from ..drive import drive_unit, holds, outside_range, reversals
 from ..errors import InputError
 from ..model import stress_sign_advice
 from ..recordings import Recording
-from .clipping import held_notes
+from ..sensor_holds import held_notes
 from .data import N_BLOCKS, RecData, unscored_note
 
 MIN_REVERSALS = 2 * N_BLOCKS   # drive turning points in all: on average a full drive cycle per time block, or a

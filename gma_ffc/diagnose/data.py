@@ -25,7 +25,7 @@ from ..errors import InputError
 from ..recordings import Recording
 from ..initial_state import InitialStateSpec
 from ..state_band import admissible_corners, output_band
-from .clipping import held_samples
+from ..sensor_holds import held_samples
 from .jumps import Jumps
 from .noise import second_difference_sigma
 
@@ -52,7 +52,7 @@ class RecData:
     jumps: Jumps = field(default_factory=Jumps)   # steps of the sensor's zero (`jumps.py`), each fitted as an offset change
     scored: np.ndarray | None = None   # per sample, is it scored (module doc); None: from `settled` on
     never_forgotten: str = ""  # why a start the measurement tells apart is never forgotten, and what to record ('' if not)
-    clipped: np.ndarray | None = None   # per sample, does the sensor sit at the end of its range (`clipping.py`)
+    clipped: np.ndarray | None = None   # per sample, does the sensor sit at the end of its range (`gma_ffc/sensor_holds.py`)
     stalled: np.ndarray | None = None   # per sample, has the sensor or its logger stalled inside the range
 
     def __post_init__(self) -> None:
@@ -113,7 +113,7 @@ def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "e
             measured: bool = True) -> list[RecData]:
     """Arrays per recording; stresses outside the model's range are clamped (and counted). The
     core's state at each first sample follows `initial_state` (`gma_ffc.initial_state`). A
-    `measured` displacement is searched for a sensor at the end of its range (`clipping.py`);
+    `measured` displacement is searched for a sensor at the end of its range (`gma_ffc/sensor_holds.py`);
     a placeholder (the anchor's loops, simulated afterwards) is not."""
     total = sum(len(r) for r in recordings)
     stride = max(1, int(np.ceil(total / MAX_FIT_ROWS)))

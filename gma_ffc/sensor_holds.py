@@ -4,7 +4,8 @@ repeats one value inside the range). Either way the actuator's motion there is n
 
 An actuator driven by a few percent of its drive span moves by about that share of its stroke:
 hundreds of a sensor's least steps. A reading that does not change by one of them over such a
-drive change is the sensor's, not physics. Those samples are not scored (pure maths, no I/O).
+drive change is the sensor's, not physics: `diagnose` does not score those samples, `identify`
+says it fits them (pure maths, no I/O).
 """
 
 from __future__ import annotations
@@ -71,19 +72,21 @@ def _moved_since_turn(u: np.ndarray, turns: np.ndarray, at: int) -> float:
     return abs(float(u[at]) - float(u[turns[k] if k >= 0 else 0]))
 
 
-def held_notes(name: str, y: np.ndarray, clipped: np.ndarray, stalled: np.ndarray) -> list[str]:
-    """What the user is told of a recording whose reading held while the drive moved."""
+def held_notes(name: str, y: np.ndarray, clipped: np.ndarray, stalled: np.ndarray,
+               fate: str = "Those samples are not scored") -> list[str]:
+    """What the user is told of a recording whose reading held while the drive moved, and what
+    became of those samples (`fate`)."""
     notes = []
     if clipped.any():
         ends = sorted({"largest" if v == np.max(y) else "smallest" for v in np.unique(y[clipped])})
         at = " and ".join(f"{float(np.max(y) if e == 'largest' else np.min(y)):.6g} um, its {e} value" for e in ends)
         notes.append(f"{name}: the displacement holds at {at}, for {np.mean(clipped):.1%} of the samples while the "
-                     "drive moves on: the sensor at the end of its range, not the actuator. Those samples are not "
-                     "scored; record with the sensor's range covering the whole stroke (or an offset that centres it)")
+                     f"drive moves on: the sensor at the end of its range, not the actuator. {fate}; record with the "
+                     "sensor's range covering the whole stroke (or an offset that centres it)")
     if stalled.any():
         runs = int(np.count_nonzero(np.diff(np.r_[0, stalled.astype(np.int8)]) == 1))
         notes.append(f"{name}: the displacement stops changing {runs} time(s) inside its range, for "
                      f"{np.mean(stalled):.1%} of the samples, while the drive moves on: a stalled sensor or logger, "
-                     "not the actuator. Those samples are not scored; check the sensor's link and that the logger "
+                     f"not the actuator. {fate}; check the sensor's link and that the logger "
                      "reads it no faster than it updates")
     return notes
