@@ -37,6 +37,20 @@ def reversals(u: np.ndarray) -> int:
     return count
 
 
+def turning_indices(u: np.ndarray) -> np.ndarray:
+    """Every sample where the drive turns, however little (its last before moving the other way)."""
+    du = np.sign(np.diff(u))
+    moving = np.flatnonzero(du)
+    return moving[1:][du[moving[1:]] != du[moving[:-1]]]
+
+
+def moved_since_turn(u: np.ndarray, turns: np.ndarray, at: int) -> float:
+    """How far the drive has moved from its last turn (`turning_indices`) before sample `at`, or
+    from its first sample when it has not turned yet."""
+    k = int(np.searchsorted(turns, at)) - 1
+    return abs(float(u[at]) - float(u[turns[k] if k >= 0 else 0]))
+
+
 def loop_frequency_hz(time_s: np.ndarray, u: np.ndarray) -> float:
     """Full drive loops per second ((turning points + 1) / 2 / duration: a run from one extreme to
     the other is half a loop; nan without two turning points): the rate a recording sweeps its

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .drive import moved_since_turn, turning_indices
+
 CLIP_DRIVE_SHARE = 0.01   # the drive moves by at least this share of its span while the reading holds: a sine
                           # clipped over its top tenth of the time spans 2.4 % of its drive range there
 CLIP_STEPS = 10           # ... and by enough to move the actuator ten of the sensor's least steps (a quantised
@@ -43,8 +45,9 @@ def held_samples(y: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     held = [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])
             if b - a >= CLIP_MIN_SAMPLES and float(np.ptp(u[a:b])) >= moves]
     at_end = {float(np.max(y)), float(np.min(y))}
-    turns = _reversals(u)
-    inside = [(a, b) for a, b in held if float(y[a]) not in at_end and _moved_since_turn(u, turns, a) >= AFTER_REVERSAL * span]
+    turns = turning_indices(u)
+    inside = [(a, b) for a, b in held
+              if float(y[a]) not in at_end and moved_since_turn(u, turns, a) >= AFTER_REVERSAL * span]
     fast = np.abs(np.diff(u)) >= moves / CLIP_MIN_SAMPLES      # rows over which a held run would show
     for a, b in held:
         fast[a: b - 1] = False                                   # the runs found are not the sensor's habit
@@ -56,20 +59,6 @@ def held_samples(y: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         for a, b in inside:
             stalled[a:b] = True
     return clipped, stalled
-
-
-def _reversals(u: np.ndarray) -> np.ndarray:
-    """Indices where the drive turns (its last sample before moving the other way)."""
-    du = np.sign(np.diff(u))
-    moving = np.flatnonzero(du)
-    turn = moving[1:][du[moving[1:]] != du[moving[:-1]]]
-    return turn
-
-
-def _moved_since_turn(u: np.ndarray, turns: np.ndarray, at: int) -> float:
-    """How far the drive has moved from its last reversal before sample `at` (from its start without one)."""
-    k = int(np.searchsorted(turns, at)) - 1
-    return abs(float(u[at]) - float(u[turns[k] if k >= 0 else 0]))
 
 
 def held_notes(name: str, y: np.ndarray, clipped: np.ndarray, stalled: np.ndarray,

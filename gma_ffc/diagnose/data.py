@@ -74,9 +74,7 @@ class RecData:
     @property
     def sensor_held(self) -> np.ndarray | None:
         """Where the reading held while the drive moved (clipped or stalled), or None when not looked for."""
-        if self.clipped is None or self.stalled is None:
-            return self.clipped if self.stalled is None else self.stalled
-        return self.clipped | self.stalled
+        return None if self.clipped is None or self.stalled is None else self.clipped | self.stalled
 
     @property
     def n_scored(self) -> int:
