@@ -133,6 +133,18 @@ class Recording:
         return Recording(cols, dict(self.metadata), self.source)
 
 
+def _at_line(source: str, line: int) -> str:
+    """Where a header's message points: the file and its line, or the file alone when it has no
+    lines (.mat, .tdms, .h5: `header_line` 0)."""
+    return f"{source}, line {line}" if line > 0 else source
+
+
+def _at_row(rec: Recording, row: int) -> str:
+    """Where a row's message points: its line in a text file, else its sample number (from 1, as
+    MATLAB indexes it)."""
+    return f"{rec.source}, line {rec.header_line + 1 + row}" if rec.header_line > 0 else f"{rec.source}, sample {row + 1}"
+
+
 def check_column_name(name: str, source: str, line: int) -> None:
     if _NAME_WITH_UNIT.match(name):
         return
@@ -143,10 +155,10 @@ def check_column_name(name: str, source: str, line: int) -> None:
     bracketed = _UNIT_IN_BRACKETS.match(ascii_name)
     if bracketed:                          # 'Time (s)', 'Displacement [um]': the unit after an underscore
         want = f"{'_'.join(bracketed.group(1).lower().split())}_{bracketed.group(2)}"
-        raise RecordingError(f"{source}, line {line}: column '{name}': a unit follows an underscore in a column "
+        raise RecordingError(f"{_at_line(source, line)}: column '{name}': a unit follows an underscore in a column "
                              f"name; rename it '{want}' (and the other columns likewise)")
     suggestion = f" (did you mean '{hint}'?)" if hint else " (names end in a unit, e.g. time_s, current_A)"
-    raise RecordingError(f"{source}, line {line}: column '{name}' has no unit{suggestion}")
+    raise RecordingError(f"{_at_line(source, line)}: column '{name}' has no unit{suggestion}")
 
 
 def rename_advice(found: Iterable[str], wanted: Sequence[str]) -> str:
@@ -178,12 +190,12 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
         if name == "drive":
             if not any(d in rec.columns for d in DRIVE_COLUMNS):
                 raise RecordingError(
-                    f"{src}, line {header_line}: missing drive column: need current_A "
+                    f"{_at_line(src, header_line)}: missing drive column: need current_A "
                     f"(or voltage_V for a voltage-driven actuator); found {', '.join(rec.columns)}"
                     f"{rename_advice(rec.columns, DRIVE_COLUMNS)}")
         elif name not in rec.columns:
             raise RecordingError(
-                f"{src}, line {header_line}: missing required column '{name}'; found {', '.join(rec.columns)}"
+                f"{_at_line(src, header_line)}: missing required column '{name}'; found {', '.join(rec.columns)}"
                 f"{rename_advice(rec.columns, [name])}")
     if len(rec) < 2:
         raise RecordingError(f"{src}: needs at least two samples, has {len(rec)}")
@@ -206,7 +218,7 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
     if (steps <= 0).any():
         row = int(np.argmax(steps <= 0)) + 1
         raise RecordingError(
-            f"{src}, line {header_line + 1 + row}: time does not increase "
+            f"{_at_row(rec, row)}: time does not increase "
             f"({time_text(float(rec.time_s[row - 1]), 1e-9)} s then {time_text(float(rec.time_s[row]), 1e-9)} s)")
     return rec
 
@@ -234,7 +246,7 @@ def _refuse_a_spike(rec: Recording, name: str) -> None:
     if spikes.size:
         row = int(spikes[0]) + 1
         raise RecordingError(
-            f"{rec.source}, line {rec.header_line + 1 + row}: '{name}' is {x[row]:.6g}, more than "
+            f"{_at_row(rec, row)}: '{name}' is {x[row]:.6g}, more than "
             f"{reach:.4g} from both its neighbours ({SPIKE_SPREADS:g} times the column's spread, {hi - lo:.4g}): a sensor "
             f"overload value or a glitch{f' ({spikes.size} such samples)' if spikes.size > 1 else ''}; "
             "fix or remove that row")
@@ -246,7 +258,7 @@ def refuse_non_finite(rec: Recording, name: str, where: str) -> None:
     bad = ~np.isfinite(rec.columns[name])
     if bad.any():
         row = int(np.argmax(bad))
-        raise RecordingError(f"{rec.source}, line {rec.header_line + 1 + row}: '{name}' is {rec.columns[name][row]} "
+        raise RecordingError(f"{_at_row(rec, row)}: '{name}' is {rec.columns[name][row]} "
                              f"(NaN or infinite values are not allowed in {where})")
 
 

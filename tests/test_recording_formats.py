@@ -136,3 +136,20 @@ def test_a_units_row_is_named_and_deleting_it_reads(tmp_path, plain):
         read_recording(tmp_path / "units.csv")
     (tmp_path / "units.csv").write_text("\n".join(lines) + "\n")          # the line deleted, as advised
     same(read_recording(tmp_path / "units.csv"), plain)
+
+
+def test_a_mat_file_has_no_lines_so_its_messages_name_the_sample(tmp_path):
+    """A .mat file's messages pointed at 'line 0' (and at lines it does not have); they name the
+    file, and a bad sample by its number from 1, as MATLAB indexes it."""
+    import scipy.io
+
+    t = np.arange(100) / 1000.0
+    y = np.sin(t)
+    y[41] = np.nan
+    scipy.io.savemat(tmp_path / "nan.mat", {"time_s": t, "current_A": t, "displacement_um": y})
+    with pytest.raises(RecordingError, match=r"nan\.mat, sample 42: 'displacement_um' is nan"):
+        read_recording(tmp_path / "nan.mat")
+    scipy.io.savemat(tmp_path / "bare.mat", {"time": t, "current_A": t, "displacement_um": np.sin(t)})
+    with pytest.raises(RecordingError, match=r"bare\.mat: column 'time' has no unit") as err:
+        read_recording(tmp_path / "bare.mat")
+    assert ", line " not in str(err.value)
