@@ -1,24 +1,25 @@
-"""A displacement sensor at the end of its range holds its largest (or smallest) reading while the
-drive moves on. Those samples are the sensor's: diagnose leaves them unscored and says why, with
-the recording to make. The rig is a Preisach actuator, not the model class fitted."""
+"""A displacement reading that holds while the drive moves on (a sensor at the end of its range, or
+a stalled sensor or logger) is the sensor's: diagnose leaves those samples unscored and says why,
+with the recording to make, and identify says it fits them. The rig is a Preisach actuator, not the
+model class fitted."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from gma_ffc.sensor_holds import CLIP_DRIVE_SHARE, REPEATS_RARE, held_samples
-
-
-def clipped_samples(y, u):
-    return held_samples(y, u)[0]
 from gma_ffc.diagnose.engine import diagnose
 from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.recordings import Recording
+from gma_ffc.sensor_holds import CLIP_DRIVE_SHARE, REPEATS_RARE, held_samples
 from preisach import PreisachActuator
 
 FS = 1000.0
 RIG = PreisachActuator(noise_um=0.02, seed=4)
+
+
+def clipped_samples(y: np.ndarray, u: np.ndarray) -> np.ndarray:
+    return held_samples(y, u)[0]
 
 
 def sine(seconds: float, freq_hz: float) -> np.ndarray:
