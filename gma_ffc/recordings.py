@@ -409,14 +409,7 @@ def _torn_last_line(path: Path, meta: Mapping[str, Any], ncols: int, delimiter: 
 
 def _whole_row(line: str, ncols: int, delimiter: str, decimal: str) -> bool:
     cells = line.split(delimiter)
-    if len(cells) != ncols:
-        return False
-    try:
-        for cell in cells:
-            float(cell.replace(",", ".") if decimal == "," else cell)
-    except ValueError:
-        return False
-    return True
+    return len(cells) == ncols and all(_is_number(cell, decimal) for cell in cells)
 
 
 def _arrow_buffer(data: bytes) -> Any:

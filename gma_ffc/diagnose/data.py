@@ -141,19 +141,19 @@ def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "e
         y = np.ascontiguousarray(rec.displacement_um, dtype=float)
         no = np.zeros(n, dtype=bool)
         clipped, stalled = held_samples(y, np.asarray(rec.drive, dtype=float)) if measured else (no, no)
-        rows = np.arange(0, n, stride)
-        rows = rows[scored[rows] & ~clipped[rows] & ~stalled[rows]]
         first = np.flatnonzero(scored)
-        out.append(RecData(
+        d = RecData(
             name=rec.name, t=t, dt=dt, dt_med=dt_med,
             u=np.ascontiguousarray(rec.drive, dtype=float),
             y=y, clipped=clipped, stalled=stalled,
             s=np.ascontiguousarray(s), s_raw=s_raw, fold=(block % 2).astype(np.int8),
-            rows=rows, clamped_fraction=clamped,
+            rows=np.arange(0, n, stride), clamped_fraction=clamped,
             extra={"temperature_C": rec.columns.get("temperature_C"),
                    "drive_symbol": "V" if rec.drive_name.endswith("_V") else "I"}, start=start,
             settled=int(first[0]) if first.size else n, scored=scored,
-            never_forgotten=whole_range_advice(rec, core.drive_range) if outside and not scored.any() else ""))
+            never_forgotten=whole_range_advice(rec, core.drive_range) if outside and not scored.any() else "")
+        d.rows = d.rows[d.mask[d.rows]]          # the least squares' rows: every scored one, strided
+        out.append(d)
     return out
 
 
