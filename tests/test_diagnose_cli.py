@@ -255,3 +255,13 @@ def test_a_full_disk_leaves_the_earlier_diagnosis_whole(case_files, capsys, tmp_
     assert code == 2 and err.count("\n") == 1, err
     assert f"{tmp_path / 'o' / 'report.html'}: cannot write it: No space left on device" in err
     assert {p.name: p.read_bytes() for p in (tmp_path / "o").iterdir()} == before
+
+
+def test_dash_o_names_the_output_folder_as_in_the_other_commands():
+    """identify, simulate and invert take -o; diagnose took only --out, and `-o DIR` was refused as
+    a missing --out. Both spellings now give the same folder."""
+    from gma_ffc.cli import build_parser
+
+    short = build_parser().parse_args(["diagnose", "--model", "m.yaml", "rec.csv", "-o", "diag"])
+    long = build_parser().parse_args(["diagnose", "--model", "m.yaml", "rec.csv", "--out", "diag"])
+    assert short.out == long.out == "diag" and short.recordings == ["rec.csv"]

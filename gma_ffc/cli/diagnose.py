@@ -40,7 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--ident", nargs="+", default=[], metavar="ID_REC",
                    help="the recordings the model was identified on (checked against the model's record); "
                         "give them after the recordings to diagnose, or end the list with --")
-    p.add_argument("--out", required=True, metavar="DIR", help="folder for diagnosis.json, report.html, extended_model.yaml")
+    p.add_argument("-o", "--out", required=True, metavar="DIR",
+                   help="folder for diagnosis.json, report.html, extended_model.yaml (-o as in the other commands)")
     p.add_argument("--max-effects", type=int, default=3, metavar="N",
                    help="at most this many effects are named (default 3)")
     add_initial_state_option(p)
