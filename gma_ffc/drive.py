@@ -111,3 +111,36 @@ def outside_range(u: np.ndarray, drive_range: tuple[float, float], margin: float
         return np.zeros(u.shape, dtype=bool)
     wide = margin * (hi - lo)
     return (u < lo - wide) | (u > hi + wide)
+
+
+OCTAVE = 2.0 ** 0.5       # half an octave either side: a band one octave wide
+
+
+def dominant_band(recordings: list[tuple[np.ndarray, np.ndarray]]) -> tuple[float, float]:
+    """(frequency in Hz, share) of the drives' (time_s, drive) pairs: the frequency holding the most
+    of their power (each drive's mean removed), pooled, and the share of all of it within an octave
+    about that frequency. A sine at any amplitude gives ~1; steps, a square wave, sweeps and several
+    sines spread it further. So does a unipolar sine whose amplitude rises: its mean rises too, a
+    slow second component (about 0.7 for the rising drive of benchmarks.cases). Hann-windowed
+    periodograms (scipy), so a sine that ends mid-cycle leaks no further than its neighbouring
+    bins; (nan, 0) for drives that never move."""
+    from scipy.signal import periodogram
+
+    spectra = []
+    for t, u in recordings:
+        x = np.asarray(u, dtype=float)
+        if x.size < 4 or not np.ptp(x) > 0:
+            continue
+        dt = float(np.median(np.diff(np.asarray(t, dtype=float))))
+        f, p = periodogram(x, fs=1.0 / dt, window="hann", detrend="constant", scaling="spectrum")
+        spectra.append((f, p * x.size))          # power, not density: a longer recording weighs more
+    total = sum(float(p.sum()) for _, p in spectra)
+    if not total > 0:
+        return float("nan"), 0.0
+    peaks = [float(f[int(np.argmax(p))]) for f, p in spectra]
+
+    def share(f0: float) -> float:
+        return sum(float(p[(f >= f0 / OCTAVE) & (f <= f0 * OCTAVE)].sum()) for f, p in spectra) / total
+
+    f0 = max(peaks, key=share)
+    return f0, share(f0)
