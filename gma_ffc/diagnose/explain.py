@@ -99,26 +99,16 @@ def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[
                          "cannot_conclude for what could not be tested and the recording that would decide.")
             parts.append(residual_words(worst, unit))
         else:
-            tried = [c for c in candidates.values() if c.testable and math.isfinite(c.cv_mse)]
-            tried.sort(key=lambda c: c.cv_mse)
-            if tried:
-                b = tried[0]
-                parts.append(f"No effect in the vocabulary explains the rest: the best, {b.effect}, "
-                             f"reaches {math.sqrt(b.cv_mse):.4g} um held-out, short of the margin required.")
-            if fit_rms_um is not None:
-                parts.append(f"For scale, the model missed its own identification recordings by "
-                             f"{fit_rms_words(fit_rms_um)}; the held-out residual here is "
-                             f"{rms_after / fit_rms_um[1]:.1f}x the largest of those.")
-            parts.append("What is left is the core's error on a drive unlike its identification data (steps, minor "
-                         "loops, other frequencies), the limit of its class (behaviour its operators cannot represent, "
-                         "such as these minor loops or a drive range it was not made for), or physics not in the "
-                         "vocabulary. Identifying the core again with a second recording like these among its data "
-                         "(gma-ffc identify) and diagnosing these with it removes the first; what stays is one of "
-                         "the other two, which these recordings cannot tell apart.")
+            parts += unexplained_words(candidates, rms_after, fit_rms_um)
             parts.append(residual_words(worst, unit))
         return " ".join(parts)
     named = [candidates[v] for v in verdict]
-    parts.append("The recordings show " + "; then ".join(f"{describe(c, unit)} ({c.effect})" for c in named) + ".")
+    effects = "; then ".join(f"{describe(c, unit)} ({c.effect})" for c in named)
+    if outcome == "inconclusive":     # look-alikes the recordings cannot tell apart (cannot_conclude says which)
+        parts.append(f"The recordings are fitted best with {effects}, but cannot tell it from a look-alike: see "
+                     "cannot_conclude for the recording that would decide.")
+    else:
+        parts.append(f"The recordings show {effects}.")
     parts.append(f"With {'it' if len(named) == 1 else 'them'} the held-out RMS falls to {rms_after:.4g} um "
                  f"({rms_after / max(rms_before, 1e-12):.0%} of before).")
     for c in named:
@@ -128,6 +118,28 @@ def explain(verdict: list[str], candidates: dict[str, Candidate], located: list[
     if runner_note:
         parts.append(runner_note)
     return " ".join(parts)
+
+
+def unexplained_words(candidates: dict[str, Candidate], rms_after: float,
+                      fit_rms_um: tuple[float, float] | None) -> list[str]:
+    """Nothing named above the noise: the best candidate's figure, the model's own identification
+    error for scale, and what the rest can be."""
+    parts = []
+    tried = sorted((c for c in candidates.values() if c.testable and math.isfinite(c.cv_mse)), key=lambda c: c.cv_mse)
+    if tried:
+        parts.append(f"No effect in the vocabulary explains the rest: the best, {tried[0].effect}, "
+                     f"reaches {math.sqrt(tried[0].cv_mse):.4g} um held-out, short of the margin required.")
+    if fit_rms_um is not None:
+        parts.append(f"For scale, the model missed its own identification recordings by "
+                     f"{fit_rms_words(fit_rms_um)}; the held-out residual here is "
+                     f"{rms_after / fit_rms_um[1]:.1f}x the largest of those.")
+    parts.append("What is left is the core's error on a drive unlike its identification data (steps, minor "
+                 "loops, other frequencies), the limit of its class (behaviour its operators cannot represent, "
+                 "such as these minor loops or a drive range it was not made for), or physics not in the "
+                 "vocabulary. Identifying the core again with a second recording like these among its data "
+                 "(gma-ffc identify) and diagnosing these with it removes the first; what stays is one of "
+                 "the other two, which these recordings cannot tell apart.")
+    return parts
 
 
 def left_words(located_after: list[Located], rms_after: float, noise: float,

@@ -262,6 +262,9 @@ class Effect(Protocol):
     joint_refit: ClassVar[bool]             # True: beside a look-alike tried with it, its own parameters are
                                             # searched again as well (`scoring._descend`): one scale is not enough
     deciders: ClassVar[Mapping[str, str]]   # per look-alike: the experiment that tells the two apart
+    told_by_frequency: ClassVar[bool]       # True: a phase lag whose form (a delay, a lag, a resonance) shows only
+                                            # in how the lag changes with frequency: at one drive frequency
+                                            # the others with this flag fit it as well (`EffectSelector`)
     transforms_stress: ClassVar[bool]       # True: it supplies the stress the core (and every stage) sees
     shapes_core: ClassVar[bool]             # True: its parameter changes the core itself (`fit_core`);
                                             # `reshapes` says whether it does on a given diagnosis
@@ -406,6 +409,7 @@ class EffectBase:
     joint_scales: ClassVar[tuple[float, ...]] = (0.3, 0.55, 0.8, 1.0)   # the look-alike's parameter, scaled
     joint_refit: ClassVar[bool] = False
     deciders: ClassVar[Mapping[str, str]] = {}
+    told_by_frequency: ClassVar[bool] = False
     transforms_stress: ClassVar[bool] = False
     shapes_core: ClassVar[bool] = False
     zoom_levels: ClassVar[int] = 3

@@ -25,6 +25,7 @@ class Delay(EffectBase):
         "so its phase lag grows in proportion to frequency")
     n_params: ClassVar[int] = 1
     joint_with: ClassVar[tuple[str, ...]] = ("rate_dependence", "mechanical_dynamics")
+    told_by_frequency: ClassVar[bool] = True
     deciders: ClassVar[Mapping[str, str]] = {
         "rate_dependence": "a delay's phase lag grows in proportion to frequency while a first-order lag's (rate_dependence) "
                            "saturates at 90 degrees: record sine sweeps at several frequencies spanning "

@@ -54,6 +54,7 @@ class Dynamics(EffectBase):
     # a lag or delay already in the model takes the resonance's phase too (a delay stood in for eddy
     # currents and a resonance together): it is re-searched, scaled down, with the resonance
     joint_with: ClassVar[tuple[str, ...]] = ("time_delay", "rate_dependence")
+    told_by_frequency: ClassVar[bool] = True
     joint_scales: ClassVar[tuple[float, ...]] = (0.5, 1.0)   # two, not four: its grid is 90 points already
     joint_refit: ClassVar[bool] = True   # beside a lag or delay its frequency and load law move too, not only
                                          # its damping: searched again whole (`scoring._descend`)

@@ -26,6 +26,7 @@ class EddyLag(EffectBase):
         "loops widen and tilt as the drive gets faster")
     n_params: ClassVar[int] = 1
     joint_with: ClassVar[tuple[str, ...]] = ("time_delay", "mechanical_dynamics")
+    told_by_frequency: ClassVar[bool] = True
 
     def __init__(self, block: Mapping[str, Any]) -> None:
         super().__init__(block)
