@@ -25,3 +25,14 @@ def piezo_csv(folder: Path) -> Path:
     path = folder / SHARED_PIEZO.name
     path.write_bytes(vendored_piezo_bytes())
     return path
+
+
+YAN9A = {run: ROOT / "tests" / "fixtures" / f"piezo_yan9a_{run}.csv.xz" for run in ("model", "later")}
+
+
+def yan9a_csv(run: str, folder: Path) -> Path:
+    """A second measured piezo's run ("model" or "later", tests/fixtures/piezo_yan9a.README.md)
+    unpacked into `folder`: vendored only, it has no copy in ../shared."""
+    path = folder / f"piezo_yan9a_{run}.csv"
+    path.write_bytes(lzma.decompress(YAN9A[run].read_bytes()))
+    return path

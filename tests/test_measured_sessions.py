@@ -1,0 +1,63 @@
+"""A second measured actuator, two sessions (tests/fixtures/piezo_yan9a.README.md): a piezo run
+at 1 Hz for 40 s, and a later run of 37 s, also at 1 Hz, with smaller, decaying and growing sines
+and a hold. Issue 31's measured-session check on it, and what one drive frequency can and cannot
+tell. Never tuned to: the thresholds these pass through were set on simulated actuators."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from gma_ffc.cli import main
+from gma_ffc.modelio import load_model
+from gma_ffc.recordings import read_recording
+from measured import yan9a_csv
+
+
+@pytest.fixture(scope="module")
+def sessions(tmp_path_factory):
+    """The first 20 s of the model run identify the model; its last 20 s are diagnosed, with the
+    first as --ident; the later run is neither's."""
+    folder = tmp_path_factory.mktemp("yan9a")
+    run = read_recording(yan9a_csv("model", folder))
+    half = run.time_s < 20.0
+    from gma_ffc.recordings import write_recording
+    write_recording(folder / "ident.csv", run.rows(half, "ident.csv"))
+    write_recording(folder / "diagnosed.csv", run.rows(~half, "diagnosed.csv"))
+    assert main(["identify", str(folder / "ident.csv"), "-o", str(folder / "model.yaml")]) == 0
+    assert main(["diagnose", "--model", str(folder / "model.yaml"), str(folder / "diagnosed.csv"),
+                 "--ident", str(folder / "ident.csv"), "-o", str(folder / "diag")]) == 0
+    return folder, read_recording(yan9a_csv("later", folder))
+
+
+def test_one_drive_frequency_leaves_the_form_of_a_phase_lag_open(sessions):
+    """Whatever phase lag fits best at 1 Hz, a delay, a lag and a resonance fit it too: the outcome
+    is inconclusive, and the advice names a second frequency. Before the rule this run was told it
+    had 'a resonance at 4.288 Hz', and the whole 40 s run, diagnosed against a model of itself, creep."""
+    folder, _ = sessions
+    doc = json.loads((folder / "diag" / "diagnosis.json").read_text())
+    assert doc["outcome"] == "inconclusive", doc["outcome"]
+    lags = {"time_delay", "rate_dependence", "mechanical_dynamics"}
+    if set(doc["verdict"]) & lags:
+        words = " ".join(doc["cannot_conclude"])
+        assert "the drives hold one frequency" in words and "record at a second frequency" in words
+        for other in lags - set(doc["verdict"]):      # a look-alike that came second did not lose
+            assert f"The runner-up, {other}, lost" not in doc["explanation"]
+
+
+def test_a_later_session_is_predicted_to_within_one_percent_of_its_stroke_of_the_base(sessions):
+    """Issue 31's measured-session bound: the extended model predicts the later run no worse than
+    the base by more than 1 % of that run's peak-to-peak (it was 0.05 % worse: better on the
+    decaying and growing sines, worse on the hold; the sessions differ by a 4 % gain, which
+    neither model knows)."""
+    folder, later = sessions
+    y = later.displacement_um
+    settled = later.time_s >= 1.0          # the sensor's start-up transient and the hysteresis state
+    rms = {}
+    for name in ("model.yaml", "diag/extended_model.yaml"):
+        pred = np.asarray(load_model(folder / name).simulate(later.time_s, later.drive, None, measured_um=y), dtype=float)
+        rms[name] = float(np.sqrt(np.mean((pred - y)[settled] ** 2)))
+    assert np.isfinite(list(rms.values())).all()
+    assert rms["diag/extended_model.yaml"] <= rms["model.yaml"] + 0.01 * float(np.ptp(y)), rms
