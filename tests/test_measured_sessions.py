@@ -45,6 +45,8 @@ def test_one_drive_frequency_leaves_the_form_of_a_phase_lag_open(sessions):
         assert "the drives hold one frequency" in words and "record at a second frequency" in words
         for other in lags - set(doc["verdict"]):      # a look-alike that came second did not lose
             assert f"The runner-up, {other}, lost" not in doc["explanation"]
+        headline = (folder / "diag" / "report.html").read_text().split("<h1", 1)[1].split("</h1>", 1)[0]
+        assert "Inconclusive" in headline and "(tentative)" in headline      # docs/cli.md: effects marked tentative
 
 
 def test_a_later_session_is_predicted_to_within_one_percent_of_its_stroke_of_the_base(sessions):

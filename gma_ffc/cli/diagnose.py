@@ -89,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
              "inconclusive": "the data cannot decide; see 'cannot conclude' for the recording that would"}
     print(f"outcome: {doc['outcome']}: {words[doc['outcome']]}")
     verdict = ", ".join(doc["verdict"]) if doc["verdict"] else "none"
+    if doc["verdict"] and doc["outcome"] == "inconclusive":
+        verdict += " (tentative: see 'cannot conclude')"       # docs/cli.md: effects marked tentative
     print(f"verdict: {verdict}")
     print(rms_summary(doc))
     print(f"identification recordings: {doc['identification']['note']}", file=sys.stderr)
