@@ -124,13 +124,14 @@ class EffectSelector:
     one_frequency_share (0.9)
         Drives holding this share of their power within an octave of one frequency are one
         frequency to a phase lag (`drive.dominant_band`): a delay, a lag and a resonance then all
-        fit it, and which one it is shows only in how the lag changes with frequency. On the twelve
-        rate cases of the development and never-tuned sets, cut to their first 8 s (one 3-5 Hz
-        sine), 7 named the wrong one of the three, with confidence (`scripts/one_frequency.py`). So an effect of that kind (`told_by_frequency`)
-        found on such drives is named with its look-alikes, and the outcome is inconclusive, with
+        fit it, and which one it is shows only in how the lag changes with frequency. On the
+        twelve rate cases of the development and never-tuned sets, cut to their first 8 s (one
+        3-5 Hz sine), 7 named the wrong one of the three, with confidence
+        (`scripts/one_frequency.py`). So an effect of that kind (`told_by_frequency`) found on
+        such drives is named with its look-alikes, tentatively: the outcome is inconclusive, with
         the frequencies that would decide. A single sine holds 0.97-1.0 (the measured piezo 0.97,
         quantised); a second sine a third of its amplitude takes 10 %; the benchmarks' mixed
-        drives hold 0.4-0.45, two short runs at two frequencies about 0.71.
+        drives hold 0.17-0.44, two short runs at two frequencies about 0.71.
     workers (2)
         Candidate searches in parallel threads (numba kernels and BLAS release the GIL), at most
         one per usable CPU (`usable_cpus`: the environment's `GMA_FFC_CPUS`, else the CPUs this
