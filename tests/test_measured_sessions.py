@@ -12,7 +12,7 @@ import pytest
 
 from gma_ffc.cli import main
 from gma_ffc.modelio import load_model
-from gma_ffc.recordings import read_recording
+from gma_ffc.recordings import read_recording, write_recording
 from measured import yan9a_csv
 
 
@@ -23,7 +23,6 @@ def sessions(tmp_path_factory):
     folder = tmp_path_factory.mktemp("yan9a")
     run = read_recording(yan9a_csv("model", folder))
     half = run.time_s < 20.0
-    from gma_ffc.recordings import write_recording
     write_recording(folder / "ident.csv", run.rows(half, "ident.csv"))
     write_recording(folder / "diagnosed.csv", run.rows(~half, "diagnosed.csv"))
     assert main(["identify", str(folder / "ident.csv"), "-o", str(folder / "model.yaml")]) == 0
@@ -59,7 +58,8 @@ def test_a_later_session_is_predicted_to_within_one_percent_of_its_stroke_of_the
     settled = later.time_s >= 1.0          # the sensor's start-up transient and the hysteresis state
     rms = {}
     for name in ("model.yaml", "diag/extended_model.yaml"):
-        pred = np.asarray(load_model(folder / name).simulate(later.time_s, later.drive, None, measured_um=y), dtype=float)
+        model = load_model(folder / name)
+        pred = np.asarray(model.simulate(later.time_s, later.drive, None, measured_um=y), dtype=float)
         rms[name] = float(np.sqrt(np.mean((pred - y)[settled] ** 2)))
     assert np.isfinite(list(rms.values())).all()
     assert rms["diag/extended_model.yaml"] <= rms["model.yaml"] + 0.01 * float(np.ptp(y)), rms
