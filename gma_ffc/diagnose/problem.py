@@ -13,7 +13,6 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from ..drive import dominant_band
 from ..errors import InputError
 from ..recordings import Recording
 from .anchor import anchor_data, measured_loops
@@ -53,7 +52,7 @@ def setup(selector: Any, model: Any, recordings: Sequence[Recording], say: Calla
     checked = checked or check(model, [r.name for r in identification])
     checked = dataclasses.replace(checked, diagnosed=tuple(r.name for r in recordings if r.name in checked.recorded))
     return Problem(model, model, tuple(data), fitter, noise, n_samples, too_little, tuple(cannot + jumps), null,
-                   checked, slow_only, dominant_band([(d.t, d.u) for d in data]))
+                   checked, slow_only)
 
 
 def scored(d: RecData, r: np.ndarray) -> np.ndarray:

@@ -39,6 +39,7 @@ from threadpoolctl import threadpool_limits
 from .. import effects as effect_registry
 from ..effects import REGISTRY
 from ..effects.base import SignatureCheck, SignatureFailure
+from ..drive import dominant_band
 from ..errors import InputError
 from ..extended import ExtendedModel
 from ..recordings import Recording
@@ -645,7 +646,9 @@ class EffectSelector:
         """An accepted phase lag (`told_by_frequency`) on drives of one frequency (`one_frequency_share`)
         is ambiguous with the look-alikes this diagnosis tried: the selection with those pairs, and
         what the user is told."""
-        f0, share = problem.drive_band
+        if not any(REGISTRY[name].told_by_frequency for name in sel.accepted):
+            return sel, []
+        f0, share = dominant_band([(d.t, d.u) for d in problem.data])
         if not share >= self.one_frequency_share:
             return sel, []
         pairs, words = [], []

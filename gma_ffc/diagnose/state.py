@@ -54,8 +54,6 @@ class Problem:
     null: NullFit
     identification: IdentificationCheck   # the identification recordings given, against the model's record
     slow_only: bool = False               # too few drive reversals for loop effects: only slow ones are tested
-    drive_band: tuple[float, float] = (math.nan, 0.0)   # the drives' dominant frequency and its power share
-                                                        # (`drive.dominant_band`)
 
 
 @dataclass(frozen=True)
