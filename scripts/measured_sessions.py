@@ -10,7 +10,6 @@ second, and the difference as a share of the later run's peak-to-peak (the issue
 
 from __future__ import annotations
 
-import lzma
 import subprocess
 import sys
 import tempfile
@@ -20,17 +19,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-FIXTURES = ROOT / "tests" / "fixtures"
+sys.path.insert(0, str(ROOT / "tests"))        # tests/measured.py: where the vendored recordings are unpacked
 SPLIT_S = 20.0       # half the first run: the identification part, then the diagnosed part
 SETTLED_S = 1.0      # the sensor's start-up transient and the hysteresis state, not judged
 PARTS = (("sine 0.24-3.42 V", 1.0, 15.41), ("decaying", 15.41, 19.41), ("hold", 19.41, 25.37),
          ("growing", 25.37, 29.36), ("sine again", 29.36, 37.2))
-
-
-def _unpack(run: str, folder: Path) -> Path:
-    path = folder / f"piezo_yan9a_{run}.csv"
-    path.write_bytes(lzma.decompress((FIXTURES / f"piezo_yan9a_{run}.csv.xz").read_bytes()))
-    return path
 
 
 def _cli(*args: str) -> str:
@@ -41,17 +34,18 @@ def _cli(*args: str) -> str:
 def main() -> int:
     from gma_ffc.modelio import load_model
     from gma_ffc.recordings import read_recording, write_recording
+    from measured import yan9a_csv
 
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        run = read_recording(_unpack("model", folder))
+        run = read_recording(yan9a_csv("model", folder))
         write_recording(folder / "ident.csv", run.rows(run.time_s < SPLIT_S, "ident.csv"))
         write_recording(folder / "diagnosed.csv", run.rows(run.time_s >= SPLIT_S, "diagnosed.csv"))
         _cli("identify", str(folder / "ident.csv"), "-o", str(folder / "model.yaml"))
         said = _cli("diagnose", "--model", str(folder / "model.yaml"), str(folder / "diagnosed.csv"),
                     "--ident", str(folder / "ident.csv"), "-o", str(folder / "diag"))
         print("\n".join(line for line in said.splitlines() if line.startswith(("outcome", "verdict", "held-out"))))
-        later = read_recording(_unpack("later", folder))
+        later = read_recording(yan9a_csv("later", folder))
         t, y = later.time_s, later.displacement_um
         rms = {}
         for name, path in (("base", folder / "model.yaml"), ("extended", folder / "diag" / "extended_model.yaml")):
