@@ -34,7 +34,8 @@ def main(argv: list[str] | None = None) -> int:
     from gma_ffc.diagnose.selection import EffectSelector
     from gma_ffc.drive import dominant_band
 
-    known = {c.name: c for c in bench.cases() + bench.holdout_cases() + bench.rising_cases()}
+    known = {c.name: c for c in bench.cases() + bench.holdout_cases() + bench.rising_cases()
+             + bench.rising_holdout_cases()}
     wrong = {"with": 0, "without": 0}
     print(f"{'case':28s} {'band':>14s}  {'with the rule':40s} without it")
     for name in args.cases:

@@ -44,7 +44,7 @@ def test_outputs_follow_the_spec(case_files, capsys, tmp_path):
                       ("rms_before_um", float), ("rms_after_um", float), ("validation", str),
                       ("extended_model", str)):
         assert isinstance(doc[key], kind), key
-    assert doc["verdict"] == ["thermal_drift"]
+    assert doc["verdict"] == ["thermal_drift"] and doc["tentative"] == []
     assert doc["extended_model"] == "extended_model.yaml"
     assert doc["rms_after_um"] < 0.5 * doc["rms_before_um"]
     loc = doc["located"][0]

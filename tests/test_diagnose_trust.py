@@ -59,6 +59,7 @@ def test_a_phase_lag_on_one_long_sine_is_named_with_its_look_alikes_not_alone():
     dg = diagnose(model, [one])
     assert dg.outcome == "inconclusive"
     assert set(dg.verdict) <= {"time_delay", "rate_dependence", "mechanical_dynamics"} and dg.verdict
+    assert dg.tentative == dg.verdict           # each has its look-alikes: none is vouched for
     words = " ".join(dg.cannot_conclude)
     assert "the drives hold one frequency" in words and "record at a second frequency" in words
 

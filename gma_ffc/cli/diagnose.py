@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from ..recordings import read_recording
     from ..diagnose.engine import diagnose
     from ..diagnose.report import write_outputs
-    from ..diagnose.results import rms_summary
+    from ..diagnose.results import rms_summary, verdict_words
 
     if args.max_effects < 1:
         raise InputError(f"--max-effects must be at least 1, got {args.max_effects}")
@@ -88,10 +88,7 @@ def run(args: argparse.Namespace) -> int:
              "unexplained": "the residual is well above the noise and nothing in the vocabulary explains it",
              "inconclusive": "the data cannot decide; see 'cannot conclude' for the recording that would"}
     print(f"outcome: {doc['outcome']}: {words[doc['outcome']]}")
-    verdict = ", ".join(doc["verdict"]) if doc["verdict"] else "none"
-    if doc["verdict"] and doc["outcome"] == "inconclusive":
-        verdict += " (tentative: see 'cannot conclude')"       # docs/cli.md: effects marked tentative
-    print(f"verdict: {verdict}")
+    print(f"verdict: {verdict_words(doc['verdict'], doc['tentative'])}")
     print(rms_summary(doc))
     print(f"identification recordings: {doc['identification']['note']}", file=sys.stderr)
     for state in doc["initial_state"]:

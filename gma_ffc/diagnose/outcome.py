@@ -77,6 +77,7 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
                        + ("." if outcome == "unexplained" else "; what is named below may only compensate it.")
                        + " " + explanation)
     loo = leave_one_out_figures(problem, final)
+    tentative = tentative_effects(verdict, outcome, sel, column_fault is not None)
     ordered = sorted(cands.values(), key=lambda c: (not c.accepted, not c.testable,
                                                     c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
     rounds = [r.as_dict() for r in sel.rounds]
@@ -85,7 +86,17 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
                      _validation(selector, problem, final, loo), conclusive,
                      cannot, final.extended, list(problem.data), list(null.base_pred), list(null.null_pred),
                      list(final.final_pred), rounds, rounds[0]["n_eff"] if rounds else float("nan"),
-                     str(selector.initial_state), after, problem.identification.to_json(), loo)
+                     str(selector.initial_state), after, problem.identification.to_json(), loo, tentative)
+
+
+def tentative_effects(verdict: list[str], outcome: str, sel: Selection, column_fault: bool) -> list[str]:
+    """The named effects the data cannot vouch for (docs/cli.md): each the data fit as well as a
+    look-alike (`sel.ambiguous`); every one when a column's fault may be what they compensate, or
+    when the outcome is inconclusive for a reason no pair names."""
+    if outcome != "inconclusive":
+        return []
+    paired = [name for name in verdict if any(name in pair for pair in sel.ambiguous)]
+    return list(verdict) if column_fault or not paired else paired
 
 
 TIMED = ("rate_dependence", "mechanical_dynamics")   # effects whose discrete form holds the drive over each sample

@@ -281,7 +281,7 @@ def render_html(dg: Diagnosis, doc: dict) -> str:
     summary = rms_summary(doc)
     title, colour, sentence = HEADLINES[dg.outcome]
     if dg.verdict:
-        title += ": " + ", ".join(dg.verdict) + (" (tentative)" if dg.outcome == "inconclusive" else "")
+        title += ": " + ", ".join(name + (" (tentative)" if name in dg.tentative else "") for name in dg.verdict)
     parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'><title>gma-ffc diagnosis</title>",
              "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}"
              "table{border-collapse:collapse}td,th{border:1px solid #bbb;padding:3px 6px;font-size:13px}"

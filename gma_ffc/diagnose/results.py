@@ -72,6 +72,7 @@ class Diagnosis:
     located_after: list[Located] = field(default_factory=list)   # the residual the named effects leave
     identification: dict = field(default_factory=dict)   # the identification recordings given (`--ident`), checked
     leave_one_out: dict = field(default_factory=dict)    # leave-one-recording-out figures (two or more recordings)
+    tentative: list[str] = field(default_factory=list)   # the verdict's effects a look-alike fits as well (docs/cli.md)
 
     def initial_states(self) -> list[dict]:
         """Per recording: the rule, how its state was chosen, and how long it is not scored."""
@@ -83,6 +84,7 @@ class Diagnosis:
         return {
             "outcome": self.outcome,
             "verdict": list(self.verdict),
+            "tentative": list(self.tentative),
             "explanation": self.explanation,
             "located": [loc.to_json() for loc in self.located],
             "located_after": [loc.to_json() for loc in self.located_after],
@@ -99,6 +101,15 @@ class Diagnosis:
             "leave_one_out": dict(self.leave_one_out),
             "extended_model": model_file,
         }
+
+
+def verdict_words(verdict: list[str], tentative: list[str]) -> str:
+    """The verdict as the command prints it: "none", or the effects, with those a look-alike fits as
+    well named again as tentative (docs/cli.md)."""
+    if not verdict:
+        return "none"
+    marked = f" (tentative: {', '.join(tentative)}; see 'cannot conclude')" if tentative else ""
+    return ", ".join(verdict) + marked
 
 
 def rms_summary(doc: dict) -> str:

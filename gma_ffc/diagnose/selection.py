@@ -142,7 +142,7 @@ class EffectSelector:
         shares (`gma_ffc.initial_state`): estimated from the measured displacement by default;
         whatever the rule, nothing before the state has settled is scored.
 
-    Attributes after `fit`: `outcome_`, `verdict_`, `candidates_`, `extended_model_`, the search
+    Attributes after `fit`: `outcome_`, `verdict_`, `tentative_`, `candidates_`, `extended_model_`, the search
     threads it ran (`threads_`) and the whole `diagnosis_` (`gma_ffc.diagnose.results.Diagnosis`, what the report shows).
     """
 
@@ -189,6 +189,7 @@ class EffectSelector:
         self.diagnosis_ = dg
         self.outcome_ = dg.outcome
         self.verdict_ = list(dg.verdict)
+        self.tentative_ = list(dg.tentative)
         self.candidates_ = list(dg.candidates)
         self.extended_model_ = dg.extended
         return self
