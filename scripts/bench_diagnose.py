@@ -176,6 +176,11 @@ def main(argv: list[str] | None = None) -> int:
                                       f"its first run, after {after})", general_cases(seed, prefix=prefix))]
                for prefix, which, seed, after in LATER_DRAWS}}
     chosen = sets["tuned"] + sets["holdout"] if args.set == "all" else sets[args.set]
+    if args.only:
+        pre = tuple(p.strip() for p in args.only.split(","))
+        names = [c.name.split(":")[-1] for _, todo in chosen for c in todo]
+        if not any(n.startswith(pre) for n in names):
+            ap.error(f"--only {args.only}: no case of --set {args.set} starts so; its cases: {', '.join(names)}")
     ok = True
     for title, todo in chosen:
         if args.quick:
