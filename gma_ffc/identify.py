@@ -39,13 +39,16 @@ import numpy as np
 from scipy import optimize
 
 from . import operators as ops
-from .drive import loop_frequency_hz
+from .constrained_weights import (PlayWeights, bernstein_fit, bounded_least_squares, deadzones_determined, determined,
+                                  intermediate_grid, slope_basis, slopes_and_offset, slopes_to_weights, weights_to_slopes)
 from .errors import FaultError, InputError
+from .identification_checks import (BUTTERFLY_SHARE, CLOCKWISE_WIDTH, FAST_LOOP_HZ, burn_in_end, column_notes,
+                                    fewer_operators, has_full_sweep, late_sweep_note, loop_rates_hz,
+                                    travel_against_drive)
 from .initial_state import first_direction, monotone_play_state, resolve
 from .inverse import deadzone_inverse
 from .model import SDPIModel, rms
 from .recordings import Recording
-from .sensor_holds import held_notes, held_samples
 
 
 @dataclass
@@ -97,190 +100,11 @@ class _Data:
         return self.sigma
 
 
-def slope_basis(z: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """phi_k(z): the length of z's path inside each linear piece of a dead-zone superposition.
-
-    sum_k s_k phi_k(z) equals sum_j w_j S_{r_j}(z) when s are the pieces' slopes (the cumulative
-    weights from the centre outwards), so bounds on s are Proposition 3.1.
-    """
-    m = len(r)
-    c = (m - 1) // 2
-    out = np.empty((len(z), m))
-    lo = r[c - 1] if c > 0 else -np.inf
-    hi = r[c + 1] if c + 1 < m else np.inf
-    out[:, c] = np.clip(z, lo, hi)
-    for k in range(c + 1, m):
-        top = r[k + 1] if k + 1 < m else np.inf
-        out[:, k] = np.clip(z, r[k], top) - r[k]
-    for k in range(c - 1, -1, -1):
-        bottom = r[k - 1] if k > 0 else -np.inf
-        out[:, k] = np.clip(z, bottom, r[k]) - r[k]
-    return out
-
-
-def slopes_to_weights(s: np.ndarray) -> np.ndarray:
-    """Slopes of the linear pieces -> dead-zone weights (works on the last axis, any leading axes)."""
-    s = np.asarray(s, dtype=float)
-    m = s.shape[-1]
-    c = (m - 1) // 2
-    w = np.empty_like(s)
-    w[..., c] = s[..., c]
-    w[..., c + 1:] = np.diff(s[..., c:], axis=-1)
-    w[..., :c] = s[..., :c] - s[..., 1: c + 1]
-    return w
-
-
-def weights_to_slopes(w: np.ndarray) -> np.ndarray:
-    w = np.asarray(w, dtype=float)
-    m = w.shape[-1]
-    c = (m - 1) // 2
-    s = np.empty_like(w)
-    s[..., c:] = np.cumsum(w[..., c:], axis=-1)
-    s[..., : c + 1] = np.cumsum(w[..., c::-1], axis=-1)[..., ::-1]
-    return s
-
-
-def has_full_sweep(x: np.ndarray, tol: float = 0.1) -> bool:
-    """True when the drive travels the whole of its range upwards and downwards: a closed major
-    loop, wherever in it the recording starts (a cycle cut mid-rise counts; a single ramp does
-    not). Without it the loop's two branches cannot both be fitted.
-
-    Travel is counted on the drive passed through a play of half-width tol/2 of the range, so
-    noise and small reversals add nothing."""
-    lo, hi = (float(v) for v in np.percentile(x, [1.0, 99.0]))  # a start-up or stop ramp is no cycle
-    span = hi - lo
-    if span <= 0:
-        return False
-    xs = np.ascontiguousarray(np.clip(x, lo, hi), dtype=float)
-    p = np.empty((xs.size, 1))
-    ops.play_outputs(xs, np.array([0.5 * tol * span]), np.array([xs[0]]), p)
-    step = np.diff(p[:, 0])
-    need = (1.0 - 2.0 * tol) * span
-    return float(step[step > 0].sum()) >= need and float(-step[step < 0].sum()) >= need
-
-
-def burn_in_end(x: np.ndarray, tol: float = 0.02) -> int:
-    """First sample after the drive has swept from one extreme to the other (play states then
-    no longer depend on their initial values); 0 if it never does."""
-    lo, hi = float(x.min()), float(x.max())
-    span = hi - lo
-    if span <= 0:
-        return 0
-    near_lo = np.flatnonzero(x <= lo + tol * span)
-    near_hi = np.flatnonzero(x >= hi - tol * span)
-    end = max(int(near_lo[0]), int(near_hi[0]))
-    return end if end < len(x) - 10 else 0
-
-
-def _late_sweep_note(shares: Sequence[float]) -> str:
-    """identify's note on recordings that reach both ends of their drive late (a single cycle, a
-    cut-out window, a rising amplitude): not a fault, but their start state had to be estimated."""
-    lo, hi = 100 * min(shares), 100 * max(shares)
-    share = f"{lo:.0f} %" if round(lo) == round(hi) else f"{lo:.0f}-{hi:.0f} %"
-    return (f"{len(shares)} recording(s) reach both ends of their drive only after {share} of their samples "
-            "(a single cycle, a cut-out window or a rising amplitude): their initial hysteresis state was "
-            "estimated from the measurement, and every sample fitted")
-
-
-FAST_LOOP_HZ = 20.0
-"""Above this loop rate a failed identification also names the drive's speed as a likely cause: the
-GMA's eddy-current and mechanical corner frequencies are tens to hundreds of Hz, and the paper
-identifies at 3 Hz."""
-
 TRUST_REGION_SOLVER = "exact"
 """The output-error refinements' trust-region steps: an SVD of the Jacobian. They have 10 to 18
 unknowns over thousands of rows, so one SVD per step costs less than lsmr's many products through
 scipy's operator wrappers, and it takes fewer steps (29 identifications of a resonance pair's
 diagnosis: 1943 -> 1276 evaluations, 10.3 -> 7.4 s of CPU)."""
-
-W0_MIN_SHARE = 1e-3
-"""The zero-threshold play's least share of all play weights, a constraint of every fit (not a
-check after it): Proposition 3.1 needs w_h0 > 0, and the inverse's gain just after a reversal is
-1/w_h0 times the loop's, so the share keeps it within 1000x the loop's mean gain. A wide, square
-loop (a ferroelectric driven beyond its coercive field) is flat just after each reversal and
-pulls w_h0 to its bound, wherever that is: a bound relative to the previous pass let it walk down
-by 1e-6 per pass to 1e-12, and the model failed its own invertibility check."""
-
-W0_MIN_GAIN = 1e-6
-"""...and w_h0 is at least this share of the data's mean gain (stroke over drive span), so it
-stays positive however the other weights fall: far below any real loop's slope (which the share
-above already holds it to), far above rounding in the weights' units, whatever the drive's unit."""
-
-
-class PlayWeights:
-    """Play weights as a fit's bounded variables: w_i = q_i for i >= 1 and
-    w_0 = q_0 + a sum_{i>=1} q_i with a = W0_MIN_SHARE / (1 - W0_MIN_SHARE), so bounds q >= lower
-    are exactly w_0 >= W0_MIN_SHARE sum(w) (plus q_0 >= the gain floor) and w_i >= 0: Proposition
-    3.1 and w_h0's floor as the bounds of a bounded least-squares problem."""
-
-    def __init__(self, n: int, gain: float) -> None:
-        a = W0_MIN_SHARE / (1.0 - W0_MIN_SHARE)
-        self.T = np.eye(n)
-        self.T[0, 1:] = a                       # w = T q
-        self.lower = np.r_[W0_MIN_GAIN * max(gain, 1e-300), np.zeros(n - 1)]
-
-    def weights(self, q: np.ndarray) -> np.ndarray:
-        return self.T @ q
-
-    def variables(self, w: np.ndarray) -> np.ndarray:
-        """The q of weights w, moved onto the bounds where w breaks them (a start for a fit)."""
-        return np.maximum(np.linalg.solve(self.T, w), self.lower)
-
-
-def _fewer_operators(n_samples: int, n_play: int) -> str:
-    """The part of the too-few-samples advice that fits fewer operators, when a model with at least
-    two plays and one dead-zone fits in `n_samples` (eight samples per operator): '' otherwise."""
-    plays = min(n_samples // 8 - 1, n_play - 1)
-    return f", or fit fewer operators (--plays {plays} --deadzones 1)" if plays >= 2 else ""
-
-
-def loop_rates_hz(recordings: Sequence[Recording]) -> list[float]:
-    """Each recording's drive loop rate (`drive.loop_frequency_hz`), those that loop at all."""
-    rates = (loop_frequency_hz(r.time_s, r.drive) for r in recordings)
-    return [f for f in rates if np.isfinite(f)]
-
-
-CLOCKWISE_WIDTH = 0.05
-"""A clockwise loop wider than this share of the stroke (on average over the drive's travel) is
-noted: far above what noise or a settling transient leaves, far below the 10-20 % of the stroke
-that real hysteresis loops are wide."""
-
-
-BUTTERFLY_SHARE = 1.0 / 3.0
-"""A recording the model cannot explain is called a butterfly when its displacement moves against
-the drive over at least this share of its travel: a symmetric butterfly does over half of it, a
-play model never does, and lags and noise after reversals reach a few per cent."""
-
-BRANCH_BINS = 20
-"""`travel_against_drive` reads each branch (rising, falling drive) as its mean displacement in this
-many bins of the drive's span: enough to draw a butterfly's fall and rise, and each bin averages
-many samples, so noise does not make a mean step against the drive."""
-
-BRANCHES_EXPLAIN = 0.5
-"""...and it reads them only where those branch means explain at least half the displacement's
-variance: a displacement unrelated to the drive (noise, a wrong column) steps against it as often
-as with it, and is not a butterfly."""
-
-
-def travel_against_drive(x: np.ndarray, y: np.ndarray) -> float:
-    """The share of the displacement's travel that goes against the drive, read from its mean over
-    each branch (rising, falling drive) in BRANCH_BINS bins of the drive's span: 0 for a play model's
-    output, about 1/2 for a symmetric butterfly, and 0 where the branches do not explain the
-    displacement (BRANCHES_EXPLAIN) or the drive does not move."""
-    dx = np.diff(x)
-    if x.size < 3 or np.ptp(x) <= 0 or np.var(y) <= 0:
-        return 0.0
-    rising = np.r_[dx[0] >= 0, dx >= 0]
-    bins = np.minimum(((x - x.min()) / np.ptp(x) * BRANCH_BINS).astype(int), BRANCH_BINS - 1)
-    cell = bins + BRANCH_BINS * rising
-    counts = np.bincount(cell, minlength=2 * BRANCH_BINS)
-    means = np.bincount(cell, weights=y, minlength=2 * BRANCH_BINS) / np.maximum(counts, 1)
-    if 1.0 - float(np.var(y - means[cell])) / float(np.var(y)) < BRANCHES_EXPLAIN:
-        return 0.0
-    filled = counts.reshape(2, BRANCH_BINS) > 0           # (falling, rising) x bins along the drive
-    steps = np.concatenate([np.diff(m[f]) for m, f in zip(means.reshape(2, BRANCH_BINS), filled)])
-    travel = float(np.sum(np.abs(steps)))
-    return float(np.sum(-steps[steps < 0])) / travel if travel > 0 else 0.0
 
 
 def _within(level: float | None, span: tuple[float, float] | None) -> float | None:
@@ -289,23 +113,6 @@ def _within(level: float | None, span: tuple[float, float] | None) -> float | No
     if level is None or span is None:
         return level
     return min(max(level, span[0]), span[1])
-
-
-def _column_notes(recordings: Sequence[Recording]) -> list[str]:
-    """What the columns show that the fit cannot undo: a sensor's reading held while the drive
-    moved (its limit or a stall, fitted as the actuator's), and stresses logged positive."""
-    notes = []
-    for r in recordings:
-        y = r.displacement_um
-        if y is not None:
-            notes += held_notes(r.name, y, *held_samples(y, r.drive),
-                                fate="The model is fitted to them as if the actuator held still there")
-    stresses = [r.stress_MPa for r in recordings if r.stress_MPa is not None]
-    if stresses and all(float(np.min(s)) > 0.0 for s in stresses):
-        notes.append("stress_MPa is positive in every recording, and compression is negative in gma-ffc's "
-                     "recordings (docs/recordings.md): if these are the compressive loads an actuator is "
-                     "held under, negate the column before identifying")
-    return notes
 
 
 @dataclass
@@ -372,7 +179,7 @@ class SDPIIdentifier:
         data = self._prepare(recordings)
         self.output_sign_ = self._orientation(data)
         self._check_loop_direction(data)
-        self.notes_ += _column_notes(recordings)
+        self.notes_ += column_notes(recordings)
         fast = max(loop_rates_hz(recordings), default=math.nan)
         if fast > FAST_LOOP_HZ:
             self.notes_.append(f"the drive loops at up to {fast:.3g} Hz: eddy currents, a delay or the load's dynamics "
@@ -410,7 +217,7 @@ class SDPIIdentifier:
                 start = resolve(self.model_, d.x, d.sigma, "estimate", self.output_sign_ * d.y)
                 d.start = 0
                 self._play_outputs(d, r_h, x_c, start.play_state)
-            self.notes_.append(_late_sweep_note([burn_in_end(d.x) / len(d.x) for d in short]))
+            self.notes_.append(late_sweep_note([burn_in_end(d.x) / len(d.x) for d in short]))
             self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c, (x_lo, x_hi))
         self.zero_shifts_um_ = {d.name: 0.0 for d in data}
         if self.zero == "per_recording" and len(data) > 1:
@@ -684,7 +491,7 @@ class SDPIIdentifier:
                 raise InputError(f"{r.source}: only {len(r)} samples; identifying {self.n_play} plays and "
                                  f"{self.n_deadzone} dead-zones needs at least {min_samples}: record at least "
                                  f"{min_samples} samples over at least one full drive cycle (min to max and back)"
-                                 + _fewer_operators(len(r), self.n_play))
+                                 + fewer_operators(len(r), self.n_play))
             if np.ptp(r.drive) <= 0:
                 raise InputError(f"{r.source}: the drive is constant; a hysteresis model needs a swept drive")
             if not has_full_sweep(r.drive):
@@ -758,13 +565,13 @@ class SDPIIdentifier:
         y = np.concatenate([d.y[self._rows(d)] for d in data])
         l = (self.n_deadzone - 1) // 2
         z_hi, z_lo = max(float(z.max()), 1e-12), min(float(z.min()), -1e-12)
-        r_s = _intermediate_grid(z_lo, z_hi, l)
-        A = _slopes_and_offset(z, r_s)
-        if not _determined(A):
+        r_s = intermediate_grid(z_lo, z_hi, l)
+        A = slopes_and_offset(z, r_s)
+        if not determined(A):
             raise InputError(f"the plays' output takes too few distinct values ({np.unique(z).size}) to fix "
                              f"{self.n_deadzone} dead-zone slopes (the drive holds a few levels): record a swept "
                              "drive (a sine or triangle from min to max and back), or fit fewer dead-zones "
-                             f"(--deadzones {_deadzones_determined(z, z_lo, z_hi, l)})")
+                             f"(--deadzones {deadzones_determined(z, z_lo, z_hi, l)})")
         scale = np.linalg.norm(A, axis=0)
         scale[scale == 0] = 1.0
         floor = 1e-3 * np.ptp(y) / max(np.ptp(z), 1e-12)
@@ -866,7 +673,7 @@ class SDPIIdentifier:
                                      n_s: int) -> np.ndarray:
         """The scaled coefficients of the least squares (A / col_scale, y) with every dead-zone slope
         at least eps at every stress of the range: SLSQP on a grid of stresses grown by the worst
-        point, and Proposition 3.1 as simple bounds (`_bernstein_fit`) where that does not converge."""
+        point, and Proposition 3.1 as simple bounds (`bernstein_fit`) where that does not converge."""
         As = A / col_scale
         G, g = As.T @ As, As.T @ y
         G += 1e-12 * np.trace(G) / len(G) * np.eye(len(G))
@@ -899,7 +706,7 @@ class SDPIIdentifier:
             theta_s = res.x
         if self._min_slope(theta_s / col_scale, degree, n_s)[1] < eps * (1 - 1e-6):
             # the constrained solve did not converge to a feasible point: Proposition 3.1 as bounds
-            theta_s = _bernstein_fit(A, y, degree, n_s, eps) * col_scale
+            theta_s = bernstein_fit(A, y, degree, n_s, eps) * col_scale
         return theta_s
 
     @staticmethod
@@ -996,66 +803,6 @@ class SDPIIdentifier:
 BEYOND_THE_BOX = 1e30
 """A play state beyond any play's admissible box (the drive's first value plus or minus its
 threshold): the kernel's first step clamps it to the box's edge."""
-
-
-BERNSTEIN = {0: np.array([[1.0]]), 1: np.array([[1.0, -1.0], [1.0, 1.0]]),
-             2: np.array([[1.0, -1.0, 1.0], [1.0, 0.0, -1.0], [1.0, 1.0, 1.0]])}
-"""Per degree, the map from a polynomial's coefficients (a_0..a_d in u) to its Bernstein coefficients
-on u in [-1, 1]; the polynomial is a weighted mean of those there, so all of them >= eps keeps it >= eps."""
-
-
-def _bernstein_fit(A: np.ndarray, y: np.ndarray, degree: int, n_s: int, eps: float) -> np.ndarray:
-    """The stress step's least squares with every dead-zone slope's Bernstein coefficients >= eps:
-    Proposition 3.1 at every stress of the range as simple bounds, so a bounded least-squares solver
-    meets it exactly (a sufficient condition, so it may fit a little worse than the exact constraint;
-    used when that one's solver fails). Columns as `_fit_stress` builds them: slopes [p, k], then the rest."""
-    n_coef = (degree + 1) * n_s
-    to_poly = np.kron(np.linalg.inv(BERNSTEIN[degree]), np.eye(n_s))   # Bernstein [j, k] -> polynomial [p, k]
-    Ab = np.hstack([A[:, :n_coef] @ to_poly, A[:, n_coef:]])
-    scale = np.linalg.norm(Ab, axis=0)
-    scale[scale == 0] = 1.0
-    lower = np.r_[np.full(n_coef, eps), np.full(A.shape[1] - n_coef, -np.inf)] * scale
-    b = bounded_least_squares(Ab / scale, y, lower) / scale
-    return np.r_[to_poly @ b[:n_coef], b[n_coef:]]
-
-
-def _intermediate_grid(z_lo: float, z_hi: float, l: int) -> np.ndarray:
-    """2l+1 dead-zone thresholds at equal intervals over z's range on each side of 0 (`_regrid`)."""
-    k = np.arange(1, l + 1) / (l + 1)
-    return np.r_[(k * z_lo)[::-1], 0.0, k * z_hi]
-
-
-def _slopes_and_offset(z: np.ndarray, r_s: np.ndarray) -> np.ndarray:
-    """The regrid's design: the dead-zone pieces' slope basis at z (`slope_basis`) and the offset."""
-    return np.hstack([slope_basis(z, r_s), np.ones((len(z), 1))])
-
-
-def _determined(A: np.ndarray) -> bool:
-    """Whether the data fix every coefficient of A's columns that they touch at all: a slope whose
-    piece no sample reaches has a zero column and is left at its bound, but a piece between samples
-    only adds a constant beyond it, which trades with the offset and its neighbours without limit
-    (a six-level drive's slopes went to +-6.4e13 and broke Proposition 3.1's floor)."""
-    used = np.linalg.norm(A, axis=0) > 0
-    return bool(np.linalg.matrix_rank(A[:, used]) == int(used.sum()))
-
-
-def _deadzones_determined(z: np.ndarray, z_lo: float, z_hi: float, l: int) -> int:
-    """The most dead-zones below 2l+1 whose slopes the plays' output z fixes (1 at least: one piece
-    and the offset are fixed by any z that is not constant)."""
-    for m in range(l - 1, 0, -1):
-        if _determined(_slopes_and_offset(z, _intermediate_grid(z_lo, z_hi, m))):
-            return 2 * m + 1
-    return 1
-
-
-def bounded_least_squares(A: np.ndarray, y: np.ndarray, lower: np.ndarray, max_iter: int | None = None) -> np.ndarray:
-    """argmin |A x - y| with x >= lower (scipy's `lsq_linear`, trust-region reflective). Its
-    reflective step multiplies an infinite stride (towards the absent upper bound) by a zero
-    direction and then discards that candidate; numpy's "invalid value" warning from there is
-    scipy's working, not the fit's, so it is not shown (a hypothesis-drawn recording put it on the
-    CLI's output). A NaN in the result would still reach the model's own finiteness check."""
-    with np.errstate(invalid="ignore"):
-        return optimize.lsq_linear(A, y, bounds=(lower, np.inf), lsmr_tol="auto", max_iter=max_iter).x
 
 
 ZERO_RATIO = 3.0   # a recording's mean error 3x the loops' own (shape) error: the level, not the loop, is off

@@ -10,7 +10,7 @@ import numpy as np
 from .atomic import atomic_write
 from .drive import drive_quantity, drive_unit
 from .errors import InputError
-from .identify import burn_in_end
+from .identification_checks import burn_in_end
 from .protocols import Model
 from .recordings import Recording
 

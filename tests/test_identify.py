@@ -11,7 +11,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gma_ffc.errors import InputError
-from gma_ffc.identify import SDPIIdentifier, burn_in_end, slope_basis, slopes_to_weights, weights_to_slopes
+from gma_ffc.constrained_weights import slope_basis, slopes_to_weights, weights_to_slopes
+from gma_ffc.identification_checks import burn_in_end
+from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.model import SDPIModel, rms
 from gma_ffc.recordings import Recording
 from preisach import PreisachActuator

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 from gma_ffc import identify as ident
 from gma_ffc.cli import main
-from gma_ffc.identify import W0_MIN_SHARE, SDPIIdentifier, _bernstein_fit
+from gma_ffc.constrained_weights import W0_MIN_SHARE, bernstein_fit
+from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.model import SDPIModel, rms
 from gma_ffc.modelio import load_model
 from gma_ffc.recordings import Recording, write_recording
@@ -82,7 +83,7 @@ def test_the_bernstein_bounds_keep_every_slope_above_its_floor_at_every_stress(s
     A = rng.normal(size=(80, n_coef + 2))
     y = rng.normal(size=80) * 5
     eps = float(rng.uniform(1e-3, 1.0))
-    theta = _bernstein_fit(A, y, degree, n_s, eps)
+    theta = bernstein_fit(A, y, degree, n_s, eps)
     poly = theta[:n_coef].reshape(degree + 1, n_s)
     u = np.linspace(-1.0, 1.0, 401)
     slopes = sum(poly[p][None, :] * u[:, None] ** p for p in range(degree + 1))
@@ -97,7 +98,7 @@ def test_bounded_least_squares_shows_no_warning_of_scipys_reflective_step():
 
     from scipy import optimize
 
-    from gma_ffc.identify import bounded_least_squares
+    from gma_ffc.constrained_weights import bounded_least_squares
 
     A = np.array([[-0.5, -0.9, -0.8, -1.0, 1.0, 0.0, 0.8, -0.9, 0.0],
                   [-1.6, 1.1, 1.3, -0.3, -0.5, -0.6, 1.4, -1.3, 0.0],

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gma_ffc.identify import slopes_to_weights
+from gma_ffc.constrained_weights import slopes_to_weights
 from gma_ffc.inverse import deadzone_inverse, deadzone_inverse_into, play_inverse
 from gma_ffc.model import SDPIModel
 

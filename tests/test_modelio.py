@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from gma_ffc.errors import ModelError
-from gma_ffc.identify import slopes_to_weights
+from gma_ffc.constrained_weights import slopes_to_weights
 from gma_ffc.model import SDPIModel
 from gma_ffc.modelio import load_model, save_model
 

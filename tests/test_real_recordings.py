@@ -223,7 +223,7 @@ def test_a_one_cycle_recording_contributes_all_its_samples(piezo, start_s):
 
 
 def test_a_full_sweep_is_travel_both_ways_wherever_the_recording_starts():
-    from gma_ffc.identify import has_full_sweep
+    from gma_ffc.identification_checks import has_full_sweep
 
     t = np.linspace(0.0, 1.0, 1000, endpoint=False)
     rng = np.random.default_rng(3)
