@@ -3,6 +3,8 @@ drivers are found through the entry-point group."""
 
 from __future__ import annotations
 
+import re
+
 from pathlib import Path
 
 import pytest
@@ -57,6 +59,9 @@ def test_example_configs_load(name):
      r"'driver.x' is unknown"),
     ("driver.load_mass_kg", -3, r"'driver.load_mass_kg' must be >= 0"),
     ("driver.load_schedule", [[1, 5], [0.5, 2]], r"'driver.load_schedule' times must increase"),
+    ("limits.stop_ramp_max_s", 0, r"'limits.stop_ramp_max_s' \(0 s\) is shorter than a stop's ramp"),
+    ("driver", {"kind": "serial", "port": "/dev/ttyS0", "queries": {"force_N": "F?"}, "timeout_s": 5},
+     r"'driver.timeout_s' \(5 s\) must be below watchdog_s \(0.5 s\)"),
 ])
 def test_bad_values_name_the_key(path, value, message):
     with pytest.raises(ConfigError, match=message):
@@ -145,3 +150,22 @@ def test_stress_source_must_match_the_driver_channels(tmp_path):
     cfg = validate_config(with_("stress.source", "stress"))
     with pytest.raises(ConfigError, match=r"'stress.source' is 'stress' but driver 'sim' provides no 'stress_MPa'"):
         ControllerManager(cfg, model=object())
+
+
+def test_a_stop_ramp_cut_short_is_refused_and_the_advised_time_is_accepted():
+    """A stop ramps within the slew limit for at most stop_ramp_max_s, then writes the safe current:
+    with 3 A to cover at 1 A/s in 0.5 s, that write was a 1.18 A step where 0.005 A a tick is allowed
+    (a new user's sweep, 2026-11-30). Refused, with a time that fits; that time is accepted."""
+    slow = {"current_min_A": 0, "current_max_A": 3, "slew_A_per_s": 1.0, "stop_ramp_max_s": 0.5}
+    with pytest.raises(ConfigError, match=r"3 A at 1 A/s takes 3 s.*Set limits.stop_ramp_max_s to ([0-9.]+) or more") as e:
+        validate_config(with_("limits", slow))
+    advised = float(re.search(r"stop_ramp_max_s to ([0-9.]+) or more", str(e.value)).group(1))
+    cfg = validate_config(with_("limits", {**slow, "stop_ramp_max_s": advised}))
+    assert cfg.limits["stop_ramp_max_s"] * slow["slew_A_per_s"] >= 3.0
+
+
+def test_every_modbus_device_timeout_is_held_below_the_watchdog():
+    cfg = yaml.safe_load((ROOT / "config" / "modbus_tcp.yaml").read_text())
+    next(iter(cfg["driver"]["devices"].values()))["timeout_s"] = 5.0
+    with pytest.raises(ConfigError, match=r"'driver.devices.amp.timeout_s' \(5 s\) must be below watchdog_s"):
+        validate_config(cfg, base_dir=ROOT / "config")

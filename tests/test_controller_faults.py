@@ -303,7 +303,7 @@ def test_a_whole_process_stall_longer_than_the_watchdog_goes_safe_and_names_it(m
     s = ctrl.run(duration_s=4.0)
     check_common(ctrl, driver, cfg, s, "watchdog")
     message = s["fault_messages"]["watchdog"]
-    assert "stalled for 2.001 s, until t=2.499 s" in message and "(watchdog 0.5 s)" in message, message
+    assert "stalled for 2.001 s, until t=2.499 s" in message and "(a period and watchdog_s: 0.501 s)" in message, message
     assert s["ticks"] < 510 and s["exit_reason"].startswith("watchdog")
 
 
@@ -318,6 +318,19 @@ def test_a_gap_shorter_than_the_watchdog_or_a_reconnect_is_not_a_stall(models, t
     ctrl = ControllerManager(cfg, model=models[0], driver=driver, clock=StallingClock(at=300, stall_s=0.4))
     s = ctrl.run(duration_s=2.0)
     assert s["state"] == "stopped" and s["reconnects"] == 1 and "watchdog" not in s["fault_counts"]
+
+
+def test_a_slow_loop_is_not_a_stall_its_period_is_not_counted_against_the_watchdog(models, tmp_path):
+    """At 1 Hz two ticks are a second apart when all is well, and the default watchdog is 0.5 s: a
+    run was faulted "stalled for 1.000 s" after its first tick (a new user's sweep, 2026-11-30).
+    A stall is now a period and watchdog_s without a tick; a real one is still found (above)."""
+    ctrl, driver, cfg = make(tmp_path, models, rate_hz=1.0)
+    s = ctrl.run(duration_s=6.0)
+    assert s["state"] == "stopped" and "watchdog" not in s["fault_counts"], s["fault_messages"]
+    ctrl, driver, cfg = make(tmp_path, models, rate_hz=1.0)
+    ctrl = ControllerManager(cfg, model=models[0], driver=driver, clock=StallingClock(at=3, stall_s=2.0))
+    s = ctrl.run(duration_s=8.0)
+    assert "watchdog" in s["fault_counts"] and "stalled for 3.000 s" in s["fault_messages"]["watchdog"]
 
 
 def test_driver_that_cannot_open_faults_without_output(models, tmp_path):

@@ -64,7 +64,9 @@ def build(cfg: ControllerConfig, *, model: Model | None = None, driver: DriverPr
     recorder = TelemetryRecorder(cfg, clock.simulated)
     tick = Tick(Inputs())
     state = StateBroadcaster(cfg.rate_hz, tick, stats, faults, hardware, recorder)
-    watchdog = Watchdog(cfg.watchdog_s, clock, faults, cfg.scheduler["realtime_priority"])
+    # the heartbeat is stamped at each tick's start, so a period passes between two even when all is
+    # well: no progress means none for a period and watchdog_s beyond it (at 1 Hz, 0.5 s alone tripped)
+    watchdog = Watchdog(cfg.period_s + cfg.watchdog_s, clock, faults, cfg.scheduler["realtime_priority"])
     plugins: list[Broadcaster] = [ModelMonitor(cfg.monitor, cfg.period_s, recorder)]   # its status says when it is off
     return Parts(cfg, clock, setup, tick, stats, faults, hardware, recorder, state, watchdog, plugins)
 

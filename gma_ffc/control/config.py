@@ -223,9 +223,10 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
     top = validate_section(data, TOP, "")
     base = Path(base_dir) if base_dir is not None else None
     reference = _reference(top["reference"], base)         # sections in this order: the first error is reported
-    limits = _limits(top["limits"])
+    limits = _limits(top["limits"], top["rate_hz"])
     driver = _driver(top["driver"], top["clock"], base)
     _limits_fit_the_setpoint(limits, driver)
+    _calls_within_the_watchdog(driver, top["watchdog_s"])
     stress, sensor = _sensing(top["stress"], top["sensor"])
     comms = _comms(top["comms"])
     telemetry = validate_section(top["telemetry"], TELEMETRY, "telemetry")
@@ -258,7 +259,7 @@ def _reference(raw: dict[str, Any], base: Path | None) -> dict[str, Any]:
     return reference
 
 
-def _limits(raw: dict[str, Any]) -> dict[str, Any]:
+def _limits(raw: dict[str, Any], rate_hz: float) -> dict[str, Any]:
     limits = validate_section(raw, LIMITS, "limits")
     if not limits["current_min_A"] < limits["current_max_A"]:
         raise ConfigError("config key 'limits.current_min_A' must be below 'limits.current_max_A' "
@@ -266,7 +267,39 @@ def _limits(raw: dict[str, Any]) -> dict[str, Any]:
     if not limits["current_min_A"] <= limits["safe_current_A"] <= limits["current_max_A"]:
         raise ConfigError(f"config key 'limits.safe_current_A' ({limits['safe_current_A']}) must lie within "
                           f"[limits.current_min_A, limits.current_max_A]")
+    _stop_ramp_fits(limits, rate_hz)
     return limits
+
+
+def _stop_ramp_fits(limits: dict[str, Any], rate_hz: float) -> None:
+    """A stop ramps to the safe current within the slew limit and ends after `stop_ramp_max_s`,
+    writing the safe current then. From the limit farthest from the safe current the ramp must fit
+    in that time (with one tick to spare, its last step), or that write is a step beyond the slew limit."""
+    safe, slew = limits["safe_current_A"], limits["slew_A_per_s"]
+    farthest = max(limits["current_max_A"] - safe, safe - limits["current_min_A"])
+    need_s = farthest / slew + 1.0 / rate_hz
+    if limits["stop_ramp_max_s"] < need_s:
+        enough = math.ceil(need_s * 10.0) / 10.0
+        raise ConfigError(
+            f"config key 'limits.stop_ramp_max_s' ({limits['stop_ramp_max_s']:g} s) is shorter than a stop's ramp "
+            f"to the safe current at the slew limit: {farthest:g} A at {slew:g} A/s takes {need_s:.3g} s, and "
+            f"cutting it short would write the safe current in one step beyond the slew limit. Set "
+            f"limits.stop_ramp_max_s to {enough:g} or more, or raise limits.slew_A_per_s")
+
+
+def _calls_within_the_watchdog(driver: Mapping[str, Any], watchdog_s: float, key: str = "driver") -> None:
+    """A driver call may block for its comms timeout (`timeout_s`, the driver's or each device's), and
+    the safe current can only be written once it returns: a timeout as long as the watchdog would
+    hold the command unwatched past it."""
+    for name, value in driver.items():
+        where = f"{key}.{name}"
+        if isinstance(value, Mapping):
+            _calls_within_the_watchdog(value, watchdog_s, where)
+        elif name == "timeout_s" and isinstance(value, (int, float)) and value >= watchdog_s:
+            raise ConfigError(
+                f"config key '{where}' ({value:g} s) must be below watchdog_s ({watchdog_s:g} s): a call that "
+                f"blocks that long holds the last command, unwatched, until it returns. Set {where} below "
+                f"{watchdog_s:g} s (a few periods is usual), or raise watchdog_s")
 
 
 def _driver(raw: dict[str, Any], clock: str, base: Path | None) -> dict[str, Any]:

@@ -263,11 +263,12 @@ class ControllerManager:
         sched, t0 = self._start_schedule()
         end_t = math.inf if duration_s is None else duration_s
         watchdog_s = self.setup.cfg.watchdog_s
+        stall_s = self.setup.cfg.period_s + watchdog_s      # two ticks' starts are a period apart when all is well
         while True:
             deadline = sched.wait()
             t_start = clock.now()
             t = deadline - t0
-            if t_start - watchdog.heartbeat > watchdog_s and self._stalled(t_start - watchdog.heartbeat,
+            if t_start - watchdog.heartbeat > stall_s and self._stalled(t_start - watchdog.heartbeat,
                                                                             t_start - t0, t):
                 return                              # NaN (paused: a fault, a reconnect) never is
             watchdog.heartbeat = t_start
@@ -304,7 +305,8 @@ class ControllerManager:
         the command unwatched. As `watchdog_s` promises, that is the watchdog fault: the safe
         current at once, then the row's stop. True when the loop must end."""
         self.faults.raise_fault(safety.WATCHDOG, (
-            f"the loop stalled for {gap_s:.3f} s, until t={until_s:.3f} s (watchdog {self.setup.cfg.watchdog_s:g} s): "
+            f"the loop stalled for {gap_s:.3f} s, until t={until_s:.3f} s (a period and watchdog_s: "
+            f"{self.setup.cfg.period_s + self.setup.cfg.watchdog_s:g} s): "
             "the process was stopped or starved, the command held meanwhile"))
         return self._execute(safety.WATCHDOG, t, "watchdog: the loop stalled") != RESUME
 

@@ -63,4 +63,4 @@ class Watchdog:
             if idle > limit and not self.tripped:
                 self.tripped = True
                 self.faults.raise_fault(safety.WATCHDOG, f"the loop made no progress for {idle:.3f} s "
-                                                         f"(watchdog {limit:g} s)")
+                                                         f"(a period and watchdog_s: {limit:g} s)")
