@@ -38,3 +38,7 @@ class FaultError(GmaError):
 
 class NotRunningError(FaultError):
     """Nobody answers on the control socket: no controller is running there."""
+
+
+class NoAnswerError(FaultError):
+    """Something holds the control socket but gave no reply in time (a controller stopped, stuck or starved)."""

@@ -310,3 +310,34 @@ def test_start_reports_a_fault_before_ready_in_one_line_exit_1(rig):
     line = one_line_error(cli("start", "--config", str(tmp / "mb.yaml"), "--runtime-dir", str(runtime)), 1)
     assert "did not start" in line and f"127.0.0.1:{port}" in line and "gave up" in line
     assert not (runtime / "control.sock").exists() and not (runtime / "gma-ffc.pid").exists()
+
+
+@pytest.mark.realtime
+def test_a_frozen_controller_is_shown_not_responding_and_stop_ends_it_at_the_safe_current(rig):
+    """A controller stopped by SIGSTOP: its socket's process still answers from the last snapshot,
+    which said "running" (a new user's sweep, 2026-11-30), and `stop` gave up after 2 s with exit 1,
+    never sending the SIGTERM its help promises. Now the status says it is not responding, and stop
+    waits its --timeout, sends SIGTERM (and SIGCONT, so a stopped process takes it), and the
+    controller ends at its safe current."""
+    tmp, runtime = rig
+    res = cli("start", "--config", str(tmp / "sim.yaml"), "--runtime-dir", str(runtime))
+    assert res.returncode == 0, res.stderr
+    pid = int(res.stdout.split("pid ")[1].split(",")[0])
+    assert wait_until(lambda: status_json(runtime)["ticks"] > RATE_HZ // 2)
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        time.sleep(3.0)                                   # past the 2 s a snapshot may age
+        table = cli("status", "--runtime-dir", str(runtime))
+        assert table.returncode == 0 and "NOT RESPONDING" in table.stdout, table.stdout
+        doc = status_json(runtime)
+        assert doc["service"]["responding"] is False and doc["service"]["snapshot_age_s"] > 2.0
+        res = cli("stop", "--timeout", "1", "--runtime-dir", str(runtime))
+    finally:
+        os.kill(pid, signal.SIGCONT)
+    assert res.returncode == 0, res.stderr
+    assert f"stopped with SIGTERM" in res.stdout and f"pid {pid}" in res.stdout
+    assert wait_until(lambda: not Path(f"/proc/{pid}").exists()
+                      or "Z" in Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0])
+    rows = [line.split(",") for line in (tmp / "telemetry.csv").read_text().splitlines()
+            if line and line[0].isdigit()]
+    assert float(rows[-1][2]) == 0.0                      # current_cmd_A: the safe current

@@ -560,3 +560,14 @@ def test_status_table_and_line_show_faults_and_reload():
     assert "4 connections from other users refused, 2 idle connections closed" in attacked
     empty = format_table({"state": "starting"})             # nothing measured yet: dashes
     assert "rate           -" in empty and "faults         none" in empty
+
+
+def test_a_running_state_the_snapshot_age_or_the_watchdog_contradicts_is_not_shown_as_running():
+    from gma_ffc.service.status import state_words
+
+    fresh = {"state": "running", "service": {"status_at_unix": 1000.0}, "faults": []}
+    assert state_words(fresh, now=1000.4) == "running"
+    assert state_words(fresh, now=1005.7).startswith("NOT RESPONDING: its last snapshot is 5.7 s old")
+    stuck = {**fresh, "fault_messages": {"watchdog": "the loop made no progress for 1.2 s"}}
+    assert "STUCK" in state_words(stuck, now=1000.4)
+    assert state_words({**fresh, "state": "fault"}, now=1005.7) == "fault"     # an ended run is what it says

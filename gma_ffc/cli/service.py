@@ -105,13 +105,16 @@ def _status(args: argparse.Namespace) -> int:
     from ..errors import NotRunningError
     from ..service.control_socket import ask, jsonable
     from ..service.paths import runtime_paths
-    from ..service.status import format_table
+    from ..service.status import SNAPSHOT_STALE_S, format_table, snapshot_age_s
 
     runtime = runtime_paths(args.runtime_dir)
     try:
         status = ask(runtime.socket, {"cmd": "status"})["status"]
     except NotRunningError as exc:
         return _not_running(args, runtime, exc)
+    age = snapshot_age_s(status)
+    if age is not None and isinstance(status.get("service"), dict):    # docs/service.md: a snapshot too old
+        status["service"].update(snapshot_age_s=round(age, 3), responding=age <= SNAPSHOT_STALE_S)
     if args.json:
         json.dump(status, sys.stdout, indent=2, default=jsonable)
         sys.stdout.write("\n")

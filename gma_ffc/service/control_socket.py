@@ -22,7 +22,7 @@ import struct
 from pathlib import Path
 from typing import Any
 
-from ..errors import ConfigError, FaultError, NotRunningError
+from ..errors import ConfigError, FaultError, NoAnswerError, NotRunningError
 
 MAX_REQUEST = 4096            # the longest request: {"cmd": "stop", "reason": <a sentence>} is ~100 bytes
 MAX_REPLY = 16 << 20          # a client's bound on a reply (a status is a few kB)
@@ -153,7 +153,7 @@ def request(path: Path, message: dict[str, Any], timeout_s: float = 5.0) -> dict
                 pass  # a refusing server may close first; its reason is still waiting to be read
             reply = _receive_reply(sock)
         except socket.timeout:
-            raise FaultError(f"the controller did not answer within {timeout_s:g} s "
+            raise NoAnswerError(f"the controller did not answer within {timeout_s:g} s "
                              f"(socket {path})") from None
         except (OSError, ValueError) as exc:
             raise FaultError(f"bad reply from the controller on socket {path}: {exc}") from None

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import safe_files
-from ..errors import FaultError, GmaError, InputError
+from ..errors import FaultError, GmaError, InputError, NoAnswerError
 from .control_socket import ask, check_socket_path, is_answering, request
 from .paths import RuntimePaths, ensure_private_dir
 
@@ -172,7 +172,12 @@ def stop(runtime: RuntimePaths, *, timeout_s: float = 10.0, term_timeout_s: floa
         if not reply.get("ok"):   # e.g. not the owner: never signal someone else's controller
             raise FaultError(str(reply.get("error", "the controller refused the request")))
         final = reply.get("status")
-        reply = ask(runtime.socket, {"cmd": "stop", "reason": "gma-ffc stop"}, timeout_s=2.0)
+        try:
+            reply = ask(runtime.socket, {"cmd": "stop", "reason": "gma-ffc stop"}, timeout_s=2.0)
+        except NoAnswerError:      # stopped (SIGSTOP), stuck in a call or starved: wait, then SIGTERM
+            if pid is None or not process_alive(pid) or not looks_like_gma_ffc(pid):
+                raise
+            reply = {}
         pid = int(reply.get("pid") or pid or 0) or None
         asked = True
     if pid is None:  # it answered but we cannot watch the process: wait for the socket to go
@@ -183,6 +188,7 @@ def stop(runtime: RuntimePaths, *, timeout_s: float = 10.0, term_timeout_s: floa
         return Stopped(pid, "stopped on request", final)
     with contextlib.suppress(ProcessLookupError):
         os.kill(pid, signal.SIGTERM)
+        os.kill(pid, signal.SIGCONT)     # a stopped process (SIGSTOP) takes its SIGTERM only once it runs again
     if _wait(lambda: not process_alive(pid), term_timeout_s):
         how = "stopped with SIGTERM" + (" after it ignored the request" if asked else
                                         " (its socket did not answer)")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
+import time
 from typing import Any, Mapping
 
 # Keys the controller may use for its tick counter, most specific first.
@@ -61,7 +62,35 @@ def faults_of(status: Mapping[str, Any]) -> list[str]:
     return [str(faults)]
 
 
-def fields(status: Mapping[str, Any]) -> list[tuple[str, str]]:
+SNAPSHOT_STALE_S = 2.0
+"""The service publishes its snapshot every 0.5 s (docs/service.md): four intervals without one
+mean its process is stopped (SIGSTOP), swapped out or starved, whatever the last snapshot said."""
+
+
+def snapshot_age_s(status: Mapping[str, Any], now: float | None = None) -> float | None:
+    """How old the snapshot is (`service.status_at_unix`), or None when it does not say."""
+    at = (status.get("service") or {}).get("status_at_unix")
+    if not isinstance(at, (int, float)):
+        return None
+    return max(0.0, (time.time() if now is None else now) - float(at))
+
+
+def state_words(status: Mapping[str, Any], now: float | None = None) -> str:
+    """The state as a person should read it: a 'running' the snapshot's age or the watchdog
+    contradicts is not shown as plain 'running'."""
+    state = str(_get(status, "state") or "-")
+    if state != "running":
+        return state
+    age = snapshot_age_s(status, now)
+    if age is not None and age > SNAPSHOT_STALE_S:
+        return (f"NOT RESPONDING: its last snapshot is {age:.1f} s old (it said running); the process is stopped, "
+                "swapped out or starved. 'gma-ffc stop' asks, then sends SIGTERM")
+    if any(f.startswith("watchdog") for f in faults_of(status)):
+        return "running, but STUCK: the loop makes no progress (see faults); the amplifier holds its last command"
+    return state
+
+
+def fields(status: Mapping[str, Any], now: float | None = None) -> list[tuple[str, str]]:
     """(label, value) rows for the human table."""
     svc = status.get("service") or {}
     rate = _get(status, "rate_hz", "achieved_rate_hz", "achieved_hz")
@@ -69,7 +98,7 @@ def fields(status: Mapping[str, Any]) -> list[tuple[str, str]]:
     jit = {q: _get(status, f"jitter_us.{q}", f"period_jitter_us.{q}", f"jitter_{q}_us")
            for q in ("p50", "p99", "max")}
     rows = [
-        ("state", str(_get(status, "state") or "-")),
+        ("state", state_words(status, now)),
         ("pid", str(svc.get("pid", "-"))),
         ("rate", _num(rate, ".1f", " Hz") + (f" (target {_num(target, 'g', ' Hz')})" if target else "")),
         ("period jitter", "p50 " + _num(jit["p50"], ".1f", " us") + "  p99 "
