@@ -341,3 +341,21 @@ def test_a_frozen_controller_is_shown_not_responding_and_stop_ends_it_at_the_saf
     rows = [line.split(",") for line in (tmp / "telemetry.csv").read_text().splitlines()
             if line and line[0].isdigit()]
     assert float(rows[-1][2]) == 0.0                      # current_cmd_A: the safe current
+
+
+def test_a_model_of_a_voltage_drive_is_refused_by_the_current_controller(rig):
+    """The controller writes a current setpoint through every driver: a model identified on a
+    voltage drive gives volts, which the amplifier would take as amperes. It ran, exit 0 and no
+    fault, on the sim and the Modbus driver (a new user's sweep, 2026-11-30)."""
+    tmp, runtime = rig
+    model = SDPIModel(play_thresholds=[0.0, 0.1, 0.2, 0.3], play_weights=[8.0, 3.0, 2.0, 1.0],
+                      deadzone_thresholds=[-0.5, 0.0, 0.5],
+                      deadzone_coeffs=[[0.5, 1.0, 0.3], [-0.01, -0.01, 0.0], [0.0, 0.0, 0.0]],
+                      stress_range_MPa=(-25.0, -10.0), drive_range=(0.0, 2.0), drive_name="voltage_V")
+    save_model(model, tmp / "volts.yaml")
+    write_config(tmp / "volts_cfg.yaml", "volts.yaml")
+    res = cli("run", "--config", str(tmp / "volts_cfg.yaml"), "--duration", "0.2", "--no-socket",
+              "--runtime-dir", str(runtime))
+    line = one_line_error(res, 2)
+    assert "the model's drive is voltage_V" in line and "current_A" in line, line
+    assert not (tmp / "telemetry.csv").exists()           # refused before anything was driven

@@ -14,7 +14,7 @@ from typing import Any
 
 from ..drivers import Driver, DriverProtocol, Inputs, driver_class
 from ..drivers.base import FORCE, INSTANCE_MEMBERS, STRESS, missing_members
-from ..errors import ConfigError
+from ..errors import ConfigError, ModelError
 from ..protocols import Model
 from . import safety
 from .config import ControllerConfig
@@ -106,6 +106,7 @@ def build_setup(cfg: ControllerConfig, model: Model) -> Setup:
     telemetry records the reference for *now*, so the tracking error is y(t) - r(t).
     """
     lim = cfg.limits
+    _drives_a_current(cfg, model)
     reference = build_reference(cfg.reference, model.preview_s)
     stress_range = StressRange.of_model(model, cfg.stress["out_of_range"])
     warm_up(model, cfg.period_s, stress_range)
@@ -117,6 +118,17 @@ def build_setup(cfg: ControllerConfig, model: Model) -> Setup:
                                    cfg.sensor["force_limit_N"], cfg.sensor["bad_ticks"], cfg.sensor["stale_ticks"])
     return Setup(cfg, model, law, build_reference({**cfg.reference, "lead_s": 0.0}), limiter, monitor, stress_range,
                  safety.fault_actions(cfg), float(lim["safe_current_A"]))
+
+
+def _drives_a_current(cfg: ControllerConfig, model: Model) -> None:
+    """Every driver writes a current setpoint (`current_setpoint_A`), so the model's inverse must give
+    amperes: a model identified on a voltage drive gives volts, which the amplifier would take as
+    amperes (a new user's sweep ran one on Modbus, 2026-11-30)."""
+    name = getattr(model, "drive_name", "current_A")
+    if name != "current_A":
+        raise ModelError(f"{cfg.model}: the model's drive is {name}, but the controller commands a current "
+                         "(current_A) through its driver, and would send the model's volts as amperes. Use a "
+                         "model identified from recordings with a current_A column")
 
 
 def build_reload(running: ControllerConfig, cfg: ControllerConfig, model: Model | None = None) -> Setup:
