@@ -176,6 +176,46 @@ def open_for_writing(path: str | os.PathLike, roots: Sequence[str | os.PathLike]
     return fd
 
 
+def keep_previous(path: str | os.PathLike, roots: Sequence[str | os.PathLike], kind: Kind, keep: int) -> str | None:
+    """Before a run writes `path` afresh: its earlier content, if any, is moved aside as NAME.1.EXT
+    (an older NAME.1 to NAME.2, ..., up to NAME.`keep`; the oldest beyond goes), so a restart never
+    cuts the run before it. Each name moved or removed must be a file of `kind` (the same checks as
+    a write: no link, this user's, one link, its content ours), and moves are renames in one
+    folder, opened without following a link. The name the previous content now has, or None
+    (nothing to keep, or `keep` is 0)."""
+    target = Path(os.path.abspath(path))
+    if keep <= 0:
+        return None
+    dir_fd = _open_directory(target, roots, kind)
+    try:
+        if not _nonempty_ours(dir_fd, target.name, target, kind):
+            return None
+        names = [target.name] + [f"{target.stem}.{k}{target.suffix}" for k in range(1, keep + 1)]
+        if _exists_at(dir_fd, names[-1]):
+            _nonempty_ours(dir_fd, names[-1], target.with_name(names[-1]), kind)     # refuses what is not ours
+            os.unlink(names[-1], dir_fd=dir_fd)
+        for older, newer in zip(reversed(names[1:]), reversed(names[:-1])):
+            if _exists_at(dir_fd, newer):
+                _nonempty_ours(dir_fd, newer, target.with_name(newer), kind)
+                os.rename(newer, older, src_dir_fd=dir_fd, dst_dir_fd=dir_fd)
+        return str(target.with_name(names[1]))
+    finally:
+        os.close(dir_fd)
+
+
+def _nonempty_ours(dir_fd: int, name: str, path: Path, kind: Kind) -> bool:
+    """Whether `name` in the folder holds something (False: missing or empty); OutputRefused when it
+    is not a file of `kind` to move or remove."""
+    if not _exists_at(dir_fd, name):
+        return False
+    fd = _open_no_follow(dir_fd, name, path, kind, os.O_RDONLY)
+    try:
+        _refuse_unless_ours(fd, path, kind)
+        return os.fstat(fd).st_size > 0
+    finally:
+        os.close(fd)
+
+
 def _exists_at(dir_fd: int, name: str) -> bool:
     try:
         os.stat(name, dir_fd=dir_fd, follow_symlinks=False)

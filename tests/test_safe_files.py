@@ -4,6 +4,7 @@ path, exit 2, and the file it would have hit is unchanged."""
 
 from __future__ import annotations
 
+import logging
 import os
 import subprocess
 import sys
@@ -80,11 +81,48 @@ def test_an_existing_file_that_is_not_this_rigs_telemetry_is_kept(tmp_path, caps
     assert "is not a telemetry file of this rig" in run_refused(capsys, "--config", str(cfg))
 
 
-def test_this_rigs_own_telemetry_is_overwritten(tmp_path):
+def _start_of(path: Path) -> str:
+    return next(line for line in path.read_text().splitlines() if line.startswith("# start_unix_s"))
+
+
+def test_a_restart_keeps_the_earlier_runs_telemetry_and_the_oldest_beyond_keep_goes(tmp_path, caplog):
+    """A restart truncated its rig's telemetry: the run that failed before it was lost (a new user's
+    sweep, 2026-11-30: 2,567 lines cut to 501 without a word). Now each run's file moves aside."""
+    caplog.set_level(logging.INFO, logger="gma_ffc.control.telemetry")
+    cfg = write_config(tmp_path / "rig.yaml", "tel.csv", "")
+    cfg.write_text(cfg.read_text().replace("telemetry: {path: tel.csv}", "telemetry: {path: tel.csv, keep_previous: 2}"))
+    starts = []
+    for _ in range(4):
+        assert main(["run", "--config", str(cfg), "--no-socket", "--duration", "0.2"]) == 0
+        starts.append(_start_of(tmp_path / "tel.csv"))
+    assert _start_of(tmp_path / "tel.1.csv") == starts[2] and _start_of(tmp_path / "tel.2.csv") == starts[1]
+    assert not (tmp_path / "tel.3.csv").exists() and len(set(starts)) == 4
+    assert f"kept as {tmp_path / 'tel.1.csv'}" in caplog.text
+
+
+def test_keep_previous_0_overwrites_as_before(tmp_path):
     cfg = write_config(tmp_path / "rig.yaml", "tel.csv")
+    cfg.write_text(cfg.read_text().replace("telemetry: {path: tel.csv}", "telemetry: {path: tel.csv, keep_previous: 0}"))
     for _ in range(2):
         assert main(["run", "--config", str(cfg), "--no-socket", "--duration", "0.2"]) == 0
     assert (tmp_path / "tel.csv").read_text().count("# source: gma-ffc controller") == 1
+    assert not (tmp_path / "tel.1.csv").exists()
+
+
+@pytest.mark.parametrize("what", ["someone's data", "a link"])
+def test_a_kept_name_that_is_not_this_rigs_telemetry_is_refused_before_anything_moves(tmp_path, victim, capsys, what):
+    cfg = write_config(tmp_path / "rig.yaml", "tel.csv")
+    assert main(["run", "--config", str(cfg), "--no-socket", "--duration", "0.2"]) == 0
+    first = (tmp_path / "tel.csv").read_text()
+    kept = tmp_path / "tel.1.csv"
+    if what == "a link":
+        kept.symlink_to(victim)
+    else:
+        kept.write_text(VICTIM_TEXT)
+    line = run_refused(capsys, "--config", str(cfg))
+    assert str(kept) in line and ("symbolic link" in line or "is not a telemetry file of this rig" in line), line
+    assert (tmp_path / "tel.csv").read_text() == first and victim.read_text() == VICTIM_TEXT
+    assert what == "a link" or kept.read_text() == VICTIM_TEXT
 
 
 def test_this_rigs_telemetry_is_its_own_however_the_config_was_named(tmp_path, monkeypatch):

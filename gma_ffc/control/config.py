@@ -83,6 +83,11 @@ TELEMETRY = {
     "path": Field("str", None, nullable=True),
     "flush_interval_s": Field("float", 0.5, min=0.01, max=1.0),
     "buffer_s": Field("float", 4.0, min=0.1),
+    # 3: a service that fails and restarts keeps the run that failed, and two before it; at 1 kHz a
+    # day's telemetry is about 7 GB, so more is the lab's choice, not a default
+    "keep_previous": Field("int", 3, min=0, max=100,
+                           help="earlier runs' telemetry kept beside the new one, as NAME.1.csv (the last) to "
+                                "NAME.N.csv; 0: a new run overwrites the last"),
 }
 
 SCHEDULER = {

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
+from .. import safe_files
 from ..drivers.base import CURRENT, DISPLACEMENT, FORCE
 from .prediction import FAULTED, RAMPING
 from .safety import RAMP
@@ -80,7 +81,8 @@ class TelemetryRecorder(Broadcaster):
         if path is None:
             return
         if self._claim is None:
-            self._claim = TelemetryLock(path, self.output_dirs)
+            kind = safe_files.telemetry_kind(str(self.base_metadata["config"]))
+            self._claim = TelemetryLock(path, self.output_dirs, (kind, int(self.section.get("keep_previous", 0))))
         self._claim.acquire()
 
     def release(self) -> None:

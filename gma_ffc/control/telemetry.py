@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import fcntl
 import io
+import logging
 import os
 import threading
 import time
@@ -36,13 +37,18 @@ from .. import safe_files
 from ..errors import ConfigError
 from ..recordings import _format_meta
 
+log = logging.getLogger(__name__)
+
 
 class TelemetryLock:
     """The exclusive claim on one telemetry file: flock on FILE.lock, which names the holder's pid."""
 
-    def __init__(self, path: str | os.PathLike, output_dirs: Sequence[str] = ()) -> None:
+    def __init__(self, path: str | os.PathLike, output_dirs: Sequence[str] = (),
+                 keep: tuple[safe_files.Kind, int] | None = None) -> None:
         self.path = Path(path)
         self.output_dirs = tuple(output_dirs)
+        self.keep = keep          # (the file's kind, how many earlier runs): moved aside once locked
+        self.kept_as: str | None = None
         self._fd: int | None = None
 
     @property
@@ -66,6 +72,14 @@ class TelemetryLock:
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         self._fd = fd
+        if self.keep is not None:     # the run before, kept: only the lock's holder may move it
+            try:
+                self.kept_as = safe_files.keep_previous(self.path, self.output_dirs, *self.keep)
+            except BaseException:
+                self.release()
+                raise
+            if self.kept_as:
+                log.info("telemetry: the previous run's %s is kept as %s", self.path, self.kept_as)
 
     def release(self) -> None:
         if self._fd is not None:
