@@ -34,6 +34,7 @@ from ..protocols import Model
 from . import safety
 from .builder import build, build_reload
 from .config import ControllerConfig
+from .device_claim import DeviceClaim
 from .faults import TickFault, classify
 from .law import FeedforwardController
 from .learned_file import save_if_learned
@@ -76,6 +77,7 @@ class ControllerManager:
         self.stats, self.faults, self.watchdog = parts.stats, parts.faults, parts.watchdog
         self.hardware, self.recorder, self.state_broadcaster = parts.hardware, parts.recorder, parts.state
         self.driver: DriverProtocol = parts.hardware.driver
+        self.amplifier_claim = DeviceClaim(getattr(type(self.driver), "amplifiers", lambda _cfg: [])(cfg.driver))
         self.broadcasters: list[Broadcaster] = [*parts.plugins, parts.recorder]   # plugins fill the row's columns
         self.tick, self.inputs = parts.tick, parts.tick.inputs
         self.state = State.IDLE
@@ -137,12 +139,19 @@ class ControllerManager:
     def claim_outputs(self) -> None:
         """Take what this run writes exclusively (the telemetry file's lock) before the driver is
         opened; ConfigError when another controller holds it. `run` calls it; the service calls it
-        first, so that refusal is exit 2 with the amplifier untouched."""
-        self.recorder.claim()
+        first, so that refusal is exit 2 with the amplifier untouched. The amplifier itself is claimed
+        first (`device_claim`): another controller driving it refuses this one."""
+        self.amplifier_claim.acquire()
+        try:
+            self.recorder.claim()
+        except BaseException:
+            self.amplifier_claim.release()
+            raise
 
     def release_outputs(self) -> None:
         """Give back a claim when the run will not happen (the service failed to start)."""
         self.recorder.release()
+        self.amplifier_claim.release()
 
     def run(self, stop_event: threading.Event | None = None, duration_s: float | None = None) -> dict[str, Any]:
         """Blocking fixed-rate loop; the safe current is written on every way out."""
@@ -213,6 +222,7 @@ class ControllerManager:
             self.faults.raise_fault(safety.TELEMETRY, error)
         self.recorder.release()              # a claim no writer took over (the driver never opened)
         self.hardware.close()
+        self.amplifier_claim.release()               # only once the driver has let go of the amplifier
         hard = [f for f in self.faults.active if exit_state(self.setup.fault_table, f) == "fault"]
         self.state = State.FAULT if hard else State.STOPPED
 

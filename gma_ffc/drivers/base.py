@@ -132,6 +132,13 @@ class Driver(ABC):
         scale), from a validated section; None when any current can be sent."""
         return None
 
+    @classmethod
+    def amplifiers(cls, cfg: dict[str, Any]) -> list[str]:
+        """The amplifiers this validated section drives, each as a name unique on the machine
+        ("modbus-tcp:HOST:PORT:UNIT", "serial:/dev/ttyUSB0"): a run claims them before it opens
+        (`control.device_claim`), so two controllers never drive one. None for a simulated rig."""
+        return []
+
     @abstractmethod
     def open(self) -> None:
         """Connect; raise DriverError when the device cannot be reached."""

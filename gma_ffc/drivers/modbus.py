@@ -19,6 +19,7 @@ the type's most negative raw value as "invalid" (NaN), as many devices do.
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -111,6 +112,18 @@ class ModbusDriver(Driver):
         self.timeouts = 0
 
     # ---- configuration ---------------------------------------------------------------------
+    @classmethod
+    def amplifiers(cls, cfg: dict[str, Any]) -> list[str]:
+        """The amplifier: the device holding the current setpoint, by its link and unit id (two
+        amplifiers behind one gateway are two devices; an RTU bus is its serial port)."""
+        for dev in cfg["devices"].values():
+            if CURRENT_SETPOINT in dev["register_map"]:
+                unit = dev["register_map"][CURRENT_SETPOINT].unit_id
+                where = (f"modbus-tcp:{dev['host'].lower()}:{dev['port']}" if dev["transport"] == "tcp"
+                         else f"serial:{os.path.realpath(str(dev['port']))}")
+                return [f"{where}:unit{unit}"]
+        return []
+
     @classmethod
     def validate_config(cls, section: dict[str, Any], prefix: str, base_dir: Path | None) -> dict[str, Any]:
         out = validate_section(section, TOP, prefix)

@@ -13,6 +13,7 @@ a hung-up port or an I/O error raise DriverError(reason="comms").
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -81,6 +82,11 @@ class SerialDriver(Driver):
         self.channels = tuple(n for n, _ in self.queries)
         self.enabled = False
         self.timeouts = 0
+
+    @classmethod
+    def amplifiers(cls, cfg: dict[str, Any]) -> list[str]:
+        """The amplifier behind the serial port (by its real path: /dev/serial/by-id links included)."""
+        return [f"serial:{os.path.realpath(cfg['port'])}"]
 
     @classmethod
     def validate_config(cls, section: dict[str, Any], prefix: str, base_dir: Path | None) -> dict[str, Any]:
