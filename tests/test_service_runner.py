@@ -571,3 +571,14 @@ def test_a_running_state_the_snapshot_age_or_the_watchdog_contradicts_is_not_sho
     stuck = {**fresh, "fault_messages": {"watchdog": "the loop made no progress for 1.2 s"}}
     assert "STUCK" in state_words(stuck, now=1000.4)
     assert state_words({**fresh, "state": "fault"}, now=1005.7) == "fault"     # an ended run is what it says
+
+
+def test_a_current_the_amplifier_did_not_report_is_not_called_measured():
+    """With the readback missing or absurd the command stands in for it; status said "measured
+    1.0071 A" all the same (a new user's sweep, 2026-11-30)."""
+    from gma_ffc.service.status import fields
+
+    row = dict(fields({"state": "running", "current_cmd_A": 1.0071, "current_A": 1.0071, "current_measured": False}))
+    assert row["current"] == "command 1.0071 A, measured - (no reading: telemetry's current_A is the command)"
+    row = dict(fields({"state": "running", "current_cmd_A": 1.0071, "current_A": 1.0012, "current_measured": True}))
+    assert row["current"] == "command 1.0071 A, measured 1.0012 A"

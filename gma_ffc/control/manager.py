@@ -367,7 +367,8 @@ class ControllerManager:
         tick.reference_um = ref_now
         tick.command_A = cmd
         meas = inputs.current_A
-        tick.current_A = meas if self._has_current and meas == meas else cmd   # commanded where unmeasured
+        tick.current_read = read = self._has_current and meas == meas
+        tick.current_A = meas if read else cmd   # commanded where unmeasured
         tick.stress_MPa = stress
         tick.displacement_um = inputs.displacement_um
         tick.correction_um = law.correction
@@ -417,7 +418,8 @@ class ControllerManager:
         if self._read_ok:   # a tick whose read failed has no data to log
             s, tick = self.setup, self.tick
             meas = self.inputs.current_A
-            tick.current_A = meas if self._has_current and meas == meas else s.safe_A
+            tick.current_read = read = self._has_current and meas == meas
+            tick.current_A = meas if read else s.safe_A
             tick.stress_MPa = s.monitor.stress
             tick.displacement_um = self.inputs.displacement_um
             tick.correction_um = 0.0

@@ -50,6 +50,7 @@ class StateBroadcaster:
             "stress_MPa": _finite(tick.stress_MPa),
             "current_cmd_A": _finite(tick.command_A),
             "current_A": _finite(tick.current_A),
+            "current_measured": bool(tick.current_read),     # False: current_A is the command standing in
             "reference_um": _finite(tick.reference_um),
             "displacement_um": _finite(tick.displacement_um),
             "faults": sorted(faults),

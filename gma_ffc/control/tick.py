@@ -28,7 +28,7 @@ class Tick:
     """One tick's data: preallocated once, overwritten every tick; between ticks, the loop's last
     values (what the state broadcaster reports)."""
 
-    __slots__ = ("time_s", "t", "inputs", "reference_um", "command_A", "current_A", "stress_MPa",
+    __slots__ = ("time_s", "t", "inputs", "reference_um", "command_A", "current_A", "current_read", "stress_MPa",
                  "displacement_um", "correction_um", "outside_model", "limited_by", "faulted")
 
     def __init__(self, inputs: Inputs) -> None:
@@ -38,6 +38,7 @@ class Tick:
         self.reference_um = math.nan    # the reference for the tick's own instant (a fault tick keeps the last)
         self.command_A = math.nan       # the last command the amplifier got: written, or a safe-current write
         self.current_A = math.nan       # measured, or the command where the driver measures none
+        self.current_read = False       # whether current_A was measured this tick (not the command standing in)
         self.stress_MPa = math.nan      # the last good stress
         self.displacement_um = math.nan  # the tick's displacement reading
         self.correction_um = 0.0        # the learner's correction in the command (0 without learning)

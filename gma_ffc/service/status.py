@@ -62,6 +62,14 @@ def faults_of(status: Mapping[str, Any]) -> list[str]:
     return [str(faults)]
 
 
+def _measured_current(status: Mapping[str, Any]) -> str:
+    """The amplifier's reading, or what stands in for it: with no reading (none configured, or a
+    missing or absurd one this tick) the command is telemetry's current_A, and not called measured."""
+    if status.get("current_measured") is False:
+        return "measured - (no reading: telemetry's current_A is the command)"
+    return "measured " + _num(_get(status, "current_A"), ".4f", " A")
+
+
 SNAPSHOT_STALE_S = 2.0
 """The service publishes its snapshot every 0.5 s (docs/service.md): four intervals without one
 mean its process is stopped (SIGSTOP), swapped out or starved, whatever the last snapshot said."""
@@ -107,8 +115,7 @@ def fields(status: Mapping[str, Any], now: float | None = None) -> list[tuple[st
         ("ticks", str(progress_count(status))),
         ("exit reason", str(_get(status, "exit_reason") or "-")),
         ("stress", _num(_get(status, "stress_MPa", "last_stress_MPa"), ".2f", " MPa")),
-        ("current", "command " + _num(_get(status, "current_cmd_A"), ".4f", " A")
-         + ", measured " + _num(_get(status, "current_A"), ".4f", " A")),
+        ("current", "command " + _num(_get(status, "current_cmd_A"), ".4f", " A") + ", " + _measured_current(status)),
         ("displacement", _num(_get(status, "displacement_um"), ".3f", " um")),
         ("reference", _num(_get(status, "reference_um", "last_reference_um"), ".3f", " um")),
         ("faults", ", ".join(faults_of(status)) or "none"),
