@@ -69,6 +69,15 @@ def test_a_taken_port_is_one_clear_error():
         first.close()
 
 
+@pytest.mark.parametrize("host", ["nohost.invalid", "192.0.2.1"])
+def test_an_address_the_machine_does_not_have_names_metrics_host_not_the_port(host):
+    """A host that does not resolve, or no interface holds, was refused with "choose another
+    metrics.port", which cannot help (a new user's sweep, 2026-11-30)."""
+    with pytest.raises(ConfigError, match=r"choose an address of this machine for metrics.host") as e:
+        MetricsServer(lambda: STATUS, host, 0).start()
+    assert "metrics.port" not in str(e.value)
+
+
 def test_missing_sections_are_left_out_not_faked():
     server = MetricsServer(lambda: {"state": "starting", "ticks": 0}, "127.0.0.1", 0)
     _, port = server.start()

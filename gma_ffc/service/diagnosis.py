@@ -126,7 +126,7 @@ class BackgroundDiagnosis:
         if self.output_dirs:        # refused (the run goes on, the status says why) outside output_dirs
             from ..safe_files import area_of
 
-            area_of(self.state_dir / "diagnoses" / "window.csv", self.output_dirs)
+            area_of(self.state_dir / "diagnoses", self.output_dirs)     # the folder each diagnosis gets one in
         window = self.take_window(self.cfg["window_s"])
         folder = _new_folder(self.state_dir / "diagnoses", now)
         write_recording(folder / "window.csv", window.recording)

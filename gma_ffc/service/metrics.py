@@ -13,10 +13,12 @@ Prometheus' base units: seconds and metres (Grafana shows them as us and um).
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import json
 import logging
 import os
+import socket
 import subprocess
 import sys
 from typing import Any, Callable, Iterator, Mapping
@@ -136,8 +138,11 @@ class MetricsServer:
         first = self.child.stdout.readline().decode().strip()
         if not first.startswith("serving "):
             self.close()
-            raise ConfigError(f"config key 'metrics': cannot serve on {self.host}:{self.port} ({first or 'no answer'}); "
-                              "choose another metrics.port")
+            key, _, why = first.partition(" ")
+            advice = ("choose an address of this machine for metrics.host (127.0.0.1, or 0.0.0.0 for every interface)"
+                      if key == "host" else "choose another metrics.port (0: any free port)")
+            raise ConfigError(f"config key 'metrics': cannot serve on {self.host}:{self.port} "
+                              f"({why or first or 'no answer'}); {advice}")
         host, port = first.split()[1].rsplit(":", 1)
         fcntl.fcntl(self.child.stdin.fileno(), fcntl.F_SETFL, os.O_NONBLOCK)   # a stuck child never blocks the service
         log.info("metrics at http://%s:%s/metrics", host, port)
@@ -183,8 +188,9 @@ def serve(parent_pid: int, host: str, port: int) -> int:
     registry.register(StatusCollector(lambda: latest[0]))
     try:
         server, _thread = start_http_server(port, addr=host, registry=registry)
-    except OSError as exc:
-        print(f"{exc.strerror}", flush=True)
+    except OSError as exc:     # which key to change: an address no interface has, or a port in use
+        host_fault = isinstance(exc, socket.gaierror) or exc.errno == errno.EADDRNOTAVAIL
+        print(f"{'host' if host_fault else 'port'} {exc.strerror}", flush=True)
         return 1
     bound_host, bound_port = server.server_address[:2]
     print(f"serving {bound_host!s}:{bound_port}", flush=True)
