@@ -271,3 +271,24 @@ def test_limits_the_setpoint_register_cannot_carry_are_refused_at_load():
         with pytest.raises(ConfigError, match=rf"'limits\.{key}' \(-?4 A\) is beyond what the register map's "
                                               r"'current_setpoint_A' on device 'amp' \(int16, scale 0\.0001.*-3\.2768 to 3\.2767 A"):
             validate_config({**cfg, "limits": {**limits, "slew_A_per_s": 10}})
+
+
+def test_a_host_name_that_does_not_exist_is_refused_at_once_and_pymodbus_says_nothing(tmp_path):
+    """127.0.0.l (a letter l) was retried ten times over 14 s, with pymodbus's own ERROR and
+    'Repeating....' lines on stderr beside gma-ffc's (a new user's sweep, 2026-11-30)."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    raw = yaml.safe_load((root / "config" / "modbus_tcp.yaml").read_text())
+    raw["driver"]["devices"]["amp"]["host"] = "127.0.0.l"
+    raw["model"] = str(root / "config" / "models" / "sim_sdpi.yaml")
+    raw["telemetry"] = {"path": str(tmp_path / "t.csv")}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(raw))
+    res = subprocess.run([sys.executable, "-m", "gma_ffc.cli", "run", "--config", str(tmp_path / "c.yaml"),
+                          "--duration", "1", "--no-socket"], capture_output=True, text=True, timeout=60, cwd=root)
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1, res.stderr
+    assert "driver.devices.amp.host" in lines[0] and "'127.0.0.l' is no host" in lines[0]

@@ -18,8 +18,10 @@ the type's most negative raw value as "invalid" (NaN), as many devices do.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
+import socket
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +66,9 @@ class _Device:
     def make_client(self) -> Any:
         from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 
+        # pymodbus logs each failed connect itself ("Connection ... failed", "Repeating...."): the
+        # driver's own DriverError, and the status, already say it once, in gma-ffc's words
+        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
         c = self.cfg
         if c["transport"] == "tcp":
             return ModbusTcpClient(c["host"], port=c["port"], timeout=c["timeout_s"], retries=0,
@@ -316,9 +321,21 @@ def _port(dev: dict[str, Any], key: str) -> Any:
             return 502
         if isinstance(port, bool) or not isinstance(port, int) or not 1 <= port <= 65535:
             raise ConfigError(f"config key '{key}.port' must be a TCP port 1..65535, got {port!r}")
+        _host_exists(dev["host"], key)
         return port
     if not isinstance(port, str) or not port:
         raise ConfigError(f"config key '{key}.port' must be the serial port path for RTU (e.g. /dev/ttyUSB0), "
                           f"got {port!r}")
     return port
 
+
+def _host_exists(host: str, key: str) -> None:
+    """A host name that does not exist is a typo in the config, refused at once: the reconnect policy
+    retried one (127.0.0.l) ten times over 14 s. A name the resolver cannot answer for now (no DNS
+    yet at boot) is left to the reconnects, as a device that is down is."""
+    try:
+        socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)
+    except socket.gaierror as exc:
+        if exc.errno in (socket.EAI_NONAME, getattr(socket, "EAI_NODATA", socket.EAI_NONAME)):
+            raise ConfigError(f"config key '{key}.host': {host!r} is no host this machine can find ({exc.strerror}); "
+                              "give the device's IP address or a name that resolves") from None
