@@ -582,3 +582,16 @@ def test_a_current_the_amplifier_did_not_report_is_not_called_measured():
     assert row["current"] == "command 1.0071 A, measured - (no reading: telemetry's current_A is the command)"
     row = dict(fields({"state": "running", "current_cmd_A": 1.0071, "current_A": 1.0012, "current_measured": True}))
     assert row["current"] == "command 1.0071 A, measured 1.0012 A"
+
+
+def test_a_loop_that_cannot_keep_its_rate_says_so():
+    """5 kHz over Modbus ran at 2.5 kHz with every tick an overrun and 'faults none' (a new user's
+    sweep, 2026-11-30): nothing told the user the rate asked for was not kept."""
+    from gma_ffc.service.status import fields
+
+    behind = dict(fields({"state": "running", "achieved_rate_hz": 2517.7, "target_rate_hz": 5000,
+                          "overruns": 7749, "ticks": 7749}))
+    assert behind["rate"].startswith("2517.7 Hz (target 5000 Hz); CANNOT KEEP IT: 100 % of ticks overran")
+    keeping = dict(fields({"state": "running", "achieved_rate_hz": 999.9, "target_rate_hz": 1000,
+                           "overruns": 3, "ticks": 60000}))
+    assert keeping["rate"] == "999.9 Hz (target 1000 Hz)"

@@ -62,6 +62,21 @@ def faults_of(status: Mapping[str, Any]) -> list[str]:
     return [str(faults)]
 
 
+BEHIND_SHARE = 0.1
+"""A loop whose ticks overran this often cannot keep its rate: a few overruns are a busy moment
+(a reload, a flush), one tick in ten is the computer or the link too slow for the rate asked."""
+
+
+def _behind(status: Mapping[str, Any]) -> str:
+    """Words for a loop that cannot keep its rate ('' when it does): every overrun tick is a
+    period the amplifier's command was late."""
+    ticks, overruns = progress_count(status), _get(status, "overruns")
+    if not isinstance(overruns, (int, float)) or ticks < 100 or overruns < BEHIND_SHARE * ticks:
+        return ""
+    return (f"; CANNOT KEEP IT: {100 * overruns / ticks:.0f} % of ticks overran (lower rate_hz, or a faster "
+            "link or machine)")
+
+
 def _measured_current(status: Mapping[str, Any]) -> str:
     """The amplifier's reading, or what stands in for it: with no reading (none configured, or a
     missing or absurd one this tick) the command is telemetry's current_A, and not called measured."""
@@ -108,7 +123,8 @@ def fields(status: Mapping[str, Any], now: float | None = None) -> list[tuple[st
     rows = [
         ("state", state_words(status, now)),
         ("pid", str(svc.get("pid", "-"))),
-        ("rate", _num(rate, ".1f", " Hz") + (f" (target {_num(target, 'g', ' Hz')})" if target else "")),
+        ("rate", _num(rate, ".1f", " Hz") + (f" (target {_num(target, 'g', ' Hz')})" if target else "")
+         + _behind(status)),
         ("period jitter", "p50 " + _num(jit["p50"], ".1f", " us") + "  p99 "
          + _num(jit["p99"], ".1f", " us") + "  max " + _num(jit["max"], ".1f", " us")),
         ("overruns", _num(_get(status, "overruns"), ".0f")),
