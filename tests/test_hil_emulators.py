@@ -679,3 +679,32 @@ def test_cli_bad_input_exits_2_with_one_line(args, message):
     assert result.returncode == 2
     assert message in result.stderr and "Traceback" not in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
+
+
+def test_the_emulator_commands_sensors_are_noisy_like_a_real_rigs_unless_asked_not_to():
+    """Its load cell read bit-identical while the load held still, so the shipped Modbus config
+    (sensor.stale_ticks 250) faulted 'load-cell reading stuck' after any 1 s hold (a new user's
+    sweep, 2026-11-30). The command's plant has the sensors' noise; `--quiet-sensors` removes it."""
+    import subprocess
+    import sys
+
+    from pymodbus.client import ModbusTcpClient
+
+    from hil_sim.emulators.plantsource import make_plant
+
+    assert not make_plant().cfg.noise.enabled                    # in-process rigs keep their own choice
+    for quiet, varies in ((False, True), (True, False)):
+        emu = subprocess.Popen([sys.executable, "-m", "hil_sim.emulators", "modbus-tcp", "--port", "0", "--duration", "20",
+                                "--load-mass", "20"] + (["--quiet-sensors"] if quiet else []),
+                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        try:
+            assert emu.stdout is not None
+            host, port = next(line for line in emu.stdout if line.startswith("connect:")).split()[1].rsplit(":", 1)
+            client = ModbusTcpClient(host, port=int(port), timeout=2)
+            assert client.connect()
+            forces = {tuple(client.read_input_registers(1, count=1).registers) for _ in range(40)}
+            client.close()
+            assert (len(forces) > 1) == varies, forces          # the load held still all along
+        finally:
+            emu.terminate()
+            emu.wait(10)

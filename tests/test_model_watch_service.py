@@ -119,7 +119,7 @@ def test_heating_rig_drifts_diagnosis_names_it_and_the_extended_model_fits_again
     runtime = RuntimePaths(short_dir())
     try:
         cfg = validate_config({
-            "rate_hz": RATE, "model": "unused.yaml", "reference": REFERENCE, "limits": LIMITS,
+            "rate_hz": RATE, "model": "unused.yaml", "reference": REFERENCE, "limits": LIMITS, "watchdog_s": 1.0,
             "driver": {"kind": "modbus", "devices": {"amp": {"transport": "tcp", "host": host, "port": port,
                                                              "timeout_s": 0.5, "register_map": rmap.to_dict()}}},
             "telemetry": {"path": str(tmp_path / "telemetry.csv")},

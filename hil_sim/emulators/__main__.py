@@ -50,6 +50,10 @@ def build_parser() -> argparse.ArgumentParser:
     def common(p: argparse.ArgumentParser) -> None:
         p.add_argument("--plant-config", metavar="YAML", help="hil_sim plant config (default: the plant's defaults)")
         p.add_argument("--seed", type=int, default=0, help="plant noise and garbage seed (default 0)")
+        p.add_argument("--quiet-sensors", action="store_true",
+                       help="without --plant-config: sensors without noise (by default they have a real one's: a "
+                            "load cell read bit-identical for a second is a stuck one, and the shipped configs "
+                            "fault on it)")
         p.add_argument("--fault", action="append", default=[], metavar="KIND[:ARG]",
                        help="start with this fault active (repeatable; see the fault list below)")
         p.add_argument("--load-mass", type=float, metavar="KG", help="load mass on the rod at start (default: the plant config's)")
@@ -108,7 +112,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--duration {args.duration}: give a positive number of seconds (or leave it out)")
     faults = [parse_fault(spec) for spec in args.fault]  # bad specs fail before anything starts
     register_map = load_register_map(args.map) if args.kind != "serial" else None
-    rig = EmulatedRig(make_plant(args.plant_config, seed=args.seed), dt_s=args.dt, max_current_A=args.max_current)
+    rig = EmulatedRig(make_plant(args.plant_config, seed=args.seed, sensor_noise=not args.quiet_sensors),
+                      dt_s=args.dt, max_current_A=args.max_current)
     if args.load_mass is not None:
         rig.set_load_mass(args.load_mass)
     for fault in faults:

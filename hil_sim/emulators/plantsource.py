@@ -43,8 +43,10 @@ class StandInPlant:
         self.force_N = -(self.preload_N + self.stiffness * self.displacement_um)
 
 
-def make_plant(config_path: str | PathLike | None = None, seed: int = 0, *, allow_stand_in: bool = True):
-    """The real plant from hil_sim.plant (config YAML or defaults); the stand-in if it is missing."""
+def make_plant(config_path: str | PathLike | None = None, seed: int = 0, *, allow_stand_in: bool = True,
+               sensor_noise: bool = False):
+    """The real plant from hil_sim.plant (config YAML or defaults); the stand-in if it is missing.
+    `sensor_noise`: the defaults with the sensors' noise on (a config says for itself)."""
     try:
         from hil_sim import plant as plant_module
     except ImportError:
@@ -55,6 +57,8 @@ def make_plant(config_path: str | PathLike | None = None, seed: int = 0, *, allo
         print("note: hil_sim.plant not available; using the emulators' stand-in plant", file=sys.stderr)
         return StandInPlant()
     cfg = plant_module.PlantConfig.from_yaml(Path(config_path)) if config_path else plant_module.PlantConfig()
+    if sensor_noise and not config_path:
+        cfg.noise.enabled = True
     plant = plant_module.GMAPlant(cfg, seed=seed)
     plant.step(0.0, 1e-3)  # JIT-compile (or load the cache) now, not inside the first request
     plant.reset()
