@@ -595,3 +595,22 @@ def test_a_loop_that_cannot_keep_its_rate_says_so():
     keeping = dict(fields({"state": "running", "achieved_rate_hz": 999.9, "target_rate_hz": 1000,
                            "overruns": 3, "ticks": 60000}))
     assert keeping["rate"] == "999.9 Hz (target 1000 Hz)"
+
+
+@pytest.mark.parametrize("model", [123, "", ["m.yaml"]])
+def test_a_reload_with_a_model_that_is_no_path_is_refused_not_ignored(cfg_file, model):
+    """{"cmd": "reload", "model": 123} answered ok and re-read the config instead (a new user's
+    sweep, 2026-11-30): a field that cannot mean what was asked is refused, the model kept."""
+    svc = make_service(cfg_file)
+    reply = svc.handle_request({"cmd": "reload", "model": model})
+    assert reply["ok"] is False and "'model' must be a model file's path" in reply["error"]
+
+
+def test_a_runtime_folder_that_cannot_be_made_gives_advice_that_is_not_what_was_just_done(tmp_path):
+    """'--runtime-dir /ro/x' failed with 'pass --runtime-dir', which had just been done."""
+    from gma_ffc.service.paths import ensure_private_dir
+
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(ConfigError, match=r"give --runtime-dir \(or GMA_FFC_RUNTIME_DIR\) a folder this user may create"):
+        ensure_private_dir(blocker / "x")

@@ -53,8 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_runtime_dir(p)
     p.add_argument("--no-socket", action="store_true",
                    help="do not serve the control socket (several scripted runs side by side)")
-    p.add_argument("--log-level", default="INFO",
-                   choices=("DEBUG", "INFO", "WARNING", "ERROR"), help="default INFO")
+    p.add_argument("--log-level", default="INFO", type=str.upper,
+                   choices=("DEBUG", "INFO", "WARNING", "ERROR"), help="default INFO (any case)")
     p.set_defaults(func=_run)
 
 

@@ -71,10 +71,11 @@ def ensure_private_dir(path: Path) -> None:
         path.mkdir(mode=0o700, parents=True, exist_ok=True)
         info = path.lstat()
     except OSError as exc:
-        raise ConfigError(f"runtime directory {path}: cannot create it ({exc.strerror}); "
-                          "pass --runtime-dir or set GMA_FFC_RUNTIME_DIR") from None
+        raise ConfigError(f"runtime directory {path}: cannot create it ({exc.strerror}); give --runtime-dir (or "
+                          "GMA_FFC_RUNTIME_DIR) a folder this user may create, e.g. "
+                          f"/tmp/gma-ffc-{os.geteuid()}") from None
     if not stat.S_ISDIR(info.st_mode):
-        raise ConfigError(f"runtime directory {path} is not a directory; pass --runtime-dir")
+        raise ConfigError(f"runtime directory {path} is not a directory; give --runtime-dir a folder's path")
     if info.st_uid != os.geteuid():
         raise ConfigError(f"runtime directory {path} belongs to uid {info.st_uid}, not to us "
                           f"(uid {os.geteuid()}); pass --runtime-dir with a directory of your own")

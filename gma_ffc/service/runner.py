@@ -173,7 +173,10 @@ class Service:
             return {"ok": True, "pid": os.getpid()}
         if cmd == "reload":
             model = request.get("model")
-            result = self.reload(model if isinstance(model, str) and model else None)
+            if model is not None and not (isinstance(model, str) and model):
+                return {"ok": False, "error": f"reload: 'model' must be a model file's path, got {model!r}; "
+                                              "the running model is kept"}
+            result = self.reload(model)
             return {"ok": result.ok, "message": result.message,
                     **({} if result.ok else {"error": result.message})}
         return {"ok": False, "error": f"unknown command {cmd!r} (status, stop, reload, ping)"}
