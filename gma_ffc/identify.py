@@ -170,7 +170,7 @@ class SDPIIdentifier:
 
     def _say(self, stage: str) -> None:
         if self.progress is not None:
-            self.progress(stage)
+            self.progress(getattr(self, "_pass", "") + stage)
 
     # -- public ------------------------------------------------------------------------------
     def fit(self, recordings: Sequence[Recording]) -> "SDPIIdentifier":
@@ -211,8 +211,10 @@ class SDPIIdentifier:
                 d.start = 0
             d.plays = np.empty((len(d.x), self.n_play))
             self._play_outputs(d, r_h, x_c, y0)
+        self._pass = ""
         self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c, (x_lo, x_hi))
         if short:
+            self._pass = "fit again, start states estimated: "      # progress says why the steps come again
             for d in short:
                 start = resolve(self.model_, d.x, d.sigma, "estimate", self.output_sign_ * d.y)
                 d.start = 0
@@ -253,7 +255,8 @@ class SDPIIdentifier:
         loops before they were moved) is taken up by shifting each recording by its mean error
         relative to the first's and fitting again, until the shifts are a small part of the
         loops' own error."""
-        for _ in range(ZERO_PASSES):
+        for k in range(ZERO_PASSES):
+            self._pass = f"fit again, zeros aligned ({k + 1}): "
             off = np.array([f.offset_um for f in self.report_])
             shape = float(np.median([f.shape_rms_um for f in self.report_]))
             shift = off - off[0]

@@ -96,7 +96,9 @@ def run(args: argparse.Namespace) -> int:
     refuse_repeats(args.recordings)
     recs = read_all(args.recordings, require=("time_s", "drive", "displacement_um"), group=args.group)
     note_gaps(recs)
-    with Progress("identify", total=4) as prog:
+    # no total: a recording that sweeps late, or zeros fitted per recording, fit again (the steps
+    # then say so); a count of four went to 100 % and started over
+    with Progress("identify") as prog:
         ident = SDPIIdentifier(n_play=args.plays, n_deadzone=args.deadzones,
                                reference_stress_MPa=args.reference_stress, refine=not args.no_refine,
                                zero=args.zero.replace("-", "_"),
