@@ -113,8 +113,8 @@ MONITOR = {
                       help="warn (status and log only) or diagnose (also run gma-ffc diagnose in the background)"),
     "max_per_hour": Field("int", 2, min=0, max=60, help="background diagnoses at most this often (0: never)"),
     "state_dir": Field("str", None, nullable=True,
-                       help="where diagnoses are written (default: $STATE_DIRECTORY, else "
-                            "$XDG_STATE_HOME/gma-ffc, else /var/lib/gma-ffc for root, ~/.local/state/gma-ffc for others)"),
+                       help="where diagnoses are written (default: $STATE_DIRECTORY, else $XDG_STATE_HOME/gma-ffc, "
+                            "else /var/lib/gma-ffc for root, ~/.local/state/gma-ffc for others)"),
 }
 
 # Prometheus metrics (gma_ffc/service/metrics.py). Loopback by default: the figures say what the
