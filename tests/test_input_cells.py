@@ -178,3 +178,46 @@ def test_a_recording_given_twice_is_refused_naming_both(workdir: Path, capsys) -
                          "give each recording once")
     assert not out.exists() and not (workdir / "twice").exists()
     assert main(["identify", a, b, c, "-o", str(out)]) == 0        # the advice: each once
+
+
+def test_an_overload_value_in_a_reference_is_refused_by_invert_and_removing_its_row_works(workdir: Path,
+                                                                                          capsys) -> None:
+    """One reference_um row at a sensor's overload value (9.9e37) was inverted into a drive sample of
+    5.8e36 A, exit 0; a reference times 1e100 never finished."""
+    bad = workdir / "ref_overload.csv"
+    line = _with_cell(workdir / "ref.csv", bad, "reference_um", 300, "9.9e37")
+    out = workdir / "drive_overload.csv"
+    model = str(workdir / "model.yaml")
+    _one_line_exit_2(["invert", "--model", model, str(bad), "-o", str(out)], capsys,
+                     f"{bad}, line {line}", "'reference_um' is 9.9e+37", "remove that row")
+    scaled = workdir / "ref_e100.csv"
+    rec = read_recording(workdir / "ref.csv", require=("time_s", "reference_um"))
+    write_recording(scaled, Recording({**rec.columns, "reference_um": rec.columns["reference_um"] * 1e100}))
+    _one_line_exit_2(["invert", "--model", model, str(scaled), "-o", str(out)], capsys, str(scaled), "reference_um",
+                     "convert the column")
+    assert not out.exists()
+    # the advice: remove that row
+    lines = bad.read_text().splitlines(keepends=True)
+    bad.write_text("".join(lines[:line - 1] + lines[line:]))
+    assert main(["invert", "--model", model, str(bad), "-o", str(out)]) == 0
+    assert np.abs(read_recording(out, require=("time_s", "drive")).drive).max() < 10
+
+
+@pytest.mark.parametrize("column", ["displacement_um", "current_A"])
+def test_a_column_of_absurd_magnitude_is_refused_by_every_command_and_converting_it_works(workdir: Path, capsys,
+                                                                                         column) -> None:
+    """A column times 1e300 got through reading: simulate printed 'RMS vs measured inf um' and dozens
+    of numpy warnings, identify and diagnose stopped on internal errors."""
+    rec = read_recording(workdir / "id_15.2.csv")
+    bad = workdir / f"huge_{column}.csv"
+    logged = rec.columns[column] * 1e300
+    write_recording(bad, Recording({**rec.columns, column: logged}, dict(rec.metadata)))
+    model, out = str(workdir / "model.yaml"), workdir / f"huge_{column}.out.csv"
+    words = (str(bad), f"'{column}'", "beyond any physical", "convert the column")
+    _one_line_exit_2(["identify", str(bad), "-o", str(workdir / "never.yaml")], capsys, *words)
+    _one_line_exit_2(["simulate", "--model", model, str(bad), "-o", str(out)], capsys, *words)
+    _one_line_exit_2(["diagnose", "--model", model, str(bad), "--out", str(workdir / "never")], capsys, *words)
+    assert not out.exists() and not (workdir / "never.yaml").exists()
+    # the advice: convert the column (here, undo the logger's scaling)
+    write_recording(bad, Recording({**rec.columns, column: logged / 1e300}))
+    assert main(["simulate", "--model", model, str(bad), "-o", str(out)]) == 0
