@@ -179,3 +179,17 @@ def test_a_load_cell_logging_compression_as_positive_then_the_column_negated():
     flipped = [Recording({**r.columns, "stress_MPa": -r.columns["stress_MPa"]}, {}, r.source) for r in recs]
     assert any("negate the column before identifying" in n for n in SDPIIdentifier().fit(flipped).notes_)
     assert not any("negate the column" in n for n in SDPIIdentifier().fit(recs).notes_)
+
+
+def test_a_recording_of_three_samples_then_the_recording_the_refusal_asks_for(model):
+    """diagnose stopped on an internal IndexError on a recording of 2-4 samples."""
+    with pytest.raises(InputError) as err:
+        diagnose(model, [recording(cycles(3.0, 0.003), "three.csv")])
+    m = re.search(r"only 3 samples; .*record at least (\d+) samples over (\d+) or more full drive cycles, "
+                  r"at two or more drive frequencies", str(err.value))
+    assert m is not None and "\n" not in str(err.value), str(err.value)
+    samples, loops = int(m.group(1)), int(m.group(2))
+    drive = np.r_[cycles(3.0, loops / 2 / 3.0 + 1), cycles(7.0, loops / 2 / 7.0 + 1)]     # as asked
+    assert drive.size >= samples
+    dg = diagnose(model, [recording(drive, "as_asked.csv")])
+    assert dg.conclusive and not any("too little data" in c for c in dg.cannot_conclude), dg.cannot_conclude

@@ -221,3 +221,29 @@ def test_a_column_of_absurd_magnitude_is_refused_by_every_command_and_converting
     # the advice: convert the column (here, undo the logger's scaling)
     write_recording(bad, Recording({**rec.columns, column: logged / 1e300}))
     assert main(["simulate", "--model", model, str(bad), "-o", str(out)]) == 0
+
+
+@pytest.mark.parametrize("samples", [2, 3, 4])
+def test_diagnose_refuses_a_recording_of_a_few_samples_in_one_line(workdir: Path, capsys, samples) -> None:
+    """A recording of 2-4 samples stopped diagnose on an internal IndexError (locate's smoothing
+    window is 5 samples); identify already refused it ('only 3 samples; ... needs at least N')."""
+    rec = read_recording(workdir / "id_15.2.csv")
+    short = workdir / f"short{samples}.csv"
+    write_recording(short, rec.rows(np.arange(len(rec)) < samples))
+    _one_line_exit_2(["diagnose", "--model", str(workdir / "model.yaml"), str(short), str(workdir / "id_19.1.csv"),
+                      "--out", str(workdir / "never")], capsys, str(short), f"only {samples} samples", "needs at least 5",
+                     "record at least")
+    assert not (workdir / "never").exists()
+
+
+def test_diagnose_refuses_a_constant_displacement_as_identify_does(workdir: Path, capsys) -> None:
+    """A flat displacement column was diagnosed (exit 0, 'held-out RMS 30.11 -> 30.11 um (noise floor
+    0 um)', advice to record more cycles) where identify refuses it."""
+    rec = read_recording(workdir / "id_15.2.csv")
+    flat = workdir / "flat_displacement.csv"
+    write_recording(flat, Recording({**rec.columns, "displacement_um": np.full(len(rec), 5.0)}))
+    words = ("the displacement is constant",)
+    _one_line_exit_2(["identify", str(flat), "-o", str(workdir / "never.yaml")], capsys, *words)
+    _one_line_exit_2(["diagnose", "--model", str(workdir / "model.yaml"), str(flat), "--out", str(workdir / "never")],
+                     capsys, str(flat), *words, "never changes", "sensor is connected")
+    assert not (workdir / "never").exists()
