@@ -247,3 +247,21 @@ def test_diagnose_refuses_a_constant_displacement_as_identify_does(workdir: Path
     _one_line_exit_2(["diagnose", "--model", str(workdir / "model.yaml"), str(flat), "--out", str(workdir / "never")],
                      capsys, str(flat), *words, "never changes", "sensor is connected")
     assert not (workdir / "never").exists()
+
+
+def test_a_recording_saved_again_differently_is_refused_as_given_twice(workdir: Path, capsys) -> None:
+    """The same rows with CRLF line endings, or with the columns in another order, were accepted twice
+    by identify and diagnose, where a byte copy is refused (docs/cli.md: a copy counts twice)."""
+    a, b = (str(workdir / f"id_{-s}.csv") for s in STRESSES[1:3])
+    crlf = workdir / "crlf_of_15.2.csv"
+    crlf.write_bytes(Path(a).read_bytes().replace(b"\n", b"\r\n"))
+    rec = read_recording(a)
+    reordered = workdir / "reordered_of_15.2.csv"
+    write_recording(reordered, Recording({k: rec.columns[k] for k in reversed(list(rec.columns))}, {"note": "resaved"}))
+    model, out = str(workdir / "model.yaml"), workdir / "resaved.yaml"
+    for copy in (crlf, reordered):
+        words = (a, str(copy), "same rows", "give each recording once")
+        _one_line_exit_2(["identify", a, b, str(copy), "-o", str(out)], capsys, *words)
+        _one_line_exit_2(["diagnose", "--model", model, a, str(copy), "--out", str(workdir / "resaved")], capsys, *words)
+    assert not out.exists() and not (workdir / "resaved").exists()
+    assert main(["identify", str(crlf), b, "-o", str(out)]) == 0        # the advice: each once

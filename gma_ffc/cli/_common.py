@@ -66,6 +66,29 @@ def _refuse_same_content(paths: Sequence[str]) -> None:
                              "give each recording once")
 
 
+def refuse_same_rows(recs: Sequence[Recording]) -> None:
+    """InputError naming both when two recordings, as read, hold the same rows: the same columns by
+    name with the same values, whatever the bytes (line endings, column order, metadata lines). A
+    re-saved copy counts twice in a fit as a byte copy does (`refuse_repeats`)."""
+    seen: dict[str, str] = {}
+    for rec in recs:
+        first = seen.setdefault(_rows_digest(rec), rec.source)
+        if first != rec.source:
+            raise InputError(f"{first} and {rec.source} hold the same rows (the same columns and values, saved "
+                             "differently), one recording given twice: give each recording once")
+
+
+def _rows_digest(rec: Recording) -> str:
+    """SHA-256 of a recording's columns, by name in sorted order, and their values as doubles."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for name in sorted(rec.columns):
+        h.update(name.encode("utf-8") + b"\0")
+        h.update(np.ascontiguousarray(rec.columns[name], dtype="<f8").tobytes())
+    return h.hexdigest()
+
+
 def note_gaps(recs: Sequence[Recording]) -> None:
     """Say on stderr which recordings have dropouts in time (they run, bridged; the user should know)
     and what reading them left out (a torn last line)."""

@@ -8,7 +8,8 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ._common import add_group_option, add_initial_state_option, check_drive_name, note_gaps, refuse_repeats
+from ._common import (add_group_option, add_initial_state_option, check_drive_name, note_gaps, refuse_repeats,
+                      refuse_same_rows)
 
 HELP = """\
 Compare a model with recordings, locate where they differ (time windows, frequency bands, drive
@@ -75,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
     recs = [read_recording(p, require=("time_s", "drive", "displacement_um"), group=args.group) for p in paths]
     ident = [read_recording(p, require=("time_s", "drive", "displacement_um"), group=args.group)
              for p in ident_paths]
+    refuse_same_rows(recs + ident)
     for rec in recs + ident:
         check_drive_name(model, rec)
     note_gaps(recs)
