@@ -197,6 +197,10 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
             raise RecordingError(
                 f"{_at_line(src, header_line)}: missing required column '{name}'; found {', '.join(rec.columns)}"
                 f"{rename_advice(rec.columns, [name])}")
+    if "drive" in require and all(d in rec.columns for d in DRIVE_COLUMNS):
+        raise RecordingError(
+            f"{_at_line(src, header_line)}: both current_A and voltage_V are columns, and gma-ffc reads one drive: "
+            "drop the column that is not the actuator's drive (or rename it, e.g. to coil_voltage_V, to keep it)")
     if len(rec) < 2:
         raise RecordingError(f"{src}: needs at least two samples, has {len(rec)}")
     required_cols = [TIME] + [c for c in require if c != "drive" and c != TIME]

@@ -265,3 +265,33 @@ def test_a_recording_saved_again_differently_is_refused_as_given_twice(workdir: 
         _one_line_exit_2(["diagnose", "--model", model, a, str(copy), "--out", str(workdir / "resaved")], capsys, *words)
     assert not out.exists() and not (workdir / "resaved").exists()
     assert main(["identify", str(crlf), b, "-o", str(out)]) == 0        # the advice: each once
+
+
+def test_a_recording_with_both_drive_columns_is_refused_and_dropping_one_works(workdir: Path, capsys) -> None:
+    """A recording with current_A and voltage_V was read with current_A, silently."""
+    rec = read_recording(workdir / "id_15.2.csv")
+    both = workdir / "both_drives.csv"
+    write_recording(both, Recording({**rec.columns, "voltage_V": 4.0 * rec.drive}))
+    model, out = str(workdir / "model.yaml"), workdir / "both_drives.out.csv"
+    words = (str(both), "current_A", "voltage_V", "drop the column")
+    _one_line_exit_2(["simulate", "--model", model, str(both), "-o", str(out)], capsys, *words)
+    _one_line_exit_2(["identify", str(both), "-o", str(workdir / "never.yaml")], capsys, *words)
+    assert not out.exists()
+    write_recording(both, Recording({k: v for k, v in rec.columns.items()}))    # the advice: voltage_V dropped
+    assert main(["simulate", "--model", model, str(both), "-o", str(out)]) == 0
+
+
+@pytest.mark.parametrize("command", ["simulate", "invert", "diagnose"])
+def test_an_initial_drive_far_outside_the_models_range_is_refused_naming_the_range(workdir: Path, capsys,
+                                                                                   command) -> None:
+    """--initial-state drive:1e300 was accepted."""
+    model = str(workdir / "model.yaml")
+    given = str(workdir / ("ref.csv" if command == "invert" else "id_15.2.csv"))
+    out = ["--out", str(workdir / "never")] if command == "diagnose" else ["-o", str(workdir / "never.csv")]
+    err = _one_line_exit_2([command, "--model", model, given, *out, "--initial-state", "drive:1e300"], capsys,
+                           "--initial-state drive:1e+300", "outside the drive range", "give a drive from")
+    lo, hi = (float(v) for v in err.split("give a drive from ")[1].split(" A")[0].split(" to "))
+    assert lo < 0.0 < 3.0 < hi
+    if command == "simulate":           # the advice: a drive in the range named
+        for drive in (lo, hi):
+            assert main([command, "--model", model, given, *out, f"--initial-state=drive:{drive!r}"]) == 0

@@ -194,6 +194,28 @@ def _initial_state(text: str) -> Any:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def check_initial_drive(model: Any, drive: float | None, option: str) -> None:
+    """InputError unless a start `drive` given on the command line (`--initial-state drive:V`,
+    `--initial-drive`) lies in the model's drive range widened by `drive.RANGE_MARGIN`: beyond it the
+    model only extrapolates, and far beyond it (1e300) every play saturates into inf. A model
+    without a finite range is held to the drive column's physical bound (`recordings.MAGNITUDE_BOUNDS`)."""
+    from ..drive import RANGE_MARGIN
+    from ..recordings import MAGNITUDE_BOUNDS
+
+    if drive is None:
+        return
+    lo, hi = (float(v) for v in model.drive_range)
+    if math.isfinite(hi - lo) and hi > lo:
+        wide = RANGE_MARGIN * (hi - lo)
+        lo, hi, what = lo - wide, hi + wide, "the drive range the model was identified on"
+    else:
+        bound = MAGNITUDE_BOUNDS[model.drive_name]
+        lo, hi, what = -bound, bound, "a physical drive"
+    if not lo <= drive <= hi:
+        raise InputError(f"{option}{drive:g} is outside {what}: give a drive from {lo:.6g} to {hi:.6g} "
+                         f"{drive_unit(model.drive_name)}")
+
+
 def finite_float(text: str) -> float:
     """argparse type: a number, refused when NaN or infinite (it would reach the outputs as one)."""
     try:
