@@ -193,3 +193,19 @@ def test_a_recording_of_three_samples_then_the_recording_the_refusal_asks_for(mo
     assert drive.size >= samples
     dg = diagnose(model, [recording(drive, "as_asked.csv")])
     assert dg.conclusive and not any("too little data" in c for c in dg.cannot_conclude), dg.cannot_conclude
+
+
+def test_a_short_recording_that_never_sweeps_is_told_so_not_to_fit_fewer_operators():
+    """30 samples of a half sweep were told '--plays 2 --deadzones 1', which then failed with 'the drive
+    never sweeps ... back': the real fault comes first. A full cycle in as few samples is told to fit
+    fewer operators, and doing so fits."""
+    with pytest.raises(InputError) as err:
+        SDPIIdentifier().fit([recording(np.linspace(0.0, 3.0, 30))])
+    assert "never sweeps" in str(err.value) and "--plays" not in str(err.value), str(err.value)
+    one_cycle = 1.5 * (1 - np.cos(2 * np.pi * np.arange(30) / 30))
+    with pytest.raises(InputError) as err:
+        SDPIIdentifier().fit([recording(one_cycle)])
+    fewer = re.search(r"--plays (\d+) --deadzones (\d+)", str(err.value))
+    assert fewer is not None, str(err.value)
+    model = SDPIIdentifier(n_play=int(fewer.group(1)), n_deadzone=int(fewer.group(2))).fit([recording(one_cycle)]).model_
+    assert model.n_play == int(fewer.group(1))

@@ -295,3 +295,34 @@ def test_an_initial_drive_far_outside_the_models_range_is_refused_naming_the_ran
     if command == "simulate":           # the advice: a drive in the range named
         for drive in (lo, hi):
             assert main([command, "--model", model, given, *out, f"--initial-state=drive:{drive!r}"]) == 0
+
+
+def test_a_stress_option_of_the_wrong_sign_is_answered_with_the_option_and_following_it_works(workdir: Path,
+                                                                                              capsys) -> None:
+    """--stress 15 on a recording without stress_MPa was answered 'negate the stress_MPa column'."""
+    rec = read_recording(workdir / "id_15.2.csv")
+    nostress = workdir / "no_stress_column.csv"
+    write_recording(nostress, Recording({k: v for k, v in rec.columns.items() if k != "stress_MPa"}))
+    model, out = str(workdir / "model.yaml"), workdir / "no_stress_column.out.csv"
+    for command, given in (("simulate", nostress), ("invert", workdir / "ref.csv")):
+        err = _one_line_exit_2([command, "--model", model, str(given), "-o", str(out), "--stress", "15"], capsys,
+                               "--stress 15 MPa is outside", "pass --stress -15")
+        assert "stress_MPa column" not in err
+    _one_line_exit_2(["simulate", "--model", model, str(nostress), "-o", str(out), "--stress", "-40"], capsys,
+                     "--stress -40 MPa is outside", "pass a --stress from")
+    assert not out.exists()
+    assert main(["simulate", "--model", model, str(nostress), "-o", str(out), "--stress", "-15"]) == 0   # as advised
+
+
+def test_identify_names_a_mix_of_drives_before_a_mix_of_stress_columns(workdir: Path, capsys) -> None:
+    """A voltage recording without stress beside a current one with stress was told 'give all or none
+    a stress column'; given one, it was then told 'recordings mix drives'."""
+    rec = read_recording(workdir / "id_15.2.csv")
+    volts = workdir / "volts_no_stress.csv"
+    write_recording(volts, Recording({"time_s": rec.time_s, "voltage_V": 50.0 * rec.drive,
+                                      "displacement_um": rec.displacement_um}))
+    out = workdir / "mixed.yaml"
+    _one_line_exit_2(["identify", str(workdir / "id_15.2.csv"), str(volts), "-o", str(out)], capsys,
+                     "recordings mix drives", "identify one kind at a time")
+    assert not out.exists()
+    assert main(["identify", str(volts), "-o", str(out)]) == 0      # the advice: one kind at a time

@@ -117,6 +117,7 @@ def stress_for(model: Model, rec: Recording, override: float | None) -> np.ndarr
     """The stress to run `model` at for `rec`: --stress wins, else the recording's column (its
     readings just beyond the identified range by noise clamped into it: `READING_NOISE_MARGIN`)."""
     if override is not None:
+        check_stress_option(model, float(override))
         return float(override)
     if rec.stress_MPa is not None:
         return _noise_clamped(model, rec, rec.stress_MPa)
@@ -125,6 +126,30 @@ def stress_for(model: Model, rec: Recording, override: float | None) -> np.ndarr
         raise InputError(f"{rec.source}: no stress_MPa column, and this {model.kind} model depends on stress "
                          f"(identified on {lo:.3g}..{hi:.3g} MPa); add the column or pass --stress MPA")
     return None
+
+
+def inward_text(lo: float, hi: float) -> tuple[str, str]:
+    """`lo` and `hi` as text, rounded inwards to 1/10000 of the span: a value copied from the text is
+    inside [lo, hi] (rounded to nearest, an end could print a hair outside it and be refused)."""
+    step = 10.0 ** (math.floor(math.log10(hi - lo)) - 4)
+    return f"{math.ceil(lo / step) * step:.6g}", f"{math.floor(hi / step) * step:.6g}"
+
+
+def check_stress_option(model: Model, stress: float) -> None:
+    """InputError, naming --stress, when it lies outside the model's identified stress range (the
+    model's own message would advise negating a stress_MPa column the recording may not have):
+    -stress when that is inside (compression is negative here), else a value inside."""
+    rng = getattr(model, "stress_range_MPa", None)
+    if rng is None:
+        return
+    lo, hi = rng
+    tol = 1e-6 * max(1.0, abs(lo), abs(hi))        # the model's own: a stress that far out is at its end
+    if lo - tol <= stress <= hi + tol:
+        return
+    advice = (f"compression is negative in gma-ffc (docs/recordings.md): pass --stress {-stress:g}"
+              if lo - tol <= -stress <= hi + tol else "pass a --stress from {} to {}".format(*inward_text(lo, hi)))
+    raise InputError(f"--stress {stress:g} MPa is outside the range the model was identified on "
+                     f"({lo:.4g}..{hi:.4g} MPa); {advice}")
 
 
 def recorded_stress(rec: Recording, stress: Any, override: float | None) -> np.ndarray:
@@ -212,7 +237,8 @@ def check_initial_drive(model: Any, drive: float | None, option: str) -> None:
         bound = MAGNITUDE_BOUNDS[model.drive_name]
         lo, hi, what = -bound, bound, "a physical drive"
     if not lo <= drive <= hi:
-        raise InputError(f"{option}{drive:g} is outside {what}: give a drive from {lo:.6g} to {hi:.6g} "
+        low, high = inward_text(lo, hi)
+        raise InputError(f"{option}{drive:g} is outside {what}: give a drive from {low} to {high} "
                          f"{drive_unit(model.drive_name)}")
 
 
