@@ -485,7 +485,7 @@ class SDPIIdentifier:
         data = []
         for r in recordings:
             self._refuse_unusable(r)
-            data.append(_Data(r.name, r.drive.copy(), r.displacement_um.copy(),
+            data.append(_Data(r.name, r.drive.copy(), r.column("displacement_um").copy(),
                               None if r.stress_MPa is None else r.stress_MPa.copy(), t=r.time_s))
         return data
 
