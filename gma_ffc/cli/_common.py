@@ -148,8 +148,8 @@ def check_stress_option(model: Model, stress: float) -> None:
         return
     advice = (f"compression is negative in gma-ffc (docs/recordings.md): pass --stress {-stress:g}"
               if lo - tol <= -stress <= hi + tol else "pass a --stress from {} to {}".format(*inward_text(lo, hi)))
-    raise InputError(f"--stress {stress:g} MPa is outside the range the model was identified on "
-                     f"({lo:.4g}..{hi:.4g} MPa); {advice}")
+    raise InputError(f"--stress {stress:g} MPa is outside the model's identified range {lo:.4g}..{hi:.4g} MPa; "
+                     f"{advice}")
 
 
 def recorded_stress(rec: Recording, stress: Any, override: float | None) -> np.ndarray:
