@@ -477,33 +477,42 @@ class SDPIIdentifier:
     def _prepare(self, recordings: Sequence[Recording]) -> list[_Data]:
         if not recordings:
             raise InputError("no recordings given")
+        drives = {r.drive_name for r in recordings}     # first: a mix of drives is the graver fault
+        if len(drives) > 1:
+            raise InputError(f"recordings mix drives {sorted(drives)}; identify one kind at a time")
         has_stress = [r.stress_MPa is not None for r in recordings]
         if any(has_stress) and not all(has_stress):
             missing = [r.name for r, h in zip(recordings, has_stress) if not h]
             raise InputError(f"some recordings have stress_MPa and some do not ({', '.join(missing)}); "
                              "give all or none a stress column")
-        drives = {r.drive_name for r in recordings}
-        if len(drives) > 1:
-            raise InputError(f"recordings mix drives {sorted(drives)}; identify one kind at a time")
         data = []
-        min_samples = 8 * (self.n_play + self.n_deadzone)
         for r in recordings:
-            if r.displacement_um is None:
-                raise InputError(f"{r.source}: identification needs a displacement_um column")
-            if len(r) < min_samples:
-                raise InputError(f"{r.source}: only {len(r)} samples; identifying {self.n_play} plays and "
-                                 f"{self.n_deadzone} dead-zones needs at least {min_samples}: record at least "
-                                 f"{min_samples} samples over at least one full drive cycle (min to max and back)"
-                                 + fewer_operators(len(r), self.n_play))
-            if np.ptp(r.drive) <= 0:
-                raise InputError(f"{r.source}: the drive is constant; a hysteresis model needs a swept drive")
-            if not has_full_sweep(r.drive):
-                raise InputError(f"{r.source}: the drive never sweeps from one end of its range to the other and "
-                                 "back, so the hysteresis loop is not in the data: record at least one full "
-                                 "drive cycle (min to max and back)")
-            data.append(_Data(r.name, r.drive.copy(), r.displacement_um.copy(),
+            self._refuse_unusable(r)
+            data.append(_Data(r.name, r.drive.copy(), r.column("displacement_um").copy(),
                               None if r.stress_MPa is None else r.stress_MPa.copy(), t=r.time_s))
         return data
+
+    def _refuse_unusable(self, r: Recording) -> None:
+        """InputError for a recording no fit can use: no displacement, a drive that never sweeps its range
+        and back (named first, and fewer operators not suggested: they would not mend it), fewer samples
+        than the operators need, or a constant drive."""
+        if r.displacement_um is None:
+            raise InputError(f"{r.source}: identification needs a displacement_um column")
+        swept = has_full_sweep(r.drive)
+        min_samples = 8 * (self.n_play + self.n_deadzone)
+        need = (f"identifying {self.n_play} plays and {self.n_deadzone} dead-zones needs at least {min_samples}: "
+                f"record at least {min_samples} samples over at least one full drive cycle (min to max and back)")
+        if len(r) < min_samples and not swept:       # the real fault first: fewer operators would not mend it
+            raise InputError(f"{r.source}: the drive never sweeps from one end of its range to the other and back, "
+                             f"and there are only {len(r)} samples; {need}")
+        if len(r) < min_samples:
+            raise InputError(f"{r.source}: only {len(r)} samples; {need}{fewer_operators(len(r), self.n_play)}")
+        if np.ptp(r.drive) <= 0:
+            raise InputError(f"{r.source}: the drive is constant; a hysteresis model needs a swept drive")
+        if not swept:
+            raise InputError(f"{r.source}: the drive never sweeps from one end of its range to the other and "
+                             "back, so the hysteresis loop is not in the data: record at least one full "
+                             "drive cycle (min to max and back)")
 
     def _stress_levels(self, data: list[_Data]) -> tuple[list[float], list[float]]:
         """The stress levels held, and each recording's median stress; both empty without stress."""

@@ -9,8 +9,9 @@ minimum on an interval is at an end or at the vertex.
 
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 
@@ -443,13 +444,19 @@ class SDPIModel:
     REQUIRED_KEYS = ("kind", "drive_name", "input_offset", "play", "deadzone", "output_offset_coeffs",
                      "stress_range_MPa", "drive_range", "provenance")
 
+    KNOWN_KEYS = REQUIRED_KEYS + ("format", "version", "units", "output_sign", "initial_state", "stress_dependence",
+                                  "reference_stress_MPa")
+    SECTION_KEYS = {"play": ("thresholds", "weights"), "deadzone": ("thresholds", "weight_coeffs")}   # required
+    SECTION_OPTIONAL = ("index_of_r0",)     # deadzone's: written by identify, checked when present
+
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "SDPIModel":
         required = cls.REQUIRED_KEYS + (("output_sign",) if d.get("version", 1) >= 2 else ())
-        missing = [k for k in required if k not in d]
-        if missing:
-            raise ModelError(f"missing key{'s' if len(missing) > 1 else ''} {', '.join(repr(k) for k in missing)}: "
-                             f"the file is incomplete (cut short?); write it again with gma-ffc identify")
+        refuse_missing_keys(d, required, cls.KNOWN_KEYS)
+        for section, keys in cls.SECTION_KEYS.items():
+            if isinstance(d[section], dict):
+                refuse_missing_keys(d[section], keys, keys + cls.SECTION_OPTIONAL, f"{section}.")
+        _check_output_sign(d.get("output_sign", 1))
         try:
             play, dz = d["play"], d["deadzone"]
             coeffs = np.asarray(dz["weight_coeffs"], dtype=float)
@@ -487,6 +494,30 @@ class SDPIModel:
                              + ". The inverse controller cannot use it: identify the model again (gma-ffc "
                              "identify) from recordings that sweep the full drive range at every stress")
         return model
+
+
+def refuse_missing_keys(d: Mapping[str, Any], required: Sequence[str], known: Sequence[str], prefix: str = "") -> None:
+    """ModelError for the first of `required` missing from `d`: as a misspelt key when a key of `d`
+    that is none of `known` is close to it ('ouput_sign'), else as a file cut short."""
+    missing = [k for k in required if k not in d]
+    if not missing:
+        return
+    unknown = [str(k) for k in d if k not in known]
+    for key in missing:
+        close = difflib.get_close_matches(key, unknown, n=1, cutoff=0.6)
+        if close:
+            raise ModelError(f"unknown key '{prefix}{close[0]}' (did you mean '{prefix}{key}'?): rename it "
+                             f"'{key}'")
+    raise ModelError(f"missing key{'s' if len(missing) > 1 else ''} {', '.join(repr(prefix + k) for k in missing)}: "
+                     f"the file is incomplete (cut short?); write it again with gma-ffc identify")
+
+
+def _check_output_sign(value: Any) -> None:
+    """ModelError unless `value` is a number (the constructor then holds it to +1 or -1): YAML reads
+    yes/no/true/false as a boolean, which Python would take for 1 or 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ModelError(f"output_sign must be +1 (displacement rises with the drive) or -1 (falls), got {value!r}"
+                         f"{' (a YAML boolean, not a sign)' if isinstance(value, bool) else ''}")
 
 
 def _check_declared_units(d: dict[str, Any], model: SDPIModel) -> None:

@@ -46,6 +46,9 @@ def model_from_dict(d: Any, source: str = "<dict>") -> Model:
     version = d.get("version")
     if not isinstance(version, int) or version > VERSION or version < 1:
         raise ModelError(f"{source}: model file version {version!r} is not supported (this gma-ffc reads 1..{VERSION})")
+    if "kind" not in d:
+        raise ModelError(f"{source}: missing key 'kind' (the model kind: one of {', '.join(sorted(KINDS))})"
+                         f"{_kind_advice(d)}")
     kind = d.get("kind")
     try:
         return _class_for(str(kind)).from_dict(d)
@@ -53,6 +56,18 @@ def model_from_dict(d: Any, source: str = "<dict>") -> Model:
         if str(exc).startswith(source):
             raise
         raise ModelError(f"{source}: {exc}") from None
+
+
+def _kind_advice(d: dict[str, Any]) -> str:
+    """What to add for a file without `kind`: the kind its keys make it (an extended model has a base;
+    a play model is sdpi with a stress range, mpi without), or '' when its keys say nothing."""
+    if "base" in d:
+        kind = "extended"
+    elif "play" in d:
+        kind = "sdpi" if d.get("stress_range_MPa") is not None else "mpi"
+    else:
+        return ""
+    return f"; its keys make it {kind}: add the line 'kind: {kind}'"
 
 
 def load_model(path: str | Path) -> Model:

@@ -197,6 +197,10 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
             raise RecordingError(
                 f"{_at_line(src, header_line)}: missing required column '{name}'; found {', '.join(rec.columns)}"
                 f"{rename_advice(rec.columns, [name])}")
+    if "drive" in require and all(d in rec.columns for d in DRIVE_COLUMNS):
+        raise RecordingError(
+            f"{_at_line(src, header_line)}: both current_A and voltage_V are columns, and gma-ffc reads one drive: "
+            "drop the column that is not the actuator's drive (or rename it, e.g. to coil_voltage_V, to keep it)")
     if len(rec) < 2:
         raise RecordingError(f"{src}: needs at least two samples, has {len(rec)}")
     required_cols = [TIME] + [c for c in require if c != "drive" and c != TIME]
@@ -208,9 +212,11 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
         # every model that reads stress reads every sample of it: a present column is as good as required
         refuse_non_finite(rec, STRESS, "stress_MPa, when a recording has the column: put the stress at that "
                                        "time in the cell")
-    if DISPLACEMENT in rec.columns:
+    if DISPLACEMENT in rec.columns:         # an isolated overload value: the spike's message says more
         _refuse_a_spike(rec, DISPLACEMENT)
-    else:
+    for name in rec.columns:
+        refuse_absurd_magnitude(rec, name)
+    if DISPLACEMENT not in rec.columns:
         advice = rename_advice(rec.columns, [DISPLACEMENT])
         if advice:                   # optional here, so not refused: but the user meant it to be read
             rec.notes.append(f"{src}: no {DISPLACEMENT} column, so nothing is compared with a measurement{advice}")
@@ -221,6 +227,46 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
             f"{_at_row(rec, row)}: time does not increase "
             f"({time_text(float(rec.time_s[row - 1]), 1e-9)} s then {time_text(float(rec.time_s[row]), 1e-9)} s)")
     return rec
+
+
+# The largest magnitude each column gma-ffc reads may hold: generous beyond any bench, yet small
+# enough that squares and sums of squares of a million samples stay finite (1e9 squared is 1e18).
+# A value past its bound is a logger's overload code or a unit gone wrong, never a measurement.
+MAGNITUDE_BOUNDS = {
+    TIME: 1e11,             # s: over 3000 years; a Unix timestamp (1.7e9 s) is well inside
+    "current_A": 1e6,       # A: a lightning stroke's current; an actuator's coil takes a few amperes
+    "voltage_V": 1e6,       # V: a megavolt; a piezo stack's amplifier gives at most a few kV
+    DISPLACEMENT: 1e9,      # um: a kilometre, no smart-material actuator's stroke (they move um to mm)
+    REFERENCE: 1e9,         # um: as displacement_um, which a reference is followed in
+    STRESS: 1e6,            # MPa: a terapascal, ten times the strength of diamond
+}
+
+
+def refuse_absurd_magnitude(rec: Recording, name: str) -> None:
+    """RecordingError naming the file, the column and the line of the first finite cell of `name`
+    beyond its MAGNITUDE_BOUNDS (columns without a bound are not read as quantities: not checked;
+    NaN and inf are the finite-cell rules' to refuse)."""
+    bound = MAGNITUDE_BOUNDS.get(name)
+    if bound is None:
+        return
+    x = rec.columns[name]
+    with np.errstate(invalid="ignore"):
+        bad = np.abs(x) > bound
+    bad &= np.isfinite(x)
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise RecordingError(f"{_at_row(rec, row)}: '{name}' is {x[row]:.6g}, beyond any physical "
+                             f"{name.rsplit('_', 1)[0]} (|value| up to {bound:g} {name.rsplit('_', 1)[1]} is read): "
+                             f"{_magnitude_advice(int(bad.sum()), len(x))}")
+
+
+def _magnitude_advice(count: int, rows: int) -> str:
+    """What to do about `count` of `rows` cells past a column's bound: one is an overload value,
+    many a column logged in another unit or scaling."""
+    if count == 1:
+        return "a logger's overload value or a glitch; fix or remove that row"
+    return (f"{count} of {rows} rows are: the column is logged in another unit or scaling; check the logger's "
+            "setting for it and convert the column")
 
 
 SPIKE_SPREADS = 10.0
@@ -239,7 +285,7 @@ def _refuse_a_spike(rec: Recording, name: str) -> None:
         return
     lo, hi = np.nanpercentile(x, [0.5, 99.5])
     reach = SPIKE_SPREADS * max(hi - lo, SPIKE_FLOOR_UM)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", over="ignore"):      # 1e308 - (-1e308) is inf: not a spike's test
         up = (x[1:-1] - x[:-2] > reach) & (x[1:-1] - x[2:] > reach)
         down = (x[:-2] - x[1:-1] > reach) & (x[2:] - x[1:-1] > reach)
     spikes = np.flatnonzero((up | down) & np.isfinite(x[1:-1]))     # NaN and inf: the finite-cell rules

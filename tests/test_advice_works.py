@@ -179,3 +179,33 @@ def test_a_load_cell_logging_compression_as_positive_then_the_column_negated():
     flipped = [Recording({**r.columns, "stress_MPa": -r.columns["stress_MPa"]}, {}, r.source) for r in recs]
     assert any("negate the column before identifying" in n for n in SDPIIdentifier().fit(flipped).notes_)
     assert not any("negate the column" in n for n in SDPIIdentifier().fit(recs).notes_)
+
+
+def test_a_recording_of_three_samples_then_the_recording_the_refusal_asks_for(model):
+    """diagnose stopped on an internal IndexError on a recording of 2-4 samples."""
+    with pytest.raises(InputError) as err:
+        diagnose(model, [recording(cycles(3.0, 0.003), "three.csv")])
+    m = re.search(r"only 3 samples; .*record at least (\d+) samples over (\d+) or more full drive cycles, "
+                  r"at two or more drive frequencies", str(err.value))
+    assert m is not None and "\n" not in str(err.value), str(err.value)
+    samples, loops = int(m.group(1)), int(m.group(2))
+    drive = np.r_[cycles(3.0, loops / 2 / 3.0 + 1), cycles(7.0, loops / 2 / 7.0 + 1)]     # as asked
+    assert drive.size >= samples
+    dg = diagnose(model, [recording(drive, "as_asked.csv")])
+    assert dg.conclusive and not any("too little data" in c for c in dg.cannot_conclude), dg.cannot_conclude
+
+
+def test_a_short_recording_that_never_sweeps_is_told_so_not_to_fit_fewer_operators():
+    """30 samples of a half sweep were told '--plays 2 --deadzones 1', which then failed with 'the drive
+    never sweeps ... back': the real fault comes first. A full cycle in as few samples is told to fit
+    fewer operators, and doing so fits."""
+    with pytest.raises(InputError) as err:
+        SDPIIdentifier().fit([recording(np.linspace(0.0, 3.0, 30))])
+    assert "never sweeps" in str(err.value) and "--plays" not in str(err.value), str(err.value)
+    one_cycle = 1.5 * (1 - np.cos(2 * np.pi * np.arange(30) / 30))
+    with pytest.raises(InputError) as err:
+        SDPIIdentifier().fit([recording(one_cycle)])
+    fewer = re.search(r"--plays (\d+) --deadzones (\d+)", str(err.value))
+    assert fewer is not None, str(err.value)
+    model = SDPIIdentifier(n_play=int(fewer.group(1)), n_deadzone=int(fewer.group(2))).fit([recording(one_cycle)]).model_
+    assert model.n_play == int(fewer.group(1))

@@ -48,7 +48,7 @@ def _mutate(tmp_path: Path, model: SDPIModel, change) -> Path:
     (lambda d: d.update(version=99), "version 99 is not supported"),
     (lambda d: d.update(kind="fancy"), "unknown model kind 'fancy'"),
     (lambda d: d.update(kind="mpi"), "kind says 'mpi'"),
-    (lambda d: d["play"].pop("weights"), "missing key 'weights'"),
+    (lambda d: d["play"].pop("weights"), "missing key 'play.weights'"),
     (lambda d: d["play"].update(weights=[1.0, 2.0]), "equally long"),
     (lambda d: d["play"].update(thresholds=[0.0, 0.6, 0.3]), "strictly increase"),
     (lambda d: d["deadzone"].update(thresholds=[-4.0, -2.0, 0.5, 2.0, 4.0]), "centre one at 0"),
@@ -94,3 +94,54 @@ def test_stress_outside_the_identified_range_is_refused(model: SDPIModel) -> Non
         model.simulate(None, np.ones(10), -30.0)
     with pytest.raises(ModelError, match="needs a stress"):
         model.simulate(None, np.ones(10))
+
+
+def _rename(d: dict, section: str | None, old: str, new: str) -> None:
+    where = d if section is None else d[section]
+    where[new] = where.pop(old)
+
+
+@pytest.mark.parametrize("section, key, typo", [(None, "output_sign", "ouput_sign"), ("play", "weights", "wieghts"),
+                                                (None, "drive_range", "drive_rnage")])
+def test_a_misspelt_key_is_named_with_the_known_one_and_renaming_it_loads(tmp_path: Path, model: SDPIModel,
+                                                                         section, key, typo) -> None:
+    """'ouput_sign' was reported as "missing key 'output_sign': the file is incomplete (cut short?)"."""
+    path = _mutate(tmp_path, model, lambda d: _rename(d, section, key, typo))
+    with pytest.raises(ModelError) as err:
+        load_model(path)
+    msg = str(err.value)
+    where = "" if section is None else f"{section}."
+    assert f"unknown key '{where}{typo}' (did you mean '{where}{key}'?)" in msg and "cut short" not in msg, msg
+    assert str(path) in msg and "\n" not in msg
+    path.write_text(path.read_text().replace(f"{typo}:", f"{key}:"))        # the advice: rename it
+    loaded, expected = load_model(path).to_dict(), model.to_dict()
+    assert (loaded if section is None else loaded[section])[key] == (expected if section is None else expected[section])[key]
+
+
+@pytest.mark.parametrize("stress_range, kind", [((-24.0, -11.3), "sdpi"), (None, "mpi")])
+def test_a_missing_kind_is_named_with_the_kinds_and_adding_the_line_loads(tmp_path: Path, model: SDPIModel,
+                                                                         stress_range, kind) -> None:
+    """A file without `kind` was reported as "unknown model kind 'None'"."""
+    model.stress_range_MPa = stress_range
+    if stress_range is None:
+        model.reference_stress_MPa = None
+    path = _mutate(tmp_path, model, lambda d: d.pop("kind"))
+    with pytest.raises(ModelError) as err:
+        load_model(path)
+    msg = str(err.value)
+    assert "missing key 'kind'" in msg and "extended, mpi, sdpi" in msg and "None" not in msg, msg
+    line = msg.split("add the line '")[1].rstrip("'")
+    path.write_text(path.read_text() + line + "\n")                      # the advice: add that line
+    assert load_model(path).kind == kind
+
+
+@pytest.mark.parametrize("text", ["yes", "no", "true", "up", "'-1'"])
+def test_an_output_sign_that_is_not_a_number_is_refused(tmp_path: Path, model: SDPIModel, text: str) -> None:
+    """'output_sign: yes' was read as +1 (a YAML boolean is True, which Python takes for 1)."""
+    path = _mutate(tmp_path, model, lambda d: None)
+    path.write_text(path.read_text().replace("output_sign: 1", f"output_sign: {text}"))
+    with pytest.raises(ModelError, match=r"output_sign must be \+1 .* or -1 .*, got") as err:
+        load_model(path)
+    assert str(path) in str(err.value)
+    path.write_text(path.read_text().replace(f"output_sign: {text}", "output_sign: -1"))     # the advice: -1
+    assert load_model(path).output_sign == -1

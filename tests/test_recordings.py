@@ -226,3 +226,20 @@ def test_invert_on_a_measured_run_says_how_to_make_it_a_reference(tmp_path):
     t, _, disp = np.loadtxt(path, delimiter=",", skiprows=1, unpack=True)            # done as advised
     write_recording(tmp_path / "ref.csv", Recording({"time_s": t, "reference_um": disp}, {}, "ref.csv"))
     assert len(read_recording(tmp_path / "ref.csv", require=("time_s", "reference_um"))) == 50
+
+
+@pytest.mark.parametrize("column, value", [("time_s", 2e11), ("current_A", -2e6), ("voltage_V", 3e6),
+                                           ("displacement_um", 2e9), ("stress_MPa", -2e6)])
+def test_a_value_beyond_a_columns_physical_bound_is_refused_naming_the_line(tmp_path: Path, column: str,
+                                                                            value: float) -> None:
+    drive = "voltage_V" if column == "voltage_V" else "current_A"
+    cols = {"time_s": [0.0, 1.0, 2.0, 3.0], drive: [0.0, 1.0, 2.0, 1.0], "displacement_um": [0.0, 1.0, 2.0, 1.0],
+            "stress_MPa": [-10.0] * 4}
+    cols[column][3] = value
+    text = ",".join(cols) + "\n" + "".join(",".join(repr(cols[c][k]) for c in cols) + "\n" for k in range(4))
+    with pytest.raises(RecordingError, match=rf"rec\.csv, line 5: '{column}' is {re.escape(f'{value:.6g}')}, "
+                                             r"beyond any physical .*remove that row"):
+        read_recording(write(tmp_path, text))
+    cols[column][3] = value / 1e3 if column != "time_s" else 3.0     # within the bound: read
+    text = ",".join(cols) + "\n" + "".join(",".join(repr(cols[c][k]) for c in cols) + "\n" for k in range(4))
+    assert len(read_recording(write(tmp_path, text))) == 4

@@ -66,6 +66,29 @@ def _refuse_same_content(paths: Sequence[str]) -> None:
                              "give each recording once")
 
 
+def refuse_same_rows(recs: Sequence[Recording]) -> None:
+    """InputError naming both when two recordings, as read, hold the same rows: the same columns by
+    name with the same values, whatever the bytes (line endings, column order, metadata lines). A
+    re-saved copy counts twice in a fit as a byte copy does (`refuse_repeats`)."""
+    seen: dict[str, str] = {}
+    for rec in recs:
+        first = seen.setdefault(_rows_digest(rec), rec.source)
+        if first != rec.source:
+            raise InputError(f"{first} and {rec.source} hold the same rows (the same columns and values, saved "
+                             "differently), one recording given twice: give each recording once")
+
+
+def _rows_digest(rec: Recording) -> str:
+    """SHA-256 of a recording's columns, by name in sorted order, and their values as doubles."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for name in sorted(rec.columns):
+        h.update(name.encode("utf-8") + b"\0")
+        h.update(np.ascontiguousarray(rec.columns[name], dtype="<f8").tobytes())
+    return h.hexdigest()
+
+
 def note_gaps(recs: Sequence[Recording]) -> None:
     """Say on stderr which recordings have dropouts in time (they run, bridged; the user should know)
     and what reading them left out (a torn last line)."""
@@ -94,6 +117,7 @@ def stress_for(model: Model, rec: Recording, override: float | None) -> np.ndarr
     """The stress to run `model` at for `rec`: --stress wins, else the recording's column (its
     readings just beyond the identified range by noise clamped into it: `READING_NOISE_MARGIN`)."""
     if override is not None:
+        check_stress_option(model, float(override))
         return float(override)
     if rec.stress_MPa is not None:
         return _noise_clamped(model, rec, rec.stress_MPa)
@@ -102,6 +126,30 @@ def stress_for(model: Model, rec: Recording, override: float | None) -> np.ndarr
         raise InputError(f"{rec.source}: no stress_MPa column, and this {model.kind} model depends on stress "
                          f"(identified on {lo:.3g}..{hi:.3g} MPa); add the column or pass --stress MPA")
     return None
+
+
+def inward_text(lo: float, hi: float) -> tuple[str, str]:
+    """`lo` and `hi` as text, rounded inwards to 1/10000 of the span: a value copied from the text is
+    inside [lo, hi] (rounded to nearest, an end could print a hair outside it and be refused)."""
+    step = 10.0 ** (math.floor(math.log10(hi - lo)) - 4)
+    return f"{math.ceil(lo / step) * step:.6g}", f"{math.floor(hi / step) * step:.6g}"
+
+
+def check_stress_option(model: Model, stress: float) -> None:
+    """InputError, naming --stress, when it lies outside the model's identified stress range (the
+    model's own message would advise negating a stress_MPa column the recording may not have):
+    -stress when that is inside (compression is negative here), else a value inside."""
+    rng = getattr(model, "stress_range_MPa", None)
+    if rng is None:
+        return
+    lo, hi = rng
+    tol = 1e-6 * max(1.0, abs(lo), abs(hi))        # the model's own: a stress that far out is at its end
+    if lo - tol <= stress <= hi + tol:
+        return
+    advice = (f"compression is negative in gma-ffc (docs/recordings.md): pass --stress {-stress:g}"
+              if lo - tol <= -stress <= hi + tol else "pass a --stress from {} to {}".format(*inward_text(lo, hi)))
+    raise InputError(f"--stress {stress:g} MPa is outside the model's identified range {lo:.4g}..{hi:.4g} MPa; "
+                     f"{advice}")
 
 
 def recorded_stress(rec: Recording, stress: Any, override: float | None) -> np.ndarray:
@@ -169,6 +217,29 @@ def _initial_state(text: str) -> Any:
         return InitialStateSpec.parse(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def check_initial_drive(model: Any, drive: float | None, option: str) -> None:
+    """InputError unless a start `drive` given on the command line (`--initial-state drive:V`,
+    `--initial-drive`) lies in the model's drive range widened by `drive.RANGE_MARGIN`: beyond it the
+    model only extrapolates, and far beyond it (1e300) every play saturates into inf. A model
+    without a finite range is held to the drive column's physical bound (`recordings.MAGNITUDE_BOUNDS`)."""
+    from ..drive import RANGE_MARGIN
+    from ..recordings import MAGNITUDE_BOUNDS
+
+    if drive is None:
+        return
+    lo, hi = (float(v) for v in model.drive_range)
+    if math.isfinite(hi - lo) and hi > lo:
+        wide = RANGE_MARGIN * (hi - lo)
+        lo, hi, what = lo - wide, hi + wide, "the drive range the model was identified on"
+    else:
+        bound = MAGNITUDE_BOUNDS[model.drive_name]
+        lo, hi, what = -bound, bound, "a physical drive"
+    if not lo <= drive <= hi:
+        low, high = inward_text(lo, hi)
+        raise InputError(f"{option}{drive:g} is outside {what}: give a drive from {low} to {high} "
+                         f"{drive_unit(model.drive_name)}")
 
 
 def finite_float(text: str) -> float:

@@ -8,7 +8,8 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ._common import add_group_option, add_initial_state_option, check_drive_name, note_gaps, refuse_repeats
+from ._common import (add_group_option, add_initial_state_option, check_drive_name, check_initial_drive, note_gaps,
+                      refuse_repeats, refuse_same_rows)
 
 HELP = """\
 Compare a model with recordings, locate where they differ (time windows, frequency bands, drive
@@ -71,10 +72,12 @@ def run(args: argparse.Namespace) -> int:
     model = load_model(args.model)
     if model.kind == "extended":
         raise InputError(f"{args.model} is already an extended model; diagnose its base sdpi/mpi model instead")
+    check_initial_drive(model, args.initial_state.drive, "--initial-state drive:")
     paths, ident_paths, fingerprints = _split_paths(model, args.recordings, args.ident)
     recs = [read_recording(p, require=("time_s", "drive", "displacement_um"), group=args.group) for p in paths]
     ident = [read_recording(p, require=("time_s", "drive", "displacement_um"), group=args.group)
              for p in ident_paths]
+    refuse_same_rows(recs + ident)
     for rec in recs + ident:
         check_drive_name(model, rec)
     note_gaps(recs)

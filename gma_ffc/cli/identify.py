@@ -10,7 +10,7 @@ from ..errors import InputError
 from ..modelio import save_model
 from ..progress import Progress
 from ..recordings import DEFAULT_TIME_STEP_S, time_text
-from ._common import add_group_option, finite_float, note_gaps, read_all, refuse_repeats
+from ._common import add_group_option, finite_float, note_gaps, read_all, refuse_repeats, refuse_same_rows
 
 HELP = """\
 Fit a stress-dependent Prandtl-Ishlinskii model (SDPI, seed paper section 3.3) from recordings at
@@ -95,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     _check_outputs(args)
     refuse_repeats(args.recordings)
     recs = read_all(args.recordings, require=("time_s", "drive", "displacement_um"), group=args.group)
+    refuse_same_rows(recs)
     note_gaps(recs)
     # no total: a recording that sweeps late, or zeros fitted per recording, fit again (the steps
     # then say so); a count of four went to 100 % and started over

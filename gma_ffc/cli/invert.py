@@ -13,8 +13,8 @@ from ..initial_state import InitialStateSpec
 from ..model import SDPIModel
 from ..modelio import load_model
 from ..recordings import Recording, read_recording, write_recording
-from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_recording_output,
-                      finite_float, recorded_stress, stress_for)
+from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_initial_drive,
+                      check_recording_output, finite_float, recorded_stress, stress_for)
 
 HELP = """\
 Compute the feedforward drive for a reference displacement with the model's analytic inverse
@@ -55,6 +55,8 @@ def run(args: argparse.Namespace) -> int:
     if args.limit and args.limit[0] >= args.limit[1]:
         raise InputError(f"--limit needs LO < HI, got {args.limit[0]} {args.limit[1]}")
     model = load_model(args.model)
+    check_initial_drive(model, args.initial_state.drive, "--initial-state drive:")
+    check_initial_drive(model, args.initial_drive, "--initial-drive ")
     rec = read_recording(args.reference, require=("time_s", "reference_um"), group=args.group)
     stress = stress_for(model, rec, args.stress)
     kwargs, how, start_spec = _start(model, args, rec, stress)

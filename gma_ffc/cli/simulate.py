@@ -11,8 +11,8 @@ import numpy as np
 from ..modelio import load_model
 from ..recordings import DISPLACEMENT, Recording, refuse_non_finite, write_recording
 from ._common import (add_group_option, add_initial_state_option, add_stress_option, beyond_drive_range,
-                      check_drive_name, check_recording_output, note_gaps, read_while, recorded_stress, stress_for,
-                      warm_up)
+                      check_drive_name, check_initial_drive, check_recording_output, note_gaps, read_while,
+                      recorded_stress, stress_for, warm_up)
 
 HELP = """\
 Run a model (any kind: sdpi, mpi, or an extended model from `gma-ffc diagnose`) on the drive and
@@ -56,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
 
     model, rec = read_while(prepare, args.recording, require=("time_s", "drive"), group=args.group)
     check_drive_name(model, rec)
+    check_initial_drive(model, args.initial_state.drive, "--initial-state drive:")
     measured = rec.displacement_um
     if measured is not None:    # compared and fitted to at every sample, and written out: a hole cannot be
         refuse_non_finite(rec, DISPLACEMENT, "the measured displacement_um: fill the cell in, or leave the "

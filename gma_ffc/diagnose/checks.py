@@ -12,6 +12,7 @@ from ..model import stress_sign_advice
 from ..recordings import Recording
 from ..sensor_holds import held_notes
 from .data import N_BLOCKS, RecData, unscored_note
+from .locate import LEAST_WINDOW
 
 MIN_REVERSALS = 2 * N_BLOCKS   # drive turning points in all: on average a full drive cycle per time block, or a
                                # held-out block is a piece of one branch that the neighbouring training blocks
@@ -20,6 +21,26 @@ MIN_HOLDS = 4                  # ...short of them, the slow effects (heating, cr
                                # holds this many times: each hold a step response and a heating level of its own,
                                # so both folds hold parts of several, and a law fitted on one predicts the other's
 HOLD_S = 1.0                   # a hold this long shows creep's fastest central time constant (effects.creep)
+
+
+def check_recordings(recordings: Sequence[Recording], min_samples: int) -> None:
+    """Refuse a recording diagnose can say nothing of: one shorter than the least window its residual
+    is located over (`locate.LEAST_WINDOW`), or one whose displacement never changes (a sensor not
+    connected, a channel logging a constant: identify refuses it too). `min_samples` is what a
+    conclusive diagnosis needs in all, which the advice names."""
+    for rec in recordings:
+        if len(rec) < LEAST_WINDOW:
+            raise InputError(
+                f"{rec.source}: only {len(rec)} samples; diagnose needs at least {LEAST_WINDOW} in each recording "
+                f"to locate a difference, and at least {min_samples} over >= {MIN_REVERSALS // 2} full drive loops in "
+                f"all to conclude anything: record at least {min_samples} samples over {MIN_REVERSALS // 2} or more "
+                "full drive cycles, at two or more drive frequencies")
+        y = rec.column("displacement_um")
+        if float(np.ptp(y)) == 0.0:
+            raise InputError(
+                f"{rec.source}: the displacement is constant ({float(y[0]):.6g} um in all {len(rec)} samples): the "
+                "sensor's reading never changes, so there is nothing to compare with the model; check that the "
+                "sensor is connected and that displacement_um is its channel")
 
 
 def check_overlap(model: Any, recordings: Sequence[Recording], margin: float = 0.02,

@@ -49,6 +49,10 @@ class Located:
                 "conditions": {k: round(v, 4) for k, v in self.conditions.items()}}
 
 
+LEAST_WINDOW = 5       # samples the residual's size is smoothed over at least: fewer are one noisy sample's
+                       # size, not a trend that conditions (drive rate, heating) could correlate with
+
+
 def _corr(a: np.ndarray, b: np.ndarray) -> float:
     a = a - a.mean()
     b = b - b.mean()
@@ -120,7 +124,7 @@ def locate(d: RecData, raw_residual: np.ndarray, residual: np.ndarray, n_windows
 
     # conditions, on a smoothed residual size (window ~ 1 % of the record, at least 5 samples), over
     # the judged samples only (an unscored stretch is zeros, which would correlate with anything slow)
-    width = max(5, n // 100)
+    width = max(LEAST_WINDOW, n // 100)
     kern = np.ones(width) / width
     size = np.sqrt(np.convolve(residual ** 2, kern, mode="same"))
     du = np.abs(np.gradient(d.u, t)) if n > 1 else np.zeros(n)

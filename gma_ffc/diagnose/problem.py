@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import InputError
 from ..recordings import Recording
 from .anchor import anchor_data, measured_loops
-from .checks import beyond_range_notes, check_overlap, enough_data
+from .checks import beyond_range_notes, check_overlap, check_recordings, enough_data
 from .data import RecData, noise_floor, prepare
 from .fitting import Fitter, FitSettings, Spec
 from .identification import IdentificationCheck, check
@@ -34,6 +34,7 @@ def setup(selector: Any, model: Any, recordings: Sequence[Recording], say: Calla
     output on loops like them (`anchor.anchor_data`)."""
     if not recordings:
         raise InputError("give at least one recording to compare with the model")
+    check_recordings(recordings, selector.min_samples)
     check_overlap(model, recordings, selector.range_margin, selector.min_overlap)
     data = prepare(recordings, model, selector.initial_state)
     anchor = (measured_loops(model, list(identification)) if identification else
