@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import yaml
 import pytest
 
 from gma_ffc.cli import main
@@ -63,3 +64,32 @@ def test_a_later_session_is_predicted_to_within_one_percent_of_its_stroke_of_the
         rms[name] = float(np.sqrt(np.mean((pred - y)[settled] ** 2)))
     assert np.isfinite(list(rms.values())).all()
     assert rms["diag/extended_model.yaml"] <= rms["model.yaml"] + 0.01 * float(np.ptp(y)), rms
+
+
+@pytest.fixture(scope="module")
+def whole_run(tmp_path_factory):
+    """The model identified on the whole first run, the later run diagnosed against it (no --ident):
+    the tester's case of a resonance named at the heaviest damping."""
+    folder = tmp_path_factory.mktemp("yan9a_whole")
+    assert main(["identify", str(yan9a_csv("model", folder)), "-o", str(folder / "pz.yaml")]) == 0
+    assert main(["diagnose", "--model", str(folder / "pz.yaml"), str(yan9a_csv("later", folder)),
+                 "-o", str(folder / "diag")]) == 0
+    return folder, json.loads((folder / "diag" / "diagnosis.json").read_text())
+
+
+def test_no_resonance_is_named_at_the_heaviest_damping(whole_run):
+    """docs/cli.md: a resonance whose fit runs to the heaviest damping is a lag, not a peak. The
+    backward pass zoomed the resonance again without the delay dropped beside it, it ran to the
+    bound, and no check saw it: 'a resonance at 8.824 Hz (damping ratio 0.5)' was named. Every step
+    that searches an accepted effect again now keeps a fit only where its signature check holds."""
+    from gma_ffc.effects.dynamics import MAX_ZETA
+
+    folder, doc = whole_run
+    model = yaml.safe_load((folder / "diag" / "extended_model.yaml").read_text())
+    dyn = model["blocks"].get("dynamics")
+    if dyn is not None:
+        assert dyn["zeta"] < MAX_ZETA * (1.0 - 1e-9), dyn
+    for c in doc["candidates"]:
+        if c["effect"] == "mechanical_dynamics" and c["accepted"]:
+            assert c["params"]["zeta"] < MAX_ZETA * (1.0 - 1e-9), c
+    assert f"damping ratio {MAX_ZETA:.2g})" not in doc["explanation"]

@@ -367,6 +367,19 @@ class EffectSelector:
             SignatureCheck(problem.fitter, problem.model, base, trial.result, dict(trial.params),
                            problem.noise, self.slow_ratio_max, self.model_error_factor))
 
+    def _refit_keeps_signatures(self, problem: Problem, fit: SearchResult, names: Sequence[str]) -> bool:
+        """Do `names`, as `fit` has them, each still pass their signature check (each judged on `fit`
+        without it)? Every step that searches an accepted effect's parameters again (the swap pass, the
+        backward pass's look-alikes zoomed again, the pair's descent after a drop) keeps a new fit only
+        then, as a round keeps its winner: a resonance zoomed again without the delay beside it ran to
+        the heaviest damping (a lag, docs/cli.md) on the second measured piezo, and was named so."""
+        for name in names:
+            before: Specs = tuple(s.without(name) for s in fit.specs)  # type: ignore[assignment]
+            trial = Trial(name, fit, params_of(problem.fitter, name, fit.specs[2], fit.coef_all, fit.names), 0)
+            if self._signature(problem, before, trial) is not None:
+                return False
+        return True
+
     def _carries_over(self, problem: Problem, sel: Selection, best: Trial) -> tuple[Trial, str]:
         """With two or more recordings: does the effect's law, fitted on the other recordings,
         improve each recording left out (pooled)? The trial with its leave-one-out figures, and why
@@ -403,19 +416,21 @@ class EffectSelector:
             rivals = [c for c in _slot_rivals(name) if c in sel.testable and not (c in sel.accepted and c != name)]
             say(f"checking {name} against the others with the other effects in place")
             found = search_all(fitter, others, rivals, self.threads_)
-            best_name, best_res = name, None
-            for cand in rivals:
-                if best_res is None or found[cand].cv_loss < best_res.cv_loss:
-                    best_name, best_res = cand, found[cand]
-            if best_res is None:
+            if not rivals:
                 continue
             slot = sorted((found[cand].cv_loss, cand) for cand in rivals)
             if len(slot) > 1 and \
                     0.5 * n_eff_last * math.log(slot[1][0] / max(slot[0][0], 1e-300)) < self.ambiguous_nats:
                 sel = dataclasses.replace(sel, ambiguous=sel.ambiguous + ((slot[0][1], slot[1][1]),))
-            if best_name != name and best_res.cv_loss < sel.cur_loss:
-                sel = _swapped(fitter, sel, name, best_name, best_res)
-                name = best_name
+            # the best of the slot takes it, passed over where its fit fails its own signature check (a
+            # round's winner must pass it too); the effect searched again in its own slot ends the walk
+            for loss, cand in slot:
+                if cand == name or loss >= sel.cur_loss:
+                    break
+                if self._refit_keeps_signatures(problem, found[cand], [cand]):
+                    sel = _swapped(fitter, sel, name, cand, found[cand])
+                    name = cand
+                    break
             importance[name] = o_cv - sel.cur_loss
         return dataclasses.replace(sel, accepted=tuple(sorted(sel.accepted, key=lambda n: -importance.get(n, 0.0))))
 
@@ -493,7 +508,7 @@ class EffectSelector:
             if partner is None:
                 continue
             found = descend(problem.fitter, sel.fit, name, partner, self.threads_)
-            if found.cv_loss < sel.cur_loss:
+            if found.cv_loss < sel.cur_loss and self._refit_keeps_signatures(problem, found, (name, partner)):
                 sel = dataclasses.replace(sel, fit=found)
         return sel
 
@@ -538,7 +553,7 @@ class EffectSelector:
         best = without
         for partner in [p for p in REGISTRY[name].joint_with if p in sel.accepted]:
             found = rezoom(problem.fitter, best.specs, partner, self.threads_)
-            if found.cv_loss < best.cv_loss:
+            if found.cv_loss < best.cv_loss and self._refit_keeps_signatures(problem, found, (partner,)):
                 best = found
         return best
 
