@@ -6,6 +6,7 @@ tell. Never tuned to: the thresholds these pass through were set on simulated ac
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import yaml
@@ -93,3 +94,25 @@ def test_no_resonance_is_named_at_the_heaviest_damping(whole_run):
         if c["effect"] == "mechanical_dynamics" and c["accepted"]:
             assert c["params"]["zeta"] < MAX_ZETA * (1.0 - 1e-9), c
     assert f"damping ratio {MAX_ZETA:.2g})" not in doc["explanation"]
+
+
+def test_the_selection_story_is_told_once_and_agrees_with_the_verdict(whole_run):
+    """The story contradicted itself: time_delay 'replaced rate_dependence', yet the verdict was
+    mechanical_dynamics alone; rate_dependence, accepted in round 1, was listed unaccepted with no
+    note. A swap that a later pass undid is told as such, and every effect accepted and later
+    dropped carries a note why."""
+    _, doc = whole_run
+    text = doc["explanation"]
+    notes = {c["effect"]: c.get("note", "") for c in doc["candidates"] if not c["accepted"]}
+    for old, new in re.findall(r"(\w+) explains the held-out data better \([^)]*\), so it replaced (\w+)", text):
+        old, new = new, old
+        assert notes.get(old), (old, notes)          # the one replaced says so
+        assert f"replaced by {new}" in notes[old]
+        if new not in doc["verdict"]:                # the replacement undone later is told as such
+            assert f"{new} was then dropped" in text, text
+            assert notes.get(new), (new, notes)
+    for name in doc["verdict"]:
+        assert f"{name} was then dropped" not in text and f"so it replaced {name}." not in text
+    if doc["verdict"] and "The runner-up" in text:   # a runner-up of a winner no longer named is that round's
+        winner = re.search(r"against [\d.]+ um for (\w+)", text.split("The runner-up", 1)[1]).group(1)
+        assert winner in doc["verdict"] or "In the first round, the runner-up" in text, text

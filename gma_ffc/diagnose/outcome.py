@@ -38,7 +38,33 @@ def candidates(sel: Selection) -> dict[str, Candidate]:
                 c.leave_one_out_mse = t.leave_one_out.mse
         c.accepted = name in sel.accepted
         out[name] = c
+    for old, new, old_rms, new_rms in sel.swapped:     # accepted, then replaced: the candidate says so
+        c = out.get(old)
+        if c is not None and not c.accepted:
+            swap = (f"accepted in round {c.round}, then replaced by {new}: with the other effects in place, the model "
+                    f"with {new} in its place predicts the held-out data better ({new_rms:.4g} um against "
+                    f"{old_rms:.4g} um)")
+            c.reason = swap + (f"; {c.reason}" if c.reason else "")
     return out
+
+
+def history_words(sel: Selection) -> str:
+    """The selection's story after its first round, told once and in order: each swap, and each effect
+    that was accepted (in a round or by a swap) and is no longer, with why (its candidate's note)."""
+    words = []
+    for old, new, old_rms, new_rms in sel.swapped:
+        chosen = sel.trials[old].round if old in sel.trials else 0
+        words.append(f"{old} was chosen {f'in round {chosen}, ' if chosen else ''}beside fewer effects; with the "
+                     f"other effects in place {new} explains the held-out data better ({new_rms:.4g} um against "
+                     f"{old_rms:.4g} um), so it replaced {old}.")
+    replaced = {old for old, _, _, _ in sel.swapped}
+    came = [r.accepted for r in sel.rounds if r.accepted] + [new for _, new, _, _ in sel.swapped]
+    for name in dict.fromkeys(came):
+        why = sel.reasons.get(name, "")
+        if name in sel.accepted or name in replaced or not why:
+            continue
+        words.append(f"{name} was then dropped: {why}.")
+    return " ".join(words)
 
 
 def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
@@ -59,10 +85,11 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
         if outcome != "unexplained":
             outcome, conclusive = "inconclusive", False
     runner_note = sel.runner_note
-    for old_name, new_name, old_rms, new_rms in sel.swapped:
-        runner_note += (f" {old_name} was first chosen while a larger effect dominated the residual; with the "
-                        f"other effects in place {new_name} explains the held-out data better ({new_rms:.4g} "
-                        f"um against {old_rms:.4g} um), so it replaced {old_name}.")
+    first = sel.rounds[0].accepted if sel.rounds else None
+    if runner_note.startswith("The runner-up,") and first is not None and first not in sel.accepted:
+        # the first round's winner is no longer named: its runner-up is that round's, not the verdict's
+        runner_note = "In the first round, the r" + runner_note[len("The r"):]
+    runner_note += " " + history_words(sel)
     # where the named effects leave residual: located on the final model's, as the base's was
     left = [scored(d, d.y - yf) for d, yf in zip(problem.data, final.final_pred)] if outcome == "effects_named" else []
     after = [locate(d, r, r) for d, r in zip(problem.data, left)]     # nothing recalibrated away: raw = residual

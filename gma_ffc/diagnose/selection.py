@@ -339,7 +339,7 @@ class EffectSelector:
         return dataclasses.replace(
             sel.readmitted(), accepted=sel.accepted[:-1] + (first.effect, second.effect), fit=second.result,
             trials={**sel.trials, first.effect: first, second.effect: second},
-            swapped=sel.swapped + ((last, first.effect, math.sqrt(round_best.cv_mse), math.sqrt(second.cv_mse)),),
+            swapped=sel.swapped + ((last, first.effect, math.sqrt(sel.cur_cv), math.sqrt(second.cv_mse)),),
             rounds=sel.rounds[:-1] + (dataclasses.replace(sel.rounds[-1], accepted=second.effect),),
             leave_one_out=fitter_loo(problem, second.result.specs[2])), True
 
@@ -491,9 +491,15 @@ class EffectSelector:
         then share its phase lag), and forward selection alone never takes it back."""
         if len(sel.accepted) < 2:
             return sel
+        came_by_swap = {new: old for old, new, _, _ in sel.swapped}
+
+        def why(name: str) -> str:
+            how = (f"put in {came_by_swap[name]}'s place by the swap pass" if name in came_by_swap
+                   else "named before the others")
+            return f"{how}; with the others in the model it no longer earns its place"
+
         sel, dropped = self._drop_unearned(problem, sel, list(reversed(sel.accepted)),   # the least important first
-                                           "named before the others; with them in the model it no longer earns "
-                                           "its place", lookalikes=True)
+                                           why, lookalikes=True)
         return self._refit_after_drop(problem, sel) if dropped else sel
 
     def _refit_after_drop(self, problem: Problem, sel: Selection) -> Selection:
@@ -513,7 +519,7 @@ class EffectSelector:
         return sel
 
     def _drop_unearned(self, problem: Problem, sel: Selection, names: Sequence[str],
-                       why: str, lookalikes: bool = False) -> tuple[Selection, str]:
+                       why: str | Callable[[str], str], lookalikes: bool = False) -> tuple[Selection, str]:
         """Each of `names` that no longer earns its place (`earns_place`, with the others as they are
         fitted, or with its look-alikes zoomed again when `lookalikes`) dropped, with `why` as its
         reason; the selection, and a sentence per drop."""
@@ -533,7 +539,7 @@ class EffectSelector:
             gain = loglik_gain(n_eff, fit.cv_loss, sel.cur_loss, REGISTRY[name].count_params(fitter))
             if self.earns_place(sel.cur_loss, gain, fit.cv_loss, problem.noise):
                 continue
-            reason = (f"{why} (held-out {math.sqrt(sel.cur_cv):.4g} um with it, "
+            reason = (f"{why(name) if callable(why) else why} (held-out {math.sqrt(sel.cur_cv):.4g} um with it, "
                       f"{math.sqrt(fit.cv_mse):.4g} um without)")
             sel = dataclasses.replace(
                 sel.with_reason(name, reason), fit=fit, accepted=tuple(n for n in sel.accepted if n != name),
@@ -632,7 +638,8 @@ class EffectSelector:
                     f"itself on held-out data ({math.sqrt(final.cv_mse):.4g} um against {null.rms_before:.4g} um), "
                     "so nothing is named: longer recordings, or several at different drive frequencies, "
                     "would let the fit be judged on more than the blocks it was chosen on")
-                sel = _name_nothing(sel)
+                sel = _name_nothing(sel, "improved on the recalibrated model but not on the base model itself on "
+                                         "held-out data, so nothing is named (see cannot_conclude)")
             final = dataclasses.replace(base, selection=sel)
         for a, b in sel.ambiguous:
             cannot.append(f"{a} and {b} explain the held-out data almost equally well; " + decider(a, b))
@@ -648,7 +655,8 @@ class EffectSelector:
             if sel.accepted:
                 cannot.append(f"{', '.join(sel.accepted)} would be fitted to the part of the residual the "
                               "model's class cannot follow, so nothing is named")
-            sel = _name_nothing(sel)
+            sel = _name_nothing(sel, "would be fitted to the part of the residual the model's class cannot follow, "
+                                     "so nothing is named (see cannot_conclude)")
             final = dataclasses.replace(base, selection=sel)
         if not final.base_kept:
             sel, words = self._one_frequency(problem, sel)
@@ -744,18 +752,22 @@ def _slot_rivals(name: str) -> list[str]:
 
 
 def _swapped(fitter: Fitter, sel: Selection, name: str, by: str, res: SearchResult) -> Selection:
-    """`name` replaced by `by` (fitted as `res`) in its slot."""
-    old = sel.trials[name]
+    """`name` replaced by `by` (fitted as `res`) in its slot; the swap's figures are the held-out RMS
+    of the model as it stood (with `name`) and with `by` in its place, both with the others in place
+    (`name`'s own figure from its round was taken beside fewer effects)."""
     params = params_of(fitter, by, res.specs[2], res.coef_all, res.names)
     prior = sel.trials.get(by)
     trial = Trial(by, res, params, 0) if prior is None else dataclasses.replace(prior, result=res, params=params)
     return dataclasses.replace(
         sel, trials={**sel.trials, by: trial}, fit=res,
         accepted=tuple(by if n == name else n for n in sel.accepted),
-        swapped=sel.swapped + ((name, by, math.sqrt(old.cv_mse), math.sqrt(res.cv_mse)),))
+        swapped=sel.swapped + ((name, by, math.sqrt(sel.cur_cv), math.sqrt(res.cv_mse)),))
 
 
-def _name_nothing(sel: Selection) -> Selection:
+def _name_nothing(sel: Selection, why: str) -> Selection:
+    """Nothing named; each effect that was accepted carries `why` as its candidate's note."""
+    for name in sel.accepted:
+        sel = sel.with_reason(name, f"accepted by the selection, but {why}")
     return dataclasses.replace(sel, accepted=(), ambiguous=())
 
 
