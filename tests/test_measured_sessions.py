@@ -116,3 +116,19 @@ def test_the_selection_story_is_told_once_and_agrees_with_the_verdict(whole_run)
     if doc["verdict"] and "The runner-up" in text:   # a runner-up of a winner no longer named is that round's
         winner = re.search(r"against [\d.]+ um for (\w+)", text.split("The runner-up", 1)[1]).group(1)
         assert winner in doc["verdict"] or "In the first round, the runner-up" in text, text
+
+
+def test_a_voltage_drive_without_stress_is_told_in_its_own_words(whole_run):
+    """The piezo's residual 'follows the integral of V^2 (cumulative heating)', and its thermal drift was
+    reported per A^2 alone. The integral stays (a fact of the residual); a voltage drive's is not heating.
+    The extended model file keeps its key (`gain_um_per_A2`, files written so far use it), and
+    diagnosis.json gives the same figure per V^2 beside it."""
+    folder, doc = whole_run
+    words = doc["explanation"] + " " + " ".join(loc["where"] for loc in doc["located"] + doc["located_after"])
+    assert "heating" not in words.replace("self-heating", ""), words
+    thermal = next(c for c in doc["candidates"] if c["effect"] == "thermal_drift")
+    if thermal["params"]:
+        assert thermal["params"]["gain_um_per_V2"] == thermal["params"]["gain_um_per_A2"]
+    note = doc["identification"]["note"]
+    assert "eddy" not in note and "stress" not in note, note
+    assert "stress(es)" not in doc["validation"]

@@ -14,8 +14,7 @@ from typing import Any, Sequence
 from .. import effects as effect_registry
 from .anchor import anchor_words
 from .data import none_scored, unscored_starts_note
-from .explain import drive_unit, explain, identification_rms, validation_words
-from .locate import locate
+from .explain import drive_unit, explain, identification_rms, locate_in_words, validation_words
 from .problem import scored
 from .results import Candidate, Diagnosis
 from .state import Final, Problem, Selection
@@ -23,9 +22,11 @@ from .polarity import displacement_inverted
 from .timing import displacement_lead
 
 
-def candidates(sel: Selection) -> dict[str, Candidate]:
+def candidates(sel: Selection, unit: str = "A") -> dict[str, Candidate]:
     """Every candidate effect (registry order) as the report lists it: its last trial, whether the
-    data could test it and why not, and whether it is named."""
+    data could test it and why not, and whether it is named. For a voltage drive (`unit` "V") a
+    parameter per A^2 is also given per V^2: the key with A2 is the extended model file's, kept
+    whatever the drive (files written so far use it), and means per drive unit squared."""
     out = {}
     for cls in effect_registry.candidates():
         name = cls.name
@@ -34,6 +35,8 @@ def candidates(sel: Selection) -> dict[str, Candidate]:
         if t is not None:
             c.result, c.cv_mse, c.cv_loss, c.params, c.round = t.result, t.cv_mse, t.cv_loss, dict(t.params), t.round
             c.loglik_gain, c.evidence = t.loglik_gain, t.evidence
+            if unit == "V":
+                c.params.update({k.replace("_per_A2", "_per_V2"): v for k, v in t.params.items() if "_per_A2" in k})
             if t.leave_one_out is not None:
                 c.leave_one_out_mse = t.leave_one_out.mse
         c.accepted = name in sel.accepted
@@ -71,7 +74,7 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
     """The outcome, the words and the figures of a guarded selection."""
     sel = final.selection
     too_little, noise = problem.too_little, problem.noise
-    cands = candidates(sel)
+    cands = candidates(sel, drive_unit(problem.model))
     verdict = [] if too_little else list(sel.accepted)
     verdict, timing = samples_timing(verdict, cands, problem.data, selector.sample_timing_share)
     outcome, conclusive = _outcome(selector, problem, final, verdict)
@@ -92,7 +95,7 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
     runner_note += " " + history_words(sel)
     # where the named effects leave residual: located on the final model's, as the base's was
     left = [scored(d, d.y - yf) for d, yf in zip(problem.data, final.final_pred)] if outcome == "effects_named" else []
-    after = [locate(d, r, r) for d, r in zip(problem.data, left)]     # nothing recalibrated away: raw = residual
+    after = [locate_in_words(d, r, r) for d, r in zip(problem.data, left)]     # nothing recalibrated away: raw = residual
     null = problem.null
     explanation = explain(verdict, cands, list(null.located), null.rms_before, math.sqrt(null.fit.cv_mse),
                           math.sqrt(final.cv_mse), noise, too_little, runner_note.strip(), outcome,

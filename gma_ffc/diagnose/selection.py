@@ -601,11 +601,8 @@ class EffectSelector:
         assert sc.coef_all is not None
         fit = SearchResult(sel.fit.specs, sc.held_out_loss, sc.held_out_mse, sc.all_mse, sc.n_held_out, sc.coef_all,
                            sc.names, sel.fit.evaluated)
-        what = " and ".join(t.replace("_", " ") for t in off)
-        were, them, they = ("were", "them", "they") if len(off) > 1 else ("was", "it", "it")
-        note = (f" The recalibration's {what} {were} left out: fitted without each of the {len(blocks)} stress "
-                f"levels, the model predicted the level left out no worse without {them}, so {they} would not "
-                "carry to other loads.")
+        note = left_out_words(off, len(blocks), any(d.s_raw is not None for d in problem.data),
+                              len(blocks) == len(fitter.stress_levels() or [0.0]))
         return dataclasses.replace(sel, fit=fit, rebase_note=sel.rebase_note + note,
                                    leave_one_out=fitter_loo(problem, spec) if sel.leave_one_out is not None
                                    else None)
@@ -762,6 +759,23 @@ def _swapped(fitter: Fitter, sel: Selection, name: str, by: str, res: SearchResu
         sel, trials={**sel.trials, by: trial}, fit=res,
         accepted=tuple(by if n == name else n for n in sel.accepted),
         swapped=sel.swapped + ((name, by, math.sqrt(sel.cur_cv), math.sqrt(res.cv_mse)),))
+
+
+def left_out_words(off: Sequence[str], n_blocks: int, has_stress: bool, by_level: bool) -> str:
+    """The validation's sentence on recalibration terms `off` left out, for `n_blocks` blocks each fitted
+    without: stress levels only where the recordings have a stress column and each block is one level
+    (`by_level`); without a stress column each block is a recording, which differ in their drive."""
+    what = " and ".join(t.replace("_", " ") for t in off)
+    were, them, they = ("were", "them", "they") if len(off) > 1 else ("was", "it", "it")
+    if not has_stress:
+        parts, left, elsewhere = f"{n_blocks} recordings", "the recording left out", "other recordings"
+    elif by_level:
+        parts, left, elsewhere = f"{n_blocks} stress levels", "the level left out", "other loads"
+    else:        # a block per recording and load
+        parts, left, elsewhere = (f"{n_blocks} parts (each recording at each of its loads)", "the part left out",
+                                  "other loads or recordings")
+    return (f" The recalibration's {what} {were} left out: fitted without each of the {parts}, the model "
+            f"predicted {left} no worse without {them}, so {they} would not carry to {elsewhere}.")
 
 
 def _name_nothing(sel: Selection, why: str) -> Selection:
