@@ -42,12 +42,12 @@ def candidates(sel: Selection, unit: str = "A") -> dict[str, Candidate]:
         c.accepted = name in sel.accepted
         out[name] = c
     for old, new, old_rms, new_rms in sel.swapped:     # accepted, then replaced: the candidate says so
-        c = out.get(old)
-        if c is not None and not c.accepted:
-            swap = (f"accepted in round {c.round}, then replaced by {new}: with the other effects in place, the model "
-                    f"with {new} in its place predicts the held-out data better ({new_rms:.4g} um against "
+        was = out.get(old)
+        if was is not None and not was.accepted:
+            swap = (f"accepted in round {was.round}, then replaced by {new}: with the other effects in place, the "
+                    f"model with {new} in its place predicts the held-out data better ({new_rms:.4g} um against "
                     f"{old_rms:.4g} um)")
-            c.reason = swap + (f"; {c.reason}" if c.reason else "")
+            was.reason = swap + (f"; {was.reason}" if was.reason else "")
     return out
 
 
