@@ -62,6 +62,7 @@ class RecordingFit:
     max_abs_um: float
     offset_um: float = 0.0         # the error's mean: a constant the model's offset could not take up
     max_at_s: float | None = None  # when the largest error falls (the recording's time), to look it up
+    fitted_from: int = 0           # the first sample scored (after the burn-in sweep; 0 when every one was fitted)
 
     @property
     def shape_rms_um(self) -> float:
@@ -796,7 +797,8 @@ class SDPIIdentifier:
         stress = None if d.sigma is None else float(np.median(d.sigma))
         worst = int(np.argmax(np.abs(err)))
         at = None if d.t is None else float(d.t[start + worst])
-        return RecordingFit(d.name, stress, rms(err), stroke, float(abs(err[worst])), float(np.mean(err)), at)
+        return RecordingFit(d.name, stress, rms(err), stroke, float(abs(err[worst])), float(np.mean(err)), at,
+                            int(start))
 
     def _output_whatever_the_start(self, d: _Data, start: int) -> np.ndarray | None:
         """The output when no initial state changes it from `start` on, else None. The runs from every

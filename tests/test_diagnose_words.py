@@ -87,3 +87,43 @@ def test_a_delay_under_half_a_sample_beside_a_lag_or_a_resonance_is_kept_but_not
     assert samples_timing(pair, cands(5e-4), data, 0.5) == (pair, "")
     assert samples_timing(["time_delay"], cands(9e-5), data, 0.5) == (["time_delay"], "")
     assert samples_timing(["mechanical_dynamics"], cands(9e-5), data, 0.5) == (["mechanical_dynamics"], "")
+
+
+def test_terms_left_out_per_recording_are_not_called_stress_levels_without_a_stress_column():
+    """Four current-driven recordings without a stress column were told 'fitted without each of the
+    4 stress levels ... would not carry to other loads': each block was a recording."""
+    from gma_ffc.diagnose.selection import left_out_words
+
+    text = left_out_words(["quadratic"], 4, has_stress=False, by_level=True)
+    assert "4 recordings" in text and "other recordings" in text
+    assert not any(w in text for w in ("stress", "load"))
+    assert "2 stress levels" in left_out_words(["stress_gain"], 2, has_stress=True, by_level=True)
+
+
+def test_the_anchor_of_a_stress_independent_model_has_no_stress_and_one_error_is_one_figure():
+    """'1.01 Hz full-range loops at 1 stress(es)' and 'its identification error there (0.219-0.219 um)'
+    on an MPI model: such a model has no stress, and one error is one figure."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.anchor import anchor_words
+
+    mpi = SimpleNamespace(stress_range_MPa=None, provenance={"fit_rms_um": {"a.csv": 0.218582},
+                                                            "drive_frequency_hz": 1.009})
+    text = anchor_words(mpi, [0.5])
+    assert "stress" not in text and "(0.219 um)" in text, text
+
+
+def test_without_ident_an_mpi_voltage_model_is_not_told_of_eddy_lags_or_loop_widths_that_follow_stress():
+    """The identification note spoke of 'an eddy lag' and 'a loop width that follows stress', and of
+    stress_dependent_play's law being fitted, on an MPI model (which cannot test that effect)."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.identification import check
+
+    for drive, srange in (("voltage_V", None), ("current_A", None), ("voltage_V", (-20.0, -5.0))):
+        model = SimpleNamespace(drive_name=drive, stress_range_MPa=srange, provenance={"recordings": ["id.csv"]})
+        note = check(model, []).words()
+        assert ("eddy" in note) == (drive == "current_A"), note
+        assert ("stress" in note) == (srange is not None), note
+    sdpi = SimpleNamespace(drive_name="current_A", stress_range_MPa=(-20.0, -5.0), provenance={})
+    assert "stress_dependent_play's loop-width law" in check(sdpi, []).words()

@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         from ..plots import plot_loops
 
-        plot_loops(model, recs, args.plot)
+        plot_loops(model, recs, args.plot, [f.fitted_from for f in ident.report_])   # as the table scores them
     save_model(model, args.output)
     for note in ident.notes_:
         print(f"note: {note}", file=sys.stderr)

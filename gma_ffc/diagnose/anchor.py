@@ -127,15 +127,20 @@ def anchor_words(model: Any, departures_um: list[float], measured: bool = False)
     from it (an empty list: the base was kept as it is)."""
     loops = identification_loops(model)
     errors = [e for _, e in loops if np.isfinite(e)]
-    tolerance = (f"its identification error there ({min(errors):.3g}-{max(errors):.3g} um)" if errors else
+    span = (f"{min(errors):.3g}" if errors and max(errors) <= 1.005 * min(errors) else
+            f"{min(errors):.3g}-{max(errors):.3g}" if errors else "")
+    tolerance = (f"its identification error there ({span} um)" if errors else
                  "the data's noise floor (the model records no identification error)")
+    # a stress-independent model (MPI) has no stress: its loops are at the one load it was identified at
+    where = ("" if model.stress_range_MPa is None else
+             f" at {len(loops)} stress level{'s' if len(loops) != 1 else ''}")
     if measured:
         text = (" Every fit was held, on the measured identification recordings (--ident), to within the base's "
                 "own error there, offset and scale aside (those the data may recalibrate), so no fit trades the "
                 "loops the base was fitted to for this drive")
     else:
         text = (f" Every fit was held, on the loops the base was identified on ({identification_rate(model):.3g} Hz "
-                f"full-range loops at {len(loops)} stress(es)), within {tolerance} of the base's own output, offset "
+                f"full-range loops{where}), within {tolerance} of the base's own output, offset "
                 "and scale aside (those the data may recalibrate), so no fit trades those loops for this drive")
     if not departures_um:
         return text + "."

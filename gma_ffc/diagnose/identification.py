@@ -15,11 +15,19 @@ from typing import Any, Mapping, Sequence
 
 from ..errors import InputError
 
-LOST_WITHOUT = (
-    "Without them (--ident), every fit is held near the base model's own output on its loops, known only to "
-    "within its identification error. The core cannot be identified again on measured loops (through an eddy "
-    "lag or a delay, or with a loop width that follows stress). So stress_dependent_play's loop-width law is "
-    "fitted to these recordings alone, not on the identification loops at every load")
+def lost_without(voltage: bool, loads: bool) -> str:
+    """What a diagnosis cannot do without the identification recordings, in the recording's words: a
+    voltage drive's first-order lag is the amplifier charging the stack, not an eddy lag; and a loop
+    width that follows stress, and stress_dependent_play's law, exist only where the model is an SDPI
+    and the recordings' loads vary (else that effect cannot be tested, and cannot_conclude says so)."""
+    lag = "a first-order lag" if voltage else "an eddy lag"
+    through = f"through {lag} or a delay" + (", or with a loop width that follows stress" if loads else "")
+    text = ("Without them (--ident), every fit is held near the base model's own output on its loops, known only to "
+            f"within its identification error. The core cannot be identified again on measured loops ({through})")
+    if loads:
+        text += (". So stress_dependent_play's loop-width law is fitted to these recordings alone, not on the "
+                 "identification loops at every load")
+    return text
 
 
 @dataclass(frozen=True)
@@ -31,6 +39,8 @@ class IdentificationCheck:
     verified: bool                      # sizes and hashes were compared (the model records them)
     missing: tuple[str, ...] = ()       # recorded but not given
     diagnosed: tuple[str, ...] = ()     # recordings given to diagnose that bear a recorded name
+    voltage: bool = False               # the model's drive is a voltage (no coil, no eddy currents)
+    loads: bool = True                  # a loop width that follows stress can be tested (an SDPI, loads varying)
 
     @property
     def status(self) -> str:
@@ -50,7 +60,7 @@ class IdentificationCheck:
                     "and diagnose other runs.")
         if not self.given:
             known = f" ({', '.join(self.recorded)})" if self.recorded else ""
-            return f"The identification recordings{known} were not given. {LOST_WITHOUT}."
+            return f"The identification recordings{known} were not given. {lost_without(self.voltage, self.loads)}."
         how = "name, size and content" if self.verified else "name"
         if self.status == "unchecked":
             return (f"{len(self.given)} identification recording(s) given; the model keeps no record of the "
@@ -81,8 +91,10 @@ def check(model: Any, names: Sequence[str], fingerprints: Sequence[Mapping[str, 
     differs from it, naming the file and what the model was identified on."""
     files, recorded = recorded_files(model)
     given = tuple(str(n) for n in names)
+    voltage = str(getattr(model, "drive_name", "current_A")).endswith("_V")
+    loads = getattr(model, "stress_range_MPa", None) is not None
     if not given or not recorded:
-        return IdentificationCheck(given, tuple(recorded), False)
+        return IdentificationCheck(given, tuple(recorded), False, voltage=voltage, loads=loads)
     by_name = {f["name"]: f for f in files}
     verified = bool(files) and fingerprints is not None
     for k, name in enumerate(given):
@@ -97,7 +109,7 @@ def check(model: Any, names: Sequence[str], fingerprints: Sequence[Mapping[str, 
                                  f"({rec.get('bytes')} bytes, sha256 {str(rec.get('sha256'))[:12]}...); give the "
                                  "identification recordings the model was made from, or leave out --ident")
     missing = tuple(n for n in recorded if n not in given)
-    return IdentificationCheck(given, tuple(recorded), verified, missing)
+    return IdentificationCheck(given, tuple(recorded), verified, missing, voltage=voltage, loads=loads)
 
 
 def split_by_record(model: Any, paths: Sequence[str], fingerprints: Sequence[Mapping[str, Any]]

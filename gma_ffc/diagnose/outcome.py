@@ -14,8 +14,7 @@ from typing import Any, Sequence
 from .. import effects as effect_registry
 from .anchor import anchor_words
 from .data import none_scored, unscored_starts_note
-from .explain import drive_unit, explain, identification_rms, validation_words
-from .locate import locate
+from .explain import drive_unit, explain, identification_rms, locate_in_words, validation_words
 from .problem import scored
 from .results import Candidate, Diagnosis
 from .state import Final, Problem, Selection
@@ -23,9 +22,11 @@ from .polarity import displacement_inverted
 from .timing import displacement_lead
 
 
-def candidates(sel: Selection) -> dict[str, Candidate]:
+def candidates(sel: Selection, unit: str = "A") -> dict[str, Candidate]:
     """Every candidate effect (registry order) as the report lists it: its last trial, whether the
-    data could test it and why not, and whether it is named."""
+    data could test it and why not, and whether it is named. For a voltage drive (`unit` "V") a
+    parameter per A^2 is also given per V^2: the key with A2 is the extended model file's, kept
+    whatever the drive (files written so far use it), and means per drive unit squared."""
     out = {}
     for cls in effect_registry.candidates():
         name = cls.name
@@ -34,18 +35,46 @@ def candidates(sel: Selection) -> dict[str, Candidate]:
         if t is not None:
             c.result, c.cv_mse, c.cv_loss, c.params, c.round = t.result, t.cv_mse, t.cv_loss, dict(t.params), t.round
             c.loglik_gain, c.evidence = t.loglik_gain, t.evidence
+            if unit == "V":
+                c.params.update({k.replace("_per_A2", "_per_V2"): v for k, v in t.params.items() if "_per_A2" in k})
             if t.leave_one_out is not None:
                 c.leave_one_out_mse = t.leave_one_out.mse
         c.accepted = name in sel.accepted
         out[name] = c
+    for old, new, old_rms, new_rms in sel.swapped:     # accepted, then replaced: the candidate says so
+        was = out.get(old)
+        if was is not None and not was.accepted:
+            swap = (f"accepted in round {was.round}, then replaced by {new}: with the other effects in place, the "
+                    f"model with {new} in its place predicts the held-out data better ({new_rms:.4g} um against "
+                    f"{old_rms:.4g} um)")
+            was.reason = swap + (f"; {was.reason}" if was.reason else "")
     return out
+
+
+def history_words(sel: Selection) -> str:
+    """The selection's story after its first round, told once and in order: each swap, and each effect
+    that was accepted (in a round or by a swap) and is no longer, with why (its candidate's note)."""
+    words = []
+    for old, new, old_rms, new_rms in sel.swapped:
+        chosen = sel.trials[old].round if old in sel.trials else 0
+        words.append(f"{old} was chosen {f'in round {chosen}, ' if chosen else ''}beside fewer effects; with the "
+                     f"other effects in place {new} explains the held-out data better ({new_rms:.4g} um against "
+                     f"{old_rms:.4g} um), so it replaced {old}.")
+    replaced = {old for old, _, _, _ in sel.swapped}
+    came = [r.accepted for r in sel.rounds if r.accepted] + [new for _, new, _, _ in sel.swapped]
+    for name in dict.fromkeys(came):
+        why = sel.reasons.get(name, "")
+        if name in sel.accepted or name in replaced or not why:
+            continue
+        words.append(f"{name} was then dropped: {why}.")
+    return " ".join(words)
 
 
 def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
     """The outcome, the words and the figures of a guarded selection."""
     sel = final.selection
     too_little, noise = problem.too_little, problem.noise
-    cands = candidates(sel)
+    cands = candidates(sel, drive_unit(problem.model))
     verdict = [] if too_little else list(sel.accepted)
     verdict, timing = samples_timing(verdict, cands, problem.data, selector.sample_timing_share)
     outcome, conclusive = _outcome(selector, problem, final, verdict)
@@ -59,13 +88,14 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
         if outcome != "unexplained":
             outcome, conclusive = "inconclusive", False
     runner_note = sel.runner_note
-    for old_name, new_name, old_rms, new_rms in sel.swapped:
-        runner_note += (f" {old_name} was first chosen while a larger effect dominated the residual; with the "
-                        f"other effects in place {new_name} explains the held-out data better ({new_rms:.4g} "
-                        f"um against {old_rms:.4g} um), so it replaced {old_name}.")
+    first = sel.rounds[0].accepted if sel.rounds else None
+    if runner_note.startswith("The runner-up,") and first is not None and first not in sel.accepted:
+        # the first round's winner is no longer named: its runner-up is that round's, not the verdict's
+        runner_note = "In the first round, the r" + runner_note[len("The r"):]
+    runner_note += " " + history_words(sel)
     # where the named effects leave residual: located on the final model's, as the base's was
     left = [scored(d, d.y - yf) for d, yf in zip(problem.data, final.final_pred)] if outcome == "effects_named" else []
-    after = [locate(d, r, r) for d, r in zip(problem.data, left)]     # nothing recalibrated away: raw = residual
+    after = [locate_in_words(d, r, r) for d, r in zip(problem.data, left)]     # nothing recalibrated away: raw = residual
     null = problem.null
     explanation = explain(verdict, cands, list(null.located), null.rms_before, math.sqrt(null.fit.cv_mse),
                           math.sqrt(final.cv_mse), noise, too_little, runner_note.strip(), outcome,

@@ -339,7 +339,7 @@ class EffectSelector:
         return dataclasses.replace(
             sel.readmitted(), accepted=sel.accepted[:-1] + (first.effect, second.effect), fit=second.result,
             trials={**sel.trials, first.effect: first, second.effect: second},
-            swapped=sel.swapped + ((last, first.effect, math.sqrt(round_best.cv_mse), math.sqrt(second.cv_mse)),),
+            swapped=sel.swapped + ((last, first.effect, math.sqrt(sel.cur_cv), math.sqrt(second.cv_mse)),),
             rounds=sel.rounds[:-1] + (dataclasses.replace(sel.rounds[-1], accepted=second.effect),),
             leave_one_out=fitter_loo(problem, second.result.specs[2])), True
 
@@ -366,6 +366,19 @@ class EffectSelector:
         return REGISTRY[trial.effect].signature(
             SignatureCheck(problem.fitter, problem.model, base, trial.result, dict(trial.params),
                            problem.noise, self.slow_ratio_max, self.model_error_factor))
+
+    def _refit_keeps_signatures(self, problem: Problem, fit: SearchResult, names: Sequence[str]) -> bool:
+        """Do `names`, as `fit` has them, each still pass their signature check (each judged on `fit`
+        without it)? Every step that searches an accepted effect's parameters again (the swap pass, the
+        backward pass's look-alikes zoomed again, the pair's descent after a drop) keeps a new fit only
+        then, as a round keeps its winner: a resonance zoomed again without the delay beside it ran to
+        the heaviest damping (a lag, docs/cli.md) on the second measured piezo, and was named so."""
+        for name in names:
+            before: Specs = tuple(s.without(name) for s in fit.specs)  # type: ignore[assignment]
+            trial = Trial(name, fit, params_of(problem.fitter, name, fit.specs[2], fit.coef_all, fit.names), 0)
+            if self._signature(problem, before, trial) is not None:
+                return False
+        return True
 
     def _carries_over(self, problem: Problem, sel: Selection, best: Trial) -> tuple[Trial, str]:
         """With two or more recordings: does the effect's law, fitted on the other recordings,
@@ -403,19 +416,21 @@ class EffectSelector:
             rivals = [c for c in _slot_rivals(name) if c in sel.testable and not (c in sel.accepted and c != name)]
             say(f"checking {name} against the others with the other effects in place")
             found = search_all(fitter, others, rivals, self.threads_)
-            best_name, best_res = name, None
-            for cand in rivals:
-                if best_res is None or found[cand].cv_loss < best_res.cv_loss:
-                    best_name, best_res = cand, found[cand]
-            if best_res is None:
+            if not rivals:
                 continue
             slot = sorted((found[cand].cv_loss, cand) for cand in rivals)
             if len(slot) > 1 and \
                     0.5 * n_eff_last * math.log(slot[1][0] / max(slot[0][0], 1e-300)) < self.ambiguous_nats:
                 sel = dataclasses.replace(sel, ambiguous=sel.ambiguous + ((slot[0][1], slot[1][1]),))
-            if best_name != name and best_res.cv_loss < sel.cur_loss:
-                sel = _swapped(fitter, sel, name, best_name, best_res)
-                name = best_name
+            # the best of the slot takes it, passed over where its fit fails its own signature check (a
+            # round's winner must pass it too); the effect searched again in its own slot ends the walk
+            for loss, cand in slot:
+                if cand == name or loss >= sel.cur_loss:
+                    break
+                if self._refit_keeps_signatures(problem, found[cand], [cand]):
+                    sel = _swapped(fitter, sel, name, cand, found[cand])
+                    name = cand
+                    break
             importance[name] = o_cv - sel.cur_loss
         return dataclasses.replace(sel, accepted=tuple(sorted(sel.accepted, key=lambda n: -importance.get(n, 0.0))))
 
@@ -476,9 +491,15 @@ class EffectSelector:
         then share its phase lag), and forward selection alone never takes it back."""
         if len(sel.accepted) < 2:
             return sel
+        came_by_swap = {new: old for old, new, _, _ in sel.swapped}
+
+        def why(name: str) -> str:
+            how = (f"put in {came_by_swap[name]}'s place by the swap pass" if name in came_by_swap
+                   else "named before the others")
+            return f"{how}; with the others in the model it no longer earns its place"
+
         sel, dropped = self._drop_unearned(problem, sel, list(reversed(sel.accepted)),   # the least important first
-                                           "named before the others; with them in the model it no longer earns "
-                                           "its place", lookalikes=True)
+                                           why, lookalikes=True)
         return self._refit_after_drop(problem, sel) if dropped else sel
 
     def _refit_after_drop(self, problem: Problem, sel: Selection) -> Selection:
@@ -493,12 +514,12 @@ class EffectSelector:
             if partner is None:
                 continue
             found = descend(problem.fitter, sel.fit, name, partner, self.threads_)
-            if found.cv_loss < sel.cur_loss:
+            if found.cv_loss < sel.cur_loss and self._refit_keeps_signatures(problem, found, (name, partner)):
                 sel = dataclasses.replace(sel, fit=found)
         return sel
 
     def _drop_unearned(self, problem: Problem, sel: Selection, names: Sequence[str],
-                       why: str, lookalikes: bool = False) -> tuple[Selection, str]:
+                       why: str | Callable[[str], str], lookalikes: bool = False) -> tuple[Selection, str]:
         """Each of `names` that no longer earns its place (`earns_place`, with the others as they are
         fitted, or with its look-alikes zoomed again when `lookalikes`) dropped, with `why` as its
         reason; the selection, and a sentence per drop."""
@@ -518,7 +539,7 @@ class EffectSelector:
             gain = loglik_gain(n_eff, fit.cv_loss, sel.cur_loss, REGISTRY[name].count_params(fitter))
             if self.earns_place(sel.cur_loss, gain, fit.cv_loss, problem.noise):
                 continue
-            reason = (f"{why} (held-out {math.sqrt(sel.cur_cv):.4g} um with it, "
+            reason = (f"{why(name) if callable(why) else why} (held-out {math.sqrt(sel.cur_cv):.4g} um with it, "
                       f"{math.sqrt(fit.cv_mse):.4g} um without)")
             sel = dataclasses.replace(
                 sel.with_reason(name, reason), fit=fit, accepted=tuple(n for n in sel.accepted if n != name),
@@ -538,7 +559,7 @@ class EffectSelector:
         best = without
         for partner in [p for p in REGISTRY[name].joint_with if p in sel.accepted]:
             found = rezoom(problem.fitter, best.specs, partner, self.threads_)
-            if found.cv_loss < best.cv_loss:
+            if found.cv_loss < best.cv_loss and self._refit_keeps_signatures(problem, found, (partner,)):
                 best = found
         return best
 
@@ -580,11 +601,8 @@ class EffectSelector:
         assert sc.coef_all is not None
         fit = SearchResult(sel.fit.specs, sc.held_out_loss, sc.held_out_mse, sc.all_mse, sc.n_held_out, sc.coef_all,
                            sc.names, sel.fit.evaluated)
-        what = " and ".join(t.replace("_", " ") for t in off)
-        were, them, they = ("were", "them", "they") if len(off) > 1 else ("was", "it", "it")
-        note = (f" The recalibration's {what} {were} left out: fitted without each of the {len(blocks)} stress "
-                f"levels, the model predicted the level left out no worse without {them}, so {they} would not "
-                "carry to other loads.")
+        note = left_out_words(off, len(blocks), any(d.s_raw is not None for d in problem.data),
+                              len(blocks) == len(fitter.stress_levels() or [0.0]))
         return dataclasses.replace(sel, fit=fit, rebase_note=sel.rebase_note + note,
                                    leave_one_out=fitter_loo(problem, spec) if sel.leave_one_out is not None
                                    else None)
@@ -617,7 +635,8 @@ class EffectSelector:
                     f"itself on held-out data ({math.sqrt(final.cv_mse):.4g} um against {null.rms_before:.4g} um), "
                     "so nothing is named: longer recordings, or several at different drive frequencies, "
                     "would let the fit be judged on more than the blocks it was chosen on")
-                sel = _name_nothing(sel)
+                sel = _name_nothing(sel, "improved on the recalibrated model but not on the base model itself on "
+                                         "held-out data, so nothing is named (see cannot_conclude)")
             final = dataclasses.replace(base, selection=sel)
         for a, b in sel.ambiguous:
             cannot.append(f"{a} and {b} explain the held-out data almost equally well; " + decider(a, b))
@@ -633,7 +652,8 @@ class EffectSelector:
             if sel.accepted:
                 cannot.append(f"{', '.join(sel.accepted)} would be fitted to the part of the residual the "
                               "model's class cannot follow, so nothing is named")
-            sel = _name_nothing(sel)
+            sel = _name_nothing(sel, "would be fitted to the part of the residual the model's class cannot follow, "
+                                     "so nothing is named (see cannot_conclude)")
             final = dataclasses.replace(base, selection=sel)
         if not final.base_kept:
             sel, words = self._one_frequency(problem, sel)
@@ -729,18 +749,39 @@ def _slot_rivals(name: str) -> list[str]:
 
 
 def _swapped(fitter: Fitter, sel: Selection, name: str, by: str, res: SearchResult) -> Selection:
-    """`name` replaced by `by` (fitted as `res`) in its slot."""
-    old = sel.trials[name]
+    """`name` replaced by `by` (fitted as `res`) in its slot; the swap's figures are the held-out RMS
+    of the model as it stood (with `name`) and with `by` in its place, both with the others in place
+    (`name`'s own figure from its round was taken beside fewer effects)."""
     params = params_of(fitter, by, res.specs[2], res.coef_all, res.names)
     prior = sel.trials.get(by)
     trial = Trial(by, res, params, 0) if prior is None else dataclasses.replace(prior, result=res, params=params)
     return dataclasses.replace(
         sel, trials={**sel.trials, by: trial}, fit=res,
         accepted=tuple(by if n == name else n for n in sel.accepted),
-        swapped=sel.swapped + ((name, by, math.sqrt(old.cv_mse), math.sqrt(res.cv_mse)),))
+        swapped=sel.swapped + ((name, by, math.sqrt(sel.cur_cv), math.sqrt(res.cv_mse)),))
 
 
-def _name_nothing(sel: Selection) -> Selection:
+def left_out_words(off: Sequence[str], n_blocks: int, has_stress: bool, by_level: bool) -> str:
+    """The validation's sentence on recalibration terms `off` left out, for `n_blocks` blocks each fitted
+    without: stress levels only where the recordings have a stress column and each block is one level
+    (`by_level`); without a stress column each block is a recording, which differ in their drive."""
+    what = " and ".join(t.replace("_", " ") for t in off)
+    were, them, they = ("were", "them", "they") if len(off) > 1 else ("was", "it", "it")
+    if not has_stress:
+        parts, left, elsewhere = f"{n_blocks} recordings", "the recording left out", "other recordings"
+    elif by_level:
+        parts, left, elsewhere = f"{n_blocks} stress levels", "the level left out", "other loads"
+    else:        # a block per recording and load
+        parts, left, elsewhere = (f"{n_blocks} parts (each recording at each of its loads)", "the part left out",
+                                  "other loads or recordings")
+    return (f" The recalibration's {what} {were} left out: fitted without each of the {parts}, the model "
+            f"predicted {left} no worse without {them}, so {they} would not carry to {elsewhere}.")
+
+
+def _name_nothing(sel: Selection, why: str) -> Selection:
+    """Nothing named; each effect that was accepted carries `why` as its candidate's note."""
+    for name in sel.accepted:
+        sel = sel.with_reason(name, f"accepted by the selection, but {why}")
     return dataclasses.replace(sel, accepted=(), ambiguous=())
 
 
