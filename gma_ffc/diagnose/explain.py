@@ -8,23 +8,7 @@ from typing import Any
 from ..effects import REGISTRY
 from .data import N_BLOCKS
 from .fitting import Fitter
-from .locate import Located, condition_words, locate
-
-HEATING_WORDS = " (cumulative heating)"   # locate's gloss on the integral of the drive squared: a coil's Joule heat
-
-
-def voltage_words(text: str) -> str:
-    """`text` for a voltage drive: the integral of V^2 is no coil's Joule heat (docs/diagnose.md, "Words that
-    follow the recording"), so locate's "(cumulative heating)" gloss is left off."""
-    return text.replace(HEATING_WORDS, "")
-
-
-def locate_in_words(d: Any, raw_residual: Any, residual: Any) -> Located:
-    """`locate`, its words for the recording's drive (`voltage_words` for a voltage drive)."""
-    found = locate(d, raw_residual, residual)
-    if d.extra.get("drive_symbol") == "V":
-        found.where = voltage_words(found.where)
-    return found
+from .locate import Located, condition_words
 from .results import Candidate
 
 
@@ -66,7 +50,6 @@ def physics(effect: str, unit: str, has_stress: bool = True) -> str:
 def residual_words(worst: Located, unit: str = "A") -> str:
     """What an unexplained residual looks like: where, at which frequencies, what it follows."""
     follows = condition_words(worst.conditions, "V" if unit == "V" else "I", 3)
-    follows = [voltage_words(f) for f in follows] if unit == "V" else follows
     follows_txt = (", ".join(follows) if follows
                    else "follows none of drive rate, amplitude, stress or elapsed time (|r| < 0.3)")
     return (f"The residual left is {worst.residual_rms_recalibrated_um:.3g} um RMS in {worst.recording} "

@@ -81,12 +81,13 @@ def condition_words(cond: dict[str, float], drive_symbol: str = "I", n: int = 2)
     """The n strongest conditions (|r| >= STRONG_R) as phrases that carry their direction, each with
     |r|: "is largest just after steps (r = 0.54)", never "grows with the time since steps (r = -0.54)",
     which a reader takes the wrong way round."""
+    heat = " (cumulative heating)" if drive_symbol != "V" else ""   # a voltage drive heats no coil (docs/diagnose.md)
     up = {"drive_rate": "grows with the drive rate", "drive_amplitude": "grows with the drive amplitude",
-          "cumulative_heating": f"follows the integral of {drive_symbol}^2 (cumulative heating)",
+          "cumulative_heating": f"follows the integral of {drive_symbol}^2{heat}",
           "stress": "grows as the compression eases", "after_steps": "is largest just after steps"}
     down = {"drive_rate": "is largest where the drive is slow",
             "drive_amplitude": "is largest near the drive's median",
-            "cumulative_heating": f"runs against the integral of {drive_symbol}^2 (cumulative heating)",
+            "cumulative_heating": f"runs against the integral of {drive_symbol}^2{heat}",
             "stress": "grows with the compression", "after_steps": "grows with the time since steps"}
     strong = sorted(((abs(v), key, v) for key, v in cond.items() if abs(v) >= STRONG_R), reverse=True)
     return [f"{(up if v > 0 else down)[key]} (r = {a:.2f})" for a, key, v in strong[:n]]

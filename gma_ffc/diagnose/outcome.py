@@ -14,7 +14,8 @@ from typing import Any, Sequence
 from .. import effects as effect_registry
 from .anchor import anchor_words
 from .data import none_scored, unscored_starts_note
-from .explain import drive_unit, explain, identification_rms, locate_in_words, validation_words
+from .explain import drive_unit, explain, identification_rms, validation_words
+from .locate import locate
 from .problem import scored
 from .results import Candidate, Diagnosis
 from .state import Final, Problem, Selection
@@ -95,7 +96,7 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
     runner_note += " " + history_words(sel)
     # where the named effects leave residual: located on the final model's, as the base's was
     left = [scored(d, d.y - yf) for d, yf in zip(problem.data, final.final_pred)] if outcome == "effects_named" else []
-    after = [locate_in_words(d, r, r) for d, r in zip(problem.data, left)]     # nothing recalibrated away: raw = residual
+    after = [locate(d, r, r) for d, r in zip(problem.data, left)]     # nothing recalibrated away: raw = residual
     null = problem.null
     explanation = explain(verdict, cands, list(null.located), null.rms_before, math.sqrt(null.fit.cv_mse),
                           math.sqrt(final.cv_mse), noise, too_little, runner_note.strip(), outcome,

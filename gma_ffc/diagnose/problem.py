@@ -21,7 +21,7 @@ from .data import RecData, noise_floor, prepare
 from .fitting import Fitter, FitSettings, Spec
 from .identification import IdentificationCheck, check
 from .jumps import jump_words, sensor_jumps
-from .explain import locate_in_words
+from .locate import locate
 from .noise import mad_sigma
 from .search import SearchResult
 from .state import NullFit, Problem
@@ -86,7 +86,7 @@ def _null_model(fitter: Fitter, data: list[RecData], n_samples: int, noise: floa
     null_specs = (Spec(), Spec(), Spec())
     if too_little:
         fitter.delta = max(2.0 * noise, 1e-12)
-        located = tuple(locate_in_words(d, scored(d, d.y - yb), scored(d, d.y - yb)) for d, yb in zip(data, base_pred))
+        located = tuple(locate(d, scored(d, d.y - yb), scored(d, d.y - yb)) for d, yb in zip(data, base_pred))
         nothing = SearchResult(null_specs, rms_before ** 2, rms_before ** 2, rms_before ** 2, 0, np.zeros(0), [], 0)
         return NullFit(base_pred, rms_before, nothing, base_pred, located), notes
     # Huber scale from the recalibrated base's held-out residual: bursts the core cannot follow at all
@@ -97,7 +97,7 @@ def _null_model(fitter: Fitter, data: list[RecData], n_samples: int, noise: floa
     null = fitter.score(null_specs, want_coef=True)
     assert null.coef_all is not None
     null_pred = tuple(fitter.predict_full(Spec(), null.coef_all))
-    located = tuple(locate_in_words(d, scored(d, d.y - yb), scored(d, d.y - yn))
+    located = tuple(locate(d, scored(d, d.y - yb), scored(d, d.y - yn))
                     for d, yb, yn in zip(data, base_pred, null_pred))
     fit = SearchResult(null_specs, null.held_out_loss, null.held_out_mse, null.all_mse, null.n_held_out,
                        null.coef_all, null.names, 1)
