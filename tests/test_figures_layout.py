@@ -201,3 +201,25 @@ def test_identify_plot_scores_what_the_table_scores(tmp_path):
     title = next(ax.get_title() for ax in fig.axes if "RMS" in ax.get_title())
     assert f"RMS {fit.rms_um:.4f} um" in title, (title, fit)
     assert ("not fitted" in fig._suptitle.get_text()) == (fit.fitted_from > 0)
+
+
+def test_the_residual_plot_is_scaled_to_the_scored_samples_not_the_settling_start():
+    """On a measured piezo the unscored start swung to -35 um and flattened the ~1 um residual the
+    diagnosis judged into a line (a new user's sweep, 2026-11-30)."""
+    from types import SimpleNamespace
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from gma_ffc.diagnose.report import _scale_to_scored
+
+    t = np.linspace(0.0, 10.0, 2001)
+    residual = np.sin(2 * np.pi * t)                         # +-1 um where scored
+    residual[t < 1.0] = -35.0 * np.exp(-t[t < 1.0])           # the settling start, unscored
+    fig, ax = plt.subplots()
+    ax.plot(t, residual)
+    _scale_to_scored(ax, SimpleNamespace(mask=t >= 1.0), [residual])
+    lo, hi = ax.get_ylim()
+    assert -1.3 < lo < -0.99 and 0.99 < hi < 1.3
+    plt.close(fig)
