@@ -158,6 +158,22 @@ def test_loop_panel_shows_a_window_where_the_drive_sweeps_a_loop():
     assert d.t[w_any.start] >= 4.0
 
 
+def test_with_nothing_named_the_loop_panel_shows_the_located_window_where_it_sweeps():
+    """"Loops where the residual is largest" drew t = 5.6-7.1 s while the text located t = 1.5-3.0 s
+    (a new user's sweep, 2026-11-30): with nothing named, the located window is drawn where its drive
+    sweeps a loop, and only a located window without one makes the panel look elsewhere."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.report import _located_loops
+
+    d = _record_with_pause_and_steps()
+    elsewhere = np.where((d.t > 2.5) & (d.t < 3.5), 5.0, 0.0)      # the final model's residual peaks elsewhere
+    w, sweeps = _located_loops(d, SimpleNamespace(window_s=(1.0, 1.6)), d.y - elsewhere)
+    assert sweeps and abs(d.t[w.start] - 1.0) < 1e-3
+    w, sweeps = _located_loops(d, SimpleNamespace(window_s=(4.5, 6.5)), d.y - elsewhere)   # a pause: no loop
+    assert sweeps and 2.0 <= d.t[w.start] <= 3.5
+
+
 def test_loop_panel_says_so_when_no_window_sweeps():
     from types import SimpleNamespace
 

@@ -173,6 +173,17 @@ def _shown(d: Any, loc: Any, score: np.ndarray, sweep: bool) -> tuple[slice, boo
     return (_window(d, loc.window_s, whole_cycle=sweep), False) if best is None else (best, True)
 
 
+def _located_loops(d: Any, loc: Any, yf: np.ndarray) -> tuple[slice, bool]:
+    """With nothing named: the located window itself where the drive sweeps a loop there, so the
+    panel titled "where the residual is largest" shows the window the text names (they differed:
+    t = 5.6-7.1 s drawn, t = 1.5-3.0 s located); else the window of the largest residual that does."""
+    w = _window(d, loc.window_s, whole_cycle=True)
+    lo, hi = np.percentile(d.u, [1.0, 99.0])
+    if w.stop - w.start >= 2 and _sweeps(d.u[w], LOOP_SWEEP_SHARE * float(hi - lo)):
+        return w, True
+    return _shown(d, loc, np.square(d.y - yf), sweep=True)
+
+
 def _fall(d: Any, yb: np.ndarray, yf: np.ndarray) -> np.ndarray:
     """Per sample, how much the squared residual falls from the base model to the extended one."""
     return np.square(d.y - yb) - np.square(d.y - yf)
@@ -220,7 +231,7 @@ def plot_loops(dg: Diagnosis, render: Any = None) -> Any:
     """Displacement against drive where the residual (or its fall) is largest; None when the drive
     sweeps no loop anywhere (a step test), where such a chart would show a scribble."""
     named = bool(dg.verdict)
-    shown = [_shown(d, loc, _fall(d, yb, yf) if named else np.square(d.y - yf), sweep=True)
+    shown = [_shown(d, loc, _fall(d, yb, yf), sweep=True) if named else _located_loops(d, loc, yf)
              for d, loc, yb, yf in zip(dg.data, dg.located, dg.base_predictions, dg.final_predictions)]
     if not any(sweeps for _, sweeps in shown):
         return None
