@@ -86,7 +86,8 @@ def test_controller_commands_stay_inside_limits(model, refs, forces, lo, span, s
     cfg = validate_config({
         "rate_hz": 1000, "clock": "simulated", "model": "unused.yaml", "driver": {"kind": "sim"},
         "reference": {"kind": "sine", "frequency_hz": 3, "amplitude_um": 1},
-        "limits": {"current_min_A": lo, "current_max_A": hi, "slew_A_per_s": slew, "safe_current_A": safe},
+        "limits": {"current_min_A": lo, "current_max_A": hi, "slew_A_per_s": slew, "safe_current_A": safe,
+                   "stop_ramp_max_s": span / slew + 0.01},      # a ramp that fits (the config refuses one that cannot)
         "sensor": {"bad_ticks": 2}})
     rig = ScriptedRig(forces)
     ctrl = ControllerManager(cfg, model=model, driver=rig)
@@ -96,5 +97,6 @@ def test_controller_commands_stay_inside_limits(model, refs, forces, lo, span, s
     assert all(lo <= c <= hi for c in cmds + rig.safes)
     assert all(math.isfinite(c) for c in cmds)
     step = slew * 1e-3
-    assert np.abs(np.diff(cmds)).max(initial=0.0) <= step * (1 + 1e-9) + 1e-12
     assert rig.safes and rig.safes[-1] == safe        # every run ends at the safe current
+    ended = cmds + [rig.safes[-1]]                     # the final safe write within the slew limit too
+    assert np.abs(np.diff(ended)).max(initial=0.0) <= step * (1 + 1e-9) + 1e-12
