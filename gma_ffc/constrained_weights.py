@@ -53,6 +53,8 @@ def slopes_to_weights(s: np.ndarray) -> np.ndarray:
 
 
 def weights_to_slopes(w: np.ndarray) -> np.ndarray:
+    """Dead-zone weights -> the slopes of the linear pieces: `slopes_to_weights` undone (cumulative
+    sums from the centre outwards)."""
     w = np.asarray(w, dtype=float)
     m = w.shape[-1]
     c = (m - 1) // 2
