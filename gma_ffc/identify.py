@@ -544,7 +544,10 @@ class SDPIIdentifier:
         y_c = 0.5 * (float(y_all.min()) + float(y_all.max()))
         y_half = 0.5 * (float(y_all.max()) - float(y_all.min()))
         if y_half <= 0:
-            raise InputError("the displacement is constant: nothing to identify")
+            names = ", ".join(d.name for d in data)
+            raise InputError(f"the displacement is constant ({float(y_all[0]):.6g} um) in every recording ({names}): "
+                             "the sensor's reading never changes, so there is nothing to identify; check that the "
+                             "sensor is connected and that displacement_um is its channel")
         l = (self.n_deadzone - 1) // 2
         r_inv = np.arange(-l, l + 1) * y_half / (l + 1)
         H_parts, Phi_parts = [], []

@@ -243,7 +243,8 @@ def test_diagnose_refuses_a_constant_displacement_as_identify_does(workdir: Path
     flat = workdir / "flat_displacement.csv"
     write_recording(flat, Recording({**rec.columns, "displacement_um": np.full(len(rec), 5.0)}))
     words = ("the displacement is constant",)
-    _one_line_exit_2(["identify", str(flat), "-o", str(workdir / "never.yaml")], capsys, *words)
+    _one_line_exit_2(["identify", str(flat), "-o", str(workdir / "never.yaml")], capsys, *words, flat.name,
+                     "never changes", "sensor is connected")
     _one_line_exit_2(["diagnose", "--model", str(workdir / "model.yaml"), str(flat), "--out", str(workdir / "never")],
                      capsys, str(flat), *words, "never changes", "sensor is connected")
     assert not (workdir / "never").exists()
