@@ -50,3 +50,25 @@ def test_delay_block_makes_the_loop_look_ahead_and_track_better(tmp_path, sdpi) 
     assert meta["command_lead_s"] == pytest.approx(DELAY_S)
     # 6 ms at 3 Hz and 12 um amplitude is ~0.96 um RMS of pure lag; the preview removes it
     assert compensated <= 0.5 * plain, (compensated, plain)
+
+
+def test_learning_runs_on_an_extended_model_as_on_the_plain_one(tmp_path, sdpi) -> None:
+    """'gma-ffc reload --model DIR/extended_model.yaml' (the status's own advice after a background
+    diagnosis) was refused with 'time_s and drive must be 1-D of equal, non-zero length' whenever
+    learning was on: its gain table simulated the model without times (a new user's sweep,
+    2026-11-30). An extended model gives the plain one's gain where its effects are slow."""
+    from gma_ffc.control.learning import model_gain_table
+
+    extended = ExtendedModel(sdpi, {"thermal": {"tau_s": 60.0, "gain_um_per_A2": 1.3},
+                                    "delay": {"delay_s": DELAY_S}})
+    plain_gain, extended_gain = model_gain_table(sdpi), model_gain_table(extended)
+    assert plain_gain is not None and extended_gain is not None
+    for stress in np.linspace(*sdpi.stress_range_MPa, 5):
+        assert extended_gain(stress) == pytest.approx(plain_gain(stress), rel=0.05)
+    cfg = validate_config({
+        "rate_hz": 1000, "clock": "simulated", "model": "unused.yaml", "driver": {"kind": "sim", "load_mass_kg": 15.0},
+        "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0},
+        "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0},
+        "learning": {"kind": "repetitive"}, "telemetry": {"path": str(tmp_path / "learn.csv")}})
+    summary = ControllerManager(cfg, model=extended).run(duration_s=1.0)
+    assert summary["ok"], summary["fault_messages"]
