@@ -100,12 +100,14 @@ def _model_fit(m: Mapping[str, Any]) -> Iterator[Metric]:
     yield _states("gma_ffc_model_fit_state", "the model-fit monitor's state (1 for the current one)",
                   FIT_STATES, m.get("state"))
     yield from _gauge("gma_ffc_model_residual_ratio", "residual RMS over what a fitting model leaves", m.get("ratio"))
-    for key, doc in (("residual_rms_um", "residual RMS over the monitor's window"),
-                     ("noise_floor_um", "noise floor estimated from the residual"),
-                     ("identification_rms_um", "the model's identification error (its reference)"),
-                     ("tracking_rms_um", "tracking error RMS over the monitor's last whole window")):
+    # the names docs/monitor.md and its Grafana panel give: the monitor's own figures under model_
+    for key, name, doc in (("residual_rms_um", "model_residual_rms", "residual RMS over the monitor's window"),
+                           ("noise_floor_um", "model_noise_floor", "noise floor estimated from the residual"),
+                           ("identification_rms_um", "model_identification_rms",
+                            "the model's identification error (its reference)"),
+                           ("tracking_rms_um", "tracking_rms", "tracking error RMS over the monitor's last whole window")):
         value = m.get(key)
-        yield from _gauge(f"gma_ffc_{key[:-3]}_meters", doc, None if value is None else value * UM)
+        yield from _gauge(f"gma_ffc_{name}_meters", doc, None if value is None else value * UM)
 
 
 def _learning(learning: Mapping[str, Any]) -> Iterator[Metric]:
