@@ -284,6 +284,39 @@ def test_a_stuck_displacement_reading_freezes_learning():
     assert "stuck" in ln.status()["frozen_reason"]
 
 
+def test_a_reading_held_still_with_its_command_is_no_stuck_sensor_one_held_while_the_command_moves_is():
+    """A command held at a limit holds a noise-free displacement too: learning froze as a 'stuck
+    sensor' on the simulated rig whenever a reference reached current_max (a new user's sweep,
+    2026-11-30), the very case learning must handle."""
+    cfg = LearningConfig.from_mapping({"kind": "repetitive", "stale_ticks": 20})
+    dt = 1e-3
+    held = RepetitiveLearner(cfg, 1000.0, 0.25)
+    for i in range(750):                                   # three periods at one held command
+        held.observe(i * dt, 0.0, 0.123, -15.0, True, "", 1.2)
+    assert "stuck" not in str(held.status()["frozen_reason"])
+    moving = RepetitiveLearner(cfg, 1000.0, 0.25)
+    for i in range(750):                                   # the command moves, the reading does not
+        moving.observe(i * dt, 0.0, 0.123, -15.0, True, "", 1.0 + 1e-3 * (i % 50))
+    assert "stuck" in moving.status()["frozen_reason"]
+
+
+def test_learning_leaves_its_baseline_when_the_reference_asks_past_current_max_on_the_noise_free_rig(tmp_path):
+    from gma_ffc.control.config import validate_config
+    from gma_ffc.control.manager import ControllerManager
+    from gma_ffc.modelio import load_model
+
+    root = Path(__file__).resolve().parents[1]
+    cfg = validate_config({
+        "rate_hz": 1000, "clock": "simulated", "model": str(root / "config" / "models" / "sim_sdpi.yaml"),
+        "driver": {"kind": "sim", "load_mass_kg": 15.3},
+        "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0},
+        "limits": {"current_min_A": 0.0, "current_max_A": 1.2, "slew_A_per_s": 500.0},
+        "learning": {"kind": "repetitive"}, "telemetry": {"path": str(tmp_path / "t.csv")}})
+    summary = ControllerManager(cfg, model=load_model(cfg.model)).run(duration_s=6.0)
+    learning = summary["learning"]
+    assert learning["learned_periods"] > 0 and "stuck" not in str(learning.get("frozen_reason")), learning
+
+
 def test_stress_rule_scales_a_small_gain_change_and_resets_a_large_one():
     gains = {-11.0: 1.0, -12.0: 1.05, -20.0: 1.6}
     ln = RepetitiveLearner(ON, 1000.0, 0.1, gain_of_stress=lambda s: gains[round(s)])

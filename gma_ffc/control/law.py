@@ -138,7 +138,7 @@ class FeedforwardController:
             if limited_by == RAMP:                     # to or from the safe current: a transient
                 learner.observe(t, reference_um, displacement_um, stress, False, RAMPING)
             else:
-                learner.observe(t, reference_um, displacement_um, stress, True)
+                learner.observe(t, reference_um, displacement_um, stress, True, "", command_A)
 
 
 def start_stepper(stepper: InverseStepper, model: Model, safe_A: float) -> str:

@@ -234,6 +234,7 @@ class RepetitiveLearner:
         self._stress_sum = 0.0
         self._last_y = math.nan
         self._same_y = 0
+        self._last_command = math.nan
         self.last_correction_um = 0.0
         warm_up_kernels()
 
@@ -266,15 +267,20 @@ class RepetitiveLearner:
             self._freeze(t, RAMPING)
 
     def observe(self, t: float, reference_um: float, displacement_um: float, stress_MPa: float,
-                ok: bool, why_not: str = "") -> None:
-        """Record e = r - y at run time t. `ok` False (with a reason) freezes learning this tick."""
+                ok: bool, why_not: str = "", command_A: float = math.nan) -> None:
+        """Record e = r - y at run time t. `ok` False (with a reason) freezes learning this tick.
+        A stuck sensor is a reading that stays put while the command moves: a command held at a
+        limit (or a flat stretch of the reference) holds a noise-free displacement too, which froze
+        learning as a stuck sensor on the simulated rig. Without `command_A`, every tick counts."""
         k = self.phase(t)
         if k < self._last_phase:
             self._end_period(t)
         self._last_phase = k
         y = displacement_um
+        moved = command_A != self._last_command      # NaN (not given) always counts as moved
+        self._last_command = command_A
         if y == self._last_y:
-            self._same_y += 1
+            self._same_y += moved
         else:
             self._same_y = 0
             self._last_y = y
