@@ -523,3 +523,24 @@ def test_status_table_shows_learning_and_why_it_froze():
     table = format_table(run.status)
     assert "learning" in table and "periods learned" in table and "stopping" in table   # frozen at stop
     assert re.search(r"^learning +off$", format_table(run_tracking(MODEL, 20.0, 2).status), re.M)
+
+
+@pytest.mark.parametrize("reference,period_s", [
+    ({"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 10.0, "offset_um": 15.0}, 0.5),
+    ({"kind": "multisine", "components": [{"frequency_hz": 3.0, "amplitude_um": 6.0},
+                                          {"frequency_hz": 3.7, "amplitude_um": 4.0}], "offset_um": 15.0}, 1 / 3),
+])
+def test_a_learning_period_the_reference_does_not_repeat_in_is_refused_and_the_advised_one_is_accepted(
+        tmp_path, reference, period_s):
+    """A 0.5 s period on a 3 Hz sine, and 1/3 s on 3 Hz + 3.7 Hz: learning ran 15-20 % worse than
+    the feedforward alone, with no back-off (a new user's sweep, 2026-11-30)."""
+    import re
+
+    def config(period):
+        return base_cfg(reference=reference, learning={"kind": "repetitive", "period_s": period},
+                        telemetry={"path": str(tmp_path / "t.csv")})
+
+    with pytest.raises(ConfigError, match=r"does not repeat in it\. Set learning.period_s to ([0-9.]+) s") as e:
+        validate_config(config(period_s))
+    advised = float(re.search(r"Set learning.period_s to ([0-9.]+) s", str(e.value)).group(1))
+    assert validate_config(config(advised)).learning.period_s == pytest.approx(advised)

@@ -359,10 +359,46 @@ def _learning(raw: Any, reference: dict[str, Any], base: Path | None) -> Learnin
             and not (reference["kind"] == "playback" and reference["loop"]):
         raise ConfigError("config key 'learning.period_s' is required: the reference is not periodic, so the "
                           "learner cannot take its period from it")
+    if learning.enabled and learning.period_s is not None:
+        _period_holds_whole_cycles(float(learning.period_s), reference)
     if learning.file is not None:
         learning = LearningConfig(**{**learning.to_dict(),
                                      "file": _resolve_file("learning.file", learning.file, base, "learned.yaml")})
     return learning
+
+
+CYCLES_TOLERANCE = 1e-6     # relative: a period given to six digits still counts whole cycles
+
+
+def _period_holds_whole_cycles(period_s: float, reference: dict[str, Any]) -> None:
+    """A learning period must hold whole cycles of every component of a sine, triangle or multisine
+    reference: learning repeats the last period's error, and a reference that does not repeat in it
+    made learning 15-20 % worse than the feedforward alone, with no back-off (a new user's sweep,
+    2026-11-30: a 0.5 s period on a 3 Hz sine; 1/3 s on 3 Hz + 3.7 Hz)."""
+    kind = reference["kind"]
+    freqs = ([float(reference["frequency_hz"])] if kind in ("sine", "triangle") else
+             [float(c["frequency_hz"]) for c in reference["components"]] if kind == "multisine" else [])
+    for f in freqs:
+        cycles = period_s * f
+        if round(cycles) < 1 or abs(cycles - round(cycles)) > CYCLES_TOLERANCE * max(cycles, 1.0):
+            raise ConfigError(
+                f"config key 'learning.period_s' ({period_s:g} s) holds {cycles:.4g} cycles of the reference's "
+                f"{f:g} Hz: learning repeats each period's error, and this reference does not repeat in it. "
+                f"{_common_period_advice(freqs, reference_period_s(reference) is not None)}")
+
+
+def _common_period_advice(freqs: list[float], own_period: bool) -> str:
+    """The shortest time in which every frequency completes whole cycles (frequencies read to a
+    thousandth of a hertz), as advice; or that there is none a learner could use. `own_period`: the
+    learner takes the reference's period itself when the key is left out."""
+    from fractions import Fraction
+
+    periods = [1 / Fraction(f).limit_denominator(1000) for f in freqs]
+    common = Fraction(math.lcm(*(q.numerator for q in periods)), math.gcd(*(q.denominator for q in periods)))
+    if common > 600:         # ten minutes: a period no learner sees often enough to learn from
+        return "Its components share no period under 10 minutes: give them harmonic frequencies"
+    return (f"Set learning.period_s to {float(common):.9g} s (or a whole multiple)"
+            + (", or leave it out: the learner then takes the reference's own" if own_period else ""))
 
 
 def _output_dirs(named: list, base: Path | None, outputs: dict[str, str | None]) -> tuple[str, ...]:
