@@ -129,7 +129,7 @@ class Ear:
     def limited(self, t, limit, push):
         self.heard.append(("limited", limit, math.copysign(1.0, push)))
 
-    def observe(self, t, r, y, stress, ok, why_not=""):
+    def observe(self, t, r, y, stress, ok, why_not="", command_A=math.nan):
         self.heard.append((ok, why_not))
 
     def freeze(self, t, reason):

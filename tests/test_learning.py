@@ -544,3 +544,17 @@ def test_a_learning_period_the_reference_does_not_repeat_in_is_refused_and_the_a
         validate_config(config(period_s))
     advised = float(re.search(r"Set learning.period_s to ([0-9.]+) s", str(e.value)).group(1))
     assert validate_config(config(advised)).learning.period_s == pytest.approx(advised)
+
+
+def test_learning_on_a_rig_without_a_displacement_channel_is_refused(tmp_path):
+    """It started with exit 0 and stayed frozen all run on 'displacement reading missing or NaN'
+    (a new user's sweep, 2026-11-30): learning corrects a measured error, and there was none."""
+    from gma_ffc.control.manager import ControllerManager
+    from gma_ffc.drivers.sim import SimDriver
+    from gma_ffc.modelio import load_model
+
+    cfg = validate_config(base_cfg(learning={"kind": "repetitive"}))
+    blind = SimDriver(cfg.driver, cfg.period_s)
+    blind.channels = tuple(c for c in blind.channels if c != "displacement_um")
+    with pytest.raises(ConfigError, match=r"learning' is on, but driver 'sim' provides no 'displacement_um' channel"):
+        ControllerManager(cfg, model=load_model(cfg.model), driver=blind)

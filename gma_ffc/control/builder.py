@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..drivers import Driver, DriverProtocol, Inputs, driver_class
-from ..drivers.base import FORCE, INSTANCE_MEMBERS, STRESS, missing_members
+from ..drivers.base import DISPLACEMENT, FORCE, INSTANCE_MEMBERS, STRESS, missing_members
 from ..errors import ConfigError, ModelError
 from ..protocols import Model
 from . import safety
@@ -96,6 +96,11 @@ def build_driver(cfg: ControllerConfig, driver: DriverProtocol | None = None) ->
         raise ConfigError(f"config key 'stress.source' is {cfg.stress['source']!r} but driver "
                           f"'{cfg.driver['kind']}' provides no '{want}' channel (it has: "
                           f"{', '.join(drv.channels)})")
+    if cfg.learning.enabled and drv.channels and DISPLACEMENT not in drv.channels:
+        # learning corrects the measured error: without the reading it froze for the whole run
+        raise ConfigError(f"config key 'learning' is on, but driver '{cfg.driver['kind']}' provides no "
+                          f"'{DISPLACEMENT}' channel (it has: {', '.join(drv.channels)}): learning needs the "
+                          "measured displacement. Add the sensor's channel to the driver, or remove the learning section")
     return drv
 
 
