@@ -558,3 +558,16 @@ def test_learning_on_a_rig_without_a_displacement_channel_is_refused(tmp_path):
     blind.channels = tuple(c for c in blind.channels if c != "displacement_um")
     with pytest.raises(ConfigError, match=r"learning' is on, but driver 'sim' provides no 'displacement_um' channel"):
         ControllerManager(cfg, model=load_model(cfg.model), driver=blind)
+
+
+def test_a_freeze_that_lasts_across_periods_keeps_the_time_it_began():
+    """'FROZEN since t=3.34 s' became 'since t=9.00 s' for one unbroken freeze (a new user's sweep,
+    2026-11-30): the start was taken again at every period's end."""
+    ln = RepetitiveLearner(ON, 1000.0, 0.25)
+    feed(ln, 2, lambda t: jitter(t))                                      # learning along
+    t = feed(ln, 3, lambda t: math.nan, t0=0.5)                           # then no reading, for three periods
+    status = ln.status()
+    assert "missing or NaN" in status["frozen_reason"] and status["frozen_since_s"] == pytest.approx(0.5)
+    feed(ln, 1, lambda t: jitter(t), t0=t)                                # a clean period, then frozen again
+    feed(ln, 1, lambda t: math.nan, t0=t + 0.25)
+    assert ln.status()["frozen_since_s"] == pytest.approx(t + 0.25)

@@ -235,6 +235,7 @@ class RepetitiveLearner:
         self._last_y = math.nan
         self._same_y = 0
         self._last_command = math.nan
+        self._frozen_tick = False              # whether the last tick was frozen (a freeze's start is kept)
         self.last_correction_um = 0.0
         warm_up_kernels()
 
@@ -295,6 +296,7 @@ class RepetitiveLearner:
         elif self.cfg.stale_ticks and self._same_y >= self.cfg.stale_ticks:
             self._freeze(t, f"displacement reading unchanged for {self._same_y} ticks (stuck sensor)")
         else:
+            self._frozen_tick = False
             self._err[k] = e
             self._ref[k] = reference_um
             self._seen[k] = True
@@ -308,11 +310,12 @@ class RepetitiveLearner:
         self._freeze(t, reason)
 
     def _freeze(self, t: float, reason: str) -> None:
-        if self._period_clean or not self.frozen_reason:
+        """This tick teaches nothing, for `reason`; `frozen_since_s` is when an unbroken run of such
+        ticks (for one reason) began, across period ends (it restarted each period before)."""
+        if not self._frozen_tick or self.frozen_reason != reason:
             self.frozen_since_s = t
-        if self.frozen_reason != reason:
-            self.frozen_reason = reason
-            self.frozen_since_s = t
+        self.frozen_reason = reason
+        self._frozen_tick = True
         self._period_clean = False
 
     # ---- once per period -------------------------------------------------------------------
