@@ -169,3 +169,14 @@ def test_every_modbus_device_timeout_is_held_below_the_watchdog():
     next(iter(cfg["driver"]["devices"].values()))["timeout_s"] = 5.0
     with pytest.raises(ConfigError, match=r"'driver.devices.amp.timeout_s' \(5 s\) must be below watchdog_s"):
         validate_config(cfg, base_dir=ROOT / "config")
+
+
+def test_a_monitor_window_too_short_to_diagnose_is_refused_and_the_advised_one_or_warn_is_accepted():
+    import re
+
+    short = {"window_s": 0.5, "trigger_s": 0.0}
+    with pytest.raises(ConfigError, match=r"too short for the background diagnosis.*make it ([0-9.]+) s or more") as e:
+        validate_config(with_("monitor", short))
+    advised = float(re.search(r"make it ([0-9.]+) s or more", str(e.value)).group(1))
+    assert validate_config(with_("monitor", {**short, "window_s": advised})).monitor["window_s"] == advised
+    assert validate_config(with_("monitor", {**short, "on_drift": "warn"})).monitor["on_drift"] == "warn"

@@ -206,7 +206,7 @@ def test_metrics_are_scraped_while_the_loop_runs(tmp_path, model):
     cfg = validate_config({
         "rate_hz": RATE, "model": "unused.yaml", "reference": REFERENCE, "limits": LIMITS,
         "driver": {"kind": "sim", "plant_config": str(plant_yaml), "load_mass_kg": PlantConfig().mass_for_stress(STRESS)},
-        "telemetry": {"path": None}, "monitor": {"window_s": 1.0}, "metrics": {"port": 0}})
+        "telemetry": {"path": None}, "monitor": {"window_s": 1.0, "on_drift": "warn"}, "metrics": {"port": 0}})
     ctrl = ControllerManager(cfg, model=model)
     runtime = RuntimePaths(short_dir())
     svc, thread = start_service(cfg, ctrl, runtime)

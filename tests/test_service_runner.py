@@ -614,3 +614,17 @@ def test_a_runtime_folder_that_cannot_be_made_gives_advice_that_is_not_what_was_
     blocker.write_text("")
     with pytest.raises(ConfigError, match=r"give --runtime-dir \(or GMA_FFC_RUNTIME_DIR\) a folder this user may create"):
         ensure_private_dir(blocker / "x")
+
+
+def test_a_background_diagnosis_that_concluded_nothing_says_why_and_quotes_no_unscored_rms():
+    """The status read 'inconclusive: no effect named (held-out RMS 0.462 -> 0.462 um)' where
+    nothing had been scored, and the reason stood only in the JSON (a new user's sweep, 2026-11-30)."""
+    from gma_ffc.service.status import summary_words
+
+    last = {"outcome": "inconclusive", "effects": [], "rms_before_um": 0.462, "rms_after_um": 0.462, "scored": False,
+            "cannot_conclude": ["none of it is scored: 0 samples", "record longer"]}
+    words = summary_words(last)
+    assert words == "inconclusive: no effect named; first of 2 reasons: none of it is scored: 0 samples"
+    named = {"outcome": "effects_named", "effects": ["thermal_drift"], "rms_before_um": 0.5, "rms_after_um": 0.1,
+             "scored": True, "cannot_conclude": ["something minor"]}
+    assert summary_words(named) == "effects_named: thermal_drift (held-out RMS 0.5 -> 0.1 um)"

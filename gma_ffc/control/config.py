@@ -419,11 +419,22 @@ def _output_dirs(named: list, base: Path | None, outputs: dict[str, str | None])
     return tuple(dirs)
 
 
+DIAGNOSIS_MIN_SAMPLES = 400
+"""What `gma-ffc diagnose` needs at least (`EffectSelector(min_samples=400)`): a window shorter than
+that made every background diagnosis 'too little data (83 samples)' (a new user's sweep, 2026-11-30)."""
+
+
 def _monitor_section(raw: Any, rate_hz: float, base: Path | None) -> dict[str, Any]:
     monitor = validate_section(raw, MONITOR, "monitor")
     if monitor["window_s"] * rate_hz < 16:
         raise ConfigError(f"config key 'monitor.window_s' ({monitor['window_s']:g} s) must hold at least 16 ticks "
                           f"at {rate_hz:g} Hz: make it at least {16 / rate_hz:g} s")
+    ticks = monitor["window_s"] * rate_hz
+    if monitor["on_drift"] == "diagnose" and monitor["max_per_hour"] > 0 and ticks < DIAGNOSIS_MIN_SAMPLES:
+        enough = math.ceil(10.0 * DIAGNOSIS_MIN_SAMPLES / rate_hz) / 10.0
+        raise ConfigError(f"config key 'monitor.window_s' ({monitor['window_s']:g} s, {ticks:.0f} ticks at {rate_hz:g} Hz) "
+                          f"is too short for the background diagnosis it starts, which needs {DIAGNOSIS_MIN_SAMPLES} "
+                          f"samples at least: make it {enough:g} s or more, or set monitor.on_drift: warn")
     if monitor["state_dir"] is not None:
         monitor["state_dir"] = _resolve(monitor["state_dir"], base)
     return monitor

@@ -184,7 +184,8 @@ def _read_outcome(folder: Path) -> dict[str, Any]:
             "rms_before_um": doc.get("rms_before_um"), "rms_after_um": doc.get("rms_after_um"),
             "report": str(folder / "report.html"),
             "extended_model": str(extended) if extended.is_file() else None,
-            "cannot_conclude": doc.get("cannot_conclude")}
+            "cannot_conclude": doc.get("cannot_conclude"),
+            "scored": any((s.get("scored_share") or 0) > 0 for s in doc.get("initial_state") or [])}
 
 
 def _new_folder(parent: Path, now: float) -> Path:

@@ -250,9 +250,12 @@ def summary_words(d: Mapping[str, Any]) -> str:
         return f"{outcome}: {d.get('error', '')}"
     effects = ", ".join(d.get("effects") or []) or "no effect named"
     rms = ""
-    if d.get("rms_before_um") is not None and d.get("rms_after_um") is not None:
+    if d.get("rms_before_um") is not None and d.get("rms_after_um") is not None and d.get("scored", True):
         rms = f" (held-out RMS {d['rms_before_um']:.3g} -> {d['rms_after_um']:.3g} um)"
-    return f"{outcome}: {effects}{rms}"
+    why = ""
+    if outcome in ("inconclusive", "unexplained") and d.get("cannot_conclude"):
+        why = f"; first of {len(d['cannot_conclude'])} reasons: {d['cannot_conclude'][0]}"     # the rest: the report
+    return f"{outcome}: {effects}{rms}{why}"
 
 
 def _stamp(unix: Any) -> str:
