@@ -130,7 +130,7 @@ class ModelWatch:
             return self._as_history(np.vstack([fitted, after[:, [d, s]]])), \
                 "replayed from the start of the recording it was fitted on"
         span = float(retained[-1, t] - retained[0, t]) if len(retained) else 0.0
-        return self._as_history(retained[:, [d, s]]), f"replayed over the last {span:.0f} s of retained telemetry"
+        return self._as_history(retained[:, [d, s]]), f"replayed over the last {span:.3g} s of retained telemetry"
 
     def _window_of(self, model_path: str | None) -> Any:
         """The monitor window a background diagnosis fitted `model_path` on, if it is this run's."""

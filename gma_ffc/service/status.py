@@ -203,7 +203,7 @@ def model_fit_rows(status: Mapping[str, Any]) -> list[tuple[str, str]]:
     since = f" since t={_num(m.get('since_s'), '.1f')} s ({_clock(status, m.get('since_s'))})"
     text = (f"{state.upper() if state == 'drifting' else state}{since}: residual {_num(m.get('residual_rms_um'), '.3g')} um RMS "
             f"= {_num(m.get('ratio'), '.2f')}x expected (identification {_num(m.get('identification_rms_um'), '.3g')} um, "
-            f"noise floor {_num(m.get('noise_floor_um'), '.3g')} um, over {_num(window.get('seconds'), '.0f')} s; "
+            f"noise floor {_num(m.get('noise_floor_um'), '.3g')} um, over {_num(window.get('seconds'), '.3g')} s; "
             f"drifting above {_num((m.get('thresholds') or {}).get('drifting_above'), 'g')}x)")
     rows = [("model fit", text)]
     if m.get("from_start"):
