@@ -216,8 +216,10 @@ def test_recent_rows_last_is_in_order_and_bounded():
 
 
 def test_a_model_that_never_fit_says_so_from_the_start():
-    """Drifting at the first judgement is the conditions (small loops the model fits worse than its
-    identification loops), not a change during the run: the status says which."""
+    """Drifting at the first judgement: the conditions (small loops the model fits worse than its
+    identification loops), or a change that began before the first window was full (a coil heating
+    from the start). The status says it may be either, not that it is no change (a new user's
+    sweep, 2026-11-30: that was said of a heating coil)."""
     mon = FitMonitor(500, 1 / RATE, 0.1)
     feed(mon, 0.0, np.full(600, 1.0))
     assert mon.state == DRIFTING and mon.status()["from_start"] is True
@@ -225,6 +227,10 @@ def test_a_model_that_never_fit_says_so_from_the_start():
     t = feed(later, 0.0, np.zeros(600))
     feed(later, t, np.full(600, 1.0))
     assert later.state == DRIFTING and later.status()["from_start"] is False
+    from gma_ffc.service.status import model_fit_rows
+
+    words = " ".join(text for _, text in model_fit_rows({"monitor": mon.status()}))
+    assert "a change began before the window was full" in words and "not a change" not in words
 
 
 def test_switching_the_monitor_on_or_off_needs_a_restart():

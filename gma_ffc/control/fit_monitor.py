@@ -42,7 +42,8 @@ STATES = (OK, DRIFTING, OFF, UNKNOWN)
 # it (scripts/monitor_survey.py, docs/monitor.md); heating, creep and a 2 ms delay reach 6-10 at
 # full stroke. 3x sits between. Small loops inside the stroke reach 4-5 with nothing missing (the
 # model class fits them worse than its identification loops): the monitor says so from the first
-# window on (`from_start`), which is not a change during the run.
+# window on (`from_start`), which may be those conditions or a change that began before the first
+# window was full (a coil heating from the start): the status says either may be.
 DRIFT_RATIO = 3.0
 # Back to ok only below this: a band between the two thresholds, so a residual that hovers near
 # the threshold does not flap between states (and start a diagnosis on every crossing).

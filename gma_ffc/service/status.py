@@ -207,8 +207,9 @@ def model_fit_rows(status: Mapping[str, Any]) -> list[tuple[str, str]]:
             f"drifting above {_num((m.get('thresholds') or {}).get('drifting_above'), 'g')}x)")
     rows = [("model fit", text)]
     if m.get("from_start"):
-        rows.append(("", "since the first window: these conditions are farther from the identification's "
-                         "than the model fits, not a change during the run"))
+        rows.append(("", "since the first whole window: either these conditions are farther from the "
+                         "identification's than the model fits (small loops, another load), or a change began "
+                         "before the window was full (a coil heating from the start); the diagnosis tells which"))
     where = m.get("where") or {}
     parts = []
     du = m.get("drive_unit") or ""
