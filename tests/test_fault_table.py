@@ -137,9 +137,9 @@ def _run(tmp_path, models, name, over, inject):  # noqa: F811
         freezes.append((len(driver.log), reason))
         real_freeze(t, reason)
 
-    def observe(t, r, y, s, ok, why_not=""):
+    def observe(t, r, y, s, ok, why_not="", command_A=math.nan):
         observed.append((len(driver.log), ok))
-        real_observe(t, r, y, s, ok, why_not)
+        real_observe(t, r, y, s, ok, why_not, command_A)
 
     learner.freeze, learner.observe = freeze, observe
     summary = ctrl.run(duration_s=1.5)

@@ -430,7 +430,8 @@ def _monitor_section(raw: Any, rate_hz: float, base: Path | None) -> dict[str, A
         raise ConfigError(f"config key 'monitor.window_s' ({monitor['window_s']:g} s) must hold at least 16 ticks "
                           f"at {rate_hz:g} Hz: make it at least {16 / rate_hz:g} s")
     ticks = monitor["window_s"] * rate_hz
-    if monitor["on_drift"] == "diagnose" and monitor["max_per_hour"] > 0 and ticks < DIAGNOSIS_MIN_SAMPLES:
+    chosen = isinstance(raw, Mapping) and "window_s" in raw       # a default window at a slow rate is not refused
+    if chosen and monitor["on_drift"] == "diagnose" and monitor["max_per_hour"] > 0 and ticks < DIAGNOSIS_MIN_SAMPLES:
         enough = math.ceil(10.0 * DIAGNOSIS_MIN_SAMPLES / rate_hz) / 10.0
         raise ConfigError(f"config key 'monitor.window_s' ({monitor['window_s']:g} s, {ticks:.0f} ticks at {rate_hz:g} Hz) "
                           f"is too short for the background diagnosis it starts, which needs {DIAGNOSIS_MIN_SAMPLES} "

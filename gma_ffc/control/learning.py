@@ -234,8 +234,7 @@ class RepetitiveLearner:
         self._stress_sum = 0.0
         self._last_y = math.nan
         self._same_y = 0
-        self._last_command = math.nan
-        self._frozen_tick = False              # whether the last tick was frozen (a freeze's start is kept)
+        self._last_command, self._frozen_tick = math.nan, False     # the last tick's command; frozen or not
         self.last_correction_um = 0.0
         warm_up_kernels()
 
