@@ -33,7 +33,7 @@ def test_a_second_claim_on_a_device_is_refused_naming_the_holder_and_free_once_r
     first, second = DeviceClaim([device]), DeviceClaim([device])
     first.acquire()
     with pytest.raises(ConfigError, match=rf"{device} is driven by another controller on this machine "
-                                          rf"\(pid {os.getpid()}\).*Stop it first"):
+                                          rf"\(pid {os.getpid()}\).*Stop that one first: 'kill {os.getpid()}' \(SIGTERM\)"):
         second.acquire()
     first.release()
     second.acquire()

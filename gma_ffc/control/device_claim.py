@@ -2,8 +2,8 @@
 
 Two controllers with different configs, runtime folders and telemetry files could drive one
 amplifier at once: each wrote its own setpoints, and one's stop switched the other's output off
-(a new user's sweep, 2026-11-30). A driver names the devices its config reaches (`amplifiers`:
-"modbus-tcp:HOST:PORT", "serial:/dev/ttyUSB0"), and the run claims each before the driver opens.
+(a new user's sweep, 2026-11-30). A driver names the amplifiers its config reaches (`amplifiers`:
+"modbus-tcp:HOST:PORT:unitN", "serial:/dev/ttyUSB0"), and the run claims each before the driver opens.
 
 A claim is a Linux abstract-namespace socket bound to the device's name: no file to leave behind
 or to clean up, any user may bind one, and the kernel frees it when its process ends, even on
@@ -51,10 +51,6 @@ class DeviceClaim:
         self.devices = tuple(devices)
         self._held: list[socket.socket] = []
 
-    @property
-    def held(self) -> bool:
-        return bool(self._held) or not self.devices
-
     def acquire(self) -> None:
         """Claim every device (nothing if claimed already); ConfigError naming the holder, with none kept."""
         if self._held:
@@ -68,11 +64,12 @@ class DeviceClaim:
                 sock.close()
                 self.release()
                 pid = _holder_pid(_address(device))
+                how = (f"'kill {pid}' (SIGTERM) ramps it to its safe current and ends it" if pid != "?" else
+                       "'gma-ffc status --runtime-dir DIR' finds it by its runtime folder, 'gma-ffc stop' ends it")
                 raise ConfigError(
                     f"{device} is driven by another controller on this machine (pid {pid}): two controllers on "
-                    f"one amplifier overwrite each other's setpoints, and one's stop switches the other's output "
-                    f"off. Stop it first ('gma-ffc stop --runtime-dir ...', or 'kill {pid}': either leaves the "
-                    "amplifier at its safe current)") from None
+                    "one amplifier overwrite each other's setpoints, and one's stop switches the other's output "
+                    f"off. Stop that one first: {how}") from None
             self._held.append(sock)
 
     def release(self) -> None:
