@@ -43,3 +43,21 @@ def test_tentative_effects_are_named_ones_and_only_under_an_inconclusive_outcome
     assert [v for v in verdict if v in tentative] == tentative         # in the verdict's order
     # an inconclusive verdict is never presented as vouched for: at least one of its effects is marked
     assert bool(tentative) == (outcome == "inconclusive" and bool(verdict))
+
+
+def test_the_runner_up_is_put_in_words_once_from_the_first_rounds_table():
+    """It was a sentence rewritten by prefix in two other places (a look-alike at one frequency
+    'came second'; a winner no longer named made it 'the first round's'); now the round's table is
+    kept and put in words once."""
+    from gma_ffc.diagnose.explain import runner_up_words
+    from gma_ffc.diagnose.state import RoundRecord
+
+    rounds = (RoundRecord(1, 40.0, 0.5, (("time_delay", 0.2, 30.0), ("rate_dependence", 0.25, 21.0)), "time_delay"),)
+    assert runner_up_words(rounds, ["time_delay"], []) == (
+        "The runner-up, rate_dependence, lost: held-out RMS 0.25 um against 0.2 um for time_delay "
+        "(9 nats less penalised held-out likelihood).")
+    assert runner_up_words(rounds, ["time_delay"], [("rate_dependence", "time_delay")]).endswith(
+        "came second (held-out RMS 0.25 um against 0.2 um for time_delay): the data do not rule it out.")
+    assert runner_up_words(rounds, ["mechanical_dynamics"], []).startswith("In the first round, the runner-up")
+    nothing = (RoundRecord(1, 40.0, 0.5, rounds[0].table, None),)
+    assert runner_up_words(nothing, [], []) == "" and runner_up_words((), [], []) == ""

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Sequence
 
 from ..effects import REGISTRY
 from .data import N_BLOCKS
@@ -26,12 +26,20 @@ def decider(a: str, b: str) -> str:
     return "an experiment that changes one of them and not the other would decide"
 
 
-def runner_up_note(best: Any, runner: Any) -> str:
-    """Why the runner-up lost (each a Candidate or a selection Trial: effect, cv_mse, loglik_gain)."""
-    return (f"The runner-up, {runner.effect}, lost: held-out RMS {math.sqrt(runner.cv_mse):.4g} um against "
-            f"{math.sqrt(best.cv_mse):.4g} um for {best.effect}"
-            + (f" ({best.loglik_gain - runner.loglik_gain:.0f} nats less penalised held-out likelihood)"
-               if math.isfinite(runner.loglik_gain) else "") + ".")
+def runner_up_words(rounds: Sequence[Any], accepted: Sequence[str], ambiguous: Sequence[tuple[str, str]]) -> str:
+    """The first round's runner-up, from its table (effect, held-out RMS, log-likelihood gain; best
+    first): it lost, or, where the data fit it and the winner alike (`ambiguous`), it came second
+    and is not ruled out. Said of "the first round" once its winner is no longer named. '' when the
+    first round accepted nothing or tried one effect."""
+    if not rounds or rounds[0].accepted is None or len(rounds[0].table) < 2:
+        return ""
+    (winner, w_rms, w_gain), (runner, r_rms, r_gain) = rounds[0].table[:2]
+    lead = "The runner-up" if winner in accepted else "In the first round, the runner-up"
+    if any({winner, runner} == set(pair) for pair in ambiguous):
+        return (f"{lead}, {runner}, came second (held-out RMS {r_rms:.4g} um against {w_rms:.4g} um for {winner}): "
+                "the data do not rule it out.")
+    nats = f" ({w_gain - r_gain:.0f} nats less penalised held-out likelihood)" if math.isfinite(r_gain) else ""
+    return f"{lead}, {runner}, lost: held-out RMS {r_rms:.4g} um against {w_rms:.4g} um for {winner}{nats}."
 
 
 def describe(c: Candidate, unit: str = "A") -> str:

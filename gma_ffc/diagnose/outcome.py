@@ -14,7 +14,7 @@ from typing import Any, Sequence
 from .. import effects as effect_registry
 from .anchor import anchor_words
 from .data import none_scored, unscored_starts_note
-from .explain import drive_unit, explain, identification_rms, validation_words
+from .explain import drive_unit, explain, identification_rms, runner_up_words, validation_words
 from .locate import locate
 from .problem import scored
 from .results import Candidate, Diagnosis
@@ -88,11 +88,7 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
         cannot.append(column_fault.words())
         if outcome != "unexplained":
             outcome, conclusive = "inconclusive", False
-    runner_note = sel.runner_note
-    first = sel.rounds[0].accepted if sel.rounds else None
-    if runner_note.startswith("The runner-up,") and first is not None and first not in sel.accepted:
-        # the first round's winner is no longer named: its runner-up is that round's, not the verdict's
-        runner_note = "In the first round, the r" + runner_note[len("The r"):]
+    runner_note = runner_up_words(sel.rounds, sel.accepted, sel.ambiguous)
     runner_note += " " + history_words(sel)
     # where the named effects leave residual: located on the final model's, as the base's was
     left = [scored(d, d.y - yf) for d, yf in zip(problem.data, final.final_pred)] if outcome == "effects_named" else []

@@ -43,7 +43,7 @@ from ..drive import dominant_band
 from ..errors import InputError
 from ..extended import ExtendedModel
 from ..recordings import Recording
-from .explain import decider, runner_up_note
+from .explain import decider
 from .fitting import Fitter, LeaveOneOut, Spec
 from .identification import check
 from .outcome import assemble
@@ -296,9 +296,8 @@ class EffectSelector:
         if len(trials) > 1 and trials[1].loglik_gain > self.min_loglik_gain and \
                 best.loglik_gain - trials[1].loglik_gain < self.ambiguous_nats:
             ambiguous += ((best.effect, trials[1].effect),)
-        runner = runner_up_note(best, trials[1]) if rnd == 1 and len(trials) > 1 else sel.runner_note
         return dataclasses.replace(sel.readmitted(), accepted=sel.accepted + (best.effect,), fit=best.result,
-                                   ambiguous=ambiguous, runner_note=runner,
+                                   ambiguous=ambiguous,
                                    leave_one_out=fitter_loo(problem, best.result.specs[2])), True
 
     def _look_ahead(self, problem: Problem, sel: Selection, earlier: Mapping[str, Trial], round_best: Trial,
@@ -682,13 +681,7 @@ class EffectSelector:
                          f"octave of it), at which {name} and {' and '.join(others)} all fit a phase lag; they "
                          "differ in how the lag changes with frequency, so record at a second frequency, "
                          f"{f0 / 2:.3g} Hz or below or {2 * f0:.3g} Hz or above, to tell which it is")
-        runner_note = sel.runner_note     # the first round's (`_round`): a look-alike there did not lose, it came second
-        first = {effect: rms for effect, rms, _ in sel.rounds[0].table} if sel.rounds else {}
-        for name, other in pairs:
-            if runner_note.startswith(f"The runner-up, {other}, lost") and name in first and other in first:
-                runner_note = (f"The runner-up, {other}, came second (held-out RMS {first[other]:.4g} um against "
-                               f"{first[name]:.4g} um for {name}): at one frequency that does not rule it out.")
-        return dataclasses.replace(sel, ambiguous=sel.ambiguous + tuple(pairs), runner_note=runner_note), words
+        return dataclasses.replace(sel, ambiguous=sel.ambiguous + tuple(pairs)), words
 
     def _recalibration_doubt(self, problem: Problem, specs: Specs, rms_after: float) -> str:
         """With nothing named, why the static recalibration alone would not hold in another session,

@@ -103,7 +103,6 @@ class Selection:
     trials: Mapping[str, Trial] = field(default_factory=dict)   # the last trial of each effect
     rounds: tuple[RoundRecord, ...] = ()
     ambiguous: tuple[tuple[str, str], ...] = ()     # look-alikes the data do not tell apart
-    runner_note: str = ""
     swapped: tuple[tuple[str, str, float, float], ...] = ()     # (first choice, its replacement, their RMS)
     outside_class: str = ""                         # a drive the model's class cannot follow (named nothing)
     rebase_note: str = ""
