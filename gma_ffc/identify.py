@@ -171,11 +171,12 @@ class SDPIIdentifier:
 
     def _say(self, stage: str) -> None:
         if self.progress is not None:
-            self.progress(getattr(self, "_pass", "") + stage)
+            self.progress(self._pass + stage)
 
     # -- public ------------------------------------------------------------------------------
     def fit(self, recordings: Sequence[Recording]) -> "SDPIIdentifier":
         self._check_settings()
+        self._pass = ""          # which fit the progress's steps belong to: the first, or one again (and why)
         self.notes_: list[str] = []
         data = self._prepare(recordings)
         self.output_sign_ = self._orientation(data)
@@ -212,7 +213,6 @@ class SDPIIdentifier:
                 d.start = 0
             d.plays = np.empty((len(d.x), self.n_play))
             self._play_outputs(d, r_h, x_c, y0)
-        self._pass = ""
         self._fit_all(recordings, data, levels, per_rec_stress, r_h, x_c, (x_lo, x_hi))
         if short:
             self._pass = "fit again, start states estimated: "      # progress says why the steps come again
