@@ -30,6 +30,9 @@ draws), so GENERAL_ELEVENTH_SEED draws a tenth. Its heating-with-creep miss (a r
 that did not carry to other loads) was then looked at and fixed, so GENERAL_TWELFTH_SEED draws an eleventh.
 Heating fitted at the search's fastest time constant was then refused as a look-alike (found on the
 short runs of a development case), so GENERAL_THIRTEENTH_SEED draws a twelfth.
+Two users' sweeps then changed the diagnosis path (every refit of an accepted effect keeps its
+signature check; absurd magnitudes, short and constant recordings refused), so GENERAL_FOURTEENTH_SEED
+draws a thirteenth.
 """
 
 from __future__ import annotations
@@ -70,6 +73,8 @@ GENERAL_TWELFTH_SEED = 20261229   # an eleventh never-tuned draw (2026-11-29, br
 GENERAL_THIRTEENTH_SEED = 20261230  # a twelfth never-tuned draw (2026-11-30, twenty-first session): after heating
                                     # at the fastest time constant searched was refused as a look-alike (found
                                     # on a development case's short runs); fixed and committed before its first run
+GENERAL_FOURTEENTH_SEED = 20261301  # a thirteenth never-tuned draw (2026-11-30, twenty-fourth session): after two
+                                    # users' sweeps changed the diagnosis path; fixed and committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 

@@ -34,6 +34,7 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set general-eleventh  # a tenth, drawn after the sample-timing rule
     .venv/bin/python scripts/bench_diagnose.py --set general-twelfth   # an eleventh, drawn after the recalibration rule
     .venv/bin/python scripts/bench_diagnose.py --set general-thirteenth  # a twelfth, drawn after the heating look-alike rule
+    .venv/bin/python scripts/bench_diagnose.py --set general-fourteenth  # a thirteenth, drawn after two users' sweeps
 
 Beside the held-out blocks, every case is also judged on probes (`benchmarks.probes`): the same
 simulated actuator recorded again at loads, rates and drive shapes diagnose never saw; the extended
@@ -65,7 +66,8 @@ from benchmarks.cases import (FS, LABELS, Case, cases, holdout_cases, make_case,
 from benchmarks.general import (GENERAL_EIGHTH_SEED, GENERAL_FIFTH_SEED, GENERAL_FOURTH_SEED,  # noqa: E402
                                 GENERAL_FRESH_SEED, GENERAL_HOLDOUT_SEED, GENERAL_NINTH_SEED, GENERAL_SEVENTH_SEED,
                                 GENERAL_SIXTH_SEED, GENERAL_TENTH_SEED, GENERAL_ELEVENTH_SEED,
-                                GENERAL_TWELFTH_SEED, GENERAL_THIRTEENTH_SEED, general_cases)
+                                GENERAL_TWELFTH_SEED, GENERAL_THIRTEENTH_SEED, GENERAL_FOURTEENTH_SEED,
+                                general_cases)
 from benchmarks.probes import pooled, probe_recordings, probe_scores
 
 # the never-tuned general draws after the first, each drawn after the misses named were fixed
@@ -82,7 +84,9 @@ LATER_DRAWS = (("fresh", "a second", GENERAL_FRESH_SEED, "the first draw's misse
                ("twelfth", "a twelfth", GENERAL_TWELFTH_SEED,
                 "the recalibration's curvature and stress gain were kept only where they carry to a load left out"),
                ("thirteenth", "a thirteenth", GENERAL_THIRTEENTH_SEED,
-                "heating at the fastest time constant searched was refused as a look-alike"))
+                "heating at the fastest time constant searched was refused as a look-alike"),
+               ("fourteenth", "a fourteenth", GENERAL_FOURTEENTH_SEED,
+                "two users' sweeps changed the diagnosis path (refits keep their signature checks)"))
 
 # the held-out-condition targets (issue 31), on the probes diagnose never saw
 PROBE_GAIN_EACH = 1.5        # every effect case at least this much better than the base
