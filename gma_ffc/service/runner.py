@@ -26,10 +26,10 @@ from .. import safe_files
 from ..errors import FaultError, GmaError
 from . import last_exit
 from .control_plane import ControlPlane
-from .control_socket import is_answering, jsonable
+from .control_socket import jsonable, refuse_if_running
 from .notify import Notifier
 from .outputs import check_outputs, inputs_of, outputs_of
-from .paths import RuntimePaths, ensure_private_dir
+from .paths import RuntimePaths, claim_lock, ensure_private_dir
 from .status import faults_of, progress_count, status_line
 from .watch import ModelOverride, ServiceWatch
 
@@ -311,11 +311,9 @@ class Service:
         """The private directory and the socket (nobody else's controller answers there); the
         socket's process starts now and answers 'starting' until `_open_runtime`."""
         ensure_private_dir(runtime.directory)
-        if is_answering(runtime.socket):
-            pid = _read_pid(runtime.pid_file)
-            raise FaultError(f"a controller is already running (pid {pid or '?'}, socket "
-                             f"{runtime.socket}); stop it first with 'gma-ffc stop'")
-        self._plane = ControlPlane(runtime.socket, self.handle_request).start(wait=False)
+        with claim_lock(runtime):
+            refuse_if_running(runtime, _read_pid(runtime.pid_file))
+            self._plane = ControlPlane(runtime.socket, self.handle_request).start(wait=False)
 
     def _open_runtime(self, runtime: RuntimePaths) -> None:
         assert self._plane is not None
