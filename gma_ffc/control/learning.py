@@ -225,6 +225,7 @@ class RepetitiveLearner:
         self.frozen_since_s = 0.0
         self.events: list[dict[str, Any]] = []
         self.event_count = 0
+        self.saved: dict[str, Any] | None = None     # the end of run's save (`learned_file.save_if_learned`)
         self.learned_stress_MPa = math.nan
         self._cmd_phase = 0
         self._last_phase = -1
@@ -492,7 +493,7 @@ class RepetitiveLearner:
                             "where": limit_spans(limited, self._ref)},
                 "limited_share_trend": [round(float(v), 4) for v in self.trend_limited if v == v][-10:],
                 "reference_beyond_limits": self.reference_limits,
-                "last_event": self.last_event or None, "events": list(self.events)}
+                "last_event": self.last_event or None, "events": list(self.events), "saved": self.saved}
 
     def to_dict(self) -> dict[str, Any]:
         """The best correction measured (never one that was worse than feedforward)."""
