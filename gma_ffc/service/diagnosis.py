@@ -18,6 +18,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -56,6 +57,32 @@ def default_state_dir(environ: dict[str, str] | None = None) -> Path:
     if os.geteuid() == 0:
         return Path("/var/lib/gma-ffc")
     return Path.home() / ".local" / "state" / "gma-ffc"
+
+
+def check_state_dir(monitor_cfg: dict[str, Any] | None) -> None:
+    """With background diagnoses on, refuse at start a state folder they could not be written in
+    (read-only, not this user's, a file in the way): it was found only when the first diagnosis
+    started, maybe hours into the run. Probes with an empty file, as `atomic.check_folder_writable`."""
+    from ..atomic import nearest_existing
+    from ..errors import ConfigError
+
+    cfg = monitor_cfg or {}
+    if not (cfg.get("enabled") and cfg.get("on_drift") == "diagnose" and cfg.get("max_per_hour", 0) > 0):
+        return
+    folder = Path(cfg["state_dir"]) if cfg.get("state_dir") else default_state_dir()
+    existing = nearest_existing(folder / "diagnoses")
+    try:
+        if not existing.is_dir():
+            raise NotADirectoryError(0, f"{existing} is a file, not a folder")
+        fd, probe = tempfile.mkstemp(prefix=".gma-ffc-probe.", suffix=".tmp", dir=existing)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        unset = "" if cfg.get("state_dir") else f" (not set: the default {folder})"
+        raise ConfigError(f"config key 'monitor.state_dir'{unset}: cannot write in {existing}: "
+                          f"{exc.strerror or exc}; background diagnoses (monitor.on_drift: diagnose) are written "
+                          f"in {folder}: set monitor.state_dir to a folder this user may write, or monitor.on_drift: "
+                          "warn") from None
 
 
 class BackgroundDiagnosis:
