@@ -177,6 +177,8 @@ class RepetitiveLearner:
     model); it is evaluated once per period, never in a tick.
     """
 
+    saved: dict[str, Any] | None = None     # the end of run's save, once made (`learned_file.save_if_learned`)
+
     def __init__(self, cfg: LearningConfig, rate_hz: float, period_s: float,
                  gain_of_stress: Any = None, fingerprint: str = "") -> None:
         if not cfg.enabled:
@@ -225,7 +227,6 @@ class RepetitiveLearner:
         self.frozen_since_s = 0.0
         self.events: list[dict[str, Any]] = []
         self.event_count = 0
-        self.saved: dict[str, Any] | None = None     # the end of run's save (`learned_file.save_if_learned`)
         self.learned_stress_MPa = math.nan
         self._cmd_phase = 0
         self._last_phase = -1
