@@ -90,8 +90,9 @@ class BackgroundDiagnosis:
 
     def __init__(self, monitor_cfg: dict[str, Any], take_window: Callable[[float], Window], *,
                  python: str = sys.executable, now: Callable[[], float] = time.time,
-                 output_dirs: tuple[str, ...] = ()) -> None:
+                 output_dirs: tuple[str, ...] = (), drive_limits: tuple[float, float] | None = None) -> None:
         self.cfg = monitor_cfg
+        self.drive_limits = drive_limits        # the controller's: the advice asks for no drive beyond them
         self.output_dirs = output_dirs          # the config's: a diagnosis writes only inside them
         self.take_window = take_window
         self.python = python
@@ -161,6 +162,8 @@ class BackgroundDiagnosis:
         save_model(model, folder / "model.yaml")
         argv = [self.python, "-m", "gma_ffc.service.diagnose_child", str(os.getpid()), "--", "diagnose",
                 "--model", str(folder / "model.yaml"), str(folder / "window.csv"), "--out", str(folder)]
+        if self.drive_limits is not None:
+            argv += ["--drive-limits", *(repr(float(v)) for v in self.drive_limits)]
         return folder, argv
 
     def _finished(self, code: int) -> None:
