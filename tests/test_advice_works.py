@@ -189,6 +189,21 @@ def test_the_advice_held_within_the_controllers_drive_limits_then_each_step_it_a
     assert dg.data[0].n_scored >= 0.8 * tracking.size
 
 
+def test_a_drive_outside_the_model_is_told_a_range_within_the_drive_limits(model):
+    """Recordings that never enter the model's 0..3 A, diagnosed for a controller limited to
+    0..2 A: the range to record in is the limits' part of the model's, and a recording there is
+    taken."""
+    with pytest.raises(InputError) as err:
+        diagnose(model, [recording(4.0 + 0.3 * cycles(3.0, 2.0), "high.csv")], drive_limits=(0.0, 2.0))
+    m = re.search(r"record inside (\S+)\.\.(\S+) \(the model's range 0 to 3 A, held within the drive limits\)",
+                  str(err.value))
+    assert m is not None, str(err.value)
+    lo, hi = float(m.group(1)), float(m.group(2))
+    assert (lo, hi) == (0.0, 2.0)
+    inside = lo + (hi - lo) / 3.0 * cycles(3.0, 2.0)
+    assert diagnose(model, [recording(inside, "inside.csv")], drive_limits=(0.0, 2.0)).data[0].n_scored > 0
+
+
 def test_a_model_diagnosed_on_its_own_identification_recording_is_told_to_give_it_with_ident(model):
     """Identified on id.csv and diagnosed on id.csv: the note said 'the identification recordings
     (id.csv) were not given', beside the very file."""
