@@ -148,6 +148,62 @@ def test_a_start_the_drive_never_forgets_then_a_cycle_over_the_whole_range(reque
     assert dg.data[0].n_scored >= 0.8 * tracking.size
 
 
+def test_the_advice_held_within_the_controllers_drive_limits_then_each_step_it_asks_for(request):
+    """The same start, diagnosed as the service does for a controller limited to 0..2 A of the
+    model's 0..3 A: the cycle asked for stayed the model's (0..3 A), beyond the limits. Now it is
+    held within them; a run after that cycle, still not scored (the widest plays kept the start),
+    is told to identify a model over the drive allowed; and so identified, the run is scored."""
+    from gma_ffc.sil import cached_sdpi_and_mpi
+    from hil_sim.plant import GMAPlant, PlantConfig
+
+    cfg = PlantConfig().with_effects(["noise"])
+    cfg.noise.displacement_std_um, cfg.noise.displacement_quantum_um = 0.002, 0.001
+
+    def rig(drive: np.ndarray, name: str, stress: float = -15.2, seed: int = 1) -> Recording:
+        t = np.arange(drive.size) / FS
+        out = GMAPlant(cfg, seed=seed).run(t, drive, load_mass_kg=cfg.mass_for_stress(stress))
+        return Recording({k: out[k] for k in ("current_A", "stress_MPa", "displacement_um")} | {"time_s": t}, {}, name)
+
+    model = cached_sdpi_and_mpi(request.config.cache.mkdir("gma_ffc_sil_models"))[0]
+    limits = (0.0, 2.0)
+    assert model.drive_range[1] > limits[1]
+    tracking = 0.6 * cycles(3.0, 3.0)                                     # 0 .. 1.8 A
+    dg = diagnose(model, [rig(tracking, "tracking.csv")], drive_limits=limits)
+    note = next(c for c in dg.cannot_conclude if "none of it is scored" in c)
+    m = re.search(r"drive one full cycle from (\S+) to (\S+) A \(the model's range 0 to 3 A, held within the drive "
+                  r"limits\) and back before the run", note)
+    assert m is not None, note
+    lo, hi = float(m.group(1)), float(m.group(2))
+    assert limits[0] <= lo < hi <= limits[1]
+    cycle = lo + (hi - lo) * 0.5 * (1 - np.cos(2 * np.pi * np.arange(int(FS)) / FS))
+    cycled = rig(np.r_[cycle, tracking], "cycled_first.csv")
+    dg = diagnose(model, [cycled], drive_limits=limits)
+    note = next(c for c in dg.cannot_conclude if "none of it is scored" in c)
+    m = re.search(r"still did not: identify a model over the drive the controller allows \((\S+) to (\S+) A\)", note)
+    assert m is not None and "drive one full cycle" not in note, note
+    low, high = float(m.group(1)), float(m.group(2))
+    ident = [rig(low + (high - low) / 3.0 * cycles(3.0, 3.0), f"id{s}.csv", s, seed=2) for s in (-11.3, -15.2, -19.1)]
+    within = SDPIIdentifier(n_play=10, n_deadzone=7).fit(ident).model_
+    dg = diagnose(within, [cycled], drive_limits=limits)
+    assert not any("none of it is scored" in c for c in dg.cannot_conclude)
+    assert dg.data[0].n_scored >= 0.8 * tracking.size
+
+
+def test_a_drive_outside_the_model_is_told_a_range_within_the_drive_limits(model):
+    """Recordings that never enter the model's 0..3 A, diagnosed for a controller limited to
+    0..2 A: the range to record in is the limits' part of the model's, and a recording there is
+    taken."""
+    with pytest.raises(InputError) as err:
+        diagnose(model, [recording(4.0 + 0.3 * cycles(3.0, 2.0), "high.csv")], drive_limits=(0.0, 2.0))
+    m = re.search(r"record inside (\S+)\.\.(\S+) \(the model's range 0 to 3 A, held within the drive limits\)",
+                  str(err.value))
+    assert m is not None, str(err.value)
+    lo, hi = float(m.group(1)), float(m.group(2))
+    assert (lo, hi) == (0.0, 2.0)
+    inside = lo + (hi - lo) / 3.0 * cycles(3.0, 2.0)
+    assert diagnose(model, [recording(inside, "inside.csv")], drive_limits=(0.0, 2.0)).data[0].n_scored > 0
+
+
 def test_a_model_diagnosed_on_its_own_identification_recording_is_told_to_give_it_with_ident(model):
     """Identified on id.csv and diagnosed on id.csv: the note said 'the identification recordings
     (id.csv) were not given', beside the very file."""

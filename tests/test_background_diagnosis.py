@@ -160,3 +160,32 @@ def test_a_state_dir_outside_output_dirs_refuses_the_diagnosis_not_the_run(tmp_p
     bg.poll("drifting", 10.0, 16.0)
     assert bg.child is None and bg.last is not None and bg.last["outcome"] == "failed"
     assert "output_dirs" in bg.last["error"] and not (tmp_path / "state").exists()
+
+
+def test_the_service_passes_its_drive_limits_to_the_diagnosis_it_starts(tmp_path, capsys):
+    """diagnose knew only the model's drive range, so its advice could ask for a drive the
+    controller's limits do not allow; the service now gives it those limits."""
+    import yaml
+
+    from gma_ffc.cli import build_parser, main
+    from gma_ffc.control.config import load_config
+    from gma_ffc.control.manager import ControllerManager
+    from gma_ffc.service.watch import ServiceWatch
+
+    cfg_file = tmp_path / "cfg.yaml"
+    cfg_file.write_text(yaml.safe_dump({
+        "rate_hz": 1000, "clock": "simulated", "model": str(MODEL), "driver": {"kind": "sim", "load_mass_kg": 15.3},
+        "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 10.0, "offset_um": 20.0},
+        "limits": {"current_min_A": 0.25, "current_max_A": 2.5, "safe_current_A": 0.25, "slew_A_per_s": 500.0},
+        "telemetry": {"path": None}, "monitor": {"state_dir": str(tmp_path / "state")}}))
+    cfg = load_config(cfg_file)
+    watch = ServiceWatch(cfg, ControllerManager(cfg))
+    assert watch.diagnosis is not None
+    watch.diagnosis.take_window = lambda s: Window(window_recording(), load_model(MODEL))
+    _folder, argv = watch.diagnosis._prepare(1000.0)
+    args = build_parser().parse_args(argv[argv.index("--") + 1:])
+    assert args.command == "diagnose" and args.drive_limits == [0.25, 2.5]
+    assert main(["diagnose", "--model", str(MODEL), "r.csv", "--out", str(tmp_path / "o"),
+                 "--drive-limits", "2.5", "0.25"]) == 2
+    err = capsys.readouterr().err
+    assert "--drive-limits needs LO < HI, got 2.5 0.25" in err and len(err.strip().splitlines()) == 1

@@ -105,6 +105,23 @@ def test_demo_end_to_end_progress_on_terminal(tmp_path):
     stresses = sorted(float(np.median(read_recording(p).stress_MPa)) for p in recs)
     assert np.allclose(stresses, [-24.0, -19.1, -15.2, -11.3], atol=0.5), stresses  # stroke moves it a little
     assert not list(out_dir.rglob(".*.tmp"))                   # atomic writes left nothing behind
+    assert not list(out_dir.rglob("*.lock"))                   # nor the telemetry's locks, once each run ended
+    check_provenance(out_dir, recs)
+
+
+def check_provenance(out_dir: Path, recs: list[Path]) -> None:
+    """Each model records its identification files as `gma-ffc identify` does (name, size, SHA-256),
+    so `diagnose --ident` can check it is given them: the demo's recorded none."""
+    from gma_ffc.diagnose.identification import split_by_record
+    from gma_ffc.recordings import fingerprint
+
+    prints = [fingerprint(p) for p in recs]
+    for name, expected in (("sdpi", recs), ("mpi", [p for p in recs if "11.3" in p.name])):
+        model = load_model(out_dir / "models" / f"{name}.yaml")
+        files = model.provenance.get("identification_files")
+        assert files == [fingerprint(p) for p in expected] and len(expected) == (4 if name == "sdpi" else 1), files
+        own, rest = split_by_record(model, [str(p) for p in recs], prints)
+        assert sorted(recs[k] for k in own) == sorted(expected) and len(own) + len(rest) == 4
 
 
 def test_demo_quiet_when_piped_other_seed_and_default_folder(tmp_path):

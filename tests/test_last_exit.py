@@ -102,3 +102,41 @@ def test_nothing_recorded_is_the_old_answer(rig, capsys):
     _, runtime = rig
     code, _, err = status_cli(runtime, capsys)
     assert code == 1 and "no controller running" in err and "last run" not in err
+
+
+def stop_cli(runtime: RuntimePaths, capsys, monkeypatch) -> str:
+    """`gma-ffc stop`'s line for a run that already ended in-process (the stop itself stubbed: it
+    would wait for this very process to end)."""
+    from gma_ffc.service import daemon
+
+    pid = last_exit.read(runtime)["pid"]
+    monkeypatch.setattr(daemon, "stop", lambda runtime, timeout_s: daemon.Stopped(pid, "stopped on request", None))
+    assert main(["stop", "--runtime-dir", str(runtime.directory)]) == 0
+    return capsys.readouterr().out
+
+
+@pytest.mark.parametrize("duration_s,saved", [(4.0, True), (0.3, False)])
+def test_stop_says_where_the_learned_correction_was_saved_or_why_not(rig, capsys, monkeypatch, duration_s, saved):
+    """`stop` said nothing of learning: whether the correction went to learning.file was only in the log."""
+    tmp, runtime = rig
+    learned = tmp / "learned.yaml"
+    cfg = tmp / "cfg.yaml"
+    cfg.write_text(cfg.read_text() + f"learning: {{kind: repetitive, file: {learned}}}\n")
+    svc = Service(cfg, runtime=runtime, install_signal_handlers=False, duration_s=duration_s,
+                  load_config=load_config, make_controller=ControllerManager)
+    assert svc.run() == 0
+    out = stop_cli(runtime, capsys, monkeypatch)
+    assert learned.exists() is saved and len(out.strip().splitlines()) == 1
+    if saved:
+        assert f"learned correction saved to {learned}" in out, out
+    else:
+        assert f"learned correction NOT saved to {learned}: no correction measured better than feedforward" in out, out
+
+
+def test_stop_says_nothing_of_learning_for_a_run_without_it(rig, capsys, monkeypatch):
+    tmp, runtime = rig
+    svc = Service(tmp / "cfg.yaml", runtime=runtime, install_signal_handlers=False, duration_s=0.3,
+                  load_config=load_config, make_controller=ControllerManager)
+    assert svc.run() == 0
+    out = stop_cli(runtime, capsys, monkeypatch)
+    assert out.startswith("stopped on request (pid") and "learn" not in out

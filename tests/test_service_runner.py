@@ -346,6 +346,82 @@ def test_second_service_on_same_socket_is_refused(tmp_path, cfg_file):
         thread.join(10)
 
 
+def test_a_controller_still_starting_is_named_by_its_pid_not_pid_question_mark(tmp_path, cfg_file):
+    """Between its socket and its pid file (the model is being built) a controller answers, but a
+    second `start` or `run` read the missing pid file and named it "pid ?"."""
+    from gma_ffc.service import daemon
+    from gma_ffc.service.control_plane import ControlPlane
+
+    runtime = RuntimePaths(tmp_path / "rt")
+    ensure_private_dir(runtime.directory)
+    plane = ControlPlane(runtime.socket, lambda request: {"ok": True}).start()
+    try:
+        assert not runtime.pid_file.exists()                      # as while the first one starts
+        second = make_service(cfg_file, runtime=runtime, install_signal_handlers=False)
+        with pytest.raises(FaultError) as refused:
+            second.run()
+        with pytest.raises(FaultError) as started:
+            daemon.start(cfg_file, runtime, timeout_s=5.0)
+        for exc in (refused.value, started.value):
+            assert f"already running (pid {os.getpid()}," in str(exc) and "pid ?" not in str(exc)
+            assert f"'gma-ffc stop --runtime-dir {runtime.directory}'" in str(exc)
+        assert not second.made and control_socket.is_answering(runtime.socket)
+    finally:
+        plane.close()
+
+
+def test_a_controller_whose_pid_cannot_be_told_is_said_to_be_starting(tmp_path):
+    """An answer without a pid and no pid file: the refusal says what is going on and what to do."""
+    runtime = RuntimePaths(tmp_path / "rt")
+    ensure_private_dir(runtime.directory)
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    server.bind(str(runtime.socket))
+    server.listen(1)
+
+    def answer() -> None:
+        conn, _ = server.accept()
+        conn.recv(4096)
+        conn.sendall(b'{"ok": true}\n')
+        conn.close()
+
+    threading.Thread(target=answer, daemon=True).start()
+    try:
+        with pytest.raises(FaultError) as refused:
+            control_socket.refuse_if_running(runtime)
+    finally:
+        server.close()
+    text = str(refused.value)
+    assert "pid ?" not in text and f"another controller is starting in {runtime.directory}" in text
+    assert f"'gma-ffc status --runtime-dir {runtime.directory}'" in text and "another --runtime-dir" in text
+
+
+def test_two_controllers_starting_at_once_one_runs_the_other_names_it(tmp_path, cfg_file, monkeypatch):
+    """Both looked at the socket before either bound it: both ran, the second's socket replacing
+    the first's. The look and the bind are now one step (the runtime folder's claim lock)."""
+    from gma_ffc.service import runner
+
+    look = runner.refuse_if_running
+
+    def slow_look(*args):           # the window between the look and the bind, made wide
+        look(*args)
+        time.sleep(0.5)
+
+    monkeypatch.setattr(runner, "refuse_if_running", slow_look)
+    runtime = RuntimePaths(tmp_path / "rt")
+    services = [make_service(cfg_file, runtime=runtime, install_signal_handlers=False) for _ in range(2)]
+    runs = [run_in_thread(svc) for svc in services]
+    try:
+        assert wait_for(lambda: any(out for _, out in runs) or all(svc.made for svc in services), 20)
+        assert wait_for(lambda: any(out for _, out in runs), 5), "both controllers ran"
+        errors = [out.get("error") for _, out in runs if out.get("error")]
+        assert len(errors) == 1 and "already running (pid" in str(errors[0])
+        assert sum(1 for svc in services if svc.made) == 1
+    finally:
+        for (thread, _), svc in zip(runs, services):
+            svc.request_stop("teardown")
+            thread.join(10)
+
+
 def test_runtime_dir_and_socket_are_owner_only(tmp_path, cfg_file):
     runtime = RuntimePaths(tmp_path / "rt")
     runtime.directory.mkdir(mode=0o755)

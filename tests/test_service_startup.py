@@ -140,6 +140,30 @@ def test_a_read_only_telemetry_folder_is_refused_before_the_driver_opens(tmp_pat
     one_line_exit_2(out, str(read_only_folder / "tel.csv"), "read-only", "choose another telemetry.path")
 
 
+def test_a_read_only_monitor_state_dir_is_refused_at_start_while_diagnoses_are_on(tmp_path, read_only_folder):
+    """It was found only when the first background diagnosis started, maybe hours into the run."""
+    state = read_only_folder / "state"
+    cfg = sim_config(tmp_path, monitor={"on_drift": "diagnose", "state_dir": str(state)})
+    out = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2", cwd=tmp_path)
+    one_line_exit_2(out, "config key 'monitor.state_dir'", str(read_only_folder), "monitor.on_drift: warn")
+    assert not (tmp_path / "tel").exists()                 # refused before the run
+    warn = sim_config(tmp_path, monitor={"on_drift": "warn", "state_dir": str(state)})    # the advice works
+    follow = gma_ffc("run", "--config", str(warn), "--no-socket", "--duration", "0.2", cwd=tmp_path)
+    assert follow.returncode == 0, follow.stderr
+
+
+def test_a_monitor_state_dir_under_a_file_is_refused_at_start_and_another_folder_runs(tmp_path):
+    (tmp_path / "a_file").write_text("not a folder\n")
+    cfg = sim_config(tmp_path, monitor={"state_dir": str(tmp_path / "a_file" / "state")})
+    out = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2", cwd=tmp_path)
+    one_line_exit_2(out, "config key 'monitor.state_dir'", f"{tmp_path / 'a_file'} is a file, not a folder",
+                    "set monitor.state_dir to a folder this user may write")
+    cfg = sim_config(tmp_path, monitor={"state_dir": str(tmp_path / "state")})
+    follow = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2", cwd=tmp_path)
+    assert follow.returncode == 0, follow.stderr
+    assert not (tmp_path / "state").exists()               # the check made nothing
+
+
 def test_stats_json_on_the_telemetry_file_is_refused_before_the_run(tmp_path):
     cfg = sim_config(tmp_path)
     out = gma_ffc("run", "--config", str(cfg), "--no-socket", "--duration", "0.2",

@@ -126,6 +126,8 @@ def run_demo(out: Path, seed: int = 0, progress: Any = None) -> list[TrackingRes
     recordings = [read_recording(p) for p in rec_paths]
     step("recorded identification data")
     sdpi, mpi = _identify(recordings)
+    for model in (sdpi, mpi):           # its files, as `gma-ffc identify` records them (`diagnose --ident`)
+        _record_files(model, rec_paths, recordings)
     save_model(sdpi, out / "models" / "sdpi.yaml")
     save_model(mpi, out / "models" / "mpi.yaml")
     step("identified SDPI and MPI")
@@ -163,6 +165,39 @@ def _identify(recordings: Sequence[Recording]) -> tuple[SDPIModel, SDPIModel]:
     return sdpi, mpi
 
 
+def _record_files(model: Model, paths: Sequence[Path], recordings: Sequence[Recording]) -> None:
+    """The identification files a model was fitted on (those its provenance names), recorded as
+    `gma-ffc identify` records them: the demo's models recorded none, so `diagnose --ident` could
+    not check it was given the same files."""
+    from .identify import record_identification_files
+
+    fitted = set(model.provenance.get("recordings") or ())
+    record_identification_files(model, [p for p, rec in zip(paths, recordings) if rec.name in fitted])
+
+
+def _remove_lock(telemetry: Path) -> None:
+    """The telemetry's lock file (`control.telemetry.TelemetryLock`), once its run has ended: the
+    demo's runs are its own and over, so it leaves no `.lock` behind. Taken first, so a lock another
+    process holds (a user rerunning the config meanwhile) is left alone."""
+    import contextlib
+    import fcntl
+    import os
+
+    lock = telemetry.with_name(telemetry.name + ".lock")
+    try:
+        fd = os.open(lock, os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with contextlib.suppress(FileNotFoundError):
+            lock.unlink()
+    except BlockingIOError:
+        pass
+    finally:
+        os.close(fd)
+
+
 def _track(out: Path, name: str, stress: float, seed: int) -> TrackingResult:
     """Write a runnable config, load it as `gma-ffc run` would, and run the real controller loop."""
     import yaml
@@ -195,7 +230,10 @@ def _track(out: Path, name: str, stress: float, seed: int) -> TrackingResult:
         fh.write(f"# gma-ffc demo: {name.upper()} feedforward at {stress:g} MPa on the simulated rig.\n"
                  f"# Rerun: gma-ffc run --config {cfg_path.name} --duration {track_s:g}\n")
         yaml.safe_dump(config, fh, sort_keys=False)
-    summary = ControllerManager(load_config(cfg_path)).run(duration_s=track_s)
+    try:
+        summary = ControllerManager(load_config(cfg_path)).run(duration_s=track_s)
+    finally:
+        _remove_lock(out / "telemetry" / f"track_{tag}.csv")
     if not summary.get("ok", True):
         raise FaultError(f"the {name.upper()} run at {stress:g} MPa ended on a fault: "
                          f"{', '.join(summary.get('faults', [])) or summary.get('exit_reason')}")

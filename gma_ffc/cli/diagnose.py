@@ -8,8 +8,8 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ._common import (add_group_option, add_initial_state_option, check_drive_name, check_initial_drive, note_gaps,
-                      refuse_repeats, refuse_same_rows)
+from ._common import (add_group_option, add_initial_state_option, check_drive_name, check_initial_drive,
+                      finite_float, note_gaps, refuse_repeats, refuse_same_rows)
 
 HELP = """\
 Compare a model with recordings, locate where they differ (time windows, frequency bands, drive
@@ -45,6 +45,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="folder for diagnosis.json, report.html, extended_model.yaml (-o as in the other commands)")
     p.add_argument("--max-effects", type=int, default=3, metavar="N",
                    help="at most this many effects are named (default 3)")
+    p.add_argument("--drive-limits", nargs=2, type=finite_float, metavar=("LO", "HI"),
+                   help="the drive the rig's controller allows (its limits.current_min_A and current_max_A): "
+                        "advice on what to record stays within it, e.g. --drive-limits 0 3")
     add_initial_state_option(p)
     add_group_option(p)
     p.set_defaults(func=run)
@@ -60,6 +63,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.max_effects < 1:
         raise InputError(f"--max-effects must be at least 1, got {args.max_effects}")
+    if args.drive_limits and args.drive_limits[0] >= args.drive_limits[1]:
+        raise InputError(f"--drive-limits needs LO < HI, got {args.drive_limits[0]:g} {args.drive_limits[1]:g}")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out} exists and is not a folder")
@@ -83,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     note_gaps(recs)
     with Progress("diagnose") as prog:
         dg = diagnose(model, recs, max_effects=args.max_effects, progress=lambda msg: prog.advance(note=msg),
-                      initial_state=args.initial_state, identification=ident, fingerprints=fingerprints)
+                      initial_state=args.initial_state, identification=ident, fingerprints=fingerprints,
+                      drive_limits=tuple(args.drive_limits) if args.drive_limits else None)
         prog.advance(note="writing report")
         doc = write_outputs(dg, out)
     words = {"within_noise": "the model explains the recordings within their noise",

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
+from typing import Any, Sequence
 
 from ..errors import InputError
 from ..modelio import save_model
@@ -88,9 +90,16 @@ def _check_outputs(args: argparse.Namespace) -> None:
         check_folder_writable(Path(args.plot).parent, args.plot)
 
 
+def record_identification_files(model: Any, paths: Sequence[str | os.PathLike]) -> None:
+    """Each identification file as it was read (name, size, SHA-256) in the model's provenance, so
+    `diagnose --ident` can check it is given the same ones. `identify` and the demo both write it."""
+    from ..recordings import fingerprint
+
+    model.provenance["identification_files"] = [fingerprint(p) for p in paths]
+
+
 def run(args: argparse.Namespace) -> int:
     from ..identify import SDPIIdentifier
-    from ..recordings import fingerprint
 
     _check_outputs(args)
     refuse_repeats(args.recordings)
@@ -106,8 +115,7 @@ def run(args: argparse.Namespace) -> int:
                                progress=lambda stage: prog.advance(note=stage))
         ident.fit(recs)
     model = ident.model_
-    # each identification file as it was read, so `diagnose --ident` can check it is given the same ones
-    model.provenance["identification_files"] = [fingerprint(p) for p in args.recordings]
+    record_identification_files(model, args.recordings)
     if args.plot:
         from ..plots import plot_loops
 

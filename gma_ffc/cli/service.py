@@ -93,7 +93,8 @@ def _stop(args: argparse.Namespace) -> int:
     if record and record.get("pid") == result.pid and record.get("how") != "running":
         # how the run itself ended: the faults still active at its end, and the safe current
         faults = list(record.get("faults") or {})
-        tail = f"; {last_exit.safe_words(record)}"
+        learned = last_exit.learned_words(record)
+        tail = f"; {last_exit.safe_words(record)}" + (f"; {learned}" if learned else "")
     else:                                       # no record of this run: the status just before the stop
         faults, tail = faults_of(result.final_status or {}), ""
     print(f"{result.how} (pid {result.pid or '?'})"

@@ -44,14 +44,23 @@ def save_learned(learner: RepetitiveLearner, path: str, output_dirs: tuple[str, 
 
 def save_if_learned(learner: RepetitiveLearner | None, path: str | None, output_dirs: tuple[str, ...] = ()) -> str:
     """At the end of a run: keep the best correction for the next one, and only one measured better
-    than feedforward (the learner's events say when there was none). Returns '' or what went wrong."""
-    if learner is None or path is None:
+    than feedforward (the learner's events say when there was none). The outcome is the learner's
+    `saved` (the last-exit record keeps it for `gma-ffc stop`). Returns '' or what went wrong."""
+    if learner is None:
+        return ""
+    if path is None:
+        learner.saved = {"file": None, "saved": False, "why": "no learning.file (or --learned) to save it to"}
         return ""
     if not learner.saveable:
-        learner.note(math.nan, f"not saved to {path}: no correction measured better than feedforward")
+        why = "no correction measured better than feedforward"
+        learner.saved = {"file": path, "saved": False, "why": why}
+        learner.note(math.nan, f"not saved to {path}: {why}")
         return ""
     try:
         save_learned(learner, path, output_dirs)
     except (OSError, GmaError) as exc:
+        learner.saved = {"file": path, "saved": False, "why": f"the save failed: {exc}"}
         return f"could not save the learned correction to {path}: {exc}"
+    learner.saved = {"file": path, "saved": True}
+    learner.note(math.nan, f"saved to {path}")
     return ""

@@ -177,6 +177,8 @@ class RepetitiveLearner:
     model); it is evaluated once per period, never in a tick.
     """
 
+    saved: dict[str, Any] | None = None     # the end of run's save, once made (`learned_file.save_if_learned`)
+
     def __init__(self, cfg: LearningConfig, rate_hz: float, period_s: float,
                  gain_of_stress: Any = None, fingerprint: str = "") -> None:
         if not cfg.enabled:
@@ -492,7 +494,7 @@ class RepetitiveLearner:
                             "where": limit_spans(limited, self._ref)},
                 "limited_share_trend": [round(float(v), 4) for v in self.trend_limited if v == v][-10:],
                 "reference_beyond_limits": self.reference_limits,
-                "last_event": self.last_event or None, "events": list(self.events)}
+                "last_event": self.last_event or None, "events": list(self.events), "saved": self.saved}
 
     def to_dict(self) -> dict[str, Any]:
         """The best correction measured (never one that was worse than feedforward)."""

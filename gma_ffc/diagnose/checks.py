@@ -11,7 +11,7 @@ from ..errors import InputError
 from ..model import stress_sign_advice
 from ..recordings import Recording
 from ..sensor_holds import held_notes
-from .data import N_BLOCKS, RecData, unscored_note
+from .data import N_BLOCKS, RecData, advised_range, unscored_note
 from .locate import LEAST_WINDOW
 
 MIN_REVERSALS = 2 * N_BLOCKS   # drive turning points in all: on average a full drive cycle per time block, or a
@@ -44,9 +44,10 @@ def check_recordings(recordings: Sequence[Recording], min_samples: int) -> None:
 
 
 def check_overlap(model: Any, recordings: Sequence[Recording], margin: float = 0.02,
-                  min_overlap: float = 0.05) -> None:
+                  min_overlap: float = 0.05, drive_limits: tuple[float, float] | None = None) -> None:
     """Refuse recordings of which less than `min_overlap` of the samples lie inside the model's drive
-    (or stress) range, widened by `margin` of it (`EffectSelector` documents both)."""
+    (or stress) range, widened by `margin` of it (`EffectSelector` documents both). The advice asks
+    for no drive beyond `drive_limits` (the controller's, when given)."""
     lo, hi = model.drive_range
     srange = model.stress_range_MPa
     drive_overlap = []
@@ -60,9 +61,12 @@ def check_overlap(model: Any, recordings: Sequence[Recording], margin: float = 0
             tol = margin * max(srange[1] - srange[0], 1.0)
             stress_overlap.append(float(np.mean((s >= srange[0] - tol) & (s <= srange[1] + tol))))
     if max(drive_overlap) < min_overlap:
+        a, b, held = advised_range((lo, hi), drive_limits, drive_unit(model.drive_name))
+        advice = (f"record inside {a:.3g}..{b:.3g}{held}, or identify a model from recordings covering these "
+                  "drives" if a < b else held)
         raise InputError(
             f"cannot conclude anything: the recordings' drive never enters the range the model was identified on "
-            f"({lo:.3g}..{hi:.3g}); record inside that range, or identify a model from recordings covering these drives")
+            f"({lo:.3g}..{hi:.3g}); {advice}")
     if stress_overlap and max(stress_overlap) < min_overlap:
         stress = np.concatenate([r.stress_MPa for r in recordings if r.stress_MPa is not None])
         raise InputError(

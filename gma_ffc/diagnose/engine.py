@@ -18,10 +18,12 @@ __all__ = ["OUTCOMES", "Candidate", "Diagnosis", "EffectSelector", "diagnose"]
 def diagnose(model: Any, recordings: Sequence[Recording], max_effects: int = 3,
              progress: Callable[[str], None] | None = None, initial_state: Any = "estimate",
              identification: Sequence[Recording] = (),
-             fingerprints: Sequence[Mapping[str, Any]] | None = None) -> Diagnosis:
+             fingerprints: Sequence[Mapping[str, Any]] | None = None,
+             drive_limits: tuple[float, float] | None = None) -> Diagnosis:
     """Run the whole diagnosis (no I/O) with the default thresholds. `identification`: the
     recordings the model was identified on (checked against its record: by their files'
-    `fingerprints` when given, else by name)."""
-    selector = EffectSelector(max_effects=max_effects, initial_state=initial_state)
+    `fingerprints` when given, else by name). `drive_limits`: the drive the rig's controller
+    allows, which no advice on what to record goes beyond."""
+    selector = EffectSelector(max_effects=max_effects, initial_state=initial_state, drive_limits=drive_limits)
     return selector.fit(model, recordings, progress, identification=identification,
                         fingerprints=fingerprints).diagnosis_

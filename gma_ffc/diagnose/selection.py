@@ -141,6 +141,9 @@ class EffectSelector:
         The core's hysteresis state at each recording's first sample, by the rule every model run
         shares (`gma_ffc.initial_state`): estimated from the measured displacement by default;
         whatever the rule, nothing before the state has settled is scored.
+    drive_limits (None)
+        (LO, HI): the drive the rig's controller allows (`diagnose --drive-limits`). Advice on what
+        to record asks for no drive beyond it; the model's drive range alone could ask for more.
 
     Attributes after `fit`: `outcome_`, `verdict_`, `tentative_`, `candidates_`, `extended_model_`, the search
     threads it ran (`threads_`) and the whole `diagnosis_` (`gma_ffc.diagnose.results.Diagnosis`, what the report shows).
@@ -153,7 +156,7 @@ class EffectSelector:
                  recalibration_plays: tuple[float, ...] = (0.1, 0.25, 0.45), range_margin: float = 0.02,
                  min_overlap: float = 0.05, clamped_share: float = 0.01, slow_duration_s: float = 20.0,
                  sample_timing_share: float = 0.5, one_frequency_share: float = 0.9, workers: int = 2,
-                 initial_state: Any = "estimate") -> None:
+                 initial_state: Any = "estimate", drive_limits: tuple[float, float] | None = None) -> None:
         self.max_effects = max_effects
         self.min_mse_ratio = min_mse_ratio
         self.min_loglik_gain = min_loglik_gain
@@ -174,6 +177,7 @@ class EffectSelector:
         self.one_frequency_share = one_frequency_share
         self.workers = workers
         self.initial_state = initial_state
+        self.drive_limits = drive_limits
 
     def fit(self, model: Any, recordings: Sequence[Recording], progress: Callable[[str], None] | None = None,
             identification: Sequence[Recording] = (),

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError, FaultError, NoAnswerError, NotRunningError
+from .paths import RuntimePaths
 
 MAX_REQUEST = 4096            # the longest request: {"cmd": "stop", "reason": <a sentence>} is ~100 bytes
 MAX_REPLY = 16 << 20          # a client's bound on a reply (a status is a few kB)
@@ -174,8 +175,32 @@ def ask(path: Path, message: dict[str, Any], timeout_s: float = 5.0) -> dict[str
 
 def is_answering(path: Path, timeout_s: float = 1.0) -> bool:
     """True if a controller answers a ping on `path` (used to tell live sockets from stale ones)."""
+    return who_answers(path, timeout_s)[0]
+
+
+def who_answers(path: Path, timeout_s: float = 1.0) -> tuple[bool, int | None]:
+    """(whether a controller answers a ping on `path`, its pid as its answer gives it). The pid
+    comes from the socket's process, which knows it from the start: a controller still building
+    its model has written no pid file yet (a second `start` then named it "pid ?")."""
     try:
-        request(path, {"cmd": "ping"}, timeout_s)
+        reply = request(path, {"cmd": "ping"}, timeout_s)
     except FaultError:
-        return False
-    return True   # even a refusal means a live controller is there: never take its socket
+        return False, None
+    pid = reply.get("pid")   # even a refusal means a live controller is there: never take its socket
+    return True, pid if isinstance(pid, int) and not isinstance(pid, bool) and pid > 0 else None
+
+
+def refuse_if_running(runtime: RuntimePaths, pid_file_pid: int | None = None) -> None:
+    """FaultError naming the controller that answers in `runtime`, or saying one is starting there
+    when its pid cannot be told (its answer lacks it and it wrote no pid file yet)."""
+    answering, pid = who_answers(runtime.socket)
+    if not answering:
+        return
+    pid = pid or pid_file_pid
+    folder = runtime.directory
+    if pid is not None:
+        raise FaultError(f"a controller is already running (pid {pid}, socket {runtime.socket}); stop it first "
+                         f"with 'gma-ffc stop --runtime-dir {folder}'")
+    raise FaultError(f"another controller is starting in {folder} (its socket {runtime.socket} answers, its pid "
+                     f"is not known yet); wait until 'gma-ffc status --runtime-dir {folder}' shows it, then stop it "
+                     f"with 'gma-ffc stop --runtime-dir {folder}', or give this one another --runtime-dir")

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from .. import safe_files
 from ..errors import FaultError, GmaError, InputError, NoAnswerError
-from .control_socket import ask, check_socket_path, is_answering, request
+from .control_socket import ask, check_socket_path, refuse_if_running, request
 from .paths import RuntimePaths, ensure_private_dir
 
 POLL_S = 0.05
@@ -73,9 +73,7 @@ def start(config: Path, runtime: RuntimePaths, *, duration_s: float | None = Non
     config = Path(config)
     check_config_file(config)
     ensure_private_dir(runtime.directory)
-    if is_answering(runtime.socket):
-        raise FaultError(f"a controller is already running (pid {read_pid(runtime.pid_file) or '?'}, "
-                         f"socket {runtime.socket}); stop it first with 'gma-ffc stop'")
+    refuse_if_running(runtime, read_pid(runtime.pid_file))
     notify_path = runtime.directory.absolute() / f"start-{os.getpid()}.notify"
     check_socket_path(notify_path)
     with contextlib.suppress(FileNotFoundError):

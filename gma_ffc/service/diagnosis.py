@@ -18,6 +18,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,13 +59,40 @@ def default_state_dir(environ: dict[str, str] | None = None) -> Path:
     return Path.home() / ".local" / "state" / "gma-ffc"
 
 
+def check_state_dir(monitor_cfg: dict[str, Any] | None) -> None:
+    """With background diagnoses on, refuse at start a state folder they could not be written in
+    (read-only, not this user's, a file in the way): it was found only when the first diagnosis
+    started, maybe hours into the run. Probes with an empty file, as `atomic.check_folder_writable`."""
+    from ..atomic import nearest_existing
+    from ..errors import ConfigError
+
+    cfg = monitor_cfg or {}
+    if not (cfg.get("enabled") and cfg.get("on_drift") == "diagnose" and cfg.get("max_per_hour", 0) > 0):
+        return
+    folder = Path(cfg["state_dir"]) if cfg.get("state_dir") else default_state_dir()
+    existing = nearest_existing(folder / "diagnoses")
+    try:
+        if not existing.is_dir():
+            raise NotADirectoryError(0, f"{existing} is a file, not a folder")
+        fd, probe = tempfile.mkstemp(prefix=".gma-ffc-probe.", suffix=".tmp", dir=existing)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        unset = "" if cfg.get("state_dir") else f" (not set: the default {folder})"
+        raise ConfigError(f"config key 'monitor.state_dir'{unset}: cannot write in {existing}: "
+                          f"{exc.strerror or exc}; background diagnoses (monitor.on_drift: diagnose) are written "
+                          f"in {folder}: set monitor.state_dir to a folder this user may write, or monitor.on_drift: "
+                          "warn") from None
+
+
 class BackgroundDiagnosis:
     """Starts, watches and reports the diagnosis child; see the module doc."""
 
     def __init__(self, monitor_cfg: dict[str, Any], take_window: Callable[[float], Window], *,
                  python: str = sys.executable, now: Callable[[], float] = time.time,
-                 output_dirs: tuple[str, ...] = ()) -> None:
+                 output_dirs: tuple[str, ...] = (), drive_limits: tuple[float, float] | None = None) -> None:
         self.cfg = monitor_cfg
+        self.drive_limits = drive_limits        # the controller's: the advice asks for no drive beyond them
         self.output_dirs = output_dirs          # the config's: a diagnosis writes only inside them
         self.take_window = take_window
         self.python = python
@@ -134,6 +162,8 @@ class BackgroundDiagnosis:
         save_model(model, folder / "model.yaml")
         argv = [self.python, "-m", "gma_ffc.service.diagnose_child", str(os.getpid()), "--", "diagnose",
                 "--model", str(folder / "model.yaml"), str(folder / "window.csv"), "--out", str(folder)]
+        if self.drive_limits is not None:
+            argv += ["--drive-limits", *(repr(float(v)) for v in self.drive_limits)]
         return folder, argv
 
     def _finished(self, code: int) -> None:

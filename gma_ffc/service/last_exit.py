@@ -44,7 +44,8 @@ def ended(config: str, started_unix: float, final: Mapping[str, Any], how: str, 
     return {"how": how, "pid": os.getpid(), "config": config, "started_unix": started_unix,
             "ended_unix": time.time(), "state": final.get("state"), "reason": reason,
             "exit_reason": final.get("exit_reason") or None, "faults": dict(final.get("fault_messages") or {}),
-            "safe_current_written": final.get("at_safe_current"), "safe_current_A": final.get("safe_current_A")}
+            "safe_current_written": final.get("at_safe_current"), "safe_current_A": final.get("safe_current_A"),
+            "learned": (final.get("learning") or {}).get("saved")}
 
 
 def read(runtime: RuntimePaths) -> dict[str, Any] | None:
@@ -79,6 +80,17 @@ def safe_words(record: Mapping[str, Any]) -> str:
     if written is None:
         return "whether the safe current was written is unknown"
     return f"safe current{at} written" if written else f"the safe current{at} was NOT confirmed written: check the amplifier"
+
+
+def learned_words(record: Mapping[str, Any]) -> str:
+    """Where the run's learned correction went ('' when the run did not learn)."""
+    saved = record.get("learned")
+    if not isinstance(saved, Mapping):
+        return ""
+    if saved.get("saved"):
+        return f"learned correction saved to {saved.get('file')}"
+    where = f" to {saved['file']}" if saved.get("file") else ""
+    return f"learned correction NOT saved{where}: {saved.get('why') or 'unknown why'}"
 
 
 def _stamp(unix: Any) -> str:

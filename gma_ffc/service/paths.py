@@ -9,6 +9,8 @@ finds it without options), $XDG_RUNTIME_DIR/gma-ffc, /run/gma-ffc for root, /tmp
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
 import stat
 from dataclasses import dataclass
@@ -19,6 +21,7 @@ from ..errors import ConfigError
 SOCKET_NAME = "control.sock"
 PID_NAME = "gma-ffc.pid"
 LOG_NAME = "gma-ffc.log"
+CLAIM_NAME = "claim.lock"      # held while a starting controller checks the socket and binds it
 SYSTEM_RUNTIME_DIR = "/run/gma-ffc"   # RuntimeDirectory= of config/systemd/gma-ffc.service
 
 
@@ -39,6 +42,10 @@ class RuntimePaths:
     @property
     def log_file(self) -> Path:
         return self.directory / LOG_NAME
+
+    @property
+    def claim_file(self) -> Path:
+        return self.directory / CLAIM_NAME
 
 
 def default_runtime_dir(environ: dict[str, str] | None = None) -> Path:
@@ -81,3 +88,16 @@ def ensure_private_dir(path: Path) -> None:
                           f"(uid {os.geteuid()}); pass --runtime-dir with a directory of your own")
     if stat.S_IMODE(info.st_mode) != 0o700:
         os.chmod(path, 0o700)
+
+
+@contextlib.contextmanager
+def claim_lock(runtime: RuntimePaths):
+    """Held from a controller's look at the socket to its bind: two starting at once each saw
+    nobody answering, and the second's bind replaced the first's socket (two loops, one
+    unreachable). The second now waits here, then finds the first answering."""
+    fd = os.open(runtime.claim_file, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)          # closing releases the flock

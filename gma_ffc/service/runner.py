@@ -26,10 +26,11 @@ from .. import safe_files
 from ..errors import FaultError, GmaError
 from . import last_exit
 from .control_plane import ControlPlane
-from .control_socket import is_answering, jsonable
+from .control_socket import jsonable, refuse_if_running
+from .diagnosis import check_state_dir
 from .notify import Notifier
 from .outputs import check_outputs, inputs_of, outputs_of
-from .paths import RuntimePaths, ensure_private_dir
+from .paths import RuntimePaths, claim_lock, ensure_private_dir
 from .status import faults_of, progress_count, status_line
 from .watch import ModelOverride, ServiceWatch
 
@@ -311,11 +312,9 @@ class Service:
         """The private directory and the socket (nobody else's controller answers there); the
         socket's process starts now and answers 'starting' until `_open_runtime`."""
         ensure_private_dir(runtime.directory)
-        if is_answering(runtime.socket):
-            pid = _read_pid(runtime.pid_file)
-            raise FaultError(f"a controller is already running (pid {pid or '?'}, socket "
-                             f"{runtime.socket}); stop it first with 'gma-ffc stop'")
-        self._plane = ControlPlane(runtime.socket, self.handle_request).start(wait=False)
+        with claim_lock(runtime):
+            refuse_if_running(runtime, _read_pid(runtime.pid_file))
+            self._plane = ControlPlane(runtime.socket, self.handle_request).start(wait=False)
 
     def _open_runtime(self, runtime: RuntimePaths) -> None:
         assert self._plane is not None
@@ -364,9 +363,10 @@ class Service:
     def _check_outputs(self, cfg: Any) -> None:
         """Refuse, before anything starts, a file this run would write unsafely: through a link,
         outside the config's output_dirs, over a file that is not ours or one the run reads, into
-        a folder that takes no new file, or two outputs on one file (one line naming what the user
-        set, exit 2)."""
+        a folder that takes no new file, or two outputs on one file; and a state folder background
+        diagnoses could not write in (one line naming what the user set, exit 2)."""
         check_outputs(outputs_of(cfg, str(self.config_path), self.stats_json), inputs_of(cfg))
+        check_state_dir(getattr(cfg, "monitor", None))
 
     def _install_handlers(self) -> dict[int, Any]:
         def on_stop(signum: int, _frame: Any) -> None:

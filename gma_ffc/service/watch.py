@@ -24,7 +24,8 @@ class ServiceWatch:
         self.diagnosis: BackgroundDiagnosis | None = None
         monitor = getattr(cfg, "monitor", None)
         if monitor and monitor.get("enabled") and self.part is not None:
-            self.diagnosis = BackgroundDiagnosis(monitor, self._window, output_dirs=tuple(getattr(cfg, "output_dirs", ())))
+            self.diagnosis = BackgroundDiagnosis(monitor, self._window, output_dirs=tuple(getattr(cfg, "output_dirs", ())),
+                                                 drive_limits=drive_limits(cfg))
         metrics = getattr(cfg, "metrics", None)
         self.metrics = MetricsServer(self.last_snapshot, metrics["host"], metrics["port"]) if metrics else None
         self.metrics_address: tuple[str, int] | None = None
@@ -56,6 +57,7 @@ class ServiceWatch:
         """A reload went through: the diagnosis follows the new monitor settings."""
         if self.diagnosis is not None and getattr(cfg, "monitor", None):
             self.diagnosis.cfg = cfg.monitor
+            self.diagnosis.drive_limits = drive_limits(cfg)
 
     def status(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -70,6 +72,15 @@ class ServiceWatch:
             self.diagnosis.close()
         if self.metrics is not None:
             self.metrics.close()
+
+
+def drive_limits(cfg: Any) -> tuple[float, float] | None:
+    """The controller's current limits, which a diagnosis's advice keeps within (None: none known)."""
+    limits = getattr(cfg, "limits", None) or {}
+    try:
+        return float(limits["current_min_A"]), float(limits["current_max_A"])
+    except (KeyError, TypeError, ValueError):
+        return None
 
 
 def _model_monitor(controller: Any) -> Any:
