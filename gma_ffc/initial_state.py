@@ -202,9 +202,8 @@ CLIMBS = 16                  # hill-climbs on the turning points of the best ran
 STARTS = 4                   # best starts the local search descends from
 SCALAR_XTOL = 1e-3           # Brent's bracket, as a fraction of two grid steps (the joint polish finishes)
 PAIR_GRID = 9                # points a side of the pairs' joint scan (the descents after it place the plays)
-PAIR_STARTS = 4              # pairs descended from after each scan: the best move alone depends on the grid's luck
+PAIR_STARTS = 4              # pairs descended from after the scan: the best move alone depends on the grid's luck
 PAIR_ROWS = 64               # rows the scan scores at most (every k-th; the descents score all): short windows keep all
-ESCAPES = 3                  # pair moves tried one after another, each followed by a descent
 NEGLIGIBLE = 1e-6            # a play whose box moves the play sum by less than this share is not fitted
 
 
@@ -276,7 +275,7 @@ def _escape_by_pairs(p: np.ndarray, best_cost: float, lo: np.ndarray, hi: np.nda
     of the stroke off, the cost rising by 10 % on the straight line to the truth before it fell).
     Each pair of placeable plays is scanned jointly on a grid over their boxes, the rest held; the
     PAIR_STARTS pairs whose best move beats the state most are descended from, and the best
-    descent kept. Up to ESCAPES times, while it improves."""
+    descent kept if it beats the state."""
     free = np.flatnonzero(_movable(w_h, lo, hi))
     if free.size < 2:
         return best_cost, p
@@ -284,22 +283,15 @@ def _escape_by_pairs(p: np.ndarray, best_cost: float, lo: np.ndarray, hi: np.nda
     g = np.linspace(0.0, 1.0, PAIR_GRID)
     gi, gj = (np.tile(a.ravel(), i.size) for a in np.meshgrid(g, g, indexing="ij"))
     pair = np.repeat(np.arange(i.size), PAIR_GRID ** 2)
-    at = np.arange(pair.size)
-    rows = slice(None, None, max(1, n_rows // PAIR_ROWS))
-    for _ in range(ESCAPES):
-        moves = np.repeat(p[None, :], pair.size, axis=0)
-        moves[at, i[pair]] = lo[i[pair]] + gi * (hi - lo)[i[pair]]
-        moves[at, j[pair]] = lo[j[pair]] + gj * (hi - lo)[j[pair]]
-        per_pair = costs(moves, rows).reshape(i.size, -1)
-        best_move = np.argmin(per_pair, axis=1)
-        tried = np.argsort(per_pair[np.arange(i.size), best_move], kind="stable")[:PAIR_STARTS]
-        starts = moves[tried * PAIR_GRID ** 2 + best_move[tried]]
-        found = [descend(q, c) for q, c in zip(starts, costs(starts))]
-        cost, q = min(found, key=lambda f: f[0])
-        if cost >= best_cost * (1.0 - 1e-12):
-            break
-        best_cost, p = cost, q
-    return best_cost, p
+    moves = np.repeat(p[None, :], pair.size, axis=0)
+    moves[np.arange(pair.size), i[pair]] = lo[i[pair]] + gi * (hi - lo)[i[pair]]
+    moves[np.arange(pair.size), j[pair]] = lo[j[pair]] + gj * (hi - lo)[j[pair]]
+    per_pair = costs(moves, slice(None, None, max(1, n_rows // PAIR_ROWS))).reshape(i.size, -1)
+    best_move = np.argmin(per_pair, axis=1)
+    tried = np.argsort(per_pair[np.arange(i.size), best_move], kind="stable")[:PAIR_STARTS]
+    starts = moves[tried * PAIR_GRID ** 2 + best_move[tried]]
+    cost, q = min((descend(s, c) for s, c in zip(starts, costs(starts))), key=lambda f: f[0])
+    return (cost, q) if cost < best_cost else (best_cost, p)
 
 
 def _envelopes(model: Any, x: np.ndarray, y: np.ndarray, end: int, max_points: int
