@@ -29,11 +29,17 @@ DEFAULTS = {k: p.default for k, p in inspect.signature(EffectSelector).parameter
 
 
 @pytest.fixture(scope="module")
-def cases():
-    from benchmarks import cases as bench
+def cases(session_folder):
+    """The subset's models and recordings, made once per session and shared by the xdist workers
+    (`session_cache`: each worker that runs a move made all three before, 3 s of CPU each time)."""
+    from session_cache import once_per_session
 
-    by_name = {c.name: c for c in bench.cases()}
-    return {name: bench.make_case(by_name[name], scale=0.5) + (by_name[name].truth,) for name in SUBSET}
+    def make():
+        from benchmarks import cases as bench
+
+        by_name = {c.name: c for c in bench.cases()}
+        return {name: bench.make_case(by_name[name], scale=0.5) + (by_name[name].truth,) for name in SUBSET}
+    return once_per_session(session_folder, "threshold cases", make)
 
 
 @pytest.fixture
