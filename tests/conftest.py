@@ -61,17 +61,25 @@ def session_folder(tmp_path_factory: pytest.TempPathFactory, worker_id: str):
 @pytest.fixture(scope="session")
 def diagnosed(session_folder):
     """diagnosed(case name, scale) -> (model, recording, diagnosis) of a benchmark case, with
-    `diagnose`'s defaults: computed once per session (`session_cache`), a fresh copy for each test."""
-    from session_cache import once_per_session
+    `diagnose`'s defaults: computed once per session (`session_cache`), a fresh copy for each test.
+    Its rounds' searches are the ones test_diagnose_thresholds' moves on the default path make
+    (`session_cache.memoised_score_round`): each is searched once for both."""
+    from session_cache import memoised_score_round, once_per_session
 
     def run(name: str, scale: float = 0.5):
         def compute():
             from benchmarks import cases as bench
+            from gma_ffc.diagnose import selection
             from gma_ffc.diagnose.engine import diagnose
 
             case = {c.name: c for c in bench.cases()}[name]
             model, rec = bench.make_case(case, scale=scale)
-            return model, rec, diagnose(model, [rec])
+            search = selection.score_round
+            selection.score_round = memoised_score_round(session_folder)
+            try:
+                return model, rec, diagnose(model, [rec])
+            finally:
+                selection.score_round = search
         return once_per_session(session_folder, f"diagnosed {name} at {scale!r}", compute)
     return run
 

@@ -28,3 +28,19 @@ def once_per_session(folder: Path, key: str, compute: Callable[[], Any]) -> Any:
             part.write_bytes(pickle.dumps(compute(), protocol=pickle.HIGHEST_PROTOCOL))
             part.replace(path)                           # a reader never sees half a file
         return pickle.loads(path.read_bytes())
+
+
+def memoised_score_round(folder: Path) -> Callable[..., Any]:
+    """`selection.score_round`, its results computed once per session in `folder` and shared by
+    every caller with the same inputs. A round's search is a pure function of the fitter's data and
+    loss, the effects already in the model, the loss without them and the effects tried (the
+    thresholds decide on its results; `huber_k` alone changes its inputs, through the loss's scale
+    `fitter.delta`): test_diagnose_thresholds' moves that take the default path, and the `diagnosed`
+    fixture's diagnoses with the default thresholds of the same cases, search each round once."""
+    from gma_ffc.diagnose import scoring
+
+    def score_round(fitter, base, loss_without, names, rnd, workers):
+        key = (fitter.delta, fitter.y_rows.size, float(fitter.y_rows.sum()), loss_without, repr(base), tuple(names), rnd)
+        return once_per_session(folder / "rounds", repr(key),
+                                lambda: scoring.score_round(fitter, base, loss_without, names, rnd, workers))
+    return score_round

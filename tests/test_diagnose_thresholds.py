@@ -9,7 +9,9 @@ other thresholds decide on its results. So the searches are memoised by those in
 moves: a move that takes the same path as the defaults pays only for its decisions, and one that
 takes another path searches afresh. This keeps the test to a tenth of its cost (14 moves x 3
 diagnoses were 40 % of the suite's time), and what it asserts is unchanged. The memo is on disk, so
-the xdist workers share it: the defaults' path is searched once, not once per worker."""
+the xdist workers share it: the defaults' path is searched once, not once per worker, and the
+`diagnosed` fixture (tests/conftest.py) shares it too: test_diagnose_cases diagnoses the same three
+cases at the same length with the default thresholds, which is the defaults' path itself."""
 
 from __future__ import annotations
 
@@ -27,26 +29,26 @@ DEFAULTS = {k: p.default for k, p in inspect.signature(EffectSelector).parameter
 
 
 @pytest.fixture(scope="module")
-def cases():
-    from benchmarks import cases as bench
+def cases(session_folder):
+    """The subset's models and recordings, made once per session and shared by the xdist workers
+    (`session_cache`: each worker that runs a move made all three before, 3 s of CPU each time)."""
+    from session_cache import once_per_session
 
-    by_name = {c.name: c for c in bench.cases()}
-    return {name: bench.make_case(by_name[name], scale=0.5) + (by_name[name].truth,) for name in SUBSET}
+    def make():
+        from benchmarks import cases as bench
+
+        by_name = {c.name: c for c in bench.cases()}
+        return {name: bench.make_case(by_name[name], scale=0.5) + (by_name[name].truth,) for name in SUBSET}
+    return once_per_session(session_folder, "threshold cases", make)
 
 
 @pytest.fixture
 def memoised_rounds(monkeypatch, session_folder):
-    """The searches, shared by every move on every xdist worker (`session_cache`)."""
-    from session_cache import once_per_session
+    """The searches, shared by every move on every xdist worker, and with the `diagnosed` fixture's
+    diagnoses of the same cases (`session_cache.memoised_score_round`)."""
+    from session_cache import memoised_score_round
 
-    search = selection.score_round
-
-    def score_round(fitter, base, loss_without, names, rnd, workers):
-        key = (fitter.delta, fitter.y_rows.size, float(fitter.y_rows.sum()), loss_without, repr(base), tuple(names), rnd)
-        return once_per_session(session_folder / "threshold_rounds", repr(key),
-                                lambda: search(fitter, base, loss_without, names, rnd, workers))
-
-    monkeypatch.setattr(selection, "score_round", score_round)
+    monkeypatch.setattr(selection, "score_round", memoised_score_round(session_folder))
 
 
 def test_every_threshold_is_a_documented_constructor_argument():

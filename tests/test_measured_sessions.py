@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
+from pathlib import Path
 
 import numpy as np
 import yaml
@@ -18,19 +20,31 @@ from gma_ffc.recordings import read_recording, write_recording
 from measured import yan9a_csv
 
 
+def _fresh(folder: Path) -> Path:
+    """`folder`, empty (a run before it that failed half-way may have left files)."""
+    shutil.rmtree(folder, ignore_errors=True)
+    folder.mkdir(parents=True)
+    return folder
+
+
 @pytest.fixture(scope="module")
-def sessions(tmp_path_factory):
+def sessions(session_folder):
     """The first 20 s of the model run identify the model; its last 20 s are diagnosed, with the
-    first as --ident; the later run is neither's."""
-    folder = tmp_path_factory.mktemp("yan9a")
-    run = read_recording(yan9a_csv("model", folder))
-    half = run.time_s < 20.0
-    write_recording(folder / "ident.csv", run.rows(half, "ident.csv"))
-    write_recording(folder / "diagnosed.csv", run.rows(~half, "diagnosed.csv"))
-    assert main(["identify", str(folder / "ident.csv"), "-o", str(folder / "model.yaml")]) == 0
-    assert main(["diagnose", "--model", str(folder / "model.yaml"), str(folder / "diagnosed.csv"),
-                 "--ident", str(folder / "ident.csv"), "-o", str(folder / "diag")]) == 0
-    return folder, read_recording(yan9a_csv("later", folder))
+    first as --ident; the later run is neither's. Once per session, in the folder the xdist workers
+    share (`session_cache`): a worker that runs one of this file's tests need not diagnose again."""
+    from session_cache import once_per_session
+
+    def make():
+        folder = _fresh(session_folder / "yan9a")
+        run = read_recording(yan9a_csv("model", folder))
+        half = run.time_s < 20.0
+        write_recording(folder / "ident.csv", run.rows(half, "ident.csv"))
+        write_recording(folder / "diagnosed.csv", run.rows(~half, "diagnosed.csv"))
+        assert main(["identify", str(folder / "ident.csv"), "-o", str(folder / "model.yaml")]) == 0
+        assert main(["diagnose", "--model", str(folder / "model.yaml"), str(folder / "diagnosed.csv"),
+                     "--ident", str(folder / "ident.csv"), "-o", str(folder / "diag")]) == 0
+        return folder, read_recording(yan9a_csv("later", folder))
+    return once_per_session(session_folder, "yan9a sessions", make)
 
 
 def test_one_drive_frequency_leaves_the_form_of_a_phase_lag_open(sessions):
@@ -68,14 +82,18 @@ def test_a_later_session_is_predicted_to_within_one_percent_of_its_stroke_of_the
 
 
 @pytest.fixture(scope="module")
-def whole_run(tmp_path_factory):
+def whole_run(session_folder):
     """The model identified on the whole first run, the later run diagnosed against it (no --ident):
-    the tester's case of a resonance named at the heaviest damping."""
-    folder = tmp_path_factory.mktemp("yan9a_whole")
-    assert main(["identify", str(yan9a_csv("model", folder)), "-o", str(folder / "pz.yaml")]) == 0
-    assert main(["diagnose", "--model", str(folder / "pz.yaml"), str(yan9a_csv("later", folder)),
-                 "-o", str(folder / "diag")]) == 0
-    return folder, json.loads((folder / "diag" / "diagnosis.json").read_text())
+    the tester's case of a resonance named at the heaviest damping. Once per session, as `sessions`."""
+    from session_cache import once_per_session
+
+    def make():
+        folder = _fresh(session_folder / "yan9a_whole")
+        assert main(["identify", str(yan9a_csv("model", folder)), "-o", str(folder / "pz.yaml")]) == 0
+        assert main(["diagnose", "--model", str(folder / "pz.yaml"), str(yan9a_csv("later", folder)),
+                     "-o", str(folder / "diag")]) == 0
+        return folder, json.loads((folder / "diag" / "diagnosis.json").read_text())
+    return once_per_session(session_folder, "yan9a whole run", make)
 
 
 def test_no_resonance_is_named_at_the_heaviest_damping(whole_run):
