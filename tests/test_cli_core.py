@@ -173,6 +173,24 @@ def _followed_advice(workdir: Path, capsys, model_file: Path) -> Path:
     return path
 
 
+
+def test_invert_refuses_a_drive_no_recording_may_hold_and_its_limit_advice_works(workdir: Path, capsys) -> None:
+    """A reference a million times the model's stroke (a sensor's unit mixed up, as the fuzz drew it):
+    the inverse asked for 1e7 A, finite, and was written, a file every command then refused to read
+    (|current_A| up to 1e6 A). Now refused, one line, no file; the --limit it advises is then written."""
+    t = np.arange(0, 0.5, 1e-3)
+    ref = workdir / "ref_far.csv"
+    write_recording(ref, Recording({"time_s": t, "reference_um": 1e8 * (1 - np.cos(2 * np.pi * 4 * t)),
+                                    "stress_MPa": np.full_like(t, -17.0)}))
+    out = workdir / "far_drive.csv"
+    assert main(["invert", "--model", str(workdir / "model.yaml"), str(ref), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "past the 1e+06 A a recording may hold" in err and not out.exists()
+    limit = re.search(r"add --limit (\S+) (\S+)", err).groups()
+    assert main(["invert", "--model", str(workdir / "model.yaml"), str(ref), "-o", str(out), "--limit", *limit]) == 0
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(out), "-o", str(workdir / "far_back.csv")]) == 0
+
+
 def _bad(workdir: Path, name: str, text: str) -> Path:
     p = workdir / name
     p.write_text(text)
