@@ -254,7 +254,7 @@ class ExtendedModel:
             raise ModelError("extended model: 'base' must be an sdpi or mpi model, not another extended model")
         from .modelio import model_from_dict
 
-        base = model_from_dict(dict(base_d))
+        base = model_from_dict(dict(base_d), "base")     # a fault in it is named under its key
         blocks = d.get("blocks") or {}
         if not isinstance(blocks, Mapping):
             raise ModelError("extended model: 'blocks' must be a mapping")

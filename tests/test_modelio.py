@@ -70,6 +70,22 @@ def test_inconsistent_files_are_refused_with_the_reason(tmp_path: Path, model: S
     assert str(path) in str(err.value)
 
 
+
+def test_a_fault_in_an_extended_models_base_is_named_under_base(tmp_path: Path, model: SDPIModel) -> None:
+    """The base of an extended model was read with no name of its own: the refusal said
+    "m.yaml: <dict>: deadzone.index_of_r0 ...", as if the user knew what <dict> was."""
+    from gma_ffc.extended import ExtendedModel
+
+    save_model(ExtendedModel(model), tmp_path / "ext.yaml")
+    d = yaml.safe_load((tmp_path / "ext.yaml").read_text())
+    d["base"]["deadzone"]["index_of_r0"] = -1
+    (tmp_path / "ext.yaml").write_text(yaml.safe_dump(d))
+    with pytest.raises(ModelError) as err:
+        load_model(tmp_path / "ext.yaml")
+    assert f"{tmp_path / 'ext.yaml'}: base: deadzone.index_of_r0 is -1" in str(err.value)
+    assert "<dict>" not in str(err.value)
+
+
 def test_a_model_violating_proposition_3_1_is_refused_without_numpy_warnings(tmp_path: Path, model: SDPIModel,
                                                                             recwarn) -> None:
     """A zero or overflowing first play weight made numpy print warnings before the one-line refusal."""
