@@ -178,6 +178,7 @@ def _extended_doc() -> dict:
     (lambda d: d.update(effects=-1e30), "'effects' must be a list of effect names"),      # was a TypeError
     (lambda d: d["blocks"]["creep"].update(gain=-1e308), r"creep.gain must be a finite number within \+-1e\+30"),
     (lambda d: d["blocks"]["creep"].update(tau_s=True), "creep.tau_s must be a positive number"),  # read as 1 s
+    (lambda d: d["blocks"]["delay"].update(delay_s=1e30), "delay.delay_s must be a number of seconds from 0 to 60"),
     (lambda d: d["base"].update(drive_range=[0.0, 1e308]), r"base: drive range holds 1e\+308"),
     (lambda d: d["base"].update(drive_name=0.0), "drive_name must be current_A or voltage_V"),  # was a KeyError
 ])
