@@ -254,11 +254,15 @@ class ExtendedModel:
             raise ModelError("extended model: 'base' must be an sdpi or mpi model, not another extended model")
         from .modelio import model_from_dict
 
-        base = model_from_dict(dict(base_d))
+        base = model_from_dict(dict(base_d), "base")     # a fault in it is named under its key
         blocks = d.get("blocks") or {}
         if not isinstance(blocks, Mapping):
             raise ModelError("extended model: 'blocks' must be a mapping")
-        return cls(base, blocks, list(d.get("effects") or []))
+        effects = d.get("effects") or []
+        if not isinstance(effects, list) or not all(isinstance(e, str) for e in effects):
+            raise ModelError(f"extended model: 'effects' must be a list of effect names (as diagnose wrote it, "
+                             f"e.g. [thermal_drift]), got {effects!r}")
+        return cls(base, blocks, list(effects))
 
 
 def _plain(v: Any) -> Any:

@@ -44,6 +44,12 @@ class Violation:
                f"(short by {self.required - self.value:.3g})"
 
 
+PARAMETER_BOUND = 1e30
+"""The largest magnitude a model file's number may hold. No actuator's parameter in um, A, V, MPa
+and s comes near it, and products of a few such numbers with the largest values a recording may
+hold (1e9 um, 1e6 A) stay far inside float range (1e308): a number past it is an edit gone wrong,
+and simulating with it overflows (warnings, then inf) instead of being refused on load."""
+
 MAX_PLAY_WEIGHT_SUM = float(np.sqrt(np.finfo(float).max)) * 1e-3
 """The inverse's play weights (9) divide by the square of partial sums of the play weights: a sum
 beyond this (1.3e151) would overflow there, with a thousandfold margin for the products after it."""
@@ -153,6 +159,10 @@ class SDPIModel:
         for name, arr in arrays.items():
             if arr.size == 0 or not np.all(np.isfinite(arr)):
                 raise ModelError(f"{name} must be non-empty and finite")
+        _refuse_past_the_bound({**arrays, "drive range": np.asarray(self.drive_range, dtype=float),
+                                "stress range": np.asarray(self.stress_range_MPa or (0.0, 0.0), dtype=float),
+                                "input_offset": np.asarray(self.input_offset, dtype=float),
+                                "reference_stress_MPa": np.asarray(self.reference_stress_MPa or 0.0, dtype=float)})
         if r_h.ndim != 1 or w_h.shape != r_h.shape:
             raise ModelError(f"play thresholds ({r_h.size}) and weights ({w_h.size}) must be 1-D and equally long")
         if r_h[0] != 0.0 or np.any(np.diff(r_h) <= 0):
@@ -177,6 +187,9 @@ class SDPIModel:
             if value is not None and not np.isfinite(value):
                 raise ModelError(f"{name} must be a finite number, got {value!r}; write the model again with "
                                  "gma-ffc identify")
+        if self.drive_name not in ("current_A", "voltage_V"):     # recordings.DRIVE_COLUMNS: what a drive is read as
+            raise ModelError(f"drive_name must be current_A or voltage_V (the recordings' drive column), got "
+                             f"{self.drive_name!r}")
         if self.output_sign not in (1.0, -1.0):
             raise ModelError(f"output_sign must be +1 (displacement rises with the drive) or -1 (falls), "
                              f"got {self.output_sign!r}")
@@ -596,3 +609,12 @@ class InverseStepper:
 def rms(a: Sequence[float] | np.ndarray) -> float:
     a = np.asarray(a, dtype=float)
     return float(np.sqrt(np.mean(a * a))) if a.size else float("nan")
+
+
+def _refuse_past_the_bound(arrays: Mapping[str, np.ndarray]) -> None:
+    """ModelError naming the first number past PARAMETER_BOUND (NaN and inf are refused apart)."""
+    for name, arr in arrays.items():
+        big = np.abs(arr[np.isfinite(arr)])
+        if big.size and float(big.max()) > PARAMETER_BOUND:
+            raise ModelError(f"{name} holds {float(big.max()):.3g}, past the {PARAMETER_BOUND:g} a model's number may "
+                             "hold: the file was edited; write it again with gma-ffc identify")

@@ -173,6 +173,44 @@ def _followed_advice(workdir: Path, capsys, model_file: Path) -> Path:
     return path
 
 
+
+def test_invert_refuses_a_drive_no_recording_may_hold_and_its_limit_advice_works(workdir: Path, capsys) -> None:
+    """A reference a million times the model's stroke (a sensor's unit mixed up, as the fuzz drew it):
+    the inverse asked for 1e7 A, finite, and was written, a file every command then refused to read
+    (|current_A| up to 1e6 A). Now refused, one line, no file; the --limit it advises is then written."""
+    t = np.arange(0, 0.5, 1e-3)
+    ref = workdir / "ref_far.csv"
+    write_recording(ref, Recording({"time_s": t, "reference_um": 1e8 * (1 - np.cos(2 * np.pi * 4 * t)),
+                                    "stress_MPa": np.full_like(t, -17.0)}))
+    out = workdir / "far_drive.csv"
+    assert main(["invert", "--model", str(workdir / "model.yaml"), str(ref), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "past the 1e+06 A a recording may hold" in err and not out.exists()
+    limit = re.search(r"add --limit (\S+) (\S+)", err).groups()
+    assert main(["invert", "--model", str(workdir / "model.yaml"), str(ref), "-o", str(out), "--limit", *limit]) == 0
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(out), "-o", str(workdir / "far_back.csv")]) == 0
+
+
+
+def test_simulate_refuses_a_prediction_no_recording_may_hold(tmp_path: Path, capsys) -> None:
+    """A model identified on a 1 mA drive (a stroke of 35 m in um, within the reader's bounds),
+    simulated on a drive of 500 kA: the extrapolation reached 6e12 um and was written, a file every
+    command then refused (|displacement_um| up to 1e9 um). Now refused, one line, no file."""
+    t = np.arange(2000) / 1000.0
+    drive = 1e-3 * 0.5 * (1 - np.cos(2 * np.pi * 5 * t))
+    rig = PreisachActuator(drive_range=(0, 1e-3), n_grid=24, width_A=1e-4, width_spread=1e-4, noise_um=0.01, seed=1)
+    write_recording(tmp_path / "ident.csv", Recording({"time_s": t, "current_A": drive,
+                                                       "displacement_um": 1e6 * rig.run(drive, -15.0)}))
+    write_recording(tmp_path / "far.csv", Recording({"time_s": t, "current_A": 5e8 * drive}))
+    assert main(["identify", str(tmp_path / "ident.csv"), "-o", str(tmp_path / "m.yaml")]) == 0
+    capsys.readouterr()
+    out = tmp_path / "sim.csv"
+    assert main(["simulate", "--model", str(tmp_path / "m.yaml"), str(tmp_path / "far.csv"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "past the 1e+09 um a recording may hold" in err and not out.exists()
+    assert "identify the model from recordings over the whole drive range used" in err
+
+
 def _bad(workdir: Path, name: str, text: str) -> Path:
     p = workdir / name
     p.write_text(text)

@@ -89,6 +89,41 @@ def test_every_outcome_is_in_the_json_and_the_headline(diagnosed, tmp_path):
     assert "Missing physics found: time_delay" in page and "<details>" in page
 
 
+
+def _two_runs_of_a_sensor_off_by_gain(rec: Recording, gain: float, noise_um: float) -> list[Recording]:
+    """The recording as two runs, its displacement sensor reading `gain` times too much, with
+    `noise_um` of white noise: nothing is missing from the model but a calibration."""
+    half = len(rec) // 2
+    out = []
+    for k, (a, b) in enumerate(((0, half), (half, len(rec)))):
+        cols = {c: np.asarray(v)[a:b].copy() for c, v in rec.columns.items()}
+        cols["time_s"] = cols["time_s"] - cols["time_s"][0]
+        noise = noise_um * np.random.default_rng(k).standard_normal(b - a)
+        cols["displacement_um"] = gain * cols["displacement_um"] + noise
+        out.append(Recording(cols, dict(rec.metadata), f"run{k + 1}.csv"))
+    return out
+
+
+def test_a_recalibrated_null_is_headlined_as_nothing_missing_with_what_the_recalibration_changed(tmp_path):
+    """A null case read by a sensor 5 % off: nothing is named, and the model written is the base
+    recalibrated. The headline said "Within noise" and "the model explains the recordings", as if
+    the model given were the one that fits; it must say nothing was missing and what changed."""
+    from gma_ffc.diagnose.report import write_outputs
+
+    model, rec = bench.make_case(CASES["null#3"], scale=0.5)
+    # 0.05 um of noise: the recalibrated core's own error (0.12 um) is then within 3x the noise floor
+    dg = diagnose(model, _two_runs_of_a_sensor_off_by_gain(rec, 1.05, 0.05))
+    assert dg.verdict == [] and dg.outcome == "within_noise", dg.explanation
+    assert dg.extended.static.static["gain"] == pytest.approx(1.05, abs=0.01)
+    write_outputs(dg, tmp_path)
+    page = (tmp_path / "report.html").read_text()
+    head = page.split("<h1", 1)[1].split("</h1>", 1)[0]
+    assert "Nothing missing: the model was recalibrated" in head
+    assert "No physics is missing from the model. Recalibrated (below)" in page
+    assert "The model explains the recordings within their noise" not in page
+    assert "What the recalibration changed: gain x1.0" in page and "extended_model.yaml is the model given" in page
+
+
 # ---- heating is monotone: a drift that turns round under a constant drive is not heating ---------
 
 def test_the_heating_step_response_turns_round_exactly_when_computed():

@@ -146,3 +146,22 @@ def test_identify_simulate_diagnose_end_in_a_result_or_a_one_line_refusal(ident,
         rec = read_recording(rec_path)
         pred = extended.simulate(rec.time_s, rec.drive, rec.stress_MPa if extended.stress_range_MPa else None)
         assert np.all(np.isfinite(pred))
+
+
+# ---- the deeper run's finds (2026-11-30, a wider generator out of CI), each made deterministic ----
+
+def test_a_recording_sampled_once_a_second_against_a_model_with_no_recorded_loop_rate(tmp_path, capsys):
+    """One drive cycle over 600 s sampled at 1 Hz: identify records no loop rate, so diagnose drew
+    the base's anchor loops at its default 3 Hz, sampled at the recording's 1 s. Aliased, no anchor
+    row was ever scored, and an empty loop's tolerance was divided by its zero rows: a
+    RuntimeWarning, which the CLI turned into an internal error."""
+    t = np.arange(600.0)
+    drive = 150.0 * 0.5 * (1 - np.cos(2 * np.pi * t / t[-1]))
+    rig = PreisachActuator(drive_range=(0.0, 150.0), n_grid=24, width_A=15.0, width_spread=15.0, noise_um=0.01,
+                           seed=1)
+    rec = tmp_path / "one_cycle.csv"
+    write_recording(rec, Recording({"time_s": t, "voltage_V": drive, "displacement_um": rig.run(drive, -15.0)}, {}))
+    assert run(["identify", str(rec), "-o", str(tmp_path / "m.yaml")], capsys) == 0
+    out = tmp_path / "diagnosis"
+    assert run(["diagnose", "--model", str(tmp_path / "m.yaml"), str(rec), "--out", str(out)], capsys) == 0
+    assert_finite_json(out / "diagnosis.json")

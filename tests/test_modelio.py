@@ -70,12 +70,29 @@ def test_inconsistent_files_are_refused_with_the_reason(tmp_path: Path, model: S
     assert str(path) in str(err.value)
 
 
+
+def test_a_fault_in_an_extended_models_base_is_named_under_base(tmp_path: Path, model: SDPIModel) -> None:
+    """The base of an extended model was read with no name of its own: the refusal said
+    "m.yaml: <dict>: deadzone.index_of_r0 ...", as if the user knew what <dict> was."""
+    from gma_ffc.extended import ExtendedModel
+
+    save_model(ExtendedModel(model), tmp_path / "ext.yaml")
+    d = yaml.safe_load((tmp_path / "ext.yaml").read_text())
+    d["base"]["deadzone"]["index_of_r0"] = -1
+    (tmp_path / "ext.yaml").write_text(yaml.safe_dump(d))
+    with pytest.raises(ModelError) as err:
+        load_model(tmp_path / "ext.yaml")
+    assert f"{tmp_path / 'ext.yaml'}: base: deadzone.index_of_r0 is -1" in str(err.value)
+    assert "<dict>" not in str(err.value)
+
+
 def test_a_model_violating_proposition_3_1_is_refused_without_numpy_warnings(tmp_path: Path, model: SDPIModel,
                                                                             recwarn) -> None:
-    """A zero or overflowing first play weight made numpy print warnings before the one-line refusal."""
-    for w0 in (0.0, 1e300):
+    """A zero or overflowing first play weight made numpy print warnings before the one-line refusal.
+    One past any model's number (`PARAMETER_BOUND`) is refused as such, before the proposition."""
+    for w0, message in ((0.0, "Proposition 3.1"), (1e300, r"play weights holds 1e\+300, past the 1e\+30")):
         path = _mutate(tmp_path, model, lambda d: d["play"]["weights"].__setitem__(0, w0))
-        with pytest.raises(ModelError, match="Proposition 3.1"):
+        with pytest.raises(ModelError, match=message):
             load_model(path)
     assert [str(w.message) for w in recwarn] == []
 
@@ -145,3 +162,46 @@ def test_an_output_sign_that_is_not_a_number_is_refused(tmp_path: Path, model: S
     assert str(path) in str(err.value)
     path.write_text(path.read_text().replace(f"output_sign: {text}", "output_sign: -1"))     # the advice: -1
     assert load_model(path).output_sign == -1
+
+
+# ---- model files edited into what no command can run (mutated files, 2026-11-30) ---------------
+
+def _extended_doc() -> dict:
+    import gzip
+    import json
+
+    with gzip.open(Path(__file__).parent / "fixtures" / "extended_v1_all_blocks.json.gz", "rt") as fh:
+        return json.load(fh)["model"]
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.update(effects=-1e30), "'effects' must be a list of effect names"),      # was a TypeError
+    (lambda d: d["blocks"]["creep"].update(gain=-1e308), r"creep.gain must be a finite number within \+-1e\+30"),
+    (lambda d: d["blocks"]["creep"].update(tau_s=True), "creep.tau_s must be a positive number"),  # read as 1 s
+    (lambda d: d["blocks"]["delay"].update(delay_s=1e30), "delay.delay_s must be a number of seconds from 0 to 60"),
+    (lambda d: d["base"].update(drive_range=[0.0, 1e308]), r"base: drive range holds 1e\+308"),
+    (lambda d: d["base"].update(drive_name=0.0), "drive_name must be current_A or voltage_V"),  # was a KeyError
+])
+def test_an_extended_model_edited_past_what_runs_is_refused_in_one_line(tmp_path: Path, change, message,
+                                                                       recwarn) -> None:
+    """Each ran into a traceback, or into overflow warnings and inf before a refusal, or was read
+    as something it is not."""
+    d = _extended_doc()
+    change(d)
+    path = tmp_path / "ext.yaml"
+    path.write_text(yaml.safe_dump(d))
+    with pytest.raises(ModelError, match=message):
+        load_model(path)
+    assert [str(w.message) for w in recwarn] == []
+
+
+def test_a_provenance_edited_into_other_types_is_no_record_and_no_overflow(model: SDPIModel, recwarn) -> None:
+    """diagnose reads the provenance as a record, not as the model: a list edited into a number
+    raised a TypeError, and a fit RMS of 1e308 overflowed when squared. Both are now not recorded."""
+    from gma_ffc.diagnose.anchor import identification_loops
+    from gma_ffc.diagnose.identification import recorded_files
+
+    model.provenance = {"identification_files": 1e308, "recordings": "a.csv", "fit_rms_um": {"a.csv": 1e308}}
+    assert recorded_files(model) == ([], [])
+    assert all(np.isnan(err) for _, err in identification_loops(model))
+    assert [str(w.message) for w in recwarn] == []

@@ -12,7 +12,7 @@ from ..errors import InputError
 from ..initial_state import InitialStateSpec
 from ..model import SDPIModel
 from ..modelio import load_model
-from ..recordings import Recording, read_recording, write_recording
+from ..recordings import MAGNITUDE_BOUNDS, Recording, read_recording, write_recording
 from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_initial_drive,
                       check_recording_output, finite_float, recorded_stress, stress_for)
 
@@ -75,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
                             f"last at t = {rec.time_text(where[-1])} s: the actuator will not follow the "
                             "reference there")
         drive = np.clip(drive, lo, hi)
+    _refuse_an_unreadable_drive(drive, rec, model)
     name = model.drive_name
     cols = {"time_s": rec.time_s, name: drive, "reference_um": rec.columns["reference_um"]}
     if stress is not None:
@@ -111,6 +112,24 @@ def _refuse_a_diverged_inverse(drive: np.ndarray, rec: Recording, model: Any) ->
     raise InputError(f"{rec.source}: the inverse runs away from t = {rec.time_text(start)} s (reference "
                      f"{ref[start]:.4g} um; the drive leaves the identified range {lo:.4g}..{hi:.4g} there and is not "
                      f"finite from t = {rec.time_text(k)} s): the model cannot follow that reference; "
+                     f"{_reach_advice(model, rec)}")
+
+
+def _refuse_an_unreadable_drive(drive: np.ndarray, rec: Recording, model: Any) -> None:
+    """A finite drive past the drive column's physical bound (`MAGNITUDE_BOUNDS`): written, the file
+    would be refused by every command that reads it (a reference far beyond the model's stroke asks
+    for that). Refused, with the --limit that clips the drive to the identified range."""
+    name = model.drive_name
+    bound = MAGNITUDE_BOUNDS[name]
+    past = np.abs(drive) > bound
+    if not past.any():
+        return
+    k = int(np.argmax(past))
+    lo, hi = model.drive_range
+    unit = name.rsplit("_", 1)[1]
+    raise InputError(f"{rec.source}: the drive this reference needs reaches {drive[k]:.4g} {unit} at t = "
+                     f"{rec.time_text(k)} s, past the {bound:g} {unit} a recording may hold: the model cannot follow "
+                     f"that reference; add --limit {lo:.6g} {hi:.6g} to clip the drive to its identified range, or "
                      f"{_reach_advice(model, rec)}")
 
 

@@ -8,8 +8,9 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import InputError
 from ..modelio import load_model
-from ..recordings import DISPLACEMENT, Recording, refuse_non_finite, write_recording
+from ..recordings import DISPLACEMENT, MAGNITUDE_BOUNDS, Recording, refuse_non_finite, write_recording
 from ._common import (add_group_option, add_initial_state_option, add_stress_option, beyond_drive_range,
                       check_drive_name, check_initial_drive, check_recording_output, note_gaps, read_while,
                       recorded_stress, stress_for, warm_up)
@@ -71,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         pred = model.simulate(rec.time_s, rec.drive, stress, initial_drive=rest)
         how = f"at rest at {rest:g} by the model's own stepper rule"
+    _refuse_an_unreadable_prediction(pred, rec, model)
     cols = {"time_s": rec.time_s, rec.drive_name: rec.drive}
     if stress is not None:
         cols["stress_MPa"] = recorded_stress(rec, stress, args.stress)
@@ -86,6 +88,23 @@ def run(args: argparse.Namespace) -> int:
     print(f"initial state: {how}" + (" (the start `gma-ffc invert` gave this drive, from the file's metadata)"
                                      if from_file else ""))
     return 0
+
+
+def _refuse_an_unreadable_prediction(pred: np.ndarray, rec: Recording, model: Any) -> None:
+    """A prediction not finite, or past the displacement column's physical bound (`MAGNITUDE_BOUNDS`):
+    written, the file would be refused by every command that reads it. A drive far beyond the range
+    the model was identified on extrapolates that far; the advice is then to identify over it."""
+    bound = MAGNITUDE_BOUNDS[DISPLACEMENT]
+    bad = ~(np.abs(pred) <= bound)          # NaN compares False: caught with the values past the bound
+    if not bad.any():
+        return
+    k = int(np.argmax(bad))
+    beyond = beyond_drive_range(model, rec)
+    why = (beyond.split(": ", 1)[1] if beyond else
+           "the drive stays in the model's identified range, so the model file is not one that fits this actuator: "
+           "identify it again from this actuator's recordings (gma-ffc identify)")
+    raise InputError(f"{rec.source}: the prediction reaches {pred[k]:.4g} um at t = {rec.time_text(k)} s, past the "
+                     f"{bound:g} um a recording may hold, so nothing is written: {why}")
 
 
 def _fit_words(rec: Recording, pred: np.ndarray, start: Any) -> str:

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from ..model import PARAMETER_BOUND
 from ..recordings import Recording
 from .data import RecData, prepare
 
@@ -28,11 +29,13 @@ DEFAULT_ID_HZ = 3.0         # without a record: the seed paper's identification 
 
 
 def _number(x: Any) -> float:
+    """A provenance number, or NaN (not recorded) for anything else: text, inf, or one past any
+    model's number (`PARAMETER_BOUND`), which only an edit writes and whose square overflows."""
     try:
         v = float(x)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         return float("nan")
-    return v if np.isfinite(v) else float("nan")
+    return v if np.isfinite(v) and abs(v) <= PARAMETER_BOUND else float("nan")
 
 
 def _mapping(prov: Any, key: str) -> dict[str, Any]:

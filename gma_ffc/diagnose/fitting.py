@@ -142,7 +142,10 @@ class Fitter:
         self.model = model
         self.settings = settings
         self.data = list(data)
-        self.anchor = list(anchor)     # train-only pseudo-recordings (`anchor.py`), never scored
+        # train-only pseudo-recordings (`anchor.py`), never scored. A loop without a row holds nothing
+        # (a drive sampled too coarsely for a loop after its first: a 1 s step against a 0.2 Hz
+        # identification rate), and its tolerance would be divided by its zero rows
+        self.anchor = [d for d in anchor if d.rows.size]
         self._init_ranges()
         # the effects as registered now, in signal-path order: input-side ones change the core input
         self.effects: list[type[Effect]] = [c for c in path_order() if c.candidate]

@@ -78,9 +78,15 @@ class IdentificationCheck:
 
 def recorded_files(model: Any) -> tuple[list[dict[str, Any]], list[str]]:
     """The model's record: fingerprints (name, bytes, sha256) where `identify` wrote them, and names."""
-    prov = getattr(model, "provenance", None) or {}
-    files = [f for f in (prov.get("identification_files") or []) if isinstance(f, Mapping) and "name" in f]
-    names = [str(f["name"]) for f in files] or [str(n) for n in (prov.get("recordings") or [])]
+    prov = getattr(model, "provenance", None)
+    prov = prov if isinstance(prov, Mapping) else {}
+
+    def listed(key: str) -> list[Any]:       # a record edited into something else is no record
+        v = prov.get(key)
+        return v if isinstance(v, list) else []
+
+    files = [f for f in listed("identification_files") if isinstance(f, Mapping) and "name" in f]
+    names = [str(f["name"]) for f in files] or [str(n) for n in listed("recordings")]
     return [dict(f) for f in files], names
 
 

@@ -293,6 +293,51 @@ HEADLINES = {   # outcome -> (headline, colour, one sentence a reader takes away
 }
 
 
+def headline(dg: Diagnosis) -> tuple[str, str, str]:
+    """The report's headline, its colour and the sentence under it. With nothing named but the
+    model recalibrated, the outcome's words alone would read as if the model given were the one
+    that fits: the headline says nothing was found missing and that the model was recalibrated."""
+    title, colour, sentence = HEADLINES[dg.outcome]
+    if dg.verdict:
+        title += ": " + ", ".join(name + (" (tentative)" if name in dg.tentative else "") for name in dg.verdict)
+        return title, colour, sentence
+    if not recalibration_words(dg):
+        return title, colour, sentence
+    if dg.outcome == "within_noise":
+        return ("Nothing missing: the model was recalibrated", colour,
+                "No physics is missing from the model. Recalibrated (below), it explains the recordings "
+                "within their noise; nothing was added to it.")
+    return f"{title}: nothing named, the model was recalibrated", colour, sentence
+
+
+def recalibration_words(dg: Diagnosis) -> str:
+    """What the extended model's static recalibration changes, in words; '' when it changes nothing
+    (the model given is written as it was)."""
+    st = dg.extended.static
+    s = st.static
+    parts = []
+    if s["gain"] != 1.0:
+        parts.append(f"gain x{s['gain']:.4g} ({100 * (s['gain'] - 1):+.3g} %)")
+    if s["offset_um"] != 0.0:
+        parts.append(f"offset {s['offset_um']:+.3g} um")
+    if s["quadratic_per_um"] != 0.0:
+        parts.append(f"curvature {s['quadratic_per_um']:+.3g} per um about {s['center_um']:.4g} um")
+    if s["stress_gain_per_MPa"] != 0.0:
+        parts.append(f"gain {s['stress_gain_per_MPa']:+.3g} per MPa away from {s['stress_ref_MPa']:.3g} MPa")
+    if np.any(st.coefficients != 0.0):
+        # each play's output minus its input swings over +-threshold: rising and falling branches
+        # move apart (or together) by twice the threshold times the play's weight
+        width = float(np.sum(2.0 * np.abs(st.coefficients) * st.thresholds))
+        parts.append(f"loop width changed by up to {width:.3g} um")
+    if not parts:
+        return ""
+    moved = max((float(np.max(np.abs(yf - yb))) for yb, yf in zip(dg.base_predictions, dg.final_predictions)
+                 if yb.shape == yf.shape and yb.size), default=0.0)
+    return (f"What the recalibration changed: {', '.join(parts)}. It moves the prediction by up to {moved:.3g} um; "
+            f"the change in held-out RMS above is its alone. {MODEL_FILE} is the model given with this "
+            "recalibration, and no physics added.")
+
+
 def render_html(dg: Diagnosis, doc: dict) -> str:
     overlay = ("Where the residual is largest: measured and model (nothing was accepted, so there is no "
                "'after'), and the residual" if _unchanged(dg) else
@@ -306,9 +351,8 @@ def render_html(dg: Diagnosis, doc: dict) -> str:
         imgs.append(("Candidates: held-out RMS", plot_candidates(dg)))
     e = html.escape
     summary = rms_summary(doc)
-    title, colour, sentence = HEADLINES[dg.outcome]
-    if dg.verdict:
-        title += ": " + ", ".join(name + (" (tentative)" if name in dg.tentative else "") for name in dg.verdict)
+    title, colour, sentence = headline(dg)
+    recalibrated = "" if dg.verdict else recalibration_words(dg)
     parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'><title>gma-ffc diagnosis</title>",
              "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}"
              "table{border-collapse:collapse}td,th{border:1px solid #bbb;padding:3px 6px;font-size:13px}"
@@ -317,6 +361,8 @@ def render_html(dg: Diagnosis, doc: dict) -> str:
              f"<h1 class='headline' style='background:{colour}'>{e(title)}</h1>",
              f"<p><b>{e(sentence)}</b></p>",
              f"<p><b>{e(summary[:1].upper() + summary[1:])}</b></p>"]
+    if recalibrated:
+        parts.append(f"<p><b>{e(recalibrated)}</b></p>")
     for title, data in imgs:
         parts.append(f"<h2>{e(title)}</h2><img alt='{e(title)}' src='data:image/png;base64,{data}'>")
     parts.append(f"<h2>Explanation</h2><p>{e(dg.explanation)}</p>")

@@ -22,6 +22,7 @@ from typing import Any, Callable, ClassVar, Iterable, Mapping, Protocol, Sequenc
 import numpy as np
 
 from ..errors import ModelError
+from ..model import PARAMETER_BOUND
 from . import kernels as K
 
 # Where an effect sits on the signal path drive -> [input] -> core -> [sum] -> [filter] -> [after]:
@@ -541,17 +542,23 @@ def block_of(blocks: Mapping[str, Any], key: str) -> dict[str, Any] | None:
     return dict(v)
 
 
+def is_number(v: Any) -> bool:
+    """A finite number within PARAMETER_BOUND (true/false are not numbers here, though Python's bool is an int)."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and abs(v) <= PARAMETER_BOUND
+
+
 def positive(block: Mapping[str, Any], key: str, name: str) -> float:
     v = block.get(key)
-    if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-        raise ModelError(f"extended model: {name}.{key} must be a positive number, got {v!r}")
+    if not is_number(v) or v <= 0:
+        raise ModelError(f"extended model: {name}.{key} must be a positive number up to {PARAMETER_BOUND:g}, got {v!r}")
     return float(v)
 
 
 def finite(block: Mapping[str, Any], key: str, name: str) -> float:
     v = block.get(key)
-    if not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ModelError(f"extended model: {name}.{key} must be a finite number, got {v!r}")
+    if not is_number(v):
+        raise ModelError(f"extended model: {name}.{key} must be a finite number within +-{PARAMETER_BOUND:g}, "
+                         f"got {v!r}")
     return float(v)
 
 
@@ -563,8 +570,9 @@ def play_weights(block: Mapping[str, Any], key: str, name: str) -> tuple[np.ndar
     except (TypeError, ValueError):
         raise ModelError(f"extended model: {name} thresholds and {key} must be numbers") from None
     if th.shape != co.shape or th.ndim != 1 or not np.all(np.isfinite(th)) or not np.all(np.isfinite(co)) \
-            or np.any(th < 0):
-        raise ModelError(f"extended model: {name} needs equal-length finite thresholds (>= 0) and {key}")
+            or np.any(th < 0) or np.any(np.abs(th) > PARAMETER_BOUND) or np.any(np.abs(co) > PARAMETER_BOUND):
+        raise ModelError(f"extended model: {name} needs equal-length finite thresholds (>= 0) and {key}, "
+                         f"each within +-{PARAMETER_BOUND:g}")
     return th, co
 
 

@@ -9,7 +9,13 @@ import numpy as np
 
 from ..errors import ModelError
 from . import kernels as K
-from .base import EffectBase, FitData, StepSignals, geom_refine, grid_ratio
+from .base import EffectBase, FitData, StepSignals, geom_refine, grid_ratio, is_number
+
+# The longest delay a model file may hold. A transport delay in an actuator's path is micro- to
+# milliseconds, and diagnose's grid stops at 0.2 s, or a quarter sample at slower rates (15 s at a
+# 1-minute sample). A longer one is an edit, and the stepper's ring buffer holds delay / dt samples:
+# 60 s at a 10 kHz controller is 600,000; 1e30 s is no buffer at all (an OverflowError).
+MAX_DELAY_S = 60.0
 
 
 class Delay(EffectBase):
@@ -34,8 +40,9 @@ class Delay(EffectBase):
     def __init__(self, block: Mapping[str, Any]) -> None:
         super().__init__(block)
         d = block.get("delay_s")
-        if not isinstance(d, (int, float)) or not math.isfinite(d) or d < 0:
-            raise ModelError(f"extended model: delay.delay_s must be >= 0, got {d!r}")
+        if not is_number(d) or d < 0 or d > MAX_DELAY_S:
+            raise ModelError(f"extended model: delay.delay_s must be a number of seconds from 0 to {MAX_DELAY_S:g}, "
+                             f"got {d!r}")
         self.delay_s = float(d)
 
     @property

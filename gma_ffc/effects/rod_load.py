@@ -51,6 +51,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from . import rod_load_kernels as RK
+from .base import is_number
 
 FORM = "rod_load"
 STATIC_STRESS_HZ = 1.0      # low-pass of the load-cell stress that leaves the load's weight (see above)
@@ -71,11 +72,11 @@ def check_block(block: Mapping[str, Any]) -> str:
     """'' if the block is valid, else what is wrong (the caller raises its own error type)."""
     for key in ("f_ref_hz", "zeta", "stress_lowpass_hz"):
         v = block.get(key)
-        if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+        if not is_number(v) or v <= 0:
             return f"dynamics.{key} must be a positive number, got {v!r}"
     for key in ("beta_per_MPa", "stress_ref_MPa"):
         v = block.get(key)
-        if not isinstance(v, (int, float)) or not math.isfinite(v):
+        if not is_number(v):
             return f"dynamics.{key} must be a finite number, got {v!r}"
     return ""
 

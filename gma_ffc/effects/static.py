@@ -14,9 +14,10 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 
 from ..errors import ModelError
+from ..model import PARAMETER_BOUND
 from . import kernels as K
 from .base import (BatchSignals, EffectBase, FitData, OwnPlays, PlayBankState, PlayStart, Regressors, StepSignals,
-                   block_of, first_play_outputs, play_sum, play_weights)
+                   block_of, first_play_outputs, is_number, play_sum, play_weights)
 
 STATIC_DEFAULTS = {"offset_um": 0.0, "gain": 1.0, "stress_gain_per_MPa": 0.0,
                    "quadratic_per_um": 0.0, "center_um": 0.0, "stress_ref_MPa": 0.0}
@@ -39,8 +40,9 @@ class StaticMap(EffectBase):
         self.static = dict(STATIC_DEFAULTS)
         self.static.update(static or {})
         for key, v in self.static.items():
-            if not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ModelError(f"extended model: static.{key} must be a finite number, got {v!r}")
+            if not is_number(v):
+                raise ModelError(f"extended model: static.{key} must be a finite number within "
+                                 f"+-{PARAMETER_BOUND:g}, got {v!r}")
         if abs(self.static["gain"]) < 1e-9:
             raise ModelError("extended model: static.gain must not be zero")
         self.play_correction = None if play_correction is None else dict(play_correction)
