@@ -165,7 +165,7 @@ def _identify(recordings: Sequence[Recording]) -> tuple[SDPIModel, SDPIModel]:
     return sdpi, mpi
 
 
-def _record_files(model: Model, paths: Sequence[Path], recordings: Sequence[Recording]) -> None:
+def _record_files(model: Any, paths: Sequence[Path], recordings: Sequence[Recording]) -> None:
     """The identification files a model was fitted on (those its provenance names), recorded as
     `gma-ffc identify` records them: the demo's models recorded none, so `diagnose --ident` could
     not check it was given the same files."""

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 from typing import Any, Sequence
@@ -90,7 +89,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
         check_folder_writable(Path(args.plot).parent, args.plot)
 
 
-def record_identification_files(model: Any, paths: Sequence[str | os.PathLike]) -> None:
+def record_identification_files(model: Any, paths: Sequence[str | Path]) -> None:
     """Each identification file as it was read (name, size, SHA-256) in the model's provenance, so
     `diagnose --ident` can check it is given the same ones. `identify` and the demo both write it."""
     from ..recordings import fingerprint

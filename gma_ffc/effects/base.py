@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Iterable, Mapping, Protocol, Sequence, TypeVar
+from typing import Any, Callable, ClassVar, Iterable, Mapping, Protocol, Sequence, TypeGuard, TypeVar
 
 import numpy as np
 
@@ -542,7 +542,7 @@ def block_of(blocks: Mapping[str, Any], key: str) -> dict[str, Any] | None:
     return dict(v)
 
 
-def is_number(v: Any) -> bool:
+def is_number(v: Any) -> TypeGuard[float]:
     """A finite number within PARAMETER_BOUND (true/false are not numbers here, though Python's bool is an int)."""
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and abs(v) <= PARAMETER_BOUND
 
