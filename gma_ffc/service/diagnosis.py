@@ -18,7 +18,6 @@ import os
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,27 +61,20 @@ def default_state_dir(environ: dict[str, str] | None = None) -> Path:
 def check_state_dir(monitor_cfg: dict[str, Any] | None) -> None:
     """With background diagnoses on, refuse at start a state folder they could not be written in
     (read-only, not this user's, a file in the way): it was found only when the first diagnosis
-    started, maybe hours into the run. Probes with an empty file, as `atomic.check_folder_writable`."""
-    from ..atomic import nearest_existing
-    from ..errors import ConfigError
+    started, maybe hours into the run. The probe is `atomic.check_folder_writable`'s."""
+    from ..atomic import check_folder_writable
+    from ..errors import ConfigError, InputError
 
     cfg = monitor_cfg or {}
     if not (cfg.get("enabled") and cfg.get("on_drift") == "diagnose" and cfg.get("max_per_hour", 0) > 0):
         return
     folder = Path(cfg["state_dir"]) if cfg.get("state_dir") else default_state_dir()
-    existing = nearest_existing(folder / "diagnoses")
+    unset = "" if cfg.get("state_dir") else f" (not set: the default {folder})"
     try:
-        if not existing.is_dir():
-            raise NotADirectoryError(0, f"{existing} is a file, not a folder")
-        fd, probe = tempfile.mkstemp(prefix=".gma-ffc-probe.", suffix=".tmp", dir=existing)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        unset = "" if cfg.get("state_dir") else f" (not set: the default {folder})"
-        raise ConfigError(f"config key 'monitor.state_dir'{unset}: cannot write in {existing}: "
-                          f"{exc.strerror or exc}; background diagnoses (monitor.on_drift: diagnose) are written "
-                          f"in {folder}: set monitor.state_dir to a folder this user may write, or monitor.on_drift: "
-                          "warn") from None
+        check_folder_writable(folder / "diagnoses", f"config key 'monitor.state_dir'{unset}")
+    except InputError as exc:
+        raise ConfigError(f"{exc}; background diagnoses (monitor.on_drift: diagnose) are written in {folder}: set "
+                          "monitor.state_dir to a folder this user may write, or monitor.on_drift: warn") from None
 
 
 class BackgroundDiagnosis:
