@@ -293,15 +293,16 @@ HEADLINES = {   # outcome -> (headline, colour, one sentence a reader takes away
 }
 
 
-def headline(dg: Diagnosis) -> tuple[str, str, str]:
+def headline(dg: Diagnosis, recalibrated: bool) -> tuple[str, str, str]:
     """The report's headline, its colour and the sentence under it. With nothing named but the
-    model recalibrated, the outcome's words alone would read as if the model given were the one
-    that fits: the headline says nothing was found missing and that the model was recalibrated."""
+    model `recalibrated` (`recalibration_words` found a change), the outcome's words alone would read
+    as if the model given were the one that fits: the headline says nothing was found missing and
+    that the model was recalibrated."""
     title, colour, sentence = HEADLINES[dg.outcome]
     if dg.verdict:
         title += ": " + ", ".join(name + (" (tentative)" if name in dg.tentative else "") for name in dg.verdict)
         return title, colour, sentence
-    if not recalibration_words(dg):
+    if not recalibrated:
         return title, colour, sentence
     if dg.outcome == "within_noise":
         return ("Nothing missing: the model was recalibrated", colour,
@@ -351,8 +352,8 @@ def render_html(dg: Diagnosis, doc: dict) -> str:
         imgs.append(("Candidates: held-out RMS", plot_candidates(dg)))
     e = html.escape
     summary = rms_summary(doc)
-    title, colour, sentence = headline(dg)
     recalibrated = "" if dg.verdict else recalibration_words(dg)
+    title, colour, sentence = headline(dg, bool(recalibrated))
     parts = ["<!DOCTYPE html><html><head><meta charset='utf-8'><title>gma-ffc diagnosis</title>",
              "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}"
              "table{border-collapse:collapse}td,th{border:1px solid #bbb;padding:3px 6px;font-size:13px}"
