@@ -108,12 +108,14 @@ class RecData:
 
 
 def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "estimate",
-            measured: bool = True, drive_limits: tuple[float, float] | None = None) -> list[RecData]:
+            measured: bool = True, drive_limits: tuple[float, float] | None = None,
+            range_margin: float = 0.02) -> list[RecData]:
     """Arrays per recording; stresses outside the model's range are clamped (and counted). The
     core's state at each first sample follows `initial_state` (`gma_ffc.initial_state`). A
     `measured` displacement is searched for a sensor at the end of its range (`gma_ffc/sensor_holds.py`);
     a placeholder (the anchor's loops, simulated afterwards) is not. Advice on what to record
-    asks for no drive beyond `drive_limits` (the controller's, when given)."""
+    asks for no drive beyond `drive_limits` (the controller's, when given); a drive within
+    `range_margin` of the range's span from an end reached it (`EffectSelector`'s setting)."""
     total = sum(len(r) for r in recordings)
     stride = max(1, int(np.ceil(total / MAX_FIT_ROWS)))
     out: list[RecData] = []
@@ -152,21 +154,22 @@ def prepare(recordings: Sequence[Recording], model: Any, initial_state: Any = "e
             extra={"temperature_C": rec.columns.get("temperature_C"),
                    "drive_symbol": "V" if rec.drive_name.endswith("_V") else "I"}, start=start,
             settled=int(first[0]) if first.size else n, scored=scored,
-            never_forgotten=whole_range_advice(rec, core.drive_range, drive_limits) if outside and not scored.any() else "")
+            never_forgotten=whole_range_advice(rec, core.drive_range, drive_limits, range_margin) if outside and not scored.any() else "")
         d.rows = d.rows[d.mask[d.rows]]          # the least squares' rows: every scored one, strided
         out.append(d)
     return out
 
 
 def whole_range_advice(rec: Recording, drive_range: tuple[float, float],
-                       drive_limits: tuple[float, float] | None = None) -> str:
+                       drive_limits: tuple[float, float] | None = None, range_margin: float = 0.02) -> str:
     """What to record when a run starts in a state no history inside the drive range leaves (a
     demagnetised rod: the measurement fits it better than the nearest such state) and its drive
     never swings far enough to forget it: the model's whole range once, which sets every play.
     Held within `drive_limits` (the controller's, `diagnose --drive-limits`) when given: a cycle
     over less than the model's range may leave its widest plays where they started (the demo's
     rig forgets after 0..2.5 A, not after 0..2 A of 0..3 A), so the advice names the step after
-    it, and a run that already spans the limits is told that step alone."""
+    it, and a run that already spans the limits is told that step alone. A drive within
+    `range_margin` of the span from a limit reached it."""
     unit = drive_unit(rec.drive_name)
     lo, hi, held = advised_range(drive_range, drive_limits, unit)
     u_min, u_max = float(np.min(rec.drive)), float(np.max(rec.drive))
@@ -180,7 +183,7 @@ def whole_range_advice(rec: Recording, drive_range: tuple[float, float],
         return start + cycle
     narrower = (f"identify a model over the drive the controller allows ({lo:.3g} to {hi:.3g} {unit}): a cycle "
                 "over a model's whole range makes it forget any start")
-    tol = 0.02 * (hi - lo)          # EffectSelector's range_margin: a drive this close reached the end
+    tol = range_margin * (hi - lo)          # a drive this close to an end reached it
     if u_min <= lo + tol and u_max >= hi - tol:
         return start + f"this run spans the drive limits ({lo:.3g} to {hi:.3g} {unit}) and still did not: {narrower}"
     return start + cycle + f"; if it is still not scored after that cycle, the limits are too narrow: {narrower}"

@@ -37,7 +37,7 @@ def setup(selector: Any, model: Any, recordings: Sequence[Recording], say: Calla
     check_recordings(recordings, selector.min_samples)
     limits = getattr(selector, "drive_limits", None)
     check_overlap(model, recordings, selector.range_margin, selector.min_overlap, limits)
-    data = prepare(recordings, model, selector.initial_state, drive_limits=limits)
+    data = prepare(recordings, model, selector.initial_state, drive_limits=limits, range_margin=selector.range_margin)
     anchor = (measured_loops(model, list(identification)) if identification else
               anchor_data(model, min(d.dt_med for d in data)))
     fitter = Fitter(model, data, anchor, FitSettings(selector.min_stress_span_MPa,
