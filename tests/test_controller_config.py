@@ -180,3 +180,14 @@ def test_a_monitor_window_too_short_to_diagnose_is_refused_and_the_advised_one_o
     advised = float(re.search(r"make it ([0-9.]+) s or more", str(e.value)).group(1))
     assert validate_config(with_("monitor", {**short, "window_s": advised})).monitor["window_s"] == advised
     assert validate_config(with_("monitor", {**short, "on_drift": "warn"})).monitor["on_drift"] == "warn"
+
+
+def test_the_window_check_needs_what_diagnose_needs():
+    """The service's config holds its own copy of diagnose's least sample count, so that loading a
+    config never imports the diagnosis; the copy must follow the diagnosis's default."""
+    import inspect
+
+    from gma_ffc.control.config import DIAGNOSIS_MIN_SAMPLES
+    from gma_ffc.diagnose.selection import EffectSelector
+
+    assert inspect.signature(EffectSelector).parameters["min_samples"].default == DIAGNOSIS_MIN_SAMPLES

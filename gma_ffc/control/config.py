@@ -421,7 +421,9 @@ def _output_dirs(named: list, base: Path | None, outputs: dict[str, str | None])
 
 DIAGNOSIS_MIN_SAMPLES = 400
 """What `gma-ffc diagnose` needs at least (`EffectSelector(min_samples=400)`): a window shorter than
-that made every background diagnosis 'too little data (83 samples)' (a new user's sweep, 2026-11-30)."""
+that made every background diagnosis 'too little data (83 samples)' (a new user's sweep, 2026-11-30).
+A copy, so that loading a config never imports the diagnosis; tests/test_controller_config.py holds
+it to the diagnosis's default."""
 
 
 def _monitor_section(raw: Any, rate_hz: float, base: Path | None) -> dict[str, Any]:
