@@ -94,7 +94,9 @@ def ensure_private_dir(path: Path) -> None:
 def claim_lock(runtime: RuntimePaths):
     """Held from a controller's look at the socket to its bind: two starting at once each saw
     nobody answering, and the second's bind replaced the first's socket (two loops, one
-    unreachable). The second now waits here, then finds the first answering."""
+    unreachable). The second now waits here, then finds the first answering. The empty file
+    stays after a stop, by design: unlinking it would let a waiter (holding the old file) and a
+    newcomer (creating a new one) both hold "the" lock."""
     fd = os.open(runtime.claim_file, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
