@@ -32,7 +32,9 @@ Heating fitted at the search's fastest time constant was then refused as a look-
 short runs of a development case), so GENERAL_THIRTEENTH_SEED draws a twelfth.
 Two users' sweeps then changed the diagnosis path (every refit of an accepted effect keeps its
 signature check; absurd magnitudes, short and constant recordings refused), so GENERAL_FOURTEENTH_SEED
-draws a thirteenth.
+draws a thirteenth. Its stress-dependent play miss (a stress gain extrapolated beyond the recording's
+loads) was then looked at and fixed (the identification loops judge the gain), so GENERAL_FIFTEENTH_SEED
+draws a fourteenth.
 """
 
 from __future__ import annotations
@@ -75,6 +77,8 @@ GENERAL_THIRTEENTH_SEED = 20261230  # a twelfth never-tuned draw (2026-11-30, tw
                                     # on a development case's short runs); fixed and committed before its first run
 GENERAL_FOURTEENTH_SEED = 20261301  # a thirteenth never-tuned draw (2026-11-30, twenty-fourth session): after two
                                     # users' sweeps changed the diagnosis path; fixed and committed before its first run
+GENERAL_FIFTEENTH_SEED = 20261302   # a fourteenth never-tuned draw (2026-11-30, twenty-fifth session): after the
+                                    # identification loops judge a stress gain; fixed and committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
