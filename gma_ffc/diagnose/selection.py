@@ -630,6 +630,9 @@ class EffectSelector:
         fourteenth never-tuned draw's stress-dependent play kept one fitted on -18.6 to -13.4 MPa,
         and its probe at -24 MPa came out 1.20 um against the base's 0.58 um. The identification
         loops, four loads wide, held that gain at 0.55 um and the model without it at 0.24 um."""
+        if len(fitter.identification) < 2:
+            return None
+
         def misfit(terms: Sequence[str]) -> float:
             fitter.drop_static(terms)
             sc = fitter.score(specs, want_coef=True)
