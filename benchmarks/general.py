@@ -34,7 +34,9 @@ Two users' sweeps then changed the diagnosis path (every refit of an accepted ef
 signature check; absurd magnitudes, short and constant recordings refused), so GENERAL_FOURTEENTH_SEED
 draws a thirteenth. Its stress-dependent play miss (a stress gain extrapolated beyond the recording's
 loads) was then looked at and fixed (the identification loops judge the gain), so GENERAL_FIFTEENTH_SEED
-draws a fourteenth.
+draws a fourteenth. Its resonance-with-eddy-currents miss (a load law left flat by a round before the
+lag was named) was then looked at and fixed (look-alike pairs zoomed again), so GENERAL_SIXTEENTH_SEED
+draws a fifteenth.
 """
 
 from __future__ import annotations
@@ -79,6 +81,8 @@ GENERAL_FOURTEENTH_SEED = 20261301  # a thirteenth never-tuned draw (2026-11-30,
                                     # users' sweeps changed the diagnosis path; fixed and committed before its first run
 GENERAL_FIFTEENTH_SEED = 20261302   # a fourteenth never-tuned draw (2026-11-30, twenty-fifth session): after the
                                     # identification loops judge a stress gain; fixed and committed before its first run
+GENERAL_SIXTEENTH_SEED = 20261303   # a fifteenth never-tuned draw (2026-11-30, twenty-fifth session, later): after
+                                    # look-alike pairs are zoomed again; fixed and committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
