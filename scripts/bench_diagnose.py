@@ -285,6 +285,16 @@ def summarise(todo: list[Case], ident: bool = False, probes: bool = True, short:
 
 
 
+def _probe_floor_words(r: dict[str, Any]) -> str:
+    """Why a case below the probe target is: the effect-free twin's floor itself above the target (the
+    model class leaves that much without the effect), or the effect not modelled well enough."""
+    if not np.isfinite(r["probe_floor"]):
+        return ""
+    target = r["probe_before"] / PROBE_GAIN_EACH
+    return (f"; {PROBE_GAIN_EACH:g}x needed {target:.4f} um, "
+            + ("below the floor" if target < r["probe_floor"] else "more of the effect modelled"))
+
+
 def summarise_probes(results: list[dict[str, Any]]) -> None:
     """The held-out-condition figures: each case's extended model against its base on the probes
     (other loads, rates and drive shapes, recordings diagnose never saw)."""
@@ -299,7 +309,7 @@ def summarise_probes(results: list[dict[str, Any]]) -> None:
               "(target: all)")
         for r in weak:
             print(f"    below {PROBE_GAIN_EACH:g}x: {r['case']}: {r['probe_before']:.4f} -> {r['probe_after']:.4f} um "
-                  f"(floor {r['probe_floor']:.4f} um)")
+                  f"(floor {r['probe_floor']:.4f} um{_probe_floor_words(r)})")
         res = [(r, g) for r, g in zip(effect, gains) if "mechanical_dynamics" in r["truth"]]
         if res:
             print(f"  resonance cases: " + ", ".join(f"{r['case']} {g:.2f}x" for r, g in res)
