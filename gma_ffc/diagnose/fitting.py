@@ -38,6 +38,8 @@ STATIC_CACHE_BYTES = 32 * 2 ** 20
 ANCHOR_CACHE_BYTES = 96 * 2 ** 20
 TABLE_CACHE_BYTES = 32 * 2 ** 20   # per-sample tables (`cached_table`): a resonance's for an hour at 1 kHz is 115 MB,
                                    # so long recordings keep the newest only; a recording of minutes keeps dozens
+SEARCHES_KEPT = 256              # searches' results kept per fitter (`searched`): a few kilobytes each (the specs and
+                                 # one coefficient per column); a diagnosis makes 20-60, so a diagnosis keeps every one
 _T = TypeVar("_T")               # what an effect keeps in the fitter's cache (`Fitter.cached`)
 
 
@@ -206,6 +208,7 @@ class Fitter:
         self._static_cache: BoundedCache[tuple[list[np.ndarray], list[str], dict[str, np.ndarray]]] = \
             BoundedCache(max_bytes=STATIC_CACHE_BYTES)
         self._table_cache: BoundedCache[np.ndarray] = BoundedCache(max_bytes=TABLE_CACHE_BYTES)
+        self._search_cache: BoundedCache[Any] = BoundedCache(max_entries=SEARCHES_KEPT)
 
     def _init_rows(self) -> None:
         """The least-squares rows, fold A's (of every recording) first, then fold B's (folds are
@@ -311,6 +314,12 @@ class Fitter:
     def cached(self, key: tuple, compute: Callable[[], _T]) -> _T:
         """compute() once per key (e.g. a re-run of the core an effect's regressor needs)."""
         return self._cache.get_or_compute(key, compute)
+
+    def searched(self, key: tuple, compute: Callable[[], _T]) -> _T:
+        """compute() once per key and the fitter's loss and designs (its Huber scale, whether the anchor
+        holds, the recalibration columns left out): a search's result is a function of these, its
+        base and the effect searched alone (`scoring.search_all`)."""
+        return self._search_cache.get_or_compute((self.delta, self.anchor_on, self.static_off) + key, compute)
 
     def cached_table(self, d: RecData, key: tuple, compute: Callable[[], np.ndarray]) -> np.ndarray:
         """compute() once per recording (or anchor loop) and key: a per-sample table that an effect's

@@ -81,32 +81,39 @@ def build_extended(model: Any, fitter: Fitter, spec: Spec, coef: np.ndarray, nam
 
 
 def search_all(fitter: Fitter, base: Specs, names: list[str], workers: int) -> dict[str, SearchResult]:
-    """Search several effects on top of `base`, in parallel threads (the kernels release the GIL)."""
+    """Search several effects on top of `base`, in parallel threads (the kernels release the GIL).
+    Each effect's search on a base is made once per fitter (`Fitter.searched`): the swap pass searches
+    the slot of the effect accepted last on the base its round searched it on, with the same rivals."""
 
     def one(name: str) -> SearchResult:
-        cls = REGISTRY[name]
-        partner = next((p for p in cls.joint_with if p in base[2]), None)
-        if partner is None:
-            return _own_search(fitter, base, name, workers)
-
-        # look-alikes trade off against each other: re-search the accepted one's value with the new one
-        def make_joint(s: Spec, p: Any) -> Spec:
-            return s.with_(name, p[0]).with_(partner, REGISTRY[partner].scaled_for_partner(s[partner], p[1]))
-
-        def refine(f: Fitter, p: Any, level: int) -> list:
-            own = cls.refine(f, p[0], level)
-            out = [(q, p[1]) for q in own] if own is not None else []
-            return out + [(p[0], min(p[1] * m, 1.5)) for m in geom_refine(1.0, 1.6, level)]
-
-        grid = [(p, k) for p in cls.grid(fitter) for k in cls.joint_scales]
-        found = search(fitter, base, make_joint, grid, refine, workers=workers)
-        return _descend(fitter, base, found, name, partner, workers) if REGISTRY[partner].joint_refit else found
+        return fitter.searched(("search", base, name), lambda: _search_one(fitter, base, name, workers))
 
     n = min(workers, max(len(names), 1))
     if n <= 1:
         return {name: one(name) for name in names}
     with ThreadPoolExecutor(max_workers=n) as pool:
         return dict(zip(names, pool.map(one, names)))
+
+
+def _search_one(fitter: Fitter, base: Specs, name: str, workers: int) -> SearchResult:
+    """One effect searched on top of `base`: its own search, or jointly with a look-alike already in it."""
+    cls = REGISTRY[name]
+    partner = next((p for p in cls.joint_with if p in base[2]), None)
+    if partner is None:
+        return _own_search(fitter, base, name, workers)
+
+    # look-alikes trade off against each other: re-search the accepted one's value with the new one
+    def make_joint(s: Spec, p: Any) -> Spec:
+        return s.with_(name, p[0]).with_(partner, REGISTRY[partner].scaled_for_partner(s[partner], p[1]))
+
+    def refine(f: Fitter, p: Any, level: int) -> list:
+        own = cls.refine(f, p[0], level)
+        out = [(q, p[1]) for q in own] if own is not None else []
+        return out + [(p[0], min(p[1] * m, 1.5)) for m in geom_refine(1.0, 1.6, level)]
+
+    grid = [(p, k) for p in cls.grid(fitter) for k in cls.joint_scales]
+    found = search(fitter, base, make_joint, grid, refine, workers=workers)
+    return _descend(fitter, base, found, name, partner, workers) if REGISTRY[partner].joint_refit else found
 
 
 def _own_search(fitter: Fitter, base: Specs, name: str, workers: int, start: Any = None,

@@ -28,8 +28,12 @@ def lag_filter(x: np.ndarray, dt: np.ndarray, tau: float, z0: float) -> np.ndarr
     n = x.shape[0]
     out = np.empty(n)
     z = z0
+    last_dt = math.nan          # the pole is computed again only where the step changes (`lag_coeff` is
+    a = 0.0                     # an exp, most of the loop's cost; an even step gives the same value each time)
     for k in range(n):
-        a = lag_coeff(dt[k], tau)
+        if dt[k] != last_dt:
+            a = lag_coeff(dt[k], tau)
+            last_dt = dt[k]
         z = a * z + (1.0 - a) * x[k]
         out[k] = z
     return out
@@ -41,8 +45,12 @@ def lag_inverse(z: np.ndarray, dt: np.ndarray, tau: float, z0: float) -> np.ndar
     n = z.shape[0]
     out = np.empty(n)
     prev = z0
+    last_dt = math.nan          # as in `lag_filter`: the pole once per step length
+    a = 0.0
     for k in range(n):
-        a = lag_coeff(dt[k], tau)
+        if dt[k] != last_dt:
+            a = lag_coeff(dt[k], tau)
+            last_dt = dt[k]
         out[k] = (z[k] - a * prev) / (1.0 - a)
         prev = z[k]
     return out
@@ -56,20 +64,24 @@ def creep_inverse(y: np.ndarray, dt: np.ndarray, gain: float, taus: np.ndarray) 
     m = taus.shape[0]
     out = np.empty(n)
     z = np.full(m, y[0])
+    a = np.empty(m)             # each lag's pole, computed again only where the step changes (as `lag_filter`)
+    last_dt = math.nan
     for k in range(n):
         if k == 0:
             out[0] = y[0]                       # every lag starts at y_c[0]: no creep term yet
             continue
+        if dt[k] != last_dt:
+            for j in range(m):
+                a[j] = lag_coeff(dt[k], taus[j])
+            last_dt = dt[k]
         held = 0.0
         fresh = 0.0
         for j in range(m):
-            a = lag_coeff(dt[k], taus[j])
-            held += a * z[j]
-            fresh += 1.0 - a
+            held += a[j] * z[j]
+            fresh += 1.0 - a[j]
         yc = (y[k] - gain * held / m) / (1.0 - gain + gain * fresh / m)
         for j in range(m):
-            a = lag_coeff(dt[k], taus[j])
-            z[j] = a * z[j] + (1.0 - a) * yc
+            z[j] = a[j] * z[j] + (1.0 - a[j]) * yc
         out[k] = yc
     return out
 
