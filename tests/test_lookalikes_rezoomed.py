@@ -33,7 +33,7 @@ def _selection_with(fitter, spec, accepted):
 def test_a_resonance_law_left_flat_beside_an_eddy_lag_is_zoomed_again_to_the_plants():
     case = {c.name: c for c in general_cases(GENERAL_FIFTEENTH_SEED, prefix="fifteenth")}[
         "fifteenth:rate_dependence+mechanical_dynamics"]
-    model, ident, rec = case_recordings(case)
+    model, ident, rec = case_recordings(case, scale=0.5)
     selector = EffectSelector()
     selector.threads_ = 1
     problem = setup(selector, model, [rec], lambda _m: None, ident, check(model, [r.name for r in ident]))
