@@ -30,13 +30,19 @@ def _selection_with(fitter, spec, accepted):
     return Selection(fit, frozenset(accepted), {}, accepted=accepted)
 
 
-def test_a_resonance_law_left_flat_beside_an_eddy_lag_is_zoomed_again_to_the_plants():
+def _pair_problem(with_ident):
+    """The fifteenth draw's resonance-with-eddy-currents case, half its length, set up for selection."""
     case = {c.name: c for c in general_cases(GENERAL_FIFTEENTH_SEED, prefix="fifteenth")}[
         "fifteenth:rate_dependence+mechanical_dynamics"]
     model, ident, rec = case_recordings(case, scale=0.5)
     selector = EffectSelector()
     selector.threads_ = 1
-    problem = setup(selector, model, [rec], lambda _m: None, ident, check(model, [r.name for r in ident]))
+    ident = ident if with_ident else []
+    return case, selector, setup(selector, model, [rec], lambda _m: None, ident, check(model, [r.name for r in ident]))
+
+
+def test_a_resonance_law_left_flat_beside_an_eddy_lag_is_zoomed_again_to_the_plants():
+    case, selector, problem = _pair_problem(with_ident=True)
     fitter = problem.fitter
     flat = Spec({"mechanical_dynamics": FLAT_LAW, "rate_dependence": EDDY_TAU_S})
     before = _selection_with(fitter, flat, ("mechanical_dynamics", "rate_dependence"))
@@ -50,12 +56,7 @@ def test_a_resonance_law_left_flat_beside_an_eddy_lag_is_zoomed_again_to_the_pla
 
 
 def test_an_effect_without_an_accepted_look_alike_is_left_where_it_is():
-    case = {c.name: c for c in general_cases(GENERAL_FIFTEENTH_SEED, prefix="fifteenth")}[
-        "fifteenth:rate_dependence+mechanical_dynamics"]
-    model, ident, rec = case_recordings(case, scale=0.5)
-    selector = EffectSelector()
-    selector.threads_ = 1
-    problem = setup(selector, model, [rec], lambda _m: None)
+    _, selector, problem = _pair_problem(with_ident=False)
     alone = _selection_with(problem.fitter, Spec({"mechanical_dynamics": FLAT_LAW}), ("mechanical_dynamics",))
     assert selector._lookalikes_rezoomed(problem, alone) is alone
     assert math.isfinite(alone.cur_loss)
