@@ -466,18 +466,18 @@ class Fitter:
         sensor calibration. The anchor frees each loop's scale too, so it cannot see how the gain
         changes from one load to another; this can. NaN without measured loops at two or more loads
         (`min_stress_span_MPa` apart)."""
-        loops = [(d, run) for d, run in zip(self.anchor, self.anchor_core(spec))
-                 if d.extra.get("anchor_rule") == "estimate"]
+        measured = {id(d) for d in self.identification}
+        loops = [(d, run) for d, run in zip(self.anchor, self.anchor_core(spec)) if id(d) in measured]
         stresses = [float(np.median(d.s[d.rows])) for d, _ in loops]
         if len(loops) < 2 or np.ptp(stresses) < self.settings.min_stress_span_MPa:
             return math.nan
-        predicted, offsets, measured = [], [], []
+        predicted, offsets, ys = [], [], []
         for k, (d, (u3, yc)) in enumerate(loops):
             cols = self.columns(d, u3, yc, spec, steady=True)[0]
             predicted.append(np.column_stack(cols)[d.rows] @ coef)
-            measured.append(d.y[d.rows])
+            ys.append(d.y[d.rows])
             offsets.append(np.full(d.rows.size, k))
-        y = np.concatenate(measured)
+        y = np.concatenate(ys)
         free = np.column_stack([np.concatenate(offsets) == k for k in range(len(loops))] + [y]).astype(float)
         p = np.concatenate(predicted)
         return float(np.sqrt(np.mean((p - free @ np.linalg.lstsq(free, p, rcond=None)[0]) ** 2)))

@@ -606,9 +606,9 @@ class EffectSelector:
             return sel
         fitter = problem.fitter
         present = [t for t in self.RECALIBRATION_TERMS if t in sel.fit.names]
-        blocks = fitter.level_blocks()
         if not present:
             return sel
+        blocks = fitter.level_blocks()
         off = self._not_carried_to_levels(fitter, sel.fit.specs[2], blocks, present) if len(blocks) >= 2 else []
         note = left_out_words(off, len(blocks), any(d.s_raw is not None for d in problem.data),
                               len(blocks) == len(fitter.stress_levels() or [0.0])) if off else ""
