@@ -3,6 +3,8 @@ Pure maths."""
 
 from __future__ import annotations
 
+from typing import Iterator
+
 import numpy as np
 
 
@@ -79,22 +81,45 @@ HOLD_BAND = 0.02
 sensor's noise over a drive's whole span, well below a step of a step test."""
 
 
-def holds(time_s: np.ndarray, u: np.ndarray, min_s: float) -> int:
-    """Stretches of at least `min_s` seconds in which the drive stays within HOLD_BAND of its span
-    (each after a step or a turn: a step test's levels, a sine's pauses), counted once each."""
-    t, u = np.asarray(time_s, dtype=float), np.asarray(u, dtype=float)
-    band = HOLD_BAND * float(np.ptp(u))
+HOLD_S = 1.0
+"""A hold counts once it lasts this long: it then shows creep's fastest central time constant
+(`gma_ffc.effects.creep`), and no sine faster than 0.1 Hz stays within HOLD_BAND of its span at
+a turning point for so long (about 0.09 s a period), so a turning point is never a hold."""
+
+
+def _hold_stretches(t: np.ndarray, u: np.ndarray, min_s: float) -> Iterator[tuple[int, int]]:
+    """(first, past-last) sample of each stretch of at least `min_s` seconds in which the drive
+    stays within HOLD_BAND of its span."""
+    band = HOLD_BAND * float(np.ptp(u)) if u.size else 0.0
     if u.size < 2 or band <= 0:
-        return 0
-    count, start, lo, hi = 0, 0, float(u[0]), float(u[0])
+        return
+    start, lo, hi = 0, float(u[0]), float(u[0])
     for k in range(1, u.size):
         v = float(u[k])
         if max(hi, v) - min(lo, v) <= band:          # still holding: the stretch grows
             lo, hi = min(lo, v), max(hi, v)
             continue
-        count += int(t[k - 1] - t[start] >= min_s)   # the stretch ends: was it long enough?
+        if t[k - 1] - t[start] >= min_s:             # the stretch ends: was it long enough?
+            yield start, k
         start, lo, hi = k, v, v
-    return count + int(t[-1] - t[start] >= min_s)   # the last stretch ends with the recording
+    if t[-1] - t[start] >= min_s:                    # the last stretch ends with the recording
+        yield start, u.size
+
+
+def holds(time_s: np.ndarray, u: np.ndarray, min_s: float) -> int:
+    """Stretches of at least `min_s` seconds in which the drive stays within HOLD_BAND of its span
+    (each after a step or a turn: a step test's levels, a sine's pauses), counted once each."""
+    t, u = np.asarray(time_s, dtype=float), np.asarray(u, dtype=float)
+    return sum(1 for _ in _hold_stretches(t, u, min_s))
+
+
+def held(time_s: np.ndarray, u: np.ndarray, min_s: float = HOLD_S) -> np.ndarray:
+    """Which samples lie in such a hold (`holds` counts them)."""
+    t, u = np.asarray(time_s, dtype=float), np.asarray(u, dtype=float)
+    out = np.zeros(u.size, dtype=bool)
+    for first, past in _hold_stretches(t, u, min_s):
+        out[first:past] = True
+    return out
 
 
 RANGE_MARGIN = 0.02

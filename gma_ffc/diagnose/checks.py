@@ -6,7 +6,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..drive import drive_unit, holds, outside_range, reversals
+from ..drive import HOLD_S, drive_unit, holds, outside_range, reversals
 from ..errors import InputError
 from ..model import stress_sign_advice
 from ..recordings import Recording
@@ -20,7 +20,6 @@ MIN_REVERSALS = 2 * N_BLOCKS   # drive turning points in all: on average a full 
 MIN_HOLDS = 4                  # ...short of them, the slow effects (heating, creep) are still tested where the drive
                                # holds this many times: each hold a step response and a heating level of its own,
                                # so both folds hold parts of several, and a law fitted on one predicts the other's
-HOLD_S = 1.0                   # a hold this long shows creep's fastest central time constant (effects.creep)
 
 
 def check_recordings(recordings: Sequence[Recording], min_samples: int) -> None:

@@ -12,6 +12,7 @@ module gives, separately for each fold using only that fold's training samples.
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 from dataclasses import dataclass
@@ -20,6 +21,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence, TypeVar
 import numpy as np
 from scipy.linalg import lapack
 
+from ..drive import held
 from ..effects import path_order
 from ..effects.base import CoreAround, Effect, Regressors
 from ..effects.static import StaticMap
@@ -595,6 +597,14 @@ class Fitter:
         c_all, loss_all, n_all = self._fit(X, y, specs[2])
         return Score(tuple(sse_train), tuple(sse_test), tuple(n_train), tuple(n_test),  # type: ignore[arg-type]
                      loss_all, n_all, c_all if want_coef else None, names, tuple(sq_test))  # type: ignore[arg-type]
+
+    @functools.cached_property
+    def held_rows(self) -> np.ndarray:
+        """At the least-squares rows, whether the drive holds there (`drive.held`; found when first
+        asked, as only stress-dependent play's signature asks)."""
+        still = [held(d.t, d.u) for d in self.data]
+        return np.concatenate([h[ra] for h, (ra, _) in zip(still, self._rows_ab)] +
+                              [h[rb] for h, (_, rb) in zip(still, self._rows_ab)])
 
     @property
     def rows_ab(self) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -80,8 +80,10 @@ class EffectSelector:
         Also the tolerance of saturation's "the curve turns round" check.
     slow_ratio_max (0.8)
         Play weights are rate-independent, and creep shows most where the drive stops changing, so
-        stress_dependent_play and creep must also cut the error on the slowest 40 % of samples (where
-        the drive turns round or holds), by 20 %: a gain from the fast parts is another effect's leftover.
+        creep must also cut the error on the slowest 40 % of samples (where the drive turns round or
+        holds) by 20 %, and stress_dependent_play there or on the slowest 40 % of those where the
+        drive moves (its turns: after a step the core's minor loops may miss by more than a width
+        law changes): a gain from the fast parts alone is another effect's leftover.
     ambiguous_nats (3.0)
         A runner-up within 3 nats of the winner (likelihood ratio ~20) is a look-alike the data
         do not tell apart: the outcome is inconclusive, with the experiment that would decide.
