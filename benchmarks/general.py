@@ -36,7 +36,9 @@ draws a thirteenth. Its stress-dependent play miss (a stress gain extrapolated b
 loads) was then looked at and fixed (the identification loops judge the gain), so GENERAL_FIFTEENTH_SEED
 draws a fourteenth. Its resonance-with-eddy-currents miss (a load law left flat by a round before the
 lag was named) was then looked at and fixed (look-alike pairs zoomed again), so GENERAL_SIXTEENTH_SEED
-draws a fifteenth.
+draws a fifteenth. Its stress-dependent play miss (a width law that gained at the drive's turns but not
+at its holds, where the core's minor loops miss) was then looked at and fixed (either passes), so
+GENERAL_SEVENTEENTH_SEED draws a sixteenth.
 """
 
 from __future__ import annotations
@@ -83,6 +85,8 @@ GENERAL_FIFTEENTH_SEED = 20261302   # a fourteenth never-tuned draw (2026-11-30,
                                     # identification loops judge a stress gain; fixed and committed before its first run
 GENERAL_SIXTEENTH_SEED = 20261303   # a fifteenth never-tuned draw (2026-11-30, twenty-fifth session, later): after
                                     # look-alike pairs are zoomed again; fixed and committed before its first run
+GENERAL_SEVENTEENTH_SEED = 20261304  # a sixteenth never-tuned draw (2026-11-30, twenty-sixth session): after the
+                                     # play's gain may show at the drive's turns; fixed and committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
