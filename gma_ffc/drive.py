@@ -83,8 +83,8 @@ sensor's noise over a drive's whole span, well below a step of a step test."""
 
 HOLD_S = 1.0
 """A hold counts once it lasts this long: it then shows creep's fastest central time constant
-(`gma_ffc.effects.creep`), and no sine faster than 0.1 Hz stays within HOLD_BAND of its span at
-a turning point for so long (about 0.09 s a period), so a turning point is never a hold."""
+(`gma_ffc.effects.creep`); and a sine stays within HOLD_BAND of its span at a turning point for
+0.09 of its period (0.9 s at 0.1 Hz), so the turns of any faster sine are never holds."""
 
 
 def _hold_stretches(t: np.ndarray, u: np.ndarray, min_s: float) -> Iterator[tuple[int, int]]:

@@ -66,8 +66,8 @@ def _check(fitter) -> SignatureCheck:
 def test_a_gain_at_the_turns_passes_though_the_holds_keep_their_error():
     """Holds (rate 0) are missed as before; where the drive moves, slow and fast alike gain 4x. With
     the holds the slowest 40 % are all holds and creep's check fails; the play's passes at the turns."""
-    n = 1000
-    rate = np.concatenate([np.zeros(400), np.linspace(0.1, 50.0, 600)])
+    n = 4000
+    rate = np.concatenate([np.zeros(1600), np.linspace(0.1, 50.0, 2400)])
     held_rows = rate == 0
     before = np.ones(n)
     after = np.where(held_rows, 1.0, 0.5)
@@ -80,7 +80,7 @@ def test_a_gain_at_the_turns_passes_though_the_holds_keep_their_error():
 
 def test_a_gain_at_the_holds_alone_passes_as_before():
     """The other way round: the holds gain 4x and the turns nothing."""
-    rate = np.concatenate([np.zeros(400), np.linspace(0.1, 50.0, 600)])
+    rate = np.concatenate([np.zeros(1600), np.linspace(0.1, 50.0, 2400)])
     held_rows = rate == 0
     after = np.where(held_rows, 0.5, 1.0)
     check = _check(_Rows(rate, held_rows, np.ones(rate.size), after))
@@ -90,11 +90,22 @@ def test_a_gain_at_the_holds_alone_passes_as_before():
 
 def test_a_gain_only_where_the_drive_is_fast_fails_at_the_holds_and_the_turns():
     """A rate effect's leftover: the gain is on the fast samples alone, so holds and turns keep their error."""
-    rate = np.concatenate([np.zeros(200), np.linspace(0.1, 50.0, 800)])
+    rate = np.concatenate([np.zeros(800), np.linspace(0.1, 50.0, 3200)])
     after = np.where(rate > np.percentile(rate, 60), 0.3, 1.0)
     check = _check(_Rows(rate, rate == 0, np.ones(rate.size), after))
     failure = check.gain_from_fast_parts("x", turns_alone=True)
     assert failure is not None and "of those where it moves" in failure.reason and "100% of before" in failure.reason
+
+
+def test_too_few_turns_show_no_gain():
+    """A step test's few moving rows: their slowest 40 % are fewer than a diagnosis scores at all
+    (`min_samples`), so a gain there, however large, is not taken as the play's."""
+    rate = np.concatenate([np.zeros(3000), np.linspace(0.1, 50.0, 900)])    # 360 slow moving rows
+    held_rows = rate == 0
+    after = np.where(held_rows, 1.0, 0.1)
+    check = _check(_Rows(rate, held_rows, np.ones(rate.size), after))
+    assert check.slow_ratio(holds=False) == 1.0
+    assert check.gain_from_fast_parts("x", turns_alone=True) is not None
 
 
 @pytest.mark.slow

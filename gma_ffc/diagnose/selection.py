@@ -371,7 +371,7 @@ class EffectSelector:
         """The trial's effect's signature check, on the model `base` it was fitted on top of."""
         return REGISTRY[trial.effect].signature(
             SignatureCheck(problem.fitter, problem.model, base, trial.result, dict(trial.params),
-                           problem.noise, self.slow_ratio_max, self.model_error_factor))
+                           problem.noise, self.slow_ratio_max, self.model_error_factor, self.min_samples))
 
     def _refit_keeps_signatures(self, problem: Problem, fit: SearchResult, names: Sequence[str]) -> bool:
         """Do `names`, as `fit` has them, each still pass their signature check (each judged on `fit`

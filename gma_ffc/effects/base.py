@@ -206,17 +206,19 @@ class SignatureCheck:
     noise: float                   # the noise floor (um)
     slow_ratio_max: float          # the selector's thresholds the checks use
     model_error_factor: float
+    min_samples: int = 400         # the selector's: fewer rows than a diagnosis scores at all judge nothing
 
     SLOW_SHARE: ClassVar[int] = 40   # the slowest 40 % of samples: where the drive turns round or holds
 
     def slow_ratio(self, holds: bool = True) -> float:
         """Held-out mean-square error with the effect over that without it, on the slowest
         `SLOW_SHARE` % of samples (by the drive's rate): where the drive turns round or holds.
-        `holds=False`: of the samples where the drive moves (`drive.held`), so where it turns round."""
+        `holds=False`: of the samples where the drive moves (`drive.held`), so where it turns round.
+        Fewer slow rows than `min_samples` show no gain (1.0)."""
         f = self.fitter
         moving = np.ones(f.rate_rows.size, dtype=bool) if holds else ~f.held_rows
-        if not moving.any():
-            return 1.0
+        if self.SLOW_SHARE / 100 * np.count_nonzero(moving) < self.min_samples:
+            return 1.0       # too few rows to tell a gain from chance: none shown
         slow = moving & (f.rate_rows <= np.percentile(f.rate_rows[moving], self.SLOW_SHARE))
         r0 = f.test_residuals(self.before)[slow]
         r1 = f.test_residuals(self.result.specs)[slow]
