@@ -15,6 +15,7 @@ This package never imports `gma_ffc.diagnose`: the diagnosis hands its fitter in
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Iterable, Mapping, Protocol, Sequence, TypeGuard, TypeVar
@@ -220,9 +221,14 @@ class SignatureCheck:
         if self.SLOW_SHARE / 100 * np.count_nonzero(moving) < self.min_samples:
             return 1.0       # too few rows to tell a gain from chance: none shown
         slow = moving & (f.rate_rows <= np.percentile(f.rate_rows[moving], self.SLOW_SHARE))
-        r0 = f.test_residuals(self.before)[slow]
-        r1 = f.test_residuals(self.result.specs)[slow]
+        r0, r1 = (r[slow] for r in self._held_out)
         return float(np.mean(r1 * r1) / max(float(np.mean(r0 * r0)), 1e-300))
+
+    @functools.cached_property
+    def _held_out(self) -> tuple[np.ndarray, np.ndarray]:
+        """Held-out residuals at the fitter's rows, before and with the effect (fitted once, however
+        many parts of the drive are judged)."""
+        return self.fitter.test_residuals(self.before), self.fitter.test_residuals(self.result.specs)
 
     def gain_from_fast_parts(self, because: str, turns_alone: bool = False) -> "SignatureFailure | None":
         """A failure when the effect's held-out gain does not hold where the drive is slow (the
