@@ -44,7 +44,7 @@ from ..errors import InputError
 from ..extended import ExtendedModel
 from ..recordings import Recording
 from .explain import decider
-from .fitting import Fitter, LeaveOneOut, Spec
+from .fitting import Fitter, LeaveOneOut, Score, Spec
 from .identification import check
 from .outcome import assemble
 from .problem import setup
@@ -614,15 +614,18 @@ class EffectSelector:
         off = self._not_carried_to_levels(fitter, sel.fit.specs[2], blocks, present) if len(blocks) >= 2 else []
         note = left_out_words(off, len(blocks), any(d.s_raw is not None for d in problem.data),
                               len(blocks) == len(fitter.stress_levels() or [0.0])) if off else ""
+        sc: Score | None = None
         if "stress_gain" in present and "stress_gain" not in off:
-            misfit = self._stress_gain_on_loops(fitter, sel.fit.specs, off)
-            if misfit is not None:
+            judged = self._stress_gain_on_loops(fitter, sel.fit.specs, off)
+            if judged is not None:
+                with_gain, without, sc = judged
                 off.append("stress_gain")
-                note += stress_gain_loops_words(*misfit)
+                note += stress_gain_loops_words(with_gain, without)
         if not off:
             return sel
         fitter.drop_static(off)
-        sc = fitter.score(sel.fit.specs, want_coef=True)
+        if sc is None:                    # else the loops' judge has fitted the model without `off` already
+            sc = fitter.score(sel.fit.specs, want_coef=True)
         assert sc.coef_all is not None
         fit = SearchResult(sel.fit.specs, sc.held_out_loss, sc.held_out_mse, sc.all_mse, sc.n_held_out, sc.coef_all,
                            sc.names, sel.fit.evaluated)
@@ -641,28 +644,28 @@ class EffectSelector:
         return [t for t in present if left_out_loss((t,)) <= full]
 
     @staticmethod
-    def _stress_gain_on_loops(fitter: Fitter, specs: Specs, off: Sequence[str]) -> tuple[float, float] | None:
-        """(misfit with, misfit without) on the measured identification loops, where the final model
-        with its stress gain misses them (`Fitter.loops_misfit_one_scale`, one sensor scale for all
-        loops) no better than refitted without it; None where the gain holds there, or there are no
-        such loops. The recording's own stress levels cannot judge a gain beyond their span: the
+    def _stress_gain_on_loops(fitter: Fitter, specs: Specs, off: Sequence[str]) -> tuple[float, float, Score] | None:
+        """(misfit with, misfit without, the fit without) on the measured identification loops, where
+        the final model with its stress gain misses them (`Fitter.loops_misfit_one_scale`, one sensor
+        scale for all loops) no better than refitted without it; None where the gain holds there, or
+        there are no such loops. The recording's own stress levels cannot judge a gain beyond their span: the
         fourteenth never-tuned draw's stress-dependent play kept one fitted on -18.6 to -13.4 MPa,
         and its probe at -24 MPa came out 1.20 um against the base's 0.58 um. The identification
         loops, four loads wide, held that gain at 0.55 um and the model without it at 0.24 um."""
         if len(fitter.identification) < 2:
             return None
 
-        def misfit(terms: Sequence[str]) -> float:
+        def misfit(terms: Sequence[str]) -> tuple[float, Score]:
             fitter.drop_static(terms)
             sc = fitter.score(specs, want_coef=True)
             assert sc.coef_all is not None
-            return fitter.loops_misfit_one_scale(specs[2], sc.coef_all)
+            return fitter.loops_misfit_one_scale(specs[2], sc.coef_all), sc
 
-        with_gain, without = misfit(off), misfit([*off, "stress_gain"])
+        (with_gain, _), (without, fitted_without) = misfit(off), misfit([*off, "stress_gain"])
         fitter.drop_static(off)
         if not without <= with_gain:      # NaN (no loops at two loads) keeps the gain as the levels judged it
             return None
-        return with_gain, without
+        return with_gain, without, fitted_without
 
     # ------------------------------------------------------------------ final guards
     def _guard(self, problem: Problem, sel: Selection) -> Final:
