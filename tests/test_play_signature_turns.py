@@ -120,3 +120,13 @@ def test_a_width_law_that_gains_at_the_turns_is_named_though_the_steps_keep_thei
     dg = diagnose(model, [rec], identification=ident)
     assert dg.verdict == ["stress_dependent_play"]
     assert dg.rms_after_um < 0.75 * dg.rms_before_um     # 0.72 -> 0.47 um
+
+
+def test_the_least_row_count_is_the_turns_alone():
+    """A short recording's rows, all of them judged (holds and turns): the same check as before the
+    turns were added, whatever their number (the diagnosis has already asked for `min_samples`)."""
+    rate = np.concatenate([np.zeros(200), np.linspace(0.1, 50.0, 400)])    # 240 slow rows in all
+    after = np.where(rate == 0, 0.5, 1.0)
+    check = _check(_Rows(rate, rate == 0, np.ones(rate.size), after))
+    assert check.slow_ratio() < 0.8
+    assert check.gain_from_fast_parts("x") is None

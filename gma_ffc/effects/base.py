@@ -214,12 +214,12 @@ class SignatureCheck:
     def slow_ratio(self, holds: bool = True) -> float:
         """Held-out mean-square error with the effect over that without it, on the slowest
         `SLOW_SHARE` % of samples (by the drive's rate): where the drive turns round or holds.
-        `holds=False`: of the samples where the drive moves (`drive.held`), so where it turns round.
-        Fewer slow rows than `min_samples` show no gain (1.0)."""
+        `holds=False`: of the samples where the drive moves (`drive.held`), so where it turns round;
+        fewer such slow rows than `min_samples` show no gain (1.0)."""
         f = self.fitter
         moving = np.ones(f.rate_rows.size, dtype=bool) if holds else ~f.held_rows
-        if self.SLOW_SHARE / 100 * np.count_nonzero(moving) < self.min_samples:
-            return 1.0       # too few rows to tell a gain from chance: none shown
+        if not holds and self.SLOW_SHARE / 100 * np.count_nonzero(moving) < self.min_samples:
+            return 1.0       # too few turns to tell a gain from chance: none shown
         slow = moving & (f.rate_rows <= np.percentile(f.rate_rows[moving], self.SLOW_SHARE))
         r0, r1 = (r[slow] for r in self._held_out)
         return float(np.mean(r1 * r1) / max(float(np.mean(r0 * r0)), 1e-300))
