@@ -60,4 +60,4 @@ def test_a_stress_gain_the_loops_share_is_kept():
     gained = [_with_stress_gain(r, 0.02, ref) for r in ident]
     sel, fitter = _carried(model, gained, _with_stress_gain(rec, 0.02, ref))
     assert "stress_gain" in sel.fit.names
-    assert np.isfinite(fitter.loops_misfit_one_scale(sel.fit.specs[2], sel.fit.coef_all))
+    assert np.isfinite(fitter.loops_misfit(sel.fit.specs[2], sel.fit.coef_all))

@@ -462,11 +462,12 @@ class Fitter:
         r = self.anchor_design(spec) @ coef
         return [float(np.sqrt(np.mean(r[k] ** 2))) for k in self._anchor_slices]
 
-    def loops_misfit_one_scale(self, spec: Spec, coef: np.ndarray) -> float:
+    def loops_misfit(self, spec: Spec, coef: np.ndarray, shared_scale: bool = True) -> float:
         """RMS by which the model (spec, coefficients) misses the measured identification loops
-        (`diagnose --ident`), each loop's offset free but one scale shared by them all: one day, one
-        sensor calibration. The anchor frees each loop's scale too, so it cannot see how the gain
-        changes from one load to another; this can. NaN without measured loops at two or more loads
+        (`diagnose --ident`), each loop's offset free, and with `shared_scale` one scale shared by
+        them all: one day, one sensor calibration. The anchor frees each loop's scale too, so it
+        cannot see how the gain changes from one load to another; this can. Without the shared
+        scale, the model's own gain is judged too. NaN without measured loops at two or more loads
         (`min_stress_span_MPa` apart)."""
         measured = {id(d) for d in self.identification}
         loops = [(d, run) for d, run in zip(self.anchor, self.anchor_core(spec)) if id(d) in measured]
@@ -480,9 +481,59 @@ class Fitter:
             ys.append(d.y[d.rows])
             offsets.append(np.full(d.rows.size, k))
         y = np.concatenate(ys)
-        free = np.column_stack([np.concatenate(offsets) == k for k in range(len(loops))] + [y]).astype(float)
+        zeros = [np.concatenate(offsets) == k for k in range(len(loops))]
+        # the prediction against the measurement, each loop's zero (and the shared scale) fitted
         p = np.concatenate(predicted)
-        return float(np.sqrt(np.mean((p - free @ np.linalg.lstsq(free, p, rcond=None)[0]) ** 2)))
+        free, miss = (np.column_stack(zeros + [y]), p) if shared_scale else (np.column_stack(zeros), p - y)
+        free = free.astype(float)
+        return float(np.sqrt(np.mean((miss - free @ np.linalg.lstsq(free, miss, rcond=None)[0]) ** 2)))
+
+    def score_identity_map(self, specs: tuple[Spec, Spec, Spec]) -> Score:
+        """`score` with the static map held at the identity: gain 1, and no curvature, stress gain
+        or loop-width plays. Only each recording's own zero (the offset, the later recordings'
+        sensor zeros, the jumps) is fitted, by least squares, on each fold and on all rows. For a
+        model whose law and core are the identification loops' own (`fitted_on_loops`): it has no
+        column of its own, so nothing else is fitted on these recordings."""
+        y = self.y_rows
+        na = self.n_a
+        folds = ((slice(0, na), slice(na, None)), (slice(na, None), slice(0, na)))
+        sse_train, sse_test, n_train, n_test, sq_test = [], [], [], [], []
+        for f, (tr, te) in enumerate(folds):
+            X, names = self.design(specs[f])
+            c = self._identity_map_coef(X, names, tr)
+            r_tr, r_te = y[tr] - X[tr] @ c, y[te] - X[te] @ c
+            sse_train.append(self.loss(r_tr))
+            sse_test.append(self.loss(r_te))
+            sq_test.append(float(r_te @ r_te))
+            n_train.append(int(r_tr.size))
+            n_test.append(int(r_te.size))
+        X, names = self.design(specs[2])
+        c_all = self._identity_map_coef(X, names, slice(None))
+        r_all = y - X @ c_all
+        return Score(tuple(sse_train), tuple(sse_test), tuple(n_train), tuple(n_test),  # type: ignore[arg-type]
+                     self.loss(r_all), int(r_all.size), c_all, names, tuple(sq_test))  # type: ignore[arg-type]
+
+    def identity_map_left_out(self, spec: Spec) -> list["LeftOut"]:
+        """`left_out` with the static map held at the identity (`score_identity_map`): each recording
+        predicted with gain 1, its own zero fitted on it."""
+        X, names = self.design(spec)
+        y = self.y_rows
+        out = []
+        blocks = self.row_blocks()
+        for k, test in enumerate(blocks):
+            train = np.concatenate([b for j, b in enumerate(blocks) if j != k])
+            c = self._identity_map_coef(X, names, train)
+            out.append(self._left_out_score(X, y, train, test, c, self.loss(y[train] - X[train] @ c), int(train.size)))
+        return out
+
+    def _identity_map_coef(self, X: np.ndarray, names: Sequence[str], rows: slice | np.ndarray) -> np.ndarray:
+        """The coefficients of `score_identity_map` fitted on `rows` of the design X: gain 1, the zeros free."""
+        zero = np.array([n == "offset" or n.startswith(("sensor_zero_", "sensor_jump_")) for n in names])
+        gain = names.index("gain")
+        c = np.zeros(len(names))
+        c[gain] = 1.0
+        c[zero] = np.linalg.lstsq(X[rows][:, zero], self.y_rows[rows] - X[rows, gain], rcond=None)[0]
+        return c
 
     def predict_full(self, spec: Spec, coef: np.ndarray) -> list[np.ndarray]:
         """Full-rate prediction per recording for a spec and its linear coefficients."""

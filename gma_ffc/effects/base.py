@@ -336,6 +336,11 @@ class Effect(Protocol):
         (`diagnose --ident`); '' when they would change nothing."""
 
     @classmethod
+    def fitted_on_loops(cls, fitter: FitData) -> bool:
+        """True when, on this diagnosis, its law and the core it runs are both fitted on the
+        identification loops (`diagnose --ident`), so it adds no column to these recordings."""
+
+    @classmethod
     def grid(cls, fitter: FitData) -> Iterable[Any]: ...
 
     @classmethod
@@ -484,6 +489,10 @@ class EffectBase:
     def lost_without_identification(cls, fitter: FitData) -> str:
         """`without_identification`, when the effect could be tested on these recordings."""
         return cls.without_identification if cls.testable(fitter)[0] else ""
+
+    @classmethod
+    def fitted_on_loops(cls, fitter: FitData) -> bool:
+        return False
 
     @classmethod
     def refine(cls, fitter: FitData, p: Any, level: int) -> Sequence[Any] | None:

@@ -235,6 +235,12 @@ class StressPlay(EffectBase):
         return 1 if fitter.identification else cls.n_params
 
     @classmethod
+    def fitted_on_loops(cls, fitter: FitData) -> bool:
+        """With the identification loops: the width law is fitted on them, the core identified again
+        on them through it, and no weight slope is fitted on these recordings (`columns`)."""
+        return bool(fitter.identification)
+
+    @classmethod
     def grid(cls, fitter: FitData) -> list[float]:
         """The loop-width law: fitted on the identification loops when the diagnosis has them (one
         point: the core is identified again through it), else searched on these recordings."""
