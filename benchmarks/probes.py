@@ -22,7 +22,7 @@ scores both on the same samples (after the base's state has settled) and pools t
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -134,15 +134,21 @@ def pooled(scores: Sequence[ProbeScore], which: str) -> float:
     return float(np.sqrt(sq / max(sum(s.samples for s in scores), 1)))
 
 
-def two_models_on_probes(case: Case, other: Callable[[Any], Any]) -> tuple[Any, float, float, float]:
+def models_on_probes(case: Case, variants: Mapping[str, Callable[[Any], Any]]) -> tuple[Any, float, float, dict[str, float]]:
     """A case diagnosed with its identification loops (as `scripts/bench_diagnose.py --set general`
-    does), and the pooled probe RMS, in um, of the base, of the diagnosis' extended model, and of the
-    model `other(diagnosis)` gives (a variant of it, or the one before a fitting step)."""
+    does), and the pooled probe RMS, in um, of the base, of the diagnosis' extended model, and of each
+    model `variants[name](diagnosis)` gives (a variant of it, or the one before a fitting step)."""
     from gma_ffc.diagnose.engine import diagnose
 
     model, ident, rec = case_recordings(case)
     dg = diagnose(model, [rec], identification=ident)
     probes = probe_recordings(case)
     fitted = probe_scores(model, dg.extended, probes)
-    second = probe_scores(model, other(dg), probes)
-    return dg, pooled(fitted, "base_um"), pooled(fitted, "extended_um"), pooled(second, "extended_um")
+    others = {name: pooled(probe_scores(model, make(dg), probes), "extended_um") for name, make in variants.items()}
+    return dg, pooled(fitted, "base_um"), pooled(fitted, "extended_um"), others
+
+
+def two_models_on_probes(case: Case, other: Callable[[Any], Any]) -> tuple[Any, float, float, float]:
+    """`models_on_probes` with one variant: (diagnosis, base, extended, the variant's) pooled RMS."""
+    dg, base, fitted, others = models_on_probes(case, {"other": other})
+    return dg, base, fitted, others["other"]
