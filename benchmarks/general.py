@@ -38,7 +38,9 @@ draws a fourteenth. Its resonance-with-eddy-currents miss (a load law left flat 
 lag was named) was then looked at and fixed (look-alike pairs zoomed again), so GENERAL_SIXTEENTH_SEED
 draws a fifteenth. Its stress-dependent play miss (a width law that gained at the drive's turns but not
 at its holds, where the core's minor loops miss) was then looked at and fixed (either passes), so
-GENERAL_SEVENTEENTH_SEED draws a sixteenth.
+GENERAL_SEVENTEENTH_SEED draws a sixteenth. Its stress-dependent play was named but did not carry to the
+probes (a recalibration fitted beside the loops' law and core); the loops now judge that map, so
+GENERAL_EIGHTEENTH_SEED draws a seventeenth.
 """
 
 from __future__ import annotations
@@ -87,6 +89,9 @@ GENERAL_SIXTEENTH_SEED = 20261303   # a fifteenth never-tuned draw (2026-11-30, 
                                     # look-alike pairs are zoomed again; fixed and committed before its first run
 GENERAL_SEVENTEENTH_SEED = 20261304  # a sixteenth never-tuned draw (2026-11-30, twenty-sixth session): after the
                                      # play's gain may show at the drive's turns; fixed and committed before its first run
+GENERAL_EIGHTEENTH_SEED = 20261305   # a seventeenth never-tuned draw (2026-11-30, twenty-seventh session): after a
+                                     # recalibration beside the loops' law and core must hold on the loops; fixed and
+                                     # committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 

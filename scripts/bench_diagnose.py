@@ -38,6 +38,7 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set general-fifteenth   # a fourteenth, after the stress gain's loop check
     .venv/bin/python scripts/bench_diagnose.py --set general-sixteenth   # a fifteenth, after look-alike pairs are zoomed again
     .venv/bin/python scripts/bench_diagnose.py --set general-seventeenth # a sixteenth, after the play may gain at the turns
+    .venv/bin/python scripts/bench_diagnose.py --set general-eighteenth  # a seventeenth, after the loops judge the map
 
 Beside the held-out blocks, every case is also judged on probes (`benchmarks.probes`): the same
 simulated actuator recorded again at loads, rates and drive shapes diagnose never saw; the extended
@@ -71,7 +72,7 @@ from benchmarks.general import (GENERAL_EIGHTH_SEED, GENERAL_FIFTH_SEED, GENERAL
                                 GENERAL_SIXTH_SEED, GENERAL_TENTH_SEED, GENERAL_ELEVENTH_SEED,
                                 GENERAL_TWELFTH_SEED, GENERAL_THIRTEENTH_SEED, GENERAL_FOURTEENTH_SEED,
                                 GENERAL_FIFTEENTH_SEED, GENERAL_SIXTEENTH_SEED, GENERAL_SEVENTEENTH_SEED,
-                                general_cases)
+                                GENERAL_EIGHTEENTH_SEED, general_cases)
 from benchmarks.probes import pooled, probe_recordings, probe_scores
 
 # the never-tuned general draws after the first, each drawn after the misses named were fixed
@@ -96,7 +97,9 @@ LATER_DRAWS = (("fresh", "a second", GENERAL_FRESH_SEED, "the first draw's misse
                ("sixteenth", "a sixteenth", GENERAL_SIXTEENTH_SEED,
                 "a pair of look-alikes named in different rounds is zoomed again, each beside the other"),
                ("seventeenth", "a seventeenth", GENERAL_SEVENTEENTH_SEED,
-                "stress-dependent play's gain may show at the drive's turns instead of its holds"))
+                "stress-dependent play's gain may show at the drive's turns instead of its holds"),
+               ("eighteenth", "an eighteenth", GENERAL_EIGHTEENTH_SEED,
+                "a recalibration beside a law and core the identification loops made must hold on those loops"))
 
 # the held-out-condition targets (issue 31), on the probes diagnose never saw
 PROBE_GAIN_EACH = 1.5        # every effect case at least this much better than the base
