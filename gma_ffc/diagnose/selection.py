@@ -642,8 +642,8 @@ class EffectSelector:
         identity, each recording's zero fitted). A map fitted on the recording's few loads beside a
         core the loops made at all of theirs took up the class's misfit at those loads: on the four
         development and seventeenth-draw cases, the loops refused it each time, and without it the
-        probes at other loads, rates and shapes gained 1.29-1.39x, 1.18-1.35x, 1.16-1.73x and
-        1.26-1.38x (`scripts/recalibration_carries.py`)."""
+        probes at other loads, rates and shapes went from 1.29x to 1.39x the base's, 1.18x to 1.35x,
+        1.16x to 1.73x and 1.26x to 1.38x (`scripts/recalibration_carries.py`)."""
         fitter = problem.fitter
         if problem.too_little or not sel.accepted or not all(REGISTRY[n].fitted_on_loops(fitter) for n in sel.accepted):
             return sel
