@@ -171,12 +171,9 @@ def _widened(core: WidenedCore, t: np.ndarray, u: np.ndarray, s: float, name: st
     return Recording({"time_s": t, "current_A": u, "stress_MPa": np.full(t.size, s), "displacement_um": y}, {}, name)
 
 
-@pytest.mark.slow
-def test_with_ident_the_loop_width_law_is_fitted_on_the_loops_and_predicts_another_load() -> None:
-    """An actuator whose loop width follows stress, an SDPI identified on its loops at four loads
-    (which cannot follow the width), diagnosed on runs at two loads: with the identification
-    loops, stress-dependent play identifies the core again through a width law fitted on them, and
-    the extended model predicts a load and a rate the diagnosis never saw far better than the base."""
+def widened_rig() -> tuple[WidenedCore, list[Recording], list[Recording]]:
+    """A made-up actuator whose loop width follows stress, its identification loops at four loads,
+    and two runs at two loads and rates."""
     truth = load_model(Path(__file__).resolve().parents[1] / "config" / "models" / "sim_sdpi.yaml")
     lo, hi = truth.drive_range
     s_lo, s_hi = truth.stress_range_MPa
@@ -184,12 +181,24 @@ def test_with_ident_the_loop_width_law_is_fitted_on_the_loops_and_predicts_anoth
     t = np.arange(0, 3.0, 1 / FS)
     loop = lo + 0.5 * (hi - lo) * (1 - np.cos(2 * np.pi * 3.0 * t))
     ident = [_widened(plant, t, loop, s, f"id_{k}.csv", k) for k, s in enumerate(np.linspace(s_lo, s_hi, 4))]
-    base = SDPIIdentifier().fit(ident).model_
     t = np.arange(0, 4.0, 1 / FS)
     runs = []
     for k, (f_hz, frac) in enumerate(((2.0, 0.3), (5.0, 0.7))):
         u = lo + 0.5 * (hi - lo) * (1 - np.cos(2 * np.pi * f_hz * t))
         runs.append(_widened(plant, t, u, s_lo + frac * (s_hi - s_lo), f"run_{k}.csv", 10 + k))
+    return plant, ident, runs
+
+
+@pytest.mark.slow
+def test_with_ident_the_loop_width_law_is_fitted_on_the_loops_and_predicts_another_load() -> None:
+    """An actuator whose loop width follows stress, an SDPI identified on its loops at four loads
+    (which cannot follow the width), diagnosed on runs at two loads: with the identification
+    loops, stress-dependent play identifies the core again through a width law fitted on them, and
+    the extended model predicts a load and a rate the diagnosis never saw far better than the base."""
+    plant, ident, runs = widened_rig()
+    lo, hi = plant.base.drive_range
+    s_lo = plant.base.stress_range_MPa[0]
+    base = SDPIIdentifier().fit(ident).model_
     dg = diagnose(base, runs, identification=ident)
     assert dg.identification["status"] == "match"
     assert "stress_dependent_play" in dg.verdict, (dg.verdict, dg.explanation)

@@ -43,28 +43,14 @@ def test_with_the_map_left_out_each_recording_left_out_is_predicted_by_the_loops
     """Two runs at two loads (a made-up widened rod, `test_diagnose_ident`), the loops' judgement
     forced to refuse the map: the leave-one-recording-out figures are those of the loops' own model
     (gain 1, each recording's zero its own), finite, and no better than the all-data fit's."""
-    from pathlib import Path
-
     from gma_ffc.diagnose.fitting import Fitter
-    from gma_ffc.effects.stress_play import WidenedCore
     from gma_ffc.identify import SDPIIdentifier
-    from gma_ffc.modelio import load_model
-    from test_diagnose_ident import FS, TRUE_KAPPA, _widened
+    from test_diagnose_ident import widened_rig
 
     # the map refused: the model with a gain other than 1 (the first column) misses the loops more
     monkeypatch.setattr(Fitter, "loops_misfit", lambda self, spec, coef, shared_scale=True:
                         float(not shared_scale and coef[0] != 1.0))
-    truth = load_model(Path(__file__).resolve().parents[1] / "config" / "models" / "sim_sdpi.yaml")
-    lo, hi = truth.drive_range
-    s_lo, s_hi = truth.stress_range_MPa
-    plant = WidenedCore(truth, TRUE_KAPPA, float(s_hi))
-    t = np.arange(0, 3.0, 1 / FS)
-    loop = lo + 0.5 * (hi - lo) * (1 - np.cos(2 * np.pi * 3.0 * t))
-    ident = [_widened(plant, t, loop, s, f"id_{k}.csv", k) for k, s in enumerate(np.linspace(s_lo, s_hi, 4))]
-    t = np.arange(0, 4.0, 1 / FS)
-    runs = [_widened(plant, t, lo + 0.5 * (hi - lo) * (1 - np.cos(2 * np.pi * f_hz * t)),
-                     s_lo + frac * (s_hi - s_lo), f"run_{k}.csv", 10 + k)
-            for k, (f_hz, frac) in enumerate(((2.0, 0.3), (5.0, 0.7)))]
+    _, ident, runs = widened_rig()
     dg = diagnose(SDPIIdentifier().fit(ident).model_, runs, identification=ident)
     assert dg.verdict == ["stress_dependent_play"]
     assert "recalibration fitted on these recordings was left out" in dg.validation
