@@ -134,6 +134,17 @@ def pooled(scores: Sequence[ProbeScore], which: str) -> float:
     return float(np.sqrt(sq / max(sum(s.samples for s in scores), 1)))
 
 
+def probe_bound(scores: Sequence[ProbeScore]) -> tuple[str, float]:
+    """The probe that alone bounds the pooled gain most, and that bound: the gain if every other
+    probe were met exactly and it kept the better of its two errors (the base's or the extended
+    model's). Where one drive shape is beyond the model class, this says how far the rest could go."""
+    before = pooled(scores, "base_um")
+    n = sum(s.samples for s in scores)
+    worst = max(scores, key=lambda s: min(s.base_um, s.extended_um) ** 2 * s.samples)
+    left = min(worst.base_um, worst.extended_um) * np.sqrt(worst.samples / max(n, 1))
+    return worst.name, (before / left if left > 0 else float("inf"))
+
+
 def models_on_probes(case: Case, variants: Mapping[str, Callable[[Any], Any]]) -> tuple[Any, float, float, dict[str, float]]:
     """A case diagnosed with its identification loops (as `scripts/bench_diagnose.py --set general`
     does), and the pooled probe RMS, in um, of the base, of the diagnosis' extended model, and of each

@@ -73,7 +73,7 @@ from benchmarks.general import (GENERAL_EIGHTH_SEED, GENERAL_FIFTH_SEED, GENERAL
                                 GENERAL_TWELFTH_SEED, GENERAL_THIRTEENTH_SEED, GENERAL_FOURTEENTH_SEED,
                                 GENERAL_FIFTEENTH_SEED, GENERAL_SIXTEENTH_SEED, GENERAL_SEVENTEENTH_SEED,
                                 GENERAL_EIGHTEENTH_SEED, general_cases)
-from benchmarks.probes import pooled, probe_recordings, probe_scores
+from benchmarks.probes import pooled, probe_bound, probe_recordings, probe_scores
 
 # the never-tuned general draws after the first, each drawn after the misses named were fixed
 LATER_DRAWS = (("fresh", "a second", GENERAL_FRESH_SEED, "the first draw's misses were fixed"),
@@ -123,6 +123,7 @@ def run_case(case: Case, ident: bool = False, probes: bool = True, short: bool =
         scores = probe_scores(model, dg.extended, probe_recordings(case))
         out["probe_before"], out["probe_after"] = pooled(scores, "base_um"), pooled(scores, "extended_um")
         out["probe_each"] = [(s.name, s.base_um, s.extended_um) for s in scores]
+        out["probe_bound"] = probe_bound(scores)
         out["probe_floor"] = float("nan") if twin is None else \
             pooled(probe_scores(twin[0], twin[0], probe_recordings(case, effect_free=True)), "base_um")
     return out
@@ -294,12 +295,15 @@ def summarise(todo: list[Case], ident: bool = False, probes: bool = True, short:
 
 def _probe_floor_words(r: dict[str, Any]) -> str:
     """Why a case below the probe target is: the effect-free twin's floor itself above the target (the
-    model class leaves that much without the effect), or the effect not modelled well enough."""
+    model class leaves that much without the effect), or the effect not modelled well enough; and
+    how far the gain could go with the probe that holds it back most left as it is (`probe_bound`)."""
+    name, bound = r["probe_bound"]
+    held_back = f"; {name} alone, as modelled, bounds the gain at {bound:.2f}x" if np.isfinite(bound) else ""
     if not np.isfinite(r["probe_floor"]):
-        return ""
+        return held_back
     target = r["probe_before"] / PROBE_GAIN_EACH
     return (f"; {PROBE_GAIN_EACH:g}x needed {target:.4f} um, "
-            + ("below the floor" if target < r["probe_floor"] else "more of the effect modelled"))
+            + ("below the floor" if target < r["probe_floor"] else "more of the effect modelled") + held_back)
 
 
 def summarise_probes(results: list[dict[str, Any]]) -> None:

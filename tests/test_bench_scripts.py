@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -16,3 +18,20 @@ def test_bench_diagnose_refuses_an_only_filter_that_matches_no_case():
                           "thirteenth:thermal", "--no-probes"], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert run.returncode == 2 and "Traceback" not in run.stderr
     assert "no case of --set general-thirteenth" in run.stderr and "thermal_drift@default" in run.stderr
+
+
+def test_the_probe_bound_is_the_gain_left_if_the_other_probes_were_met_exactly():
+    """One probe the extended model cannot improve (a drive shape beyond the PI class) bounds the
+    pooled gain however well the others are met: the issue-31 play cases stop near 1.5x so."""
+    from benchmarks.probes import ProbeScore, pooled, probe_bound
+
+    scores = [ProbeScore("rate", 0.50, 0.30, 20_000), ProbeScore("shape", 1.00, 0.98, 20_000),
+              ProbeScore("history", 0.50, 0.25, 80_000)]
+    name, bound = probe_bound(scores)
+    assert name == "shape"
+    # met exactly elsewhere, the pooled RMS is the shape probe's 0.98 um over its sixth of the samples
+    assert bound == pytest.approx(pooled(scores, "base_um") / (0.98 * (20_000 / 120_000) ** 0.5))
+    assert pooled(scores, "base_um") / pooled(scores, "extended_um") < bound     # the gain reached is below it
+    # a probe the extended model makes worse is bounded by the base's own error there
+    worse = [ProbeScore("rate", 0.50, 0.30, 20_000), ProbeScore("shape", 1.00, 1.20, 20_000)]
+    assert probe_bound(worse)[1] == pytest.approx(pooled(worse, "base_um") / (1.00 * 0.5 ** 0.5))
