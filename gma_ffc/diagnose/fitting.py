@@ -497,9 +497,10 @@ class Fitter:
         y = self.y_rows
         na = self.n_a
         folds = ((slice(0, na), slice(na, None)), (slice(na, None), slice(0, na)))
+        designs = {spec: self.design(spec) for spec in dict.fromkeys(specs)}    # the folds' specs are often one
         sse_train, sse_test, n_train, n_test, sq_test = [], [], [], [], []
         for f, (tr, te) in enumerate(folds):
-            X, names = self.design(specs[f])
+            X, names = designs[specs[f]]
             c = self._identity_map_coef(X, names, tr)
             r_tr, r_te = y[tr] - X[tr] @ c, y[te] - X[te] @ c
             sse_train.append(self.loss(r_tr))
@@ -507,7 +508,7 @@ class Fitter:
             sq_test.append(float(r_te @ r_te))
             n_train.append(int(r_tr.size))
             n_test.append(int(r_te.size))
-        X, names = self.design(specs[2])
+        X, names = designs[specs[2]]
         c_all = self._identity_map_coef(X, names, slice(None))
         r_all = y - X @ c_all
         return Score(tuple(sse_train), tuple(sse_test), tuple(n_train), tuple(n_test),  # type: ignore[arg-type]
