@@ -298,7 +298,8 @@ def _probe_floor_words(r: dict[str, Any]) -> str:
     model class leaves that much without the effect), or the effect not modelled well enough; and
     how far the gain could go with the probe that holds it back most left as it is (`probe_bound`)."""
     name, bound = r["probe_bound"]
-    held_back = f"; {name} alone, as modelled, bounds the gain at {bound:.2f}x" if np.isfinite(bound) else ""
+    named = bool(r["verdict"]) and np.isfinite(bound)       # with nothing named the model is the base: no bound
+    held_back = f"; {name} alone, as modelled, bounds the gain at {bound:.2f}x" if named else ""
     if not np.isfinite(r["probe_floor"]):
         return held_back
     target = r["probe_before"] / PROBE_GAIN_EACH

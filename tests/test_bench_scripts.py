@@ -35,3 +35,15 @@ def test_the_probe_bound_is_the_gain_left_if_the_other_probes_were_met_exactly()
     # a probe the extended model makes worse is bounded by the base's own error there
     worse = [ProbeScore("rate", 0.50, 0.30, 20_000), ProbeScore("shape", 1.00, 1.20, 20_000)]
     assert probe_bound(worse)[1] == pytest.approx(pooled(worse, "base_um") / (1.00 * 0.5 ** 0.5))
+
+
+def test_a_weak_case_names_its_bound_only_where_an_effect_was_named():
+    """With nothing named the extended model is the base, and a probe 'bounding' its gain says
+    nothing about the model class: the line then keeps to the floor."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from bench_diagnose import _probe_floor_words
+
+    r = {"probe_bound": ("probe_other_shape.csv", 1.5), "probe_floor": 0.14, "probe_before": 0.62, "verdict": ()}
+    assert "bounds" not in _probe_floor_words(r) and "more of the effect modelled" in _probe_floor_words(r)
+    r["verdict"] = ("stress_dependent_play",)
+    assert "probe_other_shape.csv alone, as modelled, bounds the gain at 1.50x" in _probe_floor_words(r)
