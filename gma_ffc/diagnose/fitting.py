@@ -383,10 +383,10 @@ class Fitter:
         n = r.d.t.size
         for i, owner in enumerate(self.data[1:], 1):
             r.cols.append(np.full(n, 1.0 if owner is r.d else 0.0))
-            r.names.append(f"sensor_zero_{i}")
+            r.names.append(f"{SENSOR_ZERO}{i}")
         for i, (owner, jump) in enumerate(self.sensor_jumps):
             r.cols.append((np.arange(n) >= jump.index).astype(float) if owner is r.d else np.zeros(n))
-            r.names.append(f"sensor_jump_{i}")
+            r.names.append(f"{SENSOR_JUMP}{i}")
 
     def design(self, spec: Spec) -> tuple[np.ndarray, list[str]]:
         """Regressors at the least-squares rows: fold A rows of every recording, then fold B rows."""
@@ -529,7 +529,7 @@ class Fitter:
 
     def _identity_map_coef(self, X: np.ndarray, names: Sequence[str], rows: slice | np.ndarray) -> np.ndarray:
         """The coefficients of `score_identity_map` fitted on `rows` of the design X: gain 1, the zeros free."""
-        zero = np.array([n == "offset" or n.startswith(("sensor_zero_", "sensor_jump_")) for n in names])
+        zero = np.array([n == "offset" or n.startswith((SENSOR_ZERO, SENSOR_JUMP)) for n in names])
         gain = names.index("gain")
         c = np.zeros(len(names))
         c[gain] = 1.0
@@ -801,6 +801,8 @@ class LeaveOneOut:
                    tuple(params))
 
 
+SENSOR_ZERO = "sensor_zero_"   # the columns' name prefixes of each later recording's sensor zero and of each
+SENSOR_JUMP = "sensor_jump_"   # jump of it: a recording's own zero, fitted even where the static map is held
 RANK_TOL = 1e-9         # a column whose part outside the earlier ones is below this share of its norm adds
                         # nothing the rows can tell (double precision's rounding on ~1e4 rows is ~1e-12)
 ANCHOR_BISECTIONS = 16   # on the log of the anchor weight over 16 decades: 2.4e-4 of a decade
