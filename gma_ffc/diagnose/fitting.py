@@ -514,6 +514,11 @@ class Fitter:
         return Score(tuple(sse_train), tuple(sse_test), tuple(n_train), tuple(n_test),  # type: ignore[arg-type]
                      self.loss(r_all), int(r_all.size), c_all, names, tuple(sq_test))  # type: ignore[arg-type]
 
+    def identity_map_coef(self, spec: Spec) -> np.ndarray:
+        """The coefficients of `score_identity_map` on all rows: gain 1, each recording's zero fitted."""
+        X, names = self.design(spec)
+        return self._identity_map_coef(X, names, slice(None))
+
     def identity_map_left_out(self, spec: Spec) -> list["LeftOut"]:
         """`left_out` with the static map held at the identity (`score_identity_map`): each recording
         predicted with gain 1, its own zero fitted on it."""

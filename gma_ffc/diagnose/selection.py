@@ -648,12 +648,12 @@ class EffectSelector:
         if problem.too_little or not sel.accepted or not all(REGISTRY[n].fitted_on_loops(fitter) for n in sel.accepted):
             return sel
         specs = sel.fit.specs
-        sc = fitter.score_identity_map(specs)
-        assert sc.coef_all is not None
         with_map = fitter.loops_misfit(specs[2], sel.fit.coef_all, shared_scale=False)
-        without = fitter.loops_misfit(specs[2], sc.coef_all, shared_scale=False)
+        without = fitter.loops_misfit(specs[2], fitter.identity_map_coef(specs[2]), shared_scale=False)
         if not without <= with_map:       # NaN (no loops at two loads) keeps the map
             return sel
+        sc = fitter.score_identity_map(specs)      # scored only once the loops have refused the map
+        assert sc.coef_all is not None
         fit = SearchResult(specs, sc.held_out_loss, sc.held_out_mse, sc.all_mse, sc.n_held_out, sc.coef_all,
                            sc.names, sel.fit.evaluated)
         loo = None if sel.leave_one_out is None else LeaveOneOut.of(fitter.identity_map_left_out(specs[2]))
