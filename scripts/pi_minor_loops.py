@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.cases import case_plant, case_recordings  # noqa: E402
 from benchmarks.general import general_cases  # noqa: E402
-from benchmarks.probes import _prediction, probe_recordings  # noqa: E402
+from benchmarks.probes import _prediction, pooled, probe_recordings, probe_scores  # noqa: E402
 from gma_ffc.extended import ExtendedModel  # noqa: E402
 from gma_ffc.identify import SDPIIdentifier  # noqa: E402
 from gma_ffc.recordings import Recording  # noqa: E402
@@ -79,24 +79,47 @@ def preisach_self_fit(case, levels: int) -> float:
     return rms(cols @ weights - y)
 
 
-def width_law_model(case, model, ident):
-    """The core identified through the plant's own width law, at the model's reference stress."""
+def width_law_model(case, model, recordings):
+    """The core identified on `recordings` through the plant's own width law, at the model's
+    reference stress."""
     mag = case_plant(case).magnetics
     if not mag.stress_dependent_width:
         return None
     ref = float(model.reference_stress_MPa)
     k = mag.width_change_per_MPa / (1.0 + mag.width_change_per_MPa * (mag.width_reference_MPa - ref))
-    core = SDPIIdentifier(loop_width=(k, ref)).fit(ident).model_
+    core = SDPIIdentifier(loop_width=(k, ref)).fit(recordings).model_
     return ExtendedModel(core, {"loop_width": {"kappa_per_MPa": k, "stress_ref_MPa": ref}})
+
+
+def print_pooled(name: str, case) -> None:
+    """The pooled probe RMS of cores identified on more data than the loops (see the docstring)."""
+    model, ident, rec = case_recordings(case)
+    probes = probe_recordings(case)
+    cores = {"width law": lambda: width_law_model(case, model, ident),
+             "width law, loops + recording": lambda: width_law_model(case, model, [*ident, rec]),
+             "plain, loops + recording": lambda: SDPIIdentifier().fit([*ident, rec]).model_}
+    for label, make in cores.items():
+        core = make()
+        if core is None:                           # an effect-free plant has no width law
+            continue
+        scores = probe_scores(model, core, probes)
+        before, after = pooled(scores, "base_um"), pooled(scores, "extended_um")
+        shape = next(s for s in scores if s.name == "probe_other_shape.csv")
+        print(f"{name}, {label}: probes {before:.3f} -> {after:.3f} um ({before / after:.2f}x); "
+              f"light-load probe {shape.base_um:.3f} -> {shape.extended_um:.3f} um", flush=True)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("cases", nargs="*", default=list(DEFAULT))
-    names = ap.parse_args().cases
+    ap.add_argument("--pooled", action="store_true", help="pooled probe RMS of cores fitted on more data")
+    args = ap.parse_args()
     by_name = {c.name: c for c in general_cases()}
-    for name in names:
+    for name in args.cases:
         case = by_name[name]
+        if args.pooled:
+            print_pooled(name, case)
+            continue
         model, ident, _ = case_recordings(case)
         part = two_tone(case)
         y = part.displacement_um
