@@ -40,7 +40,8 @@ draws a fifteenth. Its stress-dependent play miss (a width law that gained at th
 at its holds, where the core's minor loops miss) was then looked at and fixed (either passes), so
 GENERAL_SEVENTEENTH_SEED draws a sixteenth. Its stress-dependent play was named but did not carry to the
 probes (a recalibration fitted beside the loops' law and core); the loops now judge that map, so
-GENERAL_EIGHTEENTH_SEED draws a seventeenth.
+GENERAL_EIGHTEENTH_SEED draws a seventeenth. Its misses (stress-dependent play, bounded by one probe's
+nested minor loops) were not fixed: GENERAL_NINETEENTH_SEED draws an eighteenth on the same diagnosis.
 """
 
 from __future__ import annotations
@@ -92,6 +93,8 @@ GENERAL_SEVENTEENTH_SEED = 20261304  # a sixteenth never-tuned draw (2026-11-30,
 GENERAL_EIGHTEENTH_SEED = 20261305   # a seventeenth never-tuned draw (2026-11-30, twenty-seventh session): after a
                                      # recalibration beside the loops' law and core must hold on the loops; fixed and
                                      # committed before its first run
+GENERAL_NINETEENTH_SEED = 20261306   # an eighteenth never-tuned draw (2026-11-30, twenty-eighth session): the
+                                     # diagnosis as the seventeenth drew it; committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
