@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-from gma_ffc.diagnose.outcome import short_of_the_margin
+from gma_ffc.diagnose.outcome import short_of_the_evidence, short_of_the_margin
 from gma_ffc.diagnose.selection import EffectSelector
 from gma_ffc.diagnose.state import RoundRecord
 
@@ -36,3 +36,45 @@ def test_nothing_is_said_of_an_insignificant_or_worse_runner_or_without_a_named_
     assert short_of_the_margin(SELECTOR, _sel(["thermal_drift", "creep"], NAMED, accepted_last)) == ""
     null_round = RoundRecord(1, 900.0, 0.12, (("creep", 0.11, 20.0),), None)
     assert short_of_the_margin(SELECTOR, _sel([], null_round)) == ""
+
+
+class _Signatures(EffectSelector):
+    """The selector with its signature checks answered: `fails` names the effects whose check fails."""
+
+    def __init__(self, fails=()):
+        super().__init__()
+        self.fails = set(fails)
+
+    def signature_failure(self, problem, base, trial):
+        return SimpleNamespace(reason="no signature") if trial.effect in self.fails else None
+
+
+def _short(selector, last, noise=0.03):
+    trials = {effect: SimpleNamespace(effect=effect) for effect, _, _ in last.table}
+    sel = SimpleNamespace(accepted=(), rounds=(last,), trials=trials, fit=SimpleNamespace(specs=None))
+    return short_of_the_evidence(selector, SimpleNamespace(noise=noise, fitter=None), sel)
+
+
+def test_an_effect_short_only_of_the_evidence_is_said_with_the_run_that_would_decide():
+    """The nineteenth draw's play: 0.4354 -> 0.362 um held out (an MSE share of 0.69, under 0.75),
+    5.98 nats where 6 are needed, over 39 effective samples. No effect named, and before this note
+    nothing said how close it came or what to record."""
+    last = RoundRecord(1, 38.7, 0.4354, (("stress_dependent_play", 0.362, 5.98), ("creep", 0.409, -0.7)), None)
+    note = _short(_Signatures(), last)
+    assert note.startswith("stress_dependent_play: may be what is missing")
+    assert "0.4354 to 0.362 um" in note and "5.98 nats where 6 are needed" in note and "about 39 independent" in note
+    assert "Record another run like these" in note
+
+
+def test_nothing_is_said_where_the_loss_share_the_signature_or_any_evidence_is_missing():
+    selector = _Signatures()
+    too_little = RoundRecord(1, 38.7, 0.4354, (("creep", 0.40, 5.0),), None)          # MSE share 0.84
+    none_at_all = RoundRecord(1, 38.7, 0.4354, (("creep", 0.362, -0.5),), None)
+    enough = RoundRecord(1, 900.0, 0.4354, (("creep", 0.362, 50.0),), None)           # named, or another note's
+    accepted = RoundRecord(1, 38.7, 0.4354, (("creep", 0.362, 5.98),), "creep")
+    for last in (too_little, none_at_all, enough, accepted):
+        assert _short(selector, last) == ""
+    near = RoundRecord(1, 38.7, 0.4354, (("creep", 0.362, 5.98),), None)
+    assert _short(_Signatures(fails={"creep"}), near) == ""
+    assert _short(selector, near, noise=0.2) == ""      # removes less than half the noise floor off the RMS
+    assert _short(selector, near) != ""

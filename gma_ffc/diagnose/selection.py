@@ -276,7 +276,7 @@ class EffectSelector:
         # signature checks: a winner without its effect's signature is set aside, and the next one checked;
         # once another effect is accepted, it is tried again on top of it
         while ok:
-            failure = self._signature(problem, sel.fit.specs, best)
+            failure = self.signature_failure(problem, sel.fit.specs, best)
             if failure is None:
                 best, why = self._carries_over(problem, sel, best)
                 trials = [best] + trials[1:]
@@ -356,8 +356,8 @@ class EffectSelector:
         of, and, with two or more recordings, each one's law carried to the recordings left out (as
         a round's winner is); None when either fails."""
         before: Specs = tuple(s.without(sel.accepted[-1]) for s in sel.fit.specs)  # type: ignore[assignment]
-        if self._signature(problem, before, first) is not None or \
-                self._signature(problem, first.result.specs, second) is not None:
+        if self.signature_failure(problem, before, first) is not None or \
+                self.signature_failure(problem, first.result.specs, second) is not None:
             return None
         if sel.leave_one_out is None:
             return first, second
@@ -368,7 +368,7 @@ class EffectSelector:
                 sel, leave_one_out=fitter_loo(problem, first.result.specs[2])), second)
         return None if why else (first, second)
 
-    def _signature(self, problem: Problem, base: Specs, trial: Trial) -> SignatureFailure | None:
+    def signature_failure(self, problem: Problem, base: Specs, trial: Trial) -> SignatureFailure | None:
         """The trial's effect's signature check, on the model `base` it was fitted on top of."""
         return REGISTRY[trial.effect].signature(
             SignatureCheck(problem.fitter, problem.model, base, trial.result, dict(trial.params),
@@ -383,7 +383,7 @@ class EffectSelector:
         for name in names:
             before: Specs = tuple(s.without(name) for s in fit.specs)  # type: ignore[assignment]
             trial = Trial(name, fit, params_of(problem.fitter, name, fit.specs[2], fit.coef_all, fit.names), 0)
-            if self._signature(problem, before, trial) is not None:
+            if self.signature_failure(problem, before, trial) is not None:
                 return False
         return True
 
