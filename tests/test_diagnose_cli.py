@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import html
 import json
 from pathlib import Path
 
@@ -61,6 +62,9 @@ def test_outputs_follow_the_spec(case_files, capsys, tmp_path):
     page = (out_dir / "report.html").read_text()
     assert page.count("data:image/png;base64,") >= 4
     assert page.index("<img") < page.index("Explanation")          # plots before prose
+    # what the command says of the identification recordings, the report says too, above the plots
+    note = html.escape(doc["identification"]["note"], quote=True)
+    assert doc["identification"]["note"] and note in page[:page.index("<img")]
     # the extended model is a model like any other: simulate accepts it and it beats the base
     ext = load_model(out_dir / "extended_model.yaml")
     assert ext.kind == "extended" and ext.effects == ["thermal_drift"]

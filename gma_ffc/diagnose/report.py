@@ -364,6 +364,9 @@ def render_html(dg: Diagnosis, doc: dict) -> str:
              f"<p><b>{e(summary[:1].upper() + summary[1:])}</b></p>"]
     if recalibrated:
         parts.append(f"<p><b>{e(recalibrated)}</b></p>")
+    # which recordings the base was identified on, and whether they were given: the command prints it
+    # beside the outcome; a reader of the report alone would not know the data were the model's own
+    parts.append(f"<p>Identification recordings: {e(doc['identification']['note'])}</p>")
     for title, data in imgs:
         parts.append(f"<h2>{e(title)}</h2><img alt='{e(title)}' src='data:image/png;base64,{data}'>")
     parts.append(f"<h2>Explanation</h2><p>{e(dg.explanation)}</p>")
