@@ -18,7 +18,7 @@ from .explain import drive_unit, explain, identification_rms, runner_up_words, v
 from .locate import locate
 from .problem import scored
 from .results import Candidate, Diagnosis
-from .state import Final, Problem, Selection
+from .state import Final, Problem, RoundRecord, Selection
 from .polarity import displacement_inverted
 from .timing import displacement_lead
 
@@ -179,12 +179,19 @@ def _cannot_conclude(selector: Any, problem: Problem, final: Final) -> list[str]
     return cannot
 
 
+def _last_round_unaccepted(sel: Selection) -> RoundRecord | None:
+    """The last round when it tried something and accepted nothing (its best is then the one a
+    note may speak of), else None."""
+    last = sel.rounds[-1] if sel.rounds else None
+    return last if last is not None and last.accepted is None and last.table else None
+
+
 def short_of_the_margin(selector: Any, sel: Selection) -> str:
     """A note on the last round's best, when it is significant by the held-out likelihood and lowers
     the held-out RMS but takes less of the held-out loss than an effect must ('' otherwise): a
     smaller effect may be there, and the user should hear of it rather than find it in a table."""
-    last = sel.rounds[-1] if sel.rounds else None
-    if last is None or last.accepted is not None or not last.table or not sel.accepted:
+    last = _last_round_unaccepted(sel)
+    if last is None or not sel.accepted:
         return ""
     effect, rms, gain = last.table[0]
     if not (gain > selector.min_loglik_gain and rms < last.current_rms_um):
@@ -207,8 +214,8 @@ def short_of_the_evidence(selector: Any, problem: Problem, sel: Selection) -> st
     effective samples, and the outcome said only that no effect explained the rest. Twice as long,
     43 samples and 5.2 nats; the same 84 s as two runs, 5,225 samples, and the play was named
     (`python scripts/short_of_the_evidence.py`)."""
-    last = sel.rounds[-1] if sel.rounds else None
-    if last is None or last.accepted is not None or not last.table:
+    last = _last_round_unaccepted(sel)
+    if last is None:
         return ""
     effect, rms, gain = last.table[0]
     trial = sel.trials.get(effect)
