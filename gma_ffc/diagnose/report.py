@@ -339,6 +339,20 @@ def recalibration_words(dg: Diagnosis) -> str:
             "recalibration, and no physics added.")
 
 
+def candidates_table(doc: dict) -> str:
+    """The report's table of every candidate effect: accepted or not, its figures and why."""
+    e = html.escape
+    rows = ["<h2>Candidates</h2><table><tr><th>effect</th><th>accepted</th><th>held-out RMS (um)</th>"
+            "<th>held-out log-lik gain</th><th>evidence</th><th>parameters</th><th>note</th></tr>"]
+    for c in doc["candidates"]:
+        params = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in c["params"].items())
+        rms = "" if c["validation_rms_um"] is None else f"{c['validation_rms_um']:.4g}"
+        ll = "" if c["heldout_loglik_gain"] is None else f"{c['heldout_loglik_gain']:.1f}"
+        rows.append(f"<tr><td>{e(c['effect'])}</td><td>{'yes' if c['accepted'] else ''}</td><td>{rms}</td>"
+                    f"<td>{ll}</td><td>{c['evidence']:.3f}</td><td>{e(params)}</td><td>{e(c.get('note', ''))}</td></tr>")
+    return "".join(rows) + "</table>"
+
+
 def render_html(dg: Diagnosis, doc: dict) -> str:
     overlay = ("Where the residual is largest: measured and model (nothing was accepted, so there is no "
                "'after'), and the residual" if _unchanged(dg) else
@@ -373,15 +387,8 @@ def render_html(dg: Diagnosis, doc: dict) -> str:
     if dg.cannot_conclude:
         parts.append("<h2>What cannot be concluded</h2><ul>" +
                      "".join(f"<li>{e(x)}</li>" for x in dg.cannot_conclude) + "</ul>")
-    parts.append("<h2>Candidates</h2><table><tr><th>effect</th><th>accepted</th><th>held-out RMS (um)</th>"
-                 "<th>held-out log-lik gain</th><th>evidence</th><th>parameters</th><th>note</th></tr>")
-    for c in doc["candidates"]:
-        params = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in c["params"].items())
-        rms = "" if c["validation_rms_um"] is None else f"{c['validation_rms_um']:.4g}"
-        ll = "" if c["heldout_loglik_gain"] is None else f"{c['heldout_loglik_gain']:.1f}"
-        parts.append(f"<tr><td>{e(c['effect'])}</td><td>{'yes' if c['accepted'] else ''}</td><td>{rms}</td>"
-                     f"<td>{ll}</td><td>{c['evidence']:.3f}</td><td>{e(params)}</td><td>{e(c.get('note', ''))}</td></tr>")
-    parts.append("</table><h2>Where the residual is</h2><table><tr><th>recording</th><th>where</th>"
+    parts.append(candidates_table(doc))
+    parts.append("<h2>Where the residual is</h2><table><tr><th>recording</th><th>where</th>"
                  "<th>RMS base (um)</th><th>RMS recalibrated (um)</th></tr>")
     for loc in doc["located"]:
         parts.append(f"<tr><td>{e(loc['recording'])}</td><td>{e(loc['where'])}</td>"
