@@ -101,3 +101,4 @@ def test_the_nineteenth_draws_play_is_named_or_said_to_be_short_of_the_evidence(
     assert dg.verdict == ["stress_dependent_play"] or said, (dg.verdict, dg.cannot_conclude)
     if said:
         assert "Record another run like these" in said[0]
+        assert "the best, stress_dependent_play, reaches" in dg.explanation and "nats of evidence" in dg.explanation

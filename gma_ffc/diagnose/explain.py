@@ -135,8 +135,10 @@ def unexplained_words(candidates: dict[str, Candidate], rms_after: float,
     parts = []
     tried = sorted((c for c in candidates.values() if c.testable and math.isfinite(c.cv_mse)), key=lambda c: c.cv_mse)
     if tried:
-        parts.append(f"No effect in the vocabulary explains the rest: the best, {tried[0].effect}, "
-                     f"reaches {math.sqrt(tried[0].cv_mse):.4g} um held-out, short of the margin required.")
+        best = tried[0]
+        evidence = f" with {best.loglik_gain:.3g} nats of evidence" if math.isfinite(best.loglik_gain) else ""
+        parts.append(f"No effect in the vocabulary explains the rest: the best, {best.effect}, reaches "
+                     f"{math.sqrt(best.cv_mse):.4g} um held-out{evidence}, short of the margin required.")
     if fit_rms_um is not None:
         parts.append(f"For scale, the model missed its own identification recordings by "
                      f"{fit_rms_words(fit_rms_um)}; the held-out residual here is "
