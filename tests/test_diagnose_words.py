@@ -92,7 +92,7 @@ def test_a_delay_under_half_a_sample_beside_a_lag_or_a_resonance_is_kept_but_not
 def test_terms_left_out_per_recording_are_not_called_stress_levels_without_a_stress_column():
     """Four current-driven recordings without a stress column were told 'fitted without each of the
     4 stress levels ... would not carry to other loads': each block was a recording."""
-    from gma_ffc.diagnose.selection import left_out_words
+    from gma_ffc.diagnose.recalibration import left_out_words
 
     text = left_out_words(["quadratic"], 4, has_stress=False, by_level=True)
     assert "4 recordings" in text and "other recordings" in text

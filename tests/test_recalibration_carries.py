@@ -49,6 +49,7 @@ def test_a_curvature_the_core_has_at_every_load_is_kept():
     carries to each load left out, and stays in the recalibration."""
     import numpy as np
 
+    from gma_ffc.diagnose import recalibration
     from gma_ffc.diagnose.problem import setup
     from gma_ffc.diagnose.selection import EffectSelector
 
@@ -58,5 +59,5 @@ def test_a_curvature_the_core_has_at_every_load_is_kept():
     selector = EffectSelector()
     problem = setup(selector, model, [rec], lambda _m: None)
     assert len(problem.fitter.level_blocks()) == 3
-    sel = selector._recalibration_carried(problem, selector._open(problem))
+    sel = recalibration.carried(problem, selector._open(problem))
     assert "quadratic" in sel.fit.names

@@ -1,4 +1,4 @@
-"""A recalibration beside a law and core the identification loops made (`_recalibration_on_loops`).
+"""A recalibration beside a law and core the identification loops made (`recalibration.on_loops`).
 
 With `--ident`, stress-dependent play's width law is fitted on the identification loops and the
 core identified again on them through it; nothing but the static map (gain, offset, curvature,

@@ -13,6 +13,7 @@ import numpy as np
 
 from benchmarks.cases import case_recordings
 from benchmarks.general import GENERAL_FOURTEENTH_SEED, general_cases
+from gma_ffc.diagnose import recalibration
 from gma_ffc.diagnose.identification import check
 from gma_ffc.diagnose.problem import setup
 from gma_ffc.diagnose.selection import EffectSelector
@@ -23,7 +24,7 @@ def _carried(model, ident, rec):
     """The null selection's recalibration after the carry checks, and the fitter."""
     selector = EffectSelector()
     problem = setup(selector, model, [rec], lambda _m: None, ident, check(model, [r.name for r in ident]))
-    return selector._recalibration_carried(problem, selector._open(problem)), problem.fitter
+    return recalibration.carried(problem, selector._open(problem)), problem.fitter
 
 
 def _with_stress_gain(rec, per_MPa, ref_MPa):

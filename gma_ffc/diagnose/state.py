@@ -55,6 +55,13 @@ class Problem:
     identification: IdentificationCheck   # the identification recordings given, against the model's record
     slow_only: bool = False               # too few drive reversals for loop effects: only slow ones are tested
 
+    def leave_one_out(self, spec: Any) -> LeaveOneOut | None:
+        """The spec, each recording predicted by its gains fitted on the others; None with one
+        recording (nothing to leave out) or too little data."""
+        if len(self.data) < 2 or self.too_little:
+            return None
+        return LeaveOneOut.of(self.fitter.left_out(spec))
+
 
 @dataclass(frozen=True)
 class Trial:
