@@ -42,6 +42,8 @@ GENERAL_SEVENTEENTH_SEED draws a sixteenth. Its stress-dependent play was named 
 probes (a recalibration fitted beside the loops' law and core); the loops now judge that map, so
 GENERAL_EIGHTEENTH_SEED draws a seventeenth. Its misses (stress-dependent play, bounded by one probe's
 nested minor loops) were not fixed: GENERAL_NINETEENTH_SEED draws an eighteenth on the same diagnosis.
+Its play miss (short of the evidence on one run) is now said in cannot_conclude, and the recalibration's
+judges moved to a module of their own, the figures the same: GENERAL_TWENTIETH_SEED draws a nineteenth.
 """
 
 from __future__ import annotations
@@ -95,6 +97,9 @@ GENERAL_EIGHTEENTH_SEED = 20261305   # a seventeenth never-tuned draw (2026-11-3
                                      # committed before its first run
 GENERAL_NINETEENTH_SEED = 20261306   # an eighteenth never-tuned draw (2026-11-30, twenty-eighth session): the
                                      # diagnosis as the seventeenth drew it; committed before its first run
+GENERAL_TWENTIETH_SEED = 20261307    # a nineteenth never-tuned draw (2026-11-30, twenty-ninth session): the verdicts
+                                     # as the eighteenth drew them, with the note short of the evidence; committed
+                                     # before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
