@@ -39,8 +39,14 @@ _UNIT_IN_BRACKETS = re.compile(r"^\s*([A-Za-z][A-Za-z0-9 _]*?)\s*[\(\[]\s*([^\)\
 # the units a lab may log a required quantity in, as multiples of the unit gma-ffc reads
 _OTHER_UNITS = {
     "s": {"ms": 1e-3, "us": 1e-6, "min": 60.0}, "A": {"mA": 1e-3}, "V": {"mV": 1e-3, "kV": 1e3},
-    "um": {"nm": 1e-3, "mm": 1e3, "m": 1e6}, "MPa": {"kPa": 1e-3, "Pa": 1e-6, "GPa": 1e3},
+    "um": {"nm": 1e-3, "mm": 1e3, "m": 1e6},
+    "MPa": {"kPa": 1e-3, "Pa": 1e-6, "GPa": 1e3, "N/mm^2": 1.0, "N/mm2": 1.0, "Nmm2": 1.0},
 }
+# Other names a lab gives a quantity, and why each is that quantity: the SDPI paper writes stress as
+# sigma; a commanded current is the drive where the rig measures none (shared/spec/recordings.md)
+_QUANTITY_ALIASES = {"stress": {"sigma": ""},
+                     "current": {"current_cmd": " (a commanded current is the drive when the rig measures "
+                                                "none: docs/recordings.md)"}}
 
 
 DEFAULT_TIME_STEP_S = 1e-3   # a time's resolution when none is known: a millisecond, finer than any window quoted
@@ -157,28 +163,60 @@ def check_column_name(name: str, source: str, line: int) -> None:
         want = f"{'_'.join(bracketed.group(1).lower().split())}_{bracketed.group(2)}"
         raise RecordingError(f"{_at_line(source, line)}: column '{name}': a unit follows an underscore in a column "
                              f"name; rename it '{want}' (and the other columns likewise)")
+    misnamed_stress = _column_fix(ascii_name, STRESS)        # 'stress_N/mm^2': a unit with a slash
+    if misnamed_stress:
+        raise RecordingError(f"{_at_line(source, line)}: column '{name}' is named with a unit gma-ffc does not "
+                             f"read; {misnamed_stress}")
     suggestion = f" (did you mean '{hint}'?)" if hint else " (names end in a unit, e.g. time_s, current_A)"
     raise RecordingError(f"{_at_line(source, line)}: column '{name}' has no unit{suggestion}")
 
 
 def rename_advice(found: Iterable[str], wanted: Sequence[str]) -> str:
-    """'' or what to do with a column that is one of `wanted` in another case or another unit
-    ('; Time_s: rename it time_s (names are case-sensitive)', '; time_ms is in ms: ...')."""
+    """'' or what to do with a column that is one of `wanted` in another case, another unit or under
+    another name ('; Time_s: rename it time_s (names are case-sensitive)', '; time_ms is in ms: ...',
+    '; sigma_MPa: rename it stress_MPa')."""
     for have in found:
         for want in wanted:
-            quantity, unit = want.rsplit("_", 1)
-            if "_" not in have:
-                continue
-            q, u = have.rsplit("_", 1)
-            if have.lower() == want.lower():
-                return f"; {have}: rename it {want} (names are case-sensitive)"
-            factor = _OTHER_UNITS.get(unit, {}).get(u)
-            if q.lower() == quantity and factor is not None:
-                op = f"multiply it by {factor:g}" if factor >= 1 else f"divide it by {1 / factor:g}"
-                return f"; {have} is in {u}, gma-ffc reads {unit}: {op} into a column named {want}"
+            fix = _column_fix(have, want)
+            if fix:
+                return f"; {fix}"
     if REFERENCE in wanted and DISPLACEMENT in found:
         return f"; to follow a measured run, copy its {DISPLACEMENT} into a column named {REFERENCE}"
     return ""
+
+
+def _column_fix(have: str, want: str) -> str:
+    """'' or how column `have` becomes `want`: a rename (another case, an alias of the quantity, a
+    unit equal to gma-ffc's) or a conversion by a factor (another unit of the quantity)."""
+    if "_" not in have or have == want:
+        return ""
+    if have.lower() == want.lower():
+        return f"{have}: rename it {want} (names are case-sensitive)"
+    quantity, unit = want.rsplit("_", 1)
+    q, u = have.rsplit("_", 1)
+    aliases = _QUANTITY_ALIASES.get(quantity, {})
+    if q.lower() != quantity and q.lower() not in aliases:
+        return ""
+    factor = 1.0 if u.lower() == unit.lower() else _unit_factor(unit, u)
+    if factor is None:
+        return ""
+    if factor == 1.0:
+        same = "" if u.lower() == unit.lower() else f" (1 {u} is 1 {unit})"
+        return f"{have}: rename it {want}{same}{aliases.get(q.lower(), '')}"
+    op = f"multiply it by {factor:g}" if factor >= 1 else f"divide it by {1 / factor:g}"
+    return f"{have} is in {u}, gma-ffc reads {unit}: {op} into a column named {want}"
+
+
+def _unit_factor(unit: str, other: str) -> float | None:
+    """How many `unit` one `other` is, for a unit a lab logs `unit`'s quantity in; None for any
+    other. Case is forgiven where no two of the quantity's units differ only by it (stress_kpa)."""
+    units = _OTHER_UNITS.get(unit, {})
+    if other in units:
+        return units[other]
+    by_lower = {u.lower(): f for u, f in units.items()}
+    if len(by_lower) < len(units) or unit.lower() in by_lower:
+        return None
+    return by_lower.get(other.lower())
 
 
 def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEMENT),
@@ -201,6 +239,7 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
         raise RecordingError(
             f"{_at_line(src, header_line)}: both current_A and voltage_V are columns, and gma-ffc reads one drive: "
             "drop the column that is not the actuator's drive (or rename it, e.g. to coil_voltage_V, to keep it)")
+    _refuse_a_misnamed_stress(rec, header_line)
     if len(rec) < 2:
         raise RecordingError(f"{src}: needs at least two samples, has {len(rec)}")
     required_cols = [TIME] + [c for c in require if c != "drive" and c != TIME]
@@ -227,6 +266,18 @@ def validate(rec: Recording, require: Sequence[str] = (TIME, "drive", DISPLACEME
             f"{_at_row(rec, row)}: time does not increase "
             f"({time_text(float(rec.time_s[row - 1]), 1e-9)} s then {time_text(float(rec.time_s[row]), 1e-9)} s)")
     return rec
+
+
+def _refuse_a_misnamed_stress(rec: Recording, header_line: int) -> None:
+    """RecordingError when a column is evidently the stress under another name (Stress_MPa,
+    stress_kPa, sigma_MPa) and there is no stress_MPa: read as an unknown column, it would be
+    ignored and the recording modelled stress-independently, a worse model with no word why."""
+    if STRESS in rec.columns:
+        return
+    advice = rename_advice(rec.columns, [STRESS])
+    if advice:
+        raise RecordingError(f"{_at_line(rec.source, header_line)}: no {STRESS} column{advice}; or drop that "
+                             "column to model the recording stress-independently")
 
 
 # The largest magnitude each column gma-ffc reads may hold: generous beyond any bench, yet small

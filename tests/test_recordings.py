@@ -243,3 +243,65 @@ def test_a_value_beyond_a_columns_physical_bound_is_refused_naming_the_line(tmp_
     cols[column][3] = value / 1e3 if column != "time_s" else 3.0     # within the bound: read
     text = ",".join(cols) + "\n" + "".join(",".join(repr(cols[c][k]) for c in cols) + "\n" for k in range(4))
     assert len(read_recording(write(tmp_path, text))) == 4
+
+
+# ---- a stress column under another name was ignored, and the recording modelled without stress
+def _with_stress_as(tmp_path, name: str, scale: float) -> Path:
+    """A recording at -15.2 MPa whose stress column is `name`, its values in that column's unit."""
+    t = np.arange(50) * 1e-3
+    rows = "\n".join(f"{a:.6f},{0.5 + 0.4 * np.sin(a):.6f},{-15.2 * scale:.6g},{np.sin(3 * a):.6f}" for a in t)
+    path = tmp_path / "stress.csv"
+    path.write_text(f"time_s,current_A,{name},displacement_um\n{rows}\n")
+    return path
+
+
+@pytest.mark.parametrize("name, scale, advice", [
+    ("Stress_MPa", 1.0, "Stress_MPa: rename it stress_MPa (names are case-sensitive)"),
+    ("stress_mpa", 1.0, "stress_mpa: rename it stress_MPa (names are case-sensitive)"),
+    ("sigma_MPa", 1.0, "sigma_MPa: rename it stress_MPa"),
+    ("stress_N/mm^2", 1.0, "stress_N/mm^2: rename it stress_MPa (1 N/mm^2 is 1 MPa)"),
+    ("stress_kPa", 1e3, "stress_kPa is in kPa, gma-ffc reads MPa: divide it by 1000 into a column named stress_MPa"),
+    ("stress_kpa", 1e3, "stress_kpa is in kpa, gma-ffc reads MPa: divide it by 1000 into a column named stress_MPa"),
+    ("sigma_kPa", 1e3, "sigma_kPa is in kPa, gma-ffc reads MPa: divide it by 1000 into a column named stress_MPa"),
+    ("stress_Pa", 1e6, "stress_Pa is in Pa, gma-ffc reads MPa: divide it by 1e+06 into a column named stress_MPa"),
+    ("stress_GPa", 1e-3, "stress_GPa is in GPa, gma-ffc reads MPa: multiply it by 1000 into a column named stress_MPa"),
+])
+def test_a_stress_under_another_name_is_refused_naming_the_fix_and_the_fix_reads(tmp_path, name, scale, advice):
+    """Read as an unknown column it was dropped, and identify fitted a stress-independent MPI."""
+    path = _with_stress_as(tmp_path, name, scale)
+    why = f"column '{name}' is named with a unit gma-ffc does not read" if "/" in name else "no stress_MPa column"
+    for require in (("time_s", "drive", "displacement_um"), ("time_s", "drive")):
+        with pytest.raises(RecordingError, match=re.escape(f"stress.csv, line 1: {why}; {advice}")):
+            read_recording(path, require=require)
+    lines = path.read_text().splitlines()
+    factor = 1.0 / scale                                              # done as advised
+    rows = [",".join(c if i != 2 else repr(float(c) * factor) for i, c in enumerate(ln.split(","))) for ln in lines[1:]]
+    path.write_text("\n".join([lines[0].replace(name, "stress_MPa"), *rows]) + "\n")
+    np.testing.assert_allclose(read_recording(path).stress_MPa, -15.2)
+
+
+def test_a_misnamed_stress_dropped_as_advised_reads_without_stress(tmp_path):
+    path = _with_stress_as(tmp_path, "Stress_MPa", 1.0)
+    with pytest.raises(RecordingError, match="or drop that column to model the recording stress-independently"):
+        read_recording(path)
+    t, current, _, disp = np.loadtxt(path, delimiter=",", skiprows=1, unpack=True)
+    write_recording(path, Recording({"time_s": t, "current_A": current, "displacement_um": disp}, {}, str(path)))
+    assert read_recording(path).stress_MPa is None
+
+
+@pytest.mark.parametrize("name", ["stress_est_MPa", "force_N", "stress_level", "temperature_C"])
+def test_columns_that_are_not_the_stress_are_still_carried_without_a_word(tmp_path, name):
+    rec = read_recording(_with_stress_as(tmp_path, name, 1.0))
+    assert name in rec.columns and rec.stress_MPa is None and rec.notes == []
+
+
+def test_a_commanded_current_alone_is_told_to_be_named_current_a_and_renamed_it_reads(tmp_path):
+    """The spec: current_A is the current measured, 'else commanded'; current_cmd_A is the commanded
+    one when current_A is the measured. A file with only the commanded current names it current_A."""
+    path = _logged(tmp_path, "time_s,current_cmd_A,displacement_um")
+    with pytest.raises(RecordingError, match=re.escape(
+            "current_cmd_A: rename it current_A (a commanded current is the drive when the rig measures none")) as err:
+        read_recording(path)
+    want, _ = _advised_fix(str(err.value))
+    path.write_text(path.read_text().replace("current_cmd_A", want))
+    assert read_recording(path).drive_name == "current_A"
