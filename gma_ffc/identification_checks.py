@@ -135,4 +135,22 @@ def column_notes(recordings: Sequence[Recording]) -> list[str]:
         notes.append("stress_MPa is positive in every recording, and compression is negative in gma-ffc's "
                      "recordings (docs/recordings.md): if these are the compressive loads an actuator is "
                      "held under, negate the column before identifying")
+    else:
+        notes += mixed_sign_notes(recordings)
     return notes
+
+
+def mixed_sign_notes(recordings: Sequence[Recording]) -> list[str]:
+    """A note naming the recordings whose stress is positive at every sample when others' is negative
+    at every sample: one load cell logs compression negative, gma-ffc's convention, and these were
+    logged (or copied) with the other sign. A recording whose stress crosses zero has no sign."""
+    signed = [(r.name, float(np.median(r.stress_MPa))) for r in recordings
+              if r.stress_MPa is not None and (np.all(r.stress_MPa > 0.0) or np.all(r.stress_MPa < 0.0))]
+    positive = [f"{name} ({median:+.3g} MPa)" for name, median in signed if median > 0.0]
+    negative = len(signed) - len(positive)
+    if not positive or not negative:
+        return []
+    odd = ", ".join(positive)
+    return [f"stress_MPa is positive in {odd} but negative in {negative} other recording(s), and "
+            "compression is negative in gma-ffc's recordings (docs/recordings.md): if the positive ones are "
+            "compressive loads logged with the other sign, negate their stress_MPa column before identifying"]

@@ -265,3 +265,22 @@ def test_a_short_recording_that_never_sweeps_is_told_so_not_to_fit_fewer_operato
     assert fewer is not None, str(err.value)
     model = SDPIIdentifier(n_play=int(fewer.group(1)), n_deadzone=int(fewer.group(2))).fit([recording(one_cycle)]).model_
     assert model.n_play == int(fewer.group(1))
+
+
+def test_recordings_whose_stresses_disagree_in_sign_name_the_positive_one_and_negated_it_fits_compression():
+    """A recording at -11.3 MPa and one logged at +15.2 MPa gave an SDPI over -11.3..15.2 MPa and no
+    word; the note names the positive one, and negated as it says the model spans compression only."""
+    d = cycles(3.0, 2.0)
+    t = np.arange(d.size) / FS
+    neg = Recording({"time_s": t, "current_A": d, "stress_MPa": np.full(d.size, -11.3),
+                     "displacement_um": RIG.run(d, -11.3)}, {}, "neg.csv")
+    pos = Recording({"time_s": t, "current_A": d, "stress_MPa": np.full(d.size, 15.2),
+                     "displacement_um": RIG.run(d, -15.2)}, {}, "pos.csv")
+    notes = SDPIIdentifier().fit([neg, pos]).notes_
+    said = [n for n in notes if "negate their stress_MPa column" in n]
+    assert len(said) == 1 and "positive in pos.csv (+15.2 MPa) but negative in 1 other" in said[0], notes
+    assert "neg.csv" not in said[0]
+    negated = pos.with_column("stress_MPa", -pos.columns["stress_MPa"])                 # done as advised
+    fitted = SDPIIdentifier().fit([neg, negated])
+    assert not any("negate" in n for n in fitted.notes_)
+    assert fitted.model_.stress_range_MPa == pytest.approx((-15.2, -11.3))
