@@ -596,7 +596,14 @@ def _parse_rows(body: list[str], ncols: int, source: str, header_line: int, deli
     raise RecordingError(f"{source}: could not parse the data rows")
 
 
+# The variables of a .mat file gma-ffc reads as quantities: one so named that is not one numeric
+# vector (a matrix, complex, text, a single value) is refused saying what it is, not ignored
+MAT_COLUMNS = (TIME, *DRIVE_COLUMNS, DISPLACEMENT, STRESS, REFERENCE)
+
+
 def read_mat(path: Path, require: Sequence[str]) -> Recording:
+    """A MATLAB v7 (or older) file: each column a numeric vector variable named like it; numeric
+    scalars and text become metadata."""
     source = str(path)
     raw = _load_mat(path)
     columns: dict[str, np.ndarray] = {}
@@ -608,12 +615,57 @@ def read_mat(path: Path, require: Sequence[str]) -> Recording:
         if arr.dtype.kind in "fiub" and arr.ndim == 1 and arr.size > 1:
             check_column_name(key, source, 0)
             columns[key] = arr.astype(float)
+        elif key in MAT_COLUMNS:
+            raise RecordingError(f"{source}: {_mat_variable_problem(key, arr)}")
         elif arr.dtype.kind in "fiu" and arr.size == 1:
             meta[key] = arr.item()
         elif arr.dtype.kind == "U":
             meta[key] = str(arr)
+    _refuse_columns_in_a_struct(raw, columns, source)
     rec = Recording(columns, meta, source)
     return validate(rec, require, header_line=0)
+
+
+def _mat_variable_problem(name: str, arr: np.ndarray) -> str:
+    """What is wrong with .mat variable `name`, one of MAT_COLUMNS that is not one numeric vector,
+    and how to save it so that it is."""
+    if arr.dtype.kind == "c":
+        return f"variable '{name}' is complex; save its real part (in MATLAB, {name} = real({name}))"
+    if arr.dtype.kind in "US":
+        return (f"variable '{name}' is text ('{str(arr)[:30]}'), not numbers; save it as a numeric vector "
+                f"(in MATLAB, {name} = str2num({name}) if the text is its numbers)")
+    if arr.dtype.kind not in "fiub":
+        return (f"variable '{name}' is a cell array or struct, not numbers; save it as a numeric vector "
+                f"(in MATLAB, {name} = cell2mat({name}) for a cell array of numbers)")
+    if arr.ndim > 1:
+        shape = "x".join(str(n) for n in arr.shape)
+        return (f"variable '{name}' is a {shape} matrix, not one vector; save one row or column of it as "
+                f"'{name}' (in MATLAB, {name} = {name}(1, :) keeps the first row) and any other under a name of its own")
+    if arr.size == 0:
+        return f"variable '{name}' is empty; save the recorded vector, one value per sample"
+    return _mat_single_value(name, float(arr.item()))
+
+
+def _mat_single_value(name: str, value: float) -> str:
+    """A column saved as one number. A constant stress is a vector as long as time_s, or --stress
+    where a command takes one (simulate, invert); any other column has one value per sample."""
+    if name != STRESS:
+        return f"variable '{name}' is a single value ({value:g}), not one per sample; save the recorded vector"
+    return (f"variable '{name}' is a single value ({value:g}), not one per sample; for a constant stress, save it "
+            f"as a vector as long as time_s (in MATLAB, {name} = repmat({value:g}, size(time_s))), or, for "
+            f"simulate and invert, leave it out and pass --stress {value:g}")
+
+
+def _refuse_columns_in_a_struct(raw: Mapping[str, Any], columns: Mapping[str, np.ndarray], source: str) -> None:
+    """RecordingError when a MATLAB struct variable holds fields named like MAT_COLUMNS that are not
+    variables of the file: gma-ffc reads variables, and would say the columns are missing."""
+    for key, value in raw.items():
+        fields = [f for f in getattr(value, "_fieldnames", None) or [] if f in MAT_COLUMNS and f not in columns]
+        if not key.startswith("__") and fields:
+            raise RecordingError(
+                f"{source}: variable '{key}' is a MATLAB struct with fields {', '.join(value._fieldnames)}; gma-ffc "
+                f"reads each column as a variable of its own: save its fields as variables (in MATLAB, "
+                f"save(f, '-struct', '{key}', '-v7'))")
 
 
 def _load_mat(path: Path) -> dict[str, Any]:

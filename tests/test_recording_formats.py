@@ -4,6 +4,8 @@ tab-separated text all give the same recording as the plain CSV; bad files get o
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -153,3 +155,74 @@ def test_a_mat_file_has_no_lines_so_its_messages_name_the_sample(tmp_path):
     with pytest.raises(RecordingError, match=r"bare\.mat: column 'time' has no unit") as err:
         read_recording(tmp_path / "bare.mat")
     assert ", line " not in str(err.value)
+
+
+# ---- .mat variables that are not one numeric vector: named, with what to save instead
+def _mat_signals(n: int = 100) -> dict[str, np.ndarray]:
+    t = np.arange(n) / 1000.0
+    return {"time_s": t, "current_A": 1.5 - 1.5 * np.cos(2 * np.pi * 3 * t), "stress_MPa": np.full(n, -15.2),
+            "displacement_um": 20.0 * np.sin(t)}
+
+
+def test_a_mat_struct_is_named_and_its_fields_saved_as_variables_read(tmp_path):
+    """It got "missing required column 'time_s'; found " with nothing found."""
+    import scipy.io
+
+    data = _mat_signals()
+    scipy.io.savemat(tmp_path / "struct.mat", {"data": data})
+    with pytest.raises(RecordingError, match=re.escape(
+            "struct.mat: variable 'data' is a MATLAB struct with fields time_s, current_A, stress_MPa, displacement_um; "
+            "gma-ffc reads each column as a variable of its own: save its fields as variables "
+            "(in MATLAB, save(f, '-struct', 'data', '-v7'))")):
+        read_recording(tmp_path / "struct.mat")
+    scipy.io.savemat(tmp_path / "struct.mat", data)           # the fields as variables, as MATLAB's save -struct does
+    np.testing.assert_array_equal(read_recording(tmp_path / "struct.mat").stress_MPa, data["stress_MPa"])
+
+
+@pytest.mark.parametrize("value, words, fixed", [
+    (lambda i: np.vstack([i, 2 * i]), "variable 'current_A' is a 2x100 matrix, not one vector; save one row or "
+                                      "column of it as 'current_A' (in MATLAB, current_A = current_A(1, :) keeps the "
+                                      "first row)", lambda v: v[0]),
+    (lambda i: i + 0.5j, "variable 'current_A' is complex; save its real part (in MATLAB, current_A = real(current_A))",
+     np.real),
+    (lambda i: "0 0.1 0.2", "variable 'current_A' is text ('0 0.1 0.2'), not numbers", None),
+    (lambda i: 1.5, "variable 'current_A' is a single value (1.5), not one per sample; save the recorded vector", None),
+])
+def test_a_mat_drive_that_is_not_one_vector_says_what_it_is_and_saved_as_advised_reads(tmp_path, value, words, fixed):
+    """It got 'missing drive column: need current_A ...' although current_A was there."""
+    import scipy.io
+
+    data = _mat_signals()
+    bad = value(data["current_A"])
+    scipy.io.savemat(tmp_path / "odd.mat", {**data, "current_A": bad})
+    with pytest.raises(RecordingError, match=re.escape(f"odd.mat: {words}")) as err:
+        read_recording(tmp_path / "odd.mat")
+    assert "missing" not in str(err.value)
+    if fixed is not None:
+        scipy.io.savemat(tmp_path / "odd.mat", {**data, "current_A": fixed(bad)})
+        np.testing.assert_allclose(read_recording(tmp_path / "odd.mat").drive, data["current_A"])
+
+
+def test_a_mat_stress_of_one_value_says_how_to_give_a_constant_stress_and_the_vector_reads(tmp_path):
+    """It got 'no stress_MPa column' from simulate, and an MPI without a word from identify."""
+    import scipy.io
+
+    data = _mat_signals()
+    scipy.io.savemat(tmp_path / "one.mat", {**data, "stress_MPa": -15.2})
+    for require in (("time_s", "drive", "displacement_um"), ("time_s", "drive")):
+        with pytest.raises(RecordingError, match=re.escape(
+                "one.mat: variable 'stress_MPa' is a single value (-15.2), not one per sample; for a constant stress, "
+                "save it as a vector as long as time_s (in MATLAB, stress_MPa = repmat(-15.2, size(time_s))), or, "
+                "for simulate and invert, leave it out and pass --stress -15.2")):
+            read_recording(tmp_path / "one.mat", require=require)
+    scipy.io.savemat(tmp_path / "one.mat", {**data, "stress_MPa": np.full(data["time_s"].shape, -15.2)})  # repmat
+    np.testing.assert_array_equal(read_recording(tmp_path / "one.mat").stress_MPa, -15.2)
+
+
+def test_other_mat_variables_that_are_not_vectors_are_still_metadata_or_ignored(tmp_path):
+    import scipy.io
+
+    scipy.io.savemat(tmp_path / "extra.mat", {**_mat_signals(), "gain": 2.0, "note": "rig 2",
+                                               "image": np.ones((3, 4)), "info": {"operator": "A"}})
+    rec = read_recording(tmp_path / "extra.mat")
+    assert rec.metadata == {"gain": 2.0, "note": "rig 2"} and "image" not in rec.columns
