@@ -18,8 +18,9 @@ from ._common import (add_group_option, add_initial_state_option, add_stress_opt
 HELP = """\
 Run a model (any kind: sdpi, mpi, or an extended model from `gma-ffc diagnose`) on the drive and
 stress of a recording. The output is itself a recording: the same time_s, drive and stress
-columns, displacement_um = the prediction, and the measured displacement (if the input had one)
-kept as measured_displacement_um. A drive beyond the range the model was identified on is
+columns, displacement_um = the prediction, the measured displacement (if the input had one)
+kept as measured_displacement_um, and the input's other columns carried along (reference_um,
+force_N, temperature_C, ...). A drive beyond the range the model was identified on is
 reported (the prediction there is an extrapolation).
 
 A recording starts in the middle of a hysteresis history the file does not show. By default
@@ -73,12 +74,7 @@ def run(args: argparse.Namespace) -> int:
         pred = model.simulate(rec.time_s, rec.drive, stress, initial_drive=rest)
         how = f"at rest at {rest:g} by the model's own stepper rule"
     _refuse_an_unreadable_prediction(pred, rec, model)
-    cols = {"time_s": rec.time_s, rec.drive_name: rec.drive}
-    if stress is not None:
-        cols["stress_MPa"] = recorded_stress(rec, stress, args.stress)
-    cols["displacement_um"] = pred
-    if measured is not None:
-        cols["measured_displacement_um"] = measured
+    cols = _output_columns(rec, None if stress is None else recorded_stress(rec, stress, args.stress), pred)
     meta = {"source": f"gma-ffc simulate --model {args.model}", "input": rec.name, "model_kind": model.kind}
     write_recording(args.output, Recording(cols, meta, args.output))
     note = beyond_drive_range(model, rec)
@@ -88,6 +84,22 @@ def run(args: argparse.Namespace) -> int:
     print(f"initial state: {how}" + (" (the start `gma-ffc invert` gave this drive, from the file's metadata)"
                                      if from_file else ""))
     return 0
+
+
+def _output_columns(rec: Recording, stress: np.ndarray | None, pred: np.ndarray) -> dict[str, np.ndarray]:
+    """simulate's output: time_s, the drive, the stress run at, displacement_um = the prediction and
+    the measured one as measured_displacement_um; then every other column of the input, carried
+    along as docs/recordings.md says unknown columns are (reference_um, force_N, temperature_C), and
+    never over one of these."""
+    cols = {"time_s": rec.time_s, rec.drive_name: rec.drive}
+    if stress is not None:
+        cols["stress_MPa"] = stress
+    cols["displacement_um"] = pred
+    if rec.displacement_um is not None:
+        cols["measured_displacement_um"] = rec.displacement_um
+    for name, values in rec.columns.items():
+        cols.setdefault(name, values)
+    return cols
 
 
 def _refuse_an_unreadable_prediction(pred: np.ndarray, rec: Recording, model: Any) -> None:
