@@ -417,3 +417,16 @@ def test_stress_readings_beyond_the_range_by_noise_are_clamped_and_a_load_beyond
     err = capsys.readouterr().err
     assert "reaches 1 MPa outside the model's identified range" in err and err.count("\n") == 1
     assert not (workdir / "lighter_predicted.csv").exists()
+
+
+def test_python_dash_m_gma_ffc_is_the_command():
+    """A user whose venv's bin is not on PATH runs `python -m gma_ffc`: the same parser, version and
+    exit code as `gma-ffc` (it was 'No module named gma_ffc.__main__')."""
+    from gma_ffc import __version__
+
+    done = subprocess.run([sys.executable, "-m", "gma_ffc", "--version"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert __version__ in done.stdout
+    bad = subprocess.run([sys.executable, "-m", "gma_ffc", "no-such-command"], capture_output=True, text=True,
+                         timeout=120)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
