@@ -30,6 +30,8 @@ effect may identify the core again on them (a loop width that follows stress).
 examples:
   gma-ffc diagnose --model model.yaml long_run.csv sweep_19MPa.csv --out diagnosis/
   gma-ffc diagnose --model model.yaml long_run.csv --ident id_*.csv --out diagnosis/
+  gma-ffc diagnose --model model.yaml --out diagnosis/ --ident id_*.csv -- long_run.csv
+(after --, every word is a recording: give --out and the other options before --ident)
 """
 
 
@@ -40,7 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("recordings", nargs="*", metavar="REC", help="recordings (.csv or .mat) with displacement_um")
     p.add_argument("--ident", nargs="+", default=[], metavar="ID_REC",
                    help="the recordings the model was identified on (checked against the model's record); "
-                        "give them after the recordings to diagnose, or end the list with --")
+                        "give them after the recordings to diagnose, or give every other option (--out too) "
+                        "first and end the list with --: --out DIR --ident ID_REC... -- REC...")
     p.add_argument("-o", "--out", required=True, metavar="DIR",
                    help="folder for diagnosis.json, report.html, extended_model.yaml (-o as in the other commands)")
     p.add_argument("--max-effects", type=int, default=3, metavar="N",
@@ -132,5 +135,6 @@ def _split_paths(model: Any, recordings: list[str], ident: list[str]) -> tuple[l
                          "--out DIR --ident ID... -- REC...)")
     if not own:
         raise InputError("--ident: none of the files after it is one the model records as identified on; put "
-                         "the recordings to diagnose before --ident, or end the --ident list with --")
+                         "the recordings to diagnose before --ident, or end the --ident list with -- after every "
+                         "other option (gma-ffc diagnose --model M --out DIR --ident ID... -- REC...)")
     return [ident[k] for k in rest], [ident[k] for k in own], [fingerprints[k] for k in own]
