@@ -71,15 +71,14 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out} exists and is not a folder")
-    from ..atomic import check_folder_writable, refuse_overwrite
+    from ..atomic import check_folder_writable
 
-    for produced in ("diagnosis.json", "report.html", "extended_model.yaml"):
-        refuse_overwrite(out / produced, [*args.recordings, *args.ident, args.model], "--out")
+    model = load_model(args.model)
+    if model.kind == "extended":      # said first: another --out alone would not make this model diagnosable
+        raise InputError(f"{args.model} is already an extended model; diagnose its base sdpi/mpi model instead")
+    _refuse_outputs_over_inputs(args, out)
     refuse_repeats([*args.recordings, *args.ident])
     check_folder_writable(out, str(out))          # now, not after the whole analysis
-    model = load_model(args.model)
-    if model.kind == "extended":
-        raise InputError(f"{args.model} is already an extended model; diagnose its base sdpi/mpi model instead")
     check_initial_drive(model, args.initial_state.drive, "--initial-state drive:")
     paths, ident_paths, fingerprints = _split_paths(model, args.recordings, args.ident)
     recs = [read_recording(p, require=("time_s", "drive", "displacement_um"), group=args.group) for p in paths]
@@ -109,6 +108,19 @@ def run(args: argparse.Namespace) -> int:
         print(f"cannot conclude: {note}", file=sys.stderr)
     print(f"wrote {out / 'diagnosis.json'}, {out / 'report.html'}, {out / 'extended_model.yaml'}")
     return 0
+
+
+OUTPUTS = ("diagnosis.json", "report.html", "extended_model.yaml")
+
+
+def _refuse_outputs_over_inputs(args: argparse.Namespace, out: Path) -> None:
+    """InputError if a file diagnose writes in `out` is one of its inputs. The names are the
+    command's, so the advice is the one thing the user chooses: the folder."""
+    from ..atomic import refuse_overwrite
+
+    for produced in OUTPUTS:
+        refuse_overwrite(out / produced, [*args.recordings, *args.ident, args.model], f"--out {out}: its file",
+                         f"choose another --out folder (diagnose always names its files {', '.join(OUTPUTS)})")
 
 
 def _split_paths(model: Any, recordings: list[str], ident: list[str]) -> tuple[list[str], list[str], list[dict]]:
