@@ -197,14 +197,16 @@ def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
     return (sa.st_dev, sa.st_ino) == (sb.st_dev, sb.st_ino)
 
 
-def refuse_overwrite(output: str | os.PathLike, inputs: "Iterable[str | os.PathLike]", what: str = "output") -> None:
+def refuse_overwrite(output: str | os.PathLike, inputs: "Iterable[str | os.PathLike]", what: str = "output",
+                     advice: str = "choose another output name") -> None:
     """InputError if writing `output` would replace one of `inputs`: the same path, or the same
     file under another name (a symlink, a hard link, a bind mount: compared by device and inode).
-    A command that fills a folder asks once for each file it writes there (`diagnose --out`).
+    A command that fills a folder asks once for each file it writes there (`diagnose --out`), and
+    says what the user can change (`advice`: the folder, as the files' names are the command's).
     An output that is not a regular file (a device, a FIFO) is refused here too, before any work."""
     output_target(output)
     out = Path(output)
     for src in inputs:
         p = Path(src)
         if same_file(out, p):
-            raise InputError(f"{what} {out} is the input {p}: refusing to overwrite it; choose another output name")
+            raise InputError(f"{what} {out} is the input {p}: refusing to overwrite it; {advice}")

@@ -121,6 +121,19 @@ def travel_against_drive(x: np.ndarray, y: np.ndarray) -> float:
     return float(np.sum(-steps[steps < 0])) / travel if travel > 0 else 0.0
 
 
+def butterfly_words(drive_name: str) -> tuple[str, str]:
+    """(why the strain turns round, the drive to identify from instead) for the actuator the drive
+    names: a voltage drives a ferroelectric ceramic, which the field repoles; a current drives a
+    magnetostrictive rod, whose strain is even in the field, so it follows |I| whatever the poling."""
+    if drive_name == "voltage_V":
+        return ("as a ferroelectric ceramic's strain when a bipolar drive passes its coercive field",
+                "identify from a unipolar drive, from 0 to the peak on the side the ceramic is poled")
+    return ("as a magnetostrictive rod's strain when the current changes sign: the strain is even in the field "
+            "(magnetostriction does not change sign with the current), so it rises again as the current grows the "
+            "other way",
+            "identify over a unipolar current, from 0 to the peak, or a biased one that never changes sign")
+
+
 def column_notes(recordings: Sequence[Recording]) -> list[str]:
     """What the columns show that the fit cannot undo: a sensor's reading held while the drive
     moved (its limit or a stall, fitted as the actuator's), and stresses logged positive."""

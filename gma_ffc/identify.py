@@ -42,8 +42,8 @@ from . import operators as ops
 from .constrained_weights import (PlayWeights, bernstein_fit, bounded_least_squares, deadzones_determined, determined,
                                   intermediate_grid, slope_basis, slopes_and_offset, slopes_to_weights, weights_to_slopes)
 from .errors import FaultError, InputError
-from .identification_checks import (BUTTERFLY_SHARE, CLOCKWISE_WIDTH, FAST_LOOP_HZ, burn_in_end, column_notes,
-                                    fewer_operators, has_full_sweep, late_sweep_note, loop_rates_hz,
+from .identification_checks import (BUTTERFLY_SHARE, CLOCKWISE_WIDTH, FAST_LOOP_HZ, burn_in_end, butterfly_words,
+                                    column_notes, fewer_operators, has_full_sweep, late_sweep_note, loop_rates_hz,
                                     travel_against_drive)
 from .initial_state import first_direction, monotone_play_state, resolve
 from .inverse import deadzone_inverse
@@ -442,13 +442,13 @@ class SDPIIdentifier:
             names = ", ".join(d.name for d in data)
             against = max(travel_against_drive(d.x, d.y) for d in data)
             if against >= BUTTERFLY_SHARE:
+                physics, advice = butterfly_words(self.model_.drive_name)
                 raise InputError(
                     f"{names}: the displacement moves against the drive over {100 * against:.0f} % of its travel, "
-                    "falling on part of each rising sweep and rising on part of each falling one: a butterfly, as a "
-                    "ferroelectric ceramic's strain when a bipolar drive passes its coercive field. A play model's "
-                    "displacement follows its drive, so none fits this (it explains "
-                    f"{100 * max(explained, 0):.0f} % of the variance); identify from a unipolar drive, from 0 to "
-                    "the peak on the side the ceramic is poled, where the displacement follows the drive")
+                    f"falling on part of each rising sweep and rising on part of each falling one: a butterfly, "
+                    f"{physics}. A play model's displacement follows its drive, so none fits this (it explains "
+                    f"{100 * max(explained, 0):.0f} % of the variance); {advice}, where the displacement follows "
+                    "the drive")
             raise InputError(f"{names}: the displacement hardly follows the drive (the model explains "
                              f"{100 * max(explained, 0):.0f} % of its variance, stroke {stroke:.3g} um): check that "
                              "the columns are the drive and the displacement of one actuator, and record with a "

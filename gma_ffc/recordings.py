@@ -351,12 +351,13 @@ def _refuse_a_spike(rec: Recording, name: str) -> None:
 
 def refuse_non_finite(rec: Recording, name: str, where: str) -> None:
     """RecordingError naming the file and the line of the first NaN or infinite cell of column `name`;
-    `where` ends the sentence "NaN or infinite values are not allowed in ..." (and says what to do)."""
+    `where` ends the sentence "NaN, infinite or empty cells are not allowed in ..." (and says what to do)."""
     bad = ~np.isfinite(rec.columns[name])
     if bad.any():
         row = int(np.argmax(bad))
-        raise RecordingError(f"{_at_row(rec, row)}: '{name}' is {rec.columns[name][row]} "
-                             f"(NaN or infinite values are not allowed in {where})")
+        value = rec.columns[name][row]
+        raise RecordingError(f"{_at_row(rec, row)}: '{name}' is {value}{' or empty' if np.isnan(value) and rec.header_line else ''} "
+                             f"(NaN, infinite or empty cells are not allowed in {where})")
 
 
 GAP_STEPS = 5.0     # a time step this many times the median one is a gap (a dropout), not jitter
@@ -527,7 +528,9 @@ def _dialect(header: str, first_row: str) -> tuple[str, str]:
 def _parse_rows_fast(path: Any, header_idx: int, names: list[str], delimiter: str,
                      decimal: str, trailing: bool = False) -> dict[str, np.ndarray] | None:
     """The columns as float arrays via pyarrow.csv, or None if anything is not plainly numeric
-    (empty cells, words, ragged rows, comment lines among the rows): the slow path explains.
+    (words, ragged rows, comment lines among the rows): the slow path explains. An empty cell is a
+    value that does not exist (a telemetry row's prediction before there is one): NaN, which
+    `validate` refuses in a required column.
     Each column is copied once, out of Arrow's chunks into one contiguous array (no row-major
     stack in between: `Recording` would copy every strided column out of it again)."""
     import pyarrow as pa
@@ -541,15 +544,15 @@ def _parse_rows_fast(path: Any, header_idx: int, names: list[str], delimiter: st
             parse_options=pacsv.ParseOptions(delimiter=delimiter, ignore_empty_lines=True),
             convert_options=pacsv.ConvertOptions(column_types={n: pa.float64() for n in names}, include_columns=names,
                                                  decimal_point=decimal, strings_can_be_null=False,
-                                                 null_values=[], quoted_strings_can_be_null=False))
+                                                 null_values=[""], quoted_strings_can_be_null=False))
     except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError, OSError):
         return None
-    if table.num_rows == 0 or any(col.null_count for col in table.columns):
+    if table.num_rows == 0:
         return None
     columns = {}
     for n in names:
         col = table.column(n)
-        arr = col.to_numpy()              # one chunk: a read-only view of Arrow's buffer; several: a copy
+        arr = col.to_numpy()              # one chunk: a read-only view of Arrow's buffer; several, or nulls: a copy (NaN)
         columns[n] = arr.copy() if col.num_chunks == 1 or not arr.flags.writeable else arr
     return columns
 
@@ -562,6 +565,12 @@ def _is_number(cell: str, decimal: str) -> bool:
     return True
 
 
+def _empty_as_nan(line: str, delimiter: str) -> str:
+    """A data line with each empty cell as 'nan' (a value that does not exist), as the fast path reads it."""
+    cells = line.split(delimiter)
+    return delimiter.join(cell if cell.strip() else "nan" for cell in cells) if "" in map(str.strip, cells) else line
+
+
 def _parse_rows(body: list[str], ncols: int, source: str, header_line: int, delimiter: str = ",",
                 decimal: str = ".") -> np.ndarray:
     """Careful parse line by line: finds the first offending line and says what is wrong there."""
@@ -570,6 +579,7 @@ def _parse_rows(body: list[str], ncols: int, source: str, header_line: int, deli
         raise RecordingError(f"{source}: header but no data rows")
     if decimal == ",":
         rows = [ln.replace(",", ".") for ln in rows]
+    rows = [_empty_as_nan(ln, delimiter) for ln in rows]
     try:
         data = np.loadtxt(io.StringIO("\n".join(rows)), delimiter=delimiter, ndmin=2, dtype=float)
         if data.shape[1] == ncols:
@@ -590,8 +600,9 @@ def _parse_rows(body: list[str], ncols: int, source: str, header_line: int, deli
             raise RecordingError(f"{source}, line {lineno}: no cell is a number ('{line.strip()[:60]}'); a row of "
                                  "units or a second header? Units belong in the column names (time_s, current_A): "
                                  "delete the line")
-        if not all(numeric):
-            col = numeric.index(False)
+        bad = [not (number or not cell.strip()) for number, cell in zip(numeric, cells)]     # empty: no value
+        if any(bad):
+            col = bad.index(True)
             raise RecordingError(f"{source}, line {lineno}: cell {col + 1} '{cells[col].strip()}' is not a number")
     raise RecordingError(f"{source}: could not parse the data rows")
 
@@ -873,7 +884,8 @@ def write_recording(path: str | Path, rec: Recording) -> None:
     import pyarrow as pa
     from pyarrow import csv as pacsv
 
-    table = pa.table({n: rec.columns[n] for n in names}) if names else None
+    # a value that does not exist (NaN; inf, which no reader takes) is an empty cell, never 'nan' text
+    table = pa.table({n: pa.array(rec.columns[n], mask=~np.isfinite(rec.columns[n])) for n in names}) if names else None
     with atomic_write(p, "wb") as fh:
         fh.write((_format_meta(rec.metadata) + ",".join(names) + "\n").encode("utf-8"))
         if table is not None and table.num_rows:

@@ -284,3 +284,38 @@ def test_recordings_whose_stresses_disagree_in_sign_name_the_positive_one_and_ne
     fitted = SDPIIdentifier().fit([neg, negated])
     assert not any("negate" in n for n in fitted.notes_)
     assert fitted.model_.stress_range_MPa == pytest.approx((-15.2, -11.3))
+
+
+def two_rates(amplitude: float) -> np.ndarray:
+    """Enough loops at two drive frequencies for effects to be told apart, from 0 to 3 A x amplitude."""
+    return np.r_[cycles(3.0, 3.0, amplitude), cycles(7.0, 2.0, amplitude)]
+
+
+def _saturation(dg):
+    return next(c for c in dg.candidates if c.effect == "saturation")
+
+
+def test_saturation_on_a_rig_held_to_the_identified_range_is_not_advised_beyond_its_limits(model):
+    """The model's 0..3 A, the controller's limits 0..3 A, a drive inside: saturation beyond them
+    cannot be tested and does not matter there; no advice asks for a drive beyond the limits."""
+    dg = diagnose(model, [recording(two_rates(0.9), "inside.csv")], drive_limits=(0.0, 3.0))
+    note = next(c for c in dg.cannot_conclude if c.startswith("saturation:"))
+    assert "already reaches the drive limits (0..3 A)" in note and "does not matter on a rig held to" in note
+    assert "beyond that range" not in note and "record" not in note, note
+
+
+def test_saturation_advice_goes_to_the_drive_limit_and_a_recording_there_tests_it(model):
+    """Limits wider than the model's range: the note asks for a drive up to the upper limit, not
+    beyond it; a recording that does just that (and stays within the limits) makes it testable."""
+    limits = (0.0, 3.6)
+    dg = diagnose(model, [recording(two_rates(0.9), "inside.csv")], drive_limits=limits)
+    note = next(c for c in dg.cannot_conclude if c.startswith("saturation:"))
+    m = re.search(r"record with a drive up to (\S+) A, to the end of the drive limits \(0\.\.3\.6 A\)", note)
+    assert m is not None and "down to" not in note, note
+    top = float(m.group(1))
+    assert top == limits[1]
+    as_asked = two_rates(top / 3.0)                               # 0..3.6 A: up to the limit, no further
+    assert as_asked.max() <= limits[1] + 1e-12
+    dg = diagnose(model, [recording(as_asked, "to_the_limit.csv")], drive_limits=limits)
+    assert _saturation(dg).testable, _saturation(dg).reason
+    assert not any(c.startswith("saturation:") for c in dg.cannot_conclude)

@@ -13,6 +13,7 @@ and leave-one-recording-out selection.
 from __future__ import annotations
 
 import dataclasses
+import glob
 
 import json
 import math
@@ -23,6 +24,7 @@ import numpy as np
 import pytest
 
 from gma_ffc.cli import main
+from gma_ffc.cli.diagnose import HELP as DIAGNOSE_HELP
 from gma_ffc.diagnose.engine import diagnose
 from gma_ffc.diagnose.identification import check, split_by_record
 from gma_ffc.effects.stress_play import WidenedCore
@@ -145,6 +147,27 @@ def test_ident_files_alone_after_the_flag_are_told_apart_by_the_record(rig_files
     assert code == 0, err
     doc = json.loads((tmp_path / "o" / "diagnosis.json").read_text())
     assert doc["identification"]["status"] == "match" and [d["recording"] for d in doc["located"]] == ["run_a.csv"]
+
+
+def test_the_help_example_that_ends_the_ident_list_with_dashes_runs_as_written(rig_files: Path, capsys, tmp_path,
+                                                                             monkeypatch) -> None:
+    """`diagnose --help` says how to end the --ident list with --; its example, run word for word
+    (the shell's glob expanded), works: --out before --ident, as after -- every word is a recording."""
+    with pytest.raises(SystemExit):
+        main(["diagnose", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "end the list with --: --out DIR --ident ID_REC... -- REC..." in text
+    example = next(line.split() for line in DIAGNOSE_HELP.splitlines() if " -- " in line)
+    assert example[:2] == ["gma-ffc", "diagnose"] and example.index("--out") < example.index("--ident")
+    for p in [rig_files / "model.yaml", *rig_files.glob("id_*.csv")]:
+        shutil.copy(p, tmp_path / p.name)
+    shutil.copy(rig_files / "run_a.csv", tmp_path / "long_run.csv")
+    monkeypatch.chdir(tmp_path)
+    argv = [w for word in example[1:] for w in (sorted(glob.glob(word)) if "*" in word else [word])]
+    code, _, err = _run(capsys, *argv)
+    assert code == 0, err
+    doc = json.loads((tmp_path / "diagnosis" / "diagnosis.json").read_text())
+    assert doc["identification"]["status"] == "match" and [d["recording"] for d in doc["located"]] == ["long_run.csv"]
 
 
 def test_an_ident_file_whose_content_changed_is_refused_in_one_line(rig_files: Path, capsys, tmp_path) -> None:

@@ -160,7 +160,33 @@ def test_a_butterfly_is_refused_as_one_and_the_unipolar_drive_it_asks_for_identi
     err = capsys.readouterr().err
     assert "a butterfly" in err and "defect" not in err and len(err.strip().splitlines()) == 1
     assert "identify from a unipolar drive, from 0 to the peak on the side the ceramic is poled" in err
+    assert "magnetostrict" not in err                 # a voltage drives a ceramic: its words, not a rod's
     rise = np.linspace(0.0, peak, int(fs))                                           # poled by its first rise
     unipolar = np.r_[rise, 0.5 * peak * (1.0 + np.cos(2 * np.pi * t))]               # then peak .. 0 .. peak
     assert identify(unipolar, slice(rise.size, None), "unipolar.csv") == 0, capsys.readouterr().err
     _valid(load_model(tmp_path / "unipolar.csv.yaml"))
+
+
+def test_a_current_driven_butterfly_is_told_as_magnetostriction_and_the_current_it_asks_for_identifies(tmp_path,
+                                                                                                      capsys):
+    """A magnetostrictive rod driven by a current through zero: its strain is even in the field, so
+    it follows |I|. The refusal described a ferroelectric ceramic (poling, coercive field); it now
+    says why a rod does this and asks for a unipolar or biased current, which identifies."""
+    t = np.arange(0.0, 3.0, 1e-3)
+    noise = np.random.default_rng(3).normal(0.0, 0.02, t.size)
+
+    def identify(current: np.ndarray, name: str) -> int:
+        write_recording(tmp_path / name, Recording({"time_s": t, "current_A": current, "stress_MPa": np.full_like(t, -15.0),
+                                                     "displacement_um": 10.0 * np.abs(current) / 3.0 + noise}, {}, name))
+        return main(["identify", str(tmp_path / name), "-o", str(tmp_path / (name + ".yaml"))])
+
+    assert identify(3.0 * np.sin(2 * np.pi * 3.0 * t), "bipolar.csv") == 2
+    err = capsys.readouterr().err
+    assert "a butterfly" in err and len(err.strip().splitlines()) == 1
+    assert "magnetostrictive rod" in err and "even in the field" in err and "does not change sign with the current" in err
+    assert "ceramic" not in err and "poled" not in err and "coercive" not in err
+    assert "identify over a unipolar current, from 0 to the peak, or a biased one that never changes sign" in err
+    for name, current in (("unipolar.csv", 1.5 * (1.0 - np.cos(2 * np.pi * 3.0 * t))),      # 0 .. the peak
+                          ("biased.csv", 1.5 + 1.4 * np.sin(2 * np.pi * 3.0 * t))):          # never below 0
+        assert identify(current, name) == 0, capsys.readouterr().err
+        _valid(load_model(tmp_path / (name + ".yaml")))

@@ -55,6 +55,20 @@ def test_the_prediction_and_residual_are_in_the_recording_beside_the_displacemen
     assert np.sqrt(np.mean(r[judged] ** 2)) < 0.05 * np.ptp(d[judged])
 
 
+def test_no_telemetry_cell_is_nan_or_inf_text_a_missing_value_is_an_empty_cell(tmp_path, model):
+    """The first row has no prediction yet and the stop ramp's rows no residual: those cells are
+    empty (docs/recordings.md), never 'nan' text, and the file still reads back."""
+    summary = ControllerManager(config(tmp_path), model=model).run(duration_s=0.5)
+    assert summary["ok"]
+    text = (tmp_path / "telemetry.csv").read_text()
+    rows = [line.split(",") for line in text.splitlines() if line and not line.startswith("#")][1:]
+    cells = [cell.strip().lower() for row in rows for cell in row]
+    assert not [c for c in cells if "nan" in c or "inf" in c]
+    assert "" in cells, "the rows without a prediction or residual hold empty cells"
+    rec = read_recording(tmp_path / "telemetry.csv")
+    assert len(rec) == len(rows) and np.isnan(rec.columns["predicted_um"][0])
+
+
 def test_without_the_monitor_the_recording_keeps_its_old_columns(tmp_path, model):
     ctrl = ControllerManager(config(tmp_path, monitor={"enabled": False}), model=model)
     summary = ctrl.run(duration_s=0.5)

@@ -405,6 +405,23 @@ def test_diagnose_out_never_overwrites_an_input(files, capsys, how, produced):
     assert model.read_bytes() == before and sorted(p.name for p in folder.iterdir()) == [produced]
 
 
+def test_an_out_folder_holding_the_model_is_refused_advising_another_folder_which_works(files, capsys, tmp_path):
+    """`--model d/extended_model.yaml --out d`: the user cannot rename the file diagnose writes, so
+    the refusal asks for another --out folder (not 'another output name'); given one, it runs."""
+    d, _ = files
+    folder = tmp_path / "d"
+    folder.mkdir()
+    model = folder / "extended_model.yaml"
+    model.write_bytes((d / "model.yaml").read_bytes())
+    err = run_refused(["diagnose", "--model", model, d / "partial.csv", "--out", folder], capsys,
+                      "refusing to overwrite it; choose another --out folder")
+    assert "output name" not in err
+    assert main([str(a) for a in ["diagnose", "--model", model, d / "partial.csv", "--out", tmp_path / "other"]]) == 0
+    capsys.readouterr()
+    assert (tmp_path / "other" / "extended_model.yaml").is_file()
+    assert model.read_bytes() == (d / "model.yaml").read_bytes()
+
+
 def test_the_controller_starts_from_the_shared_rule_and_says_so():
     from gma_ffc.control.config import validate_config
     from gma_ffc.control.manager import ControllerManager

@@ -46,6 +46,8 @@ def test_voltage_drive_is_accepted(tmp_path: Path) -> None:
     ("time,current_A,displacement_um\n0,0,0\n1,1,1\n", r"line 1: column 'time' has no unit \(did you mean 'time_s'\?\)"),
     ("# a: 1\ntime_s,current_A,displacement_um\n0,0,0\n1,abc,1\n", r"line 4: cell 2 'abc' is not a number"),
     ("time_s,current_A,displacement_um\n0,0,0\n1,nan,1\n", r"line 3: 'current_A' is nan"),
+    ("time_s,current_A,displacement_um\n0,0,0\n1,,1\n", r"line 3: 'current_A' is nan or empty"),
+    ("time_s,current_A,displacement_um\n0,0,0\n1,x,\n", r"line 3: cell 2 'x' is not a number"),
     ("time_s,current_A,displacement_um\n0,0,0\n1,1,1\n0.5,2,2\n", r"line 4: time does not increase"),
     ("time_s,current_A,displacement_um\n0,0,0\n1,1\n", r"line 3: 2 cells, header has 3"),
     ("time_s,current_A,displacement_um\n", r"no data rows"),
@@ -59,6 +61,22 @@ def test_refusals_name_the_file_the_line_and_the_problem(tmp_path: Path, text: s
 def test_nan_in_an_optional_column_is_carried(tmp_path: Path) -> None:
     rec = read_recording(write(tmp_path, "time_s,current_A,displacement_um,temperature_C\n0,0,0,nan\n1,1,1,25\n"))
     assert np.isnan(rec.columns["temperature_C"][0])
+
+
+@pytest.mark.parametrize("rows", ["0,0,0,\n1,1,1,25\n", "0,0,0,\n# a comment: the careful parser\n1,1,1,25\n"])
+def test_an_empty_cell_in_an_optional_column_is_a_missing_value(tmp_path: Path, rows: str) -> None:
+    rec = read_recording(write(tmp_path, "time_s,current_A,displacement_um,temperature_C\n" + rows))
+    assert np.isnan(rec.columns["temperature_C"][0]) and rec.columns["temperature_C"][1] == 25
+
+
+def test_a_value_that_does_not_exist_is_written_as_an_empty_cell_and_read_back(tmp_path: Path) -> None:
+    rec = Recording({"time_s": np.arange(3.0), "current_A": np.ones(3), "displacement_um": np.ones(3),
+                     "residual_um": np.array([np.nan, 1.0, np.inf])}, {"source": "test"})
+    write_recording(tmp_path / "out.csv", rec)
+    text = (tmp_path / "out.csv").read_text()
+    assert "nan" not in text.lower() and "inf" not in text.lower()
+    back = read_recording(tmp_path / "out.csv")
+    assert np.isnan(back.columns["residual_um"][[0, 2]]).all() and back.columns["residual_um"][1] == 1.0
 
 
 def test_missing_file_is_a_clear_error(tmp_path: Path) -> None:

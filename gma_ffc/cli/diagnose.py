@@ -30,6 +30,8 @@ effect may identify the core again on them (a loop width that follows stress).
 examples:
   gma-ffc diagnose --model model.yaml long_run.csv sweep_19MPa.csv --out diagnosis/
   gma-ffc diagnose --model model.yaml long_run.csv --ident id_*.csv --out diagnosis/
+  gma-ffc diagnose --model model.yaml --out diagnosis/ --ident id_*.csv -- long_run.csv
+(after --, every word is a recording: give --out and the other options before --ident)
 """
 
 
@@ -40,7 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("recordings", nargs="*", metavar="REC", help="recordings (.csv or .mat) with displacement_um")
     p.add_argument("--ident", nargs="+", default=[], metavar="ID_REC",
                    help="the recordings the model was identified on (checked against the model's record); "
-                        "give them after the recordings to diagnose, or end the list with --")
+                        "give them after the recordings to diagnose, or give every other option (--out too) "
+                        "first and end the list with --: --out DIR --ident ID_REC... -- REC...")
     p.add_argument("-o", "--out", required=True, metavar="DIR",
                    help="folder for diagnosis.json, report.html, extended_model.yaml (-o as in the other commands)")
     p.add_argument("--max-effects", type=int, default=3, metavar="N",
@@ -68,15 +71,14 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out} exists and is not a folder")
-    from ..atomic import check_folder_writable, refuse_overwrite
+    from ..atomic import check_folder_writable
 
-    for produced in ("diagnosis.json", "report.html", "extended_model.yaml"):
-        refuse_overwrite(out / produced, [*args.recordings, *args.ident, args.model], "--out")
+    model = load_model(args.model)
+    if model.kind == "extended":      # said first: another --out alone would not make this model diagnosable
+        raise InputError(f"{args.model} is already an extended model; diagnose its base sdpi/mpi model instead")
+    _refuse_outputs_over_inputs(args, out)
     refuse_repeats([*args.recordings, *args.ident])
     check_folder_writable(out, str(out))          # now, not after the whole analysis
-    model = load_model(args.model)
-    if model.kind == "extended":
-        raise InputError(f"{args.model} is already an extended model; diagnose its base sdpi/mpi model instead")
     check_initial_drive(model, args.initial_state.drive, "--initial-state drive:")
     paths, ident_paths, fingerprints = _split_paths(model, args.recordings, args.ident)
     recs = [read_recording(p, require=("time_s", "drive", "displacement_um"), group=args.group) for p in paths]
@@ -108,6 +110,19 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+OUTPUTS = ("diagnosis.json", "report.html", "extended_model.yaml")
+
+
+def _refuse_outputs_over_inputs(args: argparse.Namespace, out: Path) -> None:
+    """InputError if a file diagnose writes in `out` is one of its inputs. The names are the
+    command's, so the advice is the one thing the user chooses: the folder."""
+    from ..atomic import refuse_overwrite
+
+    for produced in OUTPUTS:
+        refuse_overwrite(out / produced, [*args.recordings, *args.ident, args.model], f"--out {out}: its file",
+                         f"choose another --out folder (diagnose always names its files {', '.join(OUTPUTS)})")
+
+
 def _split_paths(model: Any, recordings: list[str], ident: list[str]) -> tuple[list[str], list[str], list[dict]]:
     """The recordings to diagnose and the identification recordings (with their files' fingerprints).
 
@@ -132,5 +147,6 @@ def _split_paths(model: Any, recordings: list[str], ident: list[str]) -> tuple[l
                          "--out DIR --ident ID... -- REC...)")
     if not own:
         raise InputError("--ident: none of the files after it is one the model records as identified on; put "
-                         "the recordings to diagnose before --ident, or end the --ident list with --")
+                         "the recordings to diagnose before --ident, or end the --ident list with -- after every "
+                         "other option (gma-ffc diagnose --model M --out DIR --ident ID... -- REC...)")
     return [ident[k] for k in rest], [ident[k] for k in own], [fingerprints[k] for k in own]

@@ -25,6 +25,7 @@ from __future__ import annotations
 import fcntl
 import io
 import logging
+import math
 import os
 import threading
 import time
@@ -38,6 +39,22 @@ from ..errors import ConfigError
 from ..recordings import _format_meta
 
 log = logging.getLogger(__name__)
+
+
+def _cell(value: float) -> str:
+    """One cell: the value, or nothing where there is none (a prediction before the model has one,
+    a ramp's residual): an empty cell, never 'nan' or 'inf' text (docs/recordings.md)."""
+    return "%.9g" % value if math.isfinite(value) else ""
+
+
+def write_rows(out: io.StringIO, block: np.ndarray) -> None:
+    """The rows of `block` as CSV lines (9 significant digits); a value that is not finite is an
+    empty cell. In the writer's thread, in short steps: the loop can take the GIL between rows."""
+    fmt = ",".join(["%.9g"] * block.shape[1]) + "\n"
+    whole = np.isfinite(block).all(axis=1).tolist()
+    write = out.write
+    for values, finite in zip(block.tolist(), whole):
+        write(fmt % tuple(values) if finite else ",".join(map(_cell, values)) + "\n")
 
 
 class TelemetryLock:
@@ -202,10 +219,7 @@ class Telemetry:
         out = io.StringIO()
         if not self._header_written:     # in the first rows' write: the loop has stamped start_unix_s by then,
             out.write(self._header())    # and a file killed then holds rows under its header or nothing
-        fmt = ",".join(["%.9g"] * self.ncols) + "\n"
-        write = out.write
-        for values in block[:, :self.ncols].tolist():      # short steps: the loop can take the GIL between rows
-            write(fmt % tuple(values))
+        write_rows(out, block[:, :self.ncols])
         try:
             self._write_all(out.getvalue().encode())
             os.fsync(self._fh)

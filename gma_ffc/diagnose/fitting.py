@@ -136,6 +136,7 @@ class FitSettings:
     min_stress_span_MPa: float = 1.0
     recalibration_plays: tuple[float, ...] = (0.1, 0.25, 0.45)
     range_margin: float = 0.02
+    drive_limits: tuple[float, float] | None = None     # the controller's (`diagnose --drive-limits`), or none
 
 
 class Fitter:
@@ -176,6 +177,7 @@ class Fitter:
         self.drive_lo, self.drive_hi = float(lo), float(hi)
         self.drive_span = max(self.drive_hi - self.drive_lo, 1e-12)
         self.drive_margin = self.settings.range_margin * self.drive_span   # beyond it: beyond the range
+        self.drive_limits = self.settings.drive_limits
         self.stress_ref = mean_stress(self.data)
         self.stress_varies = (self.model.stress_range_MPa is not None
                               and stress_span(self.data) >= self.settings.min_stress_span_MPa)

@@ -41,7 +41,8 @@ def setup(selector: Any, model: Any, recordings: Sequence[Recording], say: Calla
     anchor = (measured_loops(model, list(identification)) if identification else
               anchor_data(model, min(d.dt_med for d in data)))
     fitter = Fitter(model, data, anchor, FitSettings(selector.min_stress_span_MPa,
-                                                     tuple(selector.recalibration_plays), selector.range_margin))
+                                                     tuple(selector.recalibration_plays), selector.range_margin,
+                                                     tuple(limits) if limits is not None else None))
     # each fold needs scored rows to fit on: a fold without any would be fitted to nothing
     folds_filled = min(fitter.n_a, fitter.y_rows.size - fitter.n_a) > 0
     n_samples, too_little, slow_only, cannot = enough_data(data, selector.min_samples, selector.clamped_share,

@@ -141,6 +141,7 @@ class FitData(Protocol):
     drive_hi: float
     drive_span: float
     drive_margin: float            # a drive further than this beyond the identified range is beyond it
+    drive_limits: tuple[float, float] | None    # the drive the rig's controller allows (`diagnose --drive-limits`)
     dt_min: float
     duration_max: float
     stress_ref: float

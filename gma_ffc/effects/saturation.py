@@ -15,6 +15,7 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
+from ..drive import drive_unit
 from . import kernels as K
 from .base import (BatchSignals, EffectBase, FitData, OwnPlays, PlayBankState, PlayStart, Regressors, SignatureCheck,
                    SignatureFailure, StepSignals, finite, play_weights)
@@ -75,6 +76,30 @@ class SweptPlays(PlayBankState):
         return acc
 
 
+def untestable_inside(fitter: FitData) -> str:
+    """Why saturation cannot be tested on a drive inside the identified range, and the drive that
+    would test it: beyond the range, but never beyond the controller's `drive_limits` (docs/cli.md).
+    A limit within the range margin of the range's end leaves no room beyond it on that side."""
+    lo, hi, margin = fitter.drive_lo, fitter.drive_hi, fitter.drive_margin
+    unit = drive_unit(getattr(fitter.model, "drive_name", "current_A"))
+    inside = f"the drive stays inside the range the model was identified on ({lo:.3g}..{hi:.3g} {unit})"
+    tested = ", so saturation beyond it cannot be tested"
+    if fitter.drive_limits is None:
+        return inside + tested + "; record with a drive beyond that range to test it"
+    low, high = (float(v) for v in fitter.drive_limits)
+    room = []
+    if low < lo - margin:
+        room.append(f"down to {low:.3g} {unit}")
+    if high > hi + margin:
+        room.append(f"up to {high:.3g} {unit}")
+    limits = f"the drive limits ({low:.3g}..{high:.3g} {unit})"
+    if not room:
+        return (f"{inside}, which already reaches {limits}: saturation beyond them cannot be tested, and does "
+                "not matter on a rig held to those limits")
+    return (f"{inside}{tested}; record with a drive {' or '.join(room)}, to the end of {limits} and no further, "
+            "to test it within them")
+
+
 class Saturation(EffectBase):
     name: ClassVar[str] = "saturation"
     keys: ClassVar[tuple[str, ...]] = ("saturation",)
@@ -125,9 +150,7 @@ class Saturation(EffectBase):
         above = sum(int(np.sum(d.u > fitter.drive_hi + margin)) for d in fitter.data) / n
         below = sum(int(np.sum(d.u < fitter.drive_lo - margin)) for d in fitter.data) / n
         if below + above < 0.005:
-            return False, ("the drive stays inside the range the model was identified on "
-                           f"({fitter.drive_lo:.3g}..{fitter.drive_hi:.3g}), so saturation beyond it cannot be "
-                           "tested; record with a drive beyond that range to test it")
+            return False, untestable_inside(fitter)
         return True, ""
 
     @classmethod
