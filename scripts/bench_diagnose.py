@@ -329,6 +329,12 @@ def summarise_probes(results: list[dict[str, Any]]) -> None:
         for r in weak:
             print(f"    below {PROBE_GAIN_EACH:g}x: {r['case']}: {r['probe_before']:.4f} -> {r['probe_after']:.4f} um "
                   f"(floor {r['probe_floor']:.4f} um{_probe_floor_words(r)})")
+        # beside the target, not instead of it, as for halving: an extended model already at the effect-free
+        # twin's floor on the probes has modelled all of the effect there is to model
+        at_floor = [r for r in weak if np.isfinite(r["probe_floor"]) and r["probe_after"] <= r["probe_floor"]]
+        if at_floor:
+            print(f"    (of those, {len(at_floor)} at the effect-free floor: {', '.join(r['case'] for r in at_floor)}; "
+                  f"at least {PROBE_GAIN_EACH:g}x or at the floor: {len(effect) - len(weak) + len(at_floor)}/{len(effect)})")
         res = [(r, g) for r, g in zip(effect, gains) if "mechanical_dynamics" in r["truth"]]
         if res:
             print(f"  resonance cases: " + ", ".join(f"{r['case']} {g:.2f}x" for r, g in res)

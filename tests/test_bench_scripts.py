@@ -47,3 +47,21 @@ def test_a_weak_case_names_its_bound_only_where_an_effect_was_named():
     assert "bounds" not in _probe_floor_words(r) and "more of the effect modelled" in _probe_floor_words(r)
     r["verdict"] = ("stress_dependent_play",)
     assert "probe_other_shape.csv alone, as modelled, bounds the gain at 1.50x" in _probe_floor_words(r)
+
+
+def test_a_case_below_the_probe_target_at_the_effect_free_floor_is_counted_apart(capsys):
+    """The twentieth draw's heating (0.278 -> 0.193 um, floor 0.199 um): 1.5x would need 0.185 um,
+    below what the model class leaves without the effect. The count against the target stays, and
+    a second count beside it says which cases are at the floor; one above it is not."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from bench_diagnose import summarise_probes
+
+    def case(name, before, after, floor):
+        return {"case": name, "truth": ["x"], "verdict": ["x"], "probe_before": before, "probe_after": after,
+                "probe_floor": floor, "probe_bound": ("probe_other_shape.csv", 2.0)}
+
+    summarise_probes([case("at_floor", 0.2776, 0.1928, 0.1991), case("met", 1.0, 0.2, 0.1),
+                      case("short", 1.0, 0.8, 0.3)])
+    out = capsys.readouterr().out
+    assert "at least 1.5x in 1/3 (target: all)" in out
+    assert "(of those, 1 at the effect-free floor: at_floor; at least 1.5x or at the floor: 2/3)" in out
