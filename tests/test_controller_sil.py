@@ -5,6 +5,7 @@ feedforward tracks at least twice as well as an MPI identified at -11.3 MPa only
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -229,6 +230,59 @@ def test_a_reload_that_moves_the_current_limits_approaches_them_within_the_slew_
     assert cmd[300 + 60:700].min() >= 2.5 and cmd[700 + 60:].max() <= 0.3   # and reach each box (< 60 ticks)
     tel = read_recording(ctrl.setup.cfg.telemetry["path"]).columns["current_cmd_A"]
     assert np.abs(np.diff(tel)).max() <= step + 1e-7  # telemetry keeps 9 significant digits
+
+
+def test_a_reload_whose_slew_cannot_ramp_a_stop_in_time_is_refused_and_its_advice_ramps_one(models, tmp_path):
+    """A reload lowering the maximum to 0.1 A and the slew to 0.5 A/s while the command stood near
+    1.5 A: accepted, a stop ramped at 0.5 A/s and was cut at stop_ramp_max_s (2 s) 0.5 A from the safe
+    current, which was then written in one step beyond the slew limit. The reload is refused now,
+    with the stop_ramp_max_s that fits; so reloaded, a stop ramps to the safe current within the slew."""
+    from gma_ffc.errors import ConfigError
+
+    ctrl = ControllerManager(limits_cfg(tmp_path, "ramp"), model=models[0])
+    slow = limits_cfg(tmp_path, "ramp", current_max_A=0.1, slew_A_per_s=0.5)
+    with pytest.raises(ConfigError) as err:
+        ctrl.reload(slow, model=models[0])
+    assert "from where the running limits may have left the command" in str(err.value)
+    advised = float(re.search(r"Set limits.stop_ramp_max_s to ([\d.]+) or more", str(err.value)).group(1))
+    assert ctrl.setup.cfg.limits["slew_A_per_s"] == 50.0                    # the running config is kept
+    as_advised = limits_cfg(tmp_path, "ramp", current_max_A=0.1, slew_A_per_s=0.5, stop_ramp_max_s=advised)
+    orig_write, written = ctrl.driver.write, []
+
+    def write(current):
+        written.append(current)
+        if len(written) == 100:
+            ctrl.reload(as_advised, model=models[0])
+        if len(written) == 200:
+            ctrl.request_stop("test stop")
+        orig_write(current)
+
+    ctrl.driver.write = write
+    ctrl.run(duration_s=20.0)
+    cmd = np.asarray(written)
+    assert cmd[99] > 0.3                                  # the command stood above the new box
+    assert cmd[-1] == pytest.approx(0.0)                  # the stop reached the safe current ...
+    assert np.abs(np.diff(cmd[100:])).max() <= 0.5e-3 * (1 + 1e-9)      # ... within 0.5 A/s at 1 kHz
+
+
+def test_a_stop_ramp_cut_short_says_so_in_the_exit_reason(models, tmp_path):
+    """The checks make a stop's ramp fit at the nominal rate; a loop slower than its rate can still
+    run out of stop_ramp_max_s, and the safe current is then written in one step. That is said,
+    with how far the ramp had left to go (here forced: the limit set below one ramp after the checks)."""
+    ctrl = ControllerManager(limits_cfg(tmp_path, "cut"), model=models[0])
+    ctrl.setup.cfg.limits["stop_ramp_max_s"] = 0.005       # past the checks: 5 ticks of 0.05 A
+    orig_write, written = ctrl.driver.write, []
+
+    def write(current):
+        written.append(current)
+        if len(written) == 300:
+            ctrl.request_stop("test stop")
+        orig_write(current)
+
+    ctrl.driver.write = write
+    ctrl.run(duration_s=2.0)
+    assert written[299] > 0.5 and written[-1] == pytest.approx(0.0)
+    assert "the stop's ramp was cut at limits.stop_ramp_max_s (0.005 s)" in ctrl.exit_reason, ctrl.exit_reason
 
 
 def test_reload_refuses_restart_keys_and_keeps_old(models, tmp_path):

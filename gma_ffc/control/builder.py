@@ -17,7 +17,7 @@ from ..drivers.base import DISPLACEMENT, FORCE, INSTANCE_MEMBERS, STRESS, missin
 from ..errors import ConfigError, ModelError
 from ..protocols import Model
 from . import safety
-from .config import ControllerConfig
+from .config import ControllerConfig, stop_ramp_fits_after_reload
 from .envelope import DriveRange, StressRange
 from .faults import FaultLog
 from .hardware import DriverSupervisor
@@ -143,6 +143,7 @@ def build_reload(running: ControllerConfig, cfg: ControllerConfig, model: Model 
         if getattr(cfg, key) != getattr(running, key):
             raise ConfigError(f"config key '{key}' changed: that needs a restart, not a reload "
                               f"(the running configuration is kept)")
+    stop_ramp_fits_after_reload(running.limits, cfg.limits, cfg.rate_hz)
     setup = build_setup(cfg, model if model is not None else load_model(cfg))
     if setup.law.learner is not None:
         setup.law.learner.last_event = "reset: configuration reloaded"

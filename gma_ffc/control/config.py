@@ -276,20 +276,30 @@ def _limits(raw: dict[str, Any], rate_hz: float) -> dict[str, Any]:
     return limits
 
 
-def _stop_ramp_fits(limits: dict[str, Any], rate_hz: float) -> None:
+def _stop_ramp_fits(limits: dict[str, Any], rate_hz: float, since: Mapping[str, Any] | None = None) -> None:
     """A stop ramps to the safe current within the slew limit and ends after `stop_ramp_max_s`,
     writing the safe current then. From the limit farthest from the safe current the ramp must fit
-    in that time (with one tick to spare, its last step), or that write is a step beyond the slew limit."""
+    in that time (with one tick to spare, its last step), or that write is a step beyond the slew limit.
+    On a reload (`since`: the running limits) the command may still stand anywhere the running
+    limits allowed, as new, narrower limits are reached at the new slew: the ramp must fit from there too."""
     safe, slew = limits["safe_current_A"], limits["slew_A_per_s"]
-    farthest = max(limits["current_max_A"] - safe, safe - limits["current_min_A"])
+    ends = [limits] if since is None else [limits, since]
+    farthest = max(max(end["current_max_A"] - safe, safe - end["current_min_A"]) for end in ends)
     need_s = farthest / slew + 1.0 / rate_hz
     if limits["stop_ramp_max_s"] < need_s:
         enough = math.ceil(need_s * 10.0) / 10.0
+        start = "" if since is None else ", from where the running limits may have left the command"
         raise ConfigError(
             f"config key 'limits.stop_ramp_max_s' ({limits['stop_ramp_max_s']:g} s) is shorter than a stop's ramp "
-            f"to the safe current at the slew limit: {farthest:g} A at {slew:g} A/s takes {need_s:.3g} s, and "
-            f"cutting it short would write the safe current in one step beyond the slew limit. Set "
+            f"to the safe current at the slew limit{start}: {farthest:g} A at {slew:g} A/s takes {need_s:.3g} s, "
+            f"and cutting it short would write the safe current in one step beyond the slew limit. Set "
             f"limits.stop_ramp_max_s to {enough:g} or more, or raise limits.slew_A_per_s")
+
+
+def stop_ramp_fits_after_reload(running: Mapping[str, Any], new: Mapping[str, Any], rate_hz: float) -> None:
+    """ConfigError if a stop after reloading limits `new` over `running` could not ramp to the safe
+    current within the new slew limit in the new `stop_ramp_max_s` (`_stop_ramp_fits`)."""
+    _stop_ramp_fits(dict(new), rate_hz, since=running)
 
 
 def _calls_within_the_watchdog(driver: Mapping[str, Any], watchdog_s: float, key: str = "driver") -> None:

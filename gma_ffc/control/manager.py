@@ -305,9 +305,20 @@ class ControllerManager:
                 self.faults.raise_fault(safety.WATCHDOG, f"a tick took {compute:.3f} s (watchdog {watchdog_s:g} s)")
                 if self._execute(safety.WATCHDOG, t, "watchdog") != RESUME:
                     return
-            if self._mode == STOPPING and (tick.command_A == self.setup.safe_A or
-                                           t - self._stop_started >= self.setup.cfg.limits["stop_ramp_max_s"]):
+            if self._mode == STOPPING and tick.command_A == self.setup.safe_A:
                 return
+            if self._mode == STOPPING and t - self._stop_started >= self.setup.cfg.limits["stop_ramp_max_s"]:
+                self._ramp_cut(tick.command_A)
+                return
+
+    def _ramp_cut(self, command_A: float) -> None:
+        """The stop's ramp ran out of `stop_ramp_max_s` short of the safe current (the config checks
+        make it fit at the nominal rate: a loop slower than its rate): the safe current is written
+        next in one step, and the exit reason says so."""
+        left = abs(command_A - self.setup.safe_A)
+        self.exit_reason += (f"; the stop's ramp was cut at limits.stop_ramp_max_s "
+                             f"({self.setup.cfg.limits['stop_ramp_max_s']:g} s) {left:.4g} A from the safe "
+                             "current, which was then written in one step (the loop ran slower than its rate)")
 
     def _stalled(self, gap_s: float, until_s: float, t: float) -> bool:
         """The loop did not run for `gap_s` > watchdog_s between two ticks, until `until_s` of
