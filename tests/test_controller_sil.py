@@ -285,6 +285,21 @@ def test_a_stop_ramp_cut_short_says_so_in_the_exit_reason(models, tmp_path):
     assert "the stop's ramp was cut at limits.stop_ramp_max_s (0.005 s)" in ctrl.exit_reason, ctrl.exit_reason
 
 
+def test_a_current_limit_far_beyond_the_model_is_refused_as_a_likely_unit_slip(models, tmp_path):
+    """`current_max_A: 3000` (milliamperes typed as amperes) for a model identified to 3 A was accepted,
+    and the inverse's guesses beyond its range reached 6.8 A. It is refused naming the most this model
+    allows; a limit at that most is accepted."""
+    from gma_ffc.errors import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        ControllerManager(limits_cfg(tmp_path, "mA", current_max_A=3000.0, stop_ramp_max_s=61.0), model=models[0])
+    words = str(err.value)
+    assert "'limits.current_max_A' (3000 A)" in words and "milliamperes" in words, words
+    most = float(re.search(r"at most ([\d.]+) A for this model", words).group(1))
+    assert 10.0 < most < 100.0                                 # 10x a model of a few amperes
+    ControllerManager(limits_cfg(tmp_path, "mA", current_max_A=most, stop_ramp_max_s=2.0), model=models[0])
+
+
 def test_reload_refuses_restart_keys_and_keeps_old(models, tmp_path):
     from gma_ffc.errors import ConfigError
 

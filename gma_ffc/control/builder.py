@@ -9,6 +9,7 @@ construction and the JIT warm-up all happen here, and any error leaves the runni
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -112,6 +113,7 @@ def build_setup(cfg: ControllerConfig, model: Model) -> Setup:
     """
     lim = cfg.limits
     _drives_a_current(cfg, model)
+    _limits_near_the_model(cfg, model)
     reference = build_reference(cfg.reference, model.preview_s)
     stress_range = StressRange.of_model(model, cfg.stress["out_of_range"])
     warm_up(model, cfg.period_s, stress_range)
@@ -123,6 +125,29 @@ def build_setup(cfg: ControllerConfig, model: Model) -> Setup:
                                    cfg.sensor["force_limit_N"], cfg.sensor["bad_ticks"], cfg.sensor["stale_ticks"])
     return Setup(cfg, model, law, build_reference({**cfg.reference, "lead_s": 0.0}), limiter, monitor, stress_range,
                  safety.fault_actions(cfg), float(lim["safe_current_A"]))
+
+
+# A current limit this many times the largest current the model was identified on lies far beyond
+# anything the model knows (its inverse there is a guess), and is most likely a unit slip: milliamperes
+# typed as amperes are 1000x. An amplifier limit a little above the model's range (x1.5, x3) is usual.
+LIMIT_BEYOND_MODEL_FACTOR = 10.0
+
+
+def _limits_near_the_model(cfg: ControllerConfig, model: Model) -> None:
+    """ConfigError for a current limit over LIMIT_BEYOND_MODEL_FACTOR times the model's largest
+    identified current (a user's `current_max_A: 3000` for 3 A, accepted, let the command reach 6.8 A)."""
+    lo, hi = (float(v) for v in model.drive_range)
+    extent = max(abs(lo), abs(hi))
+    if not math.isfinite(extent) or extent <= 0.0:
+        return
+    for key in ("current_max_A", "current_min_A"):
+        value = float(cfg.limits[key])
+        if abs(value) > LIMIT_BEYOND_MODEL_FACTOR * extent:
+            raise ConfigError(
+                f"config key 'limits.{key}' ({value:g} A) is {abs(value) / extent:.0f}x the largest current the "
+                f"model was identified on ({extent:.3g} A, {cfg.model}): check its unit (amperes, not milliamperes) "
+                f"and set it to the coil's limit, at most {LIMIT_BEYOND_MODEL_FACTOR * extent:.3g} A for this "
+                "model; to drive further, identify a model over the wider current first")
 
 
 def _drives_a_current(cfg: ControllerConfig, model: Model) -> None:
