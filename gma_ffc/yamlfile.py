@@ -62,4 +62,7 @@ def read_yaml(path: str | os.PathLike, what: str, error: type[InputError] = Inpu
         mark = getattr(exc, "problem_mark", None)
         where = f", line {mark.line + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        if "'\\t'" in problem:       # PyYAML: "found character '\t' that cannot start any token"
+            raise error(f"{p}{where}: a tab character; YAML indents with spaces only: replace the tabs "
+                        "with spaces") from None
         raise error(f"{p}{where}: not valid YAML ({problem}); is it a {what}?") from None

@@ -102,6 +102,21 @@ def test_file_errors_name_the_file_and_line(tmp_path):
         load_config(bad)
 
 
+def test_a_tab_is_told_to_be_spaces_and_a_device_is_not_a_missing_file(tmp_path):
+    """A tab gave PyYAML's "found character '\\t' that cannot start any token; is it a config file?";
+    --config /dev/null said "not found". Each now says what it is; the tab replaced, the file reads."""
+    from gma_ffc.control.config import check_config_file
+
+    tabbed = tmp_path / "c.yaml"
+    tabbed.write_text(yaml.safe_dump(BASE).replace("  ", "\t", 1))
+    with pytest.raises(ConfigError, match=r"c.yaml, line \d+: a tab character; YAML indents with spaces only"):
+        load_config(tabbed)
+    tabbed.write_text(tabbed.read_text().replace("\t", "  "))          # as told
+    assert load_config(tabbed).rate_hz == BASE["rate_hz"]
+    with pytest.raises(ConfigError, match="/dev/null is not a regular file"):
+        check_config_file(Path("/dev/null"))
+
+
 def test_numbers_in_exponent_form_are_numbers(tmp_path):
     """YAML 1.1 reads 1e3 and 1.0e3 as strings: 'rate_hz must be a number, got '1.0e3'' told a user
     their number was not one."""

@@ -466,6 +466,8 @@ def check_config_file(path: Path) -> None:
                 f"{', '.join(configs[:5])}{', ...' if len(configs) > 5 else ''})" if configs
                 else "give a controller config's YAML file (none in that folder looks like one)")
         raise ConfigError(f"config file {path} is a folder, not a file; {hint}")
+    if path.exists() and not path.is_file():      # /dev/null, a FIFO: there, but no file to read
+        raise ConfigError(f"config file {path} is not a regular file; give a controller config's YAML file")
     if not path.is_file():
         raise ConfigError(f"config file {path} not found")
 
