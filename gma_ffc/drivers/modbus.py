@@ -124,9 +124,9 @@ class ModbusDriver(Driver):
         for dev in cfg["devices"].values():
             if CURRENT_SETPOINT in dev["register_map"]:
                 unit = dev["register_map"][CURRENT_SETPOINT].unit_id
-                where = (f"modbus-tcp:{dev['host'].lower()}:{dev['port']}" if dev["transport"] == "tcp"
-                         else f"serial:{os.path.realpath(str(dev['port']))}")
-                return [f"{where}:unit{unit}"]
+                links = (tcp_link_names(dev["host"], dev["port"]) if dev["transport"] == "tcp"
+                         else [f"serial:{os.path.realpath(str(dev['port']))}"])
+                return [f"{where}:unit{unit}" for where in links]
         return []
 
     @classmethod
@@ -327,6 +327,20 @@ def _port(dev: dict[str, Any], key: str) -> Any:
         raise ConfigError(f"config key '{key}.port' must be the serial port path for RTU (e.g. /dev/ttyUSB0), "
                           f"got {port!r}")
     return port
+
+
+def tcp_link_names(host: str, port: int) -> list[str]:
+    """The names a Modbus TCP link is claimed by: one per address the host resolves to, so that
+    "localhost" and "127.0.0.1" (or a name and its IP) are one amplifier, which the host as text
+    missed (two controllers drove one amplifier, 2026-11-30). Any shared address collides: a name
+    resolving to 127.0.0.1 and ::1 meets a claim on either. A name that does not resolve is
+    named by its text, as before (the run then fails to connect, as a device that is down does)."""
+    try:
+        found = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except (socket.gaierror, UnicodeError):
+        return [f"modbus-tcp:{host.lower()}:{port}"]
+    addresses = sorted({str(info[4][0]) for info in found})
+    return [f"modbus-tcp:{address}:{port}" for address in addresses] or [f"modbus-tcp:{host.lower()}:{port}"]
 
 
 def _host_exists(host: str, key: str) -> None:
