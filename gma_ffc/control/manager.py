@@ -406,7 +406,8 @@ class ControllerManager:
         immediate = self.setup.fault_table[name].output == "immediate"
         if immediate or name not in self.faults.active:
             s = self.setup
-            message = s.stress_range.message(value) if name == safety.STRESS_RANGE else s.law.drive.message(value)
+            message = (s.stress_range.message(value) if name == safety.STRESS_RANGE
+                       else s.law.drive.message(value, s.limiter.lo, s.limiter.hi))
             if immediate:
                 raise TickFault(name, message)
             self.faults.raise_fault(name, message)
