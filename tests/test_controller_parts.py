@@ -164,13 +164,33 @@ def test_the_learner_learns_from_the_laws_ticks_and_hears_where_a_limit_cut_them
 
 def test_the_drive_range_policy_lives_in_one_place():
     rng = DriveRange(0.0, 3.0, "clamp")
-    assert rng.clamp and "clamped to the identified range" in rng.message(3.5)
+    assert rng.clamp and rng.message(3.5).endswith(": clamped to the range's edge 3 (limits.beyond_model: clamp)")
     with pytest.raises(ValueError):
         DriveRange(0.0, 3.0, "ignore")
     model = load_model(MODEL)
     padded = DriveRange.of_model(model, "warn")
     lo, hi = model.drive_range
     assert padded.lo == pytest.approx(lo - 0.01 * (hi - lo)) and padded.hi == pytest.approx(hi + 0.01 * (hi - lo))
+
+
+def test_the_drive_range_message_says_what_was_written_and_which_range_it_checks():
+    """Reference to the 0 A floor: status said '-0.03282 outside [-0.03245, 3.032]: commanded
+    anyway' for a command clipped to 0 A, and called the widened range the identified one (a new
+    user's sweep, 2026-11-30; the model file says drive_range [-0.0024, 3.0024])."""
+    model = load_model(MODEL)
+    lo, hi = model.drive_range
+    warn = DriveRange.of_model(model, "warn")
+    clipped = warn.message(-0.03282, 0.0, 3.0)
+    assert clipped.startswith(f"the inverse asks for -0.03282, outside [{warn.lo:.5g}, {warn.hi:.5g}] (the model's "
+                              f"identified drive_range [{lo:.5g}, {hi:.5g}] widened by 1 % of its span at each end): ")
+    assert clipped.endswith(": clipped to 0 A by limits.current_min_A (limits.beyond_model: warn)")
+    assert "commanded anyway" not in clipped and "drive_range [-0.0024, 3.0024]" in clipped   # the file's words
+    assert warn.message(-0.04, -1.0, 3.0).endswith(": commanded anyway (limits.beyond_model: warn)")
+    assert warn.message(3.5, 0.0, 3.2).endswith(": clipped to 3.2 A by limits.current_max_A (limits.beyond_model: warn)")
+    clamp = DriveRange.of_model(model, "clamp").message(-0.04, 0.0, 3.0)
+    assert clamp.endswith(f": clipped to 0 A by limits.current_min_A (clamped to the range's edge {warn.lo:.4g} "
+                          "first) (limits.beyond_model: clamp)")
+    assert "(the drive range the model was identified on)" in DriveRange(0.0, 3.0).message(3.5)
 
 
 # ---- the load cell's force limit -----------------------------------------------------------------
@@ -273,3 +293,13 @@ def test_every_run_starts_the_law_from_the_safe_current(models):  # noqa: F811
         runs.append(rig.writes)
     assert len(runs[0]) == len(runs[1]) > 250
     np.testing.assert_allclose(runs[1], runs[0], rtol=0, atol=1e-9)     # to the rounding of t
+
+
+def test_a_drive_below_the_model_and_the_current_floor_is_reported_as_clipped_in_the_run(models, tmp_path):  # noqa: F811
+    """The runner passes its current limits to the message: the status said 'commanded anyway'."""
+    ctrl, _, _ = make(tmp_path, models, reference={"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0,
+                                                   "offset_um": 6.0})      # troughs at -6 um: below 0 A
+    s = ctrl.run(duration_s=0.5)
+    messages = [h["message"] for h in s["fault_history"] if h["fault"] == "drive_out_of_model_range"]
+    assert messages and all(m.endswith("clipped to 0 A by limits.current_min_A (limits.beyond_model: warn)")
+                            for m in messages), messages

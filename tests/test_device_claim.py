@@ -96,3 +96,27 @@ def test_the_modbus_amplifier_is_named_by_its_link_and_unit():
     raw = yaml.safe_load((ROOT / "config" / "modbus_tcp.yaml").read_text())
     cfg = validate_config(raw, base_dir=ROOT / "config")
     assert ModbusDriver.amplifiers(cfg.driver) == ["modbus-tcp:127.0.0.1:5020:unit1"]
+
+
+def test_a_tcp_amplifier_is_named_by_every_address_its_host_resolves_to():
+    """`localhost` and `127.0.0.1` are one amplifier: the claim compared the host as text, and a
+    second controller with `host: localhost` drove the amplifier a first drove at 127.0.0.1."""
+    from gma_ffc.drivers.modbus import tcp_link_names
+
+    by_name, by_ip = tcp_link_names("localhost", 5020), tcp_link_names("127.0.0.1", 5020)
+    assert by_ip == ["modbus-tcp:127.0.0.1:5020"]
+    assert "modbus-tcp:127.0.0.1:5020" in by_name and "modbus-tcp:localhost:5020" not in by_name
+    assert tcp_link_names("no-such-host.invalid", 5020) == ["modbus-tcp:no-such-host.invalid:5020"]
+
+
+def test_a_claim_by_localhost_is_refused_while_127_0_0_1_holds_the_amplifier():
+    from gma_ffc.drivers.modbus import tcp_link_names
+
+    port = 20000 + uuid.uuid4().int % 40000                     # unique per run: claims are machine-wide
+    first = DeviceClaim([f"{n}:unit1" for n in tcp_link_names("127.0.0.1", port)])
+    first.acquire()
+    try:
+        with pytest.raises(ConfigError, match=rf"modbus-tcp:127.0.0.1:{port}:unit1 is driven by another controller"):
+            DeviceClaim([f"{n}:unit1" for n in tcp_link_names("localhost", port)]).acquire()
+    finally:
+        first.release()

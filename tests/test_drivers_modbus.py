@@ -292,3 +292,40 @@ def test_a_host_name_that_does_not_exist_is_refused_at_once_and_pymodbus_says_no
     lines = res.stderr.strip().splitlines()
     assert res.returncode == 2 and len(lines) == 1, res.stderr
     assert "driver.devices.amp.host" in lines[0] and "'127.0.0.l' is no host" in lines[0]
+
+
+def _with_map(bench, cfg, **channels):
+    """`cfg` with the device's register map changed: CHANNEL={key: value} per channel (None: left out)."""
+    raw = cfg.raw
+    rmap = bench.rmap.to_dict()
+    for name, keys in channels.items():
+        if keys is None:
+            del rmap["channels"][name]
+        else:
+            rmap["channels"][name].update(keys)
+    raw["driver"]["devices"]["amp"]["register_map"] = rmap
+    return validate_config(raw)
+
+
+@pytest.mark.parametrize("channels,named", [
+    ({"force_N": {"address": 99}}, "force_N.address 99"),                                  # a block of its own
+    ({"force_N": {"address": 5}, "displacement_um": {"address": 4}, "heartbeat": None},   # one read of 4..5: the
+     "force_N.address 5"),                                                                 # channel is isolated
+])
+def test_a_register_the_device_does_not_have_is_named_by_its_key_and_stops_at_once(
+        models, bench_factory, tmp_path, channels, named):
+    """force_N at address 99: exception 2 was a comms fault, 10 reconnects toggled the output 10
+    times, and the user read 'read input 99+1: ... Modbus exception 2' (a new user's sweep, 2026-11-30)."""
+    bench = bench_factory("tcp", "amplifier_int16.yaml")
+    cfg = _with_map(bench, bench.cfg(tmp_path, "noreg", 100, comms={"on_fault": "reconnect", "max_attempts": 10,
+                                                                     "backoff_initial_s": 0.01}), **channels)
+    summary = ControllerManager(cfg, model=models[0]).run(duration_s=2.0)
+    message = summary["fault_messages"].get("register_refused", "")
+    assert summary["state"] == "fault" and summary["reconnects"] == 0, summary["fault_messages"]
+    assert f"driver.devices.amp.register_map.channels.{named}: the device has no such register (Modbus exception 2, " \
+           "illegal data address): check the address in the rig's manual" in message, summary["fault_messages"]
+    assert "\n" not in message and "one of them" not in message
+    assert not {"comms_error", "reconnect_failed"} & set(summary["fault_counts"]), summary["fault_counts"]
+    enables = [c for c in bench.rig.history() if c.kind != "setpoint"]
+    assert len(enables) <= 2, enables                  # on once for the first tick, off at the end: no toggling
+    assert bench.rig.last_setpoint_A == 0.0 and not bench.rig.output_enabled

@@ -99,6 +99,7 @@ CASES = [
     (safety.COMMS_TIMEOUT, {"comms": {"on_fault": "stop"}}, _at(500, _raise_once(DriverError("link down", "timeout")))),
     (safety.COMMS_ERROR, {}, _at(500, _raise_once(DriverError("link down", "comms")))),
     (safety.COMMS_ERROR, {"comms": {"on_fault": "stop"}}, _at(500, _raise_once(DriverError("link down", "comms")))),
+    (safety.REGISTER_REFUSED, {}, _at(500, _raise_once(DriverError("force_N.address 99: no such register", "refused")))),
     (safety.EXCEPTION, {}, _at(400, _raise_once(RuntimeError("DAQ driver bug")))),
     (safety.WATCHDOG, {"watchdog_s": 0.1}, _at(400, _slow_tick)),
     (safety.SENSOR_NAN, {"sensor": {"bad_ticks": 5}}, _at(500, _force(math.nan))),
@@ -230,7 +231,14 @@ def test_a_reconnect_row_that_cannot_reconnect_ends_in_its_exit_state(models, tm
 
 def _raised_fault_names() -> set[str]:
     """Every fault name the package raises: the first argument of a `raise_fault`, `_execute` or
-    `_envelope_fault` call or of a `TickFault`, when it is a `safety.NAME` or a literal."""
+    `_envelope_fault` call or of a `TickFault`, when it is a `safety.NAME` or a literal; a
+    `driver_fault(...)` there stands for every `safety.NAME` in that function's body."""
+    import inspect
+
+    from gma_ffc.control.faults import driver_fault
+
+    by_driver = {getattr(safety, n.attr) for n in ast.walk(ast.parse(inspect.getsource(driver_fault)))
+                 if isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name) and n.value.id == "safety"}
     names: set[str] = set()
     root = Path(safety.__file__).resolve().parents[1]
     for path in root.rglob("*.py"):
@@ -241,7 +249,9 @@ def _raised_fault_names() -> set[str]:
             if (isinstance(func, ast.Attribute) and func.attr in ("raise_fault", "_execute", "_envelope_fault")) \
                     or (isinstance(func, ast.Name) and func.id == "TickFault"):
                 for arg in ast.walk(node.args[0]):
-                    if isinstance(arg, ast.Attribute) and isinstance(arg.value, ast.Name) and arg.value.id == "safety":
+                    if isinstance(arg, ast.Name) and arg.id == "driver_fault":
+                        names |= by_driver
+                    elif isinstance(arg, ast.Attribute) and isinstance(arg.value, ast.Name) and arg.value.id == "safety":
                         names.add(getattr(safety, arg.attr))
                     elif isinstance(arg, ast.Constant) and isinstance(arg.value, str):
                         names.add(arg.value)

@@ -140,3 +140,18 @@ def test_stop_says_nothing_of_learning_for_a_run_without_it(rig, capsys, monkeyp
     assert svc.run() == 0
     out = stop_cli(runtime, capsys, monkeypatch)
     assert out.startswith("stopped on request (pid") and "learn" not in out
+
+
+def test_stop_and_status_name_the_faults_that_recovered(rig, capsys, monkeypatch):
+    """9 comms faults that reconnected in 3 s: `stop` said only 'stopped on request'."""
+    _, runtime = rig
+    runtime.directory.mkdir(mode=0o700)
+    final = {"state": "stopped", "fault_messages": {}, "fault_counts": {"comms_error": 9, "comms_timeout": 2},
+             "at_safe_current": True, "safe_current_A": 0.0}
+    last_exit.write(runtime, last_exit.ended("cfg.yaml", 0.0, final, "stopped", "gma-ffc stop"))
+    assert last_exit.read(runtime)["fault_counts"] == {"comms_error": 9, "comms_timeout": 2}
+    out = stop_cli(runtime, capsys, monkeypatch)
+    assert "faults since start (recovered ones too): comms_error 9, comms_timeout 2" in out, out
+    assert "faults active at the end" not in out and len(out.strip().splitlines()) == 1
+    code, _, err = status_cli(runtime, capsys)
+    assert code == 1 and "faults since start (recovered ones too): comms_error 9, comms_timeout 2" in err, err

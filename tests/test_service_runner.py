@@ -638,6 +638,23 @@ def test_status_table_and_line_show_faults_and_reload():
     assert "rate           -" in empty and "faults         none" in empty
 
 
+def test_faults_that_recovered_are_shown_beside_no_active_fault():
+    """Comms faults that reconnected left no active fault: the table said 'faults none' through
+    9 of them in 3 s, and only --json had fault_counts (a new user's sweep, 2026-11-30)."""
+    from gma_ffc.service.status import fields
+
+    snap = {"state": "running", "faults": [], "fault_messages": {}, "fault_counts": {"comms_error": 9},
+            "fault_history": [{"fault": "comms_error", "message": "read input 0+3: connection lost",
+                               "at_unix_s": 990.0, "tick": 12}]}
+    rows = dict(fields(snap, now=1000.0))
+    assert rows["faults"] == "none"
+    assert rows["faults since start"] == "comms_error 9"
+    assert rows["last recovered"] == "comms_error 10.0 s ago: read input 0+3: connection lost"
+    still = dict(fields({**snap, "faults": ["comms_error"], "fault_messages": {"comms_error": "down"}}, now=1000.0))
+    assert still["faults since start"] == "comms_error 9" and "last recovered" not in still   # active, not recovered
+    assert "faults since start" not in dict(fields({"state": "running", "fault_counts": {}}))
+
+
 def test_a_running_state_the_snapshot_age_or_the_watchdog_contradicts_is_not_shown_as_running():
     from gma_ffc.service.status import state_words
 

@@ -31,35 +31,55 @@ STRESS_POLICIES = ("clamp", "fault")              # stress.out_of_range
 # is not a drive the model never saw. 1 % of the range is well above rounding, well below a step.
 DRIVE_PAD = 0.01
 
-_BEYOND_VERB = {"warn": "commanded anyway (limits.beyond_model: warn)",
-                "clamp": "clamped to the identified range (limits.beyond_model: clamp)",
-                "fault": "fault (limits.beyond_model: fault)"}
+_BEYOND_VERB = {"warn": "commanded anyway", "clamp": "clamped to the range's edge", "fault": "fault"}
 _STRESS_VERB = {"clamp": "clamped to the model's range", "fault": "fault (stress.out_of_range: fault)"}
 
 
 class DriveRange:
     """[lo, hi] of the drive, and whether the law clamps a drive beyond it."""
 
-    __slots__ = ("lo", "hi", "policy", "clamp")
+    __slots__ = ("lo", "hi", "policy", "clamp", "identified")
 
-    def __init__(self, lo: float = -math.inf, hi: float = math.inf, policy: str = "warn") -> None:
+    def __init__(self, lo: float = -math.inf, hi: float = math.inf, policy: str = "warn",
+                 identified: tuple[float, float] | None = None) -> None:
         if policy not in BEYOND_POLICIES:
             raise ValueError(f"policy must be one of {BEYOND_POLICIES}, got {policy!r}")
         self.lo, self.hi = float(lo), float(hi)
         self.policy = policy
         self.clamp = policy == "clamp"
+        self.identified = identified      # the model file's drive_range, when [lo, hi] is it widened
 
     @classmethod
     def of_model(cls, model: Model, policy: str) -> DriveRange:
         """The model's identified drive range, widened by `DRIVE_PAD` of its span at each end."""
         lo, hi = model.drive_range
         pad = DRIVE_PAD * (hi - lo) if math.isfinite(hi - lo) else 0.0
-        return cls(float(lo) - pad, float(hi) + pad, policy)
+        return cls(float(lo) - pad, float(hi) + pad, policy, (float(lo), float(hi)) if pad else None)
 
-    def message(self, drive: float) -> str:
-        """The fault message for a drive beyond the range (the fault path only: it allocates)."""
-        return (f"the inverse asks for {drive:.4g} outside the drive range the model was identified on "
-                f"[{self.lo:.4g}, {self.hi:.4g}]: {_BEYOND_VERB[self.policy]}")
+    def message(self, drive: float, current_lo: float = -math.inf, current_hi: float = math.inf) -> str:
+        """The fault message for a drive beyond the range (the fault path only: it allocates): the
+        range checked, by its name, and what was written once the current limits
+        [`current_lo`, `current_hi`] (limits.current_min_A, current_max_A) had their say."""
+        checked = f"[{self.lo:.5g}, {self.hi:.5g}]"
+        if self.identified is not None:
+            checked += (f" (the model's identified drive_range [{self.identified[0]:.5g}, {self.identified[1]:.5g}] "
+                        f"widened by {100 * DRIVE_PAD:g} % of its span at each end)")
+        else:
+            checked += " (the drive range the model was identified on)"
+        return (f"the inverse asks for {drive:.4g}, outside {checked}: "
+                f"{self._written(drive, current_lo, current_hi)} (limits.beyond_model: {self.policy})")
+
+    def _written(self, drive: float, current_lo: float, current_hi: float) -> str:
+        """What became of the drive: the policy's word, then the current limit that clipped it, if one did."""
+        if self.policy == "fault":
+            return "fault"
+        sent = min(max(drive, self.lo), self.hi) if self.clamp else drive
+        verb = _BEYOND_VERB[self.policy] + (f" {sent:.4g}" if self.clamp else "")
+        if sent < current_lo:
+            return f"clipped to {current_lo:g} A by limits.current_min_A" + (f" ({verb} first)" if self.clamp else "")
+        if sent > current_hi:
+            return f"clipped to {current_hi:g} A by limits.current_max_A" + (f" ({verb} first)" if self.clamp else "")
+        return verb
 
 
 class StressRange:

@@ -12,7 +12,7 @@ import threading
 import time
 from typing import Any
 
-from ..drivers import DriverError
+from ..drivers import REFUSED, DriverError
 from . import safety
 from .scheduler import TickStats
 
@@ -63,11 +63,16 @@ class FaultLog:
             return dict(self.counts)
 
 
+def driver_fault(exc: DriverError) -> str:
+    """The fault a driver's error is: a register the device refuses, a timeout, or a comms error."""
+    return {REFUSED: safety.REGISTER_REFUSED, "timeout": safety.COMMS_TIMEOUT}.get(exc.reason, safety.COMMS_ERROR)
+
+
 def classify(exc: Exception) -> tuple[str, str, str]:
     """A tick's exception as (fault name, fault message, exit reason)."""
     if isinstance(exc, TickFault):
         return exc.name, str(exc), str(exc)
     if isinstance(exc, DriverError):
-        return (safety.COMMS_TIMEOUT if exc.reason == "timeout" else safety.COMMS_ERROR), str(exc), str(exc)
+        return driver_fault(exc), str(exc), str(exc)
     message = f"{type(exc).__name__}: {exc}"
     return safety.EXCEPTION, message, f"exception in the tick: {message}"

@@ -12,9 +12,9 @@ from __future__ import annotations
 import time
 from typing import Any, Callable
 
-from ..drivers import DriverError, DriverProtocol
+from ..drivers import REFUSED, DriverError, DriverProtocol
 from . import safety
-from .faults import FaultLog
+from .faults import FaultLog, driver_fault
 
 SAFE_RETRY_PAUSE_S = 0.05     # between safe-current tries on a failing link: a device gets time to answer
 
@@ -36,7 +36,7 @@ class DriverSupervisor:
             self.driver.open()
             return ""
         except DriverError as exc:
-            name = safety.COMMS_ERROR if exc.reason != "timeout" else safety.COMMS_TIMEOUT
+            name = driver_fault(exc)
             self.faults.raise_fault(name, f"cannot open the driver: {exc}")
             return name
 
@@ -84,6 +84,9 @@ class DriverSupervisor:
                 self.driver.activate()         # safe() may have switched the output off
             except DriverError as exc:
                 self.driver.last_error = str(exc)
+                if exc.reason == REFUSED:        # activate's output_enable: no reconnect adds a register
+                    self.faults.raise_fault(safety.REGISTER_REFUSED, str(exc))
+                    return False
                 delay = min(delay * 2.0, comms["backoff_max_s"])
                 continue
             except Exception as exc:

@@ -35,7 +35,7 @@ from . import safety
 from .builder import build, build_reload
 from .config import ControllerConfig
 from .device_claim import DeviceClaim
-from .faults import TickFault, classify
+from .faults import TickFault, classify, driver_fault
 from .law import FeedforwardController
 from .learned_file import save_if_learned
 from .realtime import realtime
@@ -171,7 +171,7 @@ class ControllerManager:
             else:
                 self.exit_reason = "driver could not be opened"
         except GmaError as exc:
-            self.faults.raise_fault(safety.COMMS_ERROR if isinstance(exc, DriverError) else safety.EXCEPTION, str(exc))
+            self.faults.raise_fault(driver_fault(exc) if isinstance(exc, DriverError) else safety.EXCEPTION, str(exc))
             self.exit_reason = str(exc)
         except BaseException as exc:  # anything at all: safe current first, then report
             self.faults.raise_fault(safety.EXCEPTION, f"{type(exc).__name__}: {exc}")
@@ -417,7 +417,8 @@ class ControllerManager:
         immediate = self.setup.fault_table[name].output == "immediate"
         if immediate or name not in self.faults.active:
             s = self.setup
-            message = s.stress_range.message(value) if name == safety.STRESS_RANGE else s.law.drive.message(value)
+            message = (s.stress_range.message(value) if name == safety.STRESS_RANGE
+                       else s.law.drive.message(value, s.limiter.lo, s.limiter.hi))
             if immediate:
                 raise TickFault(name, message)
             self.faults.raise_fault(name, message)

@@ -28,6 +28,7 @@ from typing import Any, Mapping
 # Fault names (status and telemetry metadata use these words).
 COMMS_TIMEOUT = "comms_timeout"
 COMMS_ERROR = "comms_error"
+REGISTER_REFUSED = "register_refused"   # the device has no such register/function: a config fact, no reconnect
 EXCEPTION = "exception"
 WATCHDOG = "watchdog"
 SENSOR_NAN = "sensor_nan"          # NaN or missing
@@ -80,6 +81,7 @@ _RECONNECT = FaultAction("immediate", "reconnect", True, "fault")
 FAULT_ACTIONS: Mapping[str, FaultAction] = MappingProxyType({
     COMMS_TIMEOUT: _RECONNECT,                  # comms.on_fault: reconnect (stop: _IMMEDIATE_STOP)
     COMMS_ERROR: _RECONNECT,
+    REGISTER_REFUSED: _IMMEDIATE_STOP,          # reconnecting cannot add a register: 10 reconnects said so
     EXCEPTION: _IMMEDIATE_STOP,
     WATCHDOG: _IMMEDIATE_STOP,
     SENSOR_NAN: _IMMEDIATE_STOP,

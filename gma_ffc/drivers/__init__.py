@@ -7,11 +7,11 @@ import difflib
 from importlib.metadata import EntryPoint, entry_points
 
 from ..errors import ConfigError
-from .base import Driver, DriverError, DriverProtocol, Inputs, missing_members
+from .base import REFUSED, Driver, DriverError, DriverProtocol, Inputs, missing_members
 
 GROUP = "gma_ffc.drivers"
 
-__all__ = ["Driver", "DriverError", "DriverProtocol", "Inputs", "GROUP", "available_drivers", "driver_class"]
+__all__ = ["REFUSED", "Driver", "DriverError", "DriverProtocol", "Inputs", "GROUP", "available_drivers", "driver_class"]
 
 
 def available_drivers() -> dict[str, EntryPoint]:

@@ -31,8 +31,12 @@ DISPLACEMENT = "displacement_um"
 CHANNELS = (FORCE, STRESS, CURRENT, DISPLACEMENT)
 
 
+REFUSED = "refused"   # DriverError reason: the device has no such register or function (a config fact)
+
+
 class DriverError(FaultError):
-    """A comms or device failure; `reason` is a short machine-readable cause."""
+    """A comms or device failure; `reason` is a short machine-readable cause: "comms", "timeout",
+    or REFUSED (the device refuses a configured register: no reconnect mends it)."""
 
     def __init__(self, message: str, reason: str = "comms") -> None:
         super().__init__(message)

@@ -12,7 +12,9 @@ name across all devices:
 
 Reads are grouped into as few requests per device as the map allows (`read_plan`). A timeout or
 no response raises DriverError(reason="timeout"); a Modbus exception reply, a dropped
-connection or an undecodable reply raise DriverError(reason="comms"). Integer channels report
+connection or an undecodable reply raise DriverError(reason="comms"), except Modbus exceptions 1
+(illegal function) and 2 (illegal data address): the device has no such register, which no
+reconnect mends, so they raise DriverError(reason="refused") naming the channel and its config key. Integer channels report
 the type's most negative raw value as "invalid" (NaN), as many devices do.
 """
 
@@ -29,9 +31,13 @@ from ..schema import Field, key_name, validate_section
 from ..errors import ConfigError
 from ..registers import (CURRENT, CURRENT_SETPOINT, DISPLACEMENT, FORCE, OUTPUT_ENABLE, TYPES, Channel, ReadBlock,
                          RegisterMap, load_register_map)
-from .base import STRESS, Driver, DriverError, Inputs
+from .base import REFUSED, STRESS, Driver, DriverError, Inputs
 
 READ_CHANNELS = (FORCE, STRESS, CURRENT, DISPLACEMENT)
+
+# Modbus exceptions that are facts of the device, not of the link: a reconnect cannot mend them.
+NO_SUCH = {1: ("function", "the device has no such function (Modbus exception 1, illegal function)"),
+           2: ("address", "the device has no such register (Modbus exception 2, illegal data address)")}
 
 DEVICE = {
     "transport": Field("choice", choices=("tcp", "rtu")),
@@ -59,6 +65,7 @@ class _Device:
         self.name = name
         self.cfg = cfg
         self.map: RegisterMap = cfg["register_map"]
+        self.map_key: str = cfg.get("register_map_key", "register_map.channels")   # where the map's channels are set
         self.client: Any = None
         self.plan: list[ReadBlock] = []
         self.slots: list[tuple[ReadBlock, tuple[tuple[str, Channel, int, float], ...]]] = []
@@ -106,6 +113,7 @@ class ModbusDriver(Driver):
             for ch in dev.map:
                 found[ch.name] = (dev, ch)
         self._setpoint: tuple[_Device, Channel] = found[CURRENT_SETPOINT]
+        self._setpoint_only = (self._setpoint[1],)       # built once: the tick's write allocates no tuple
         self._enable = found.get(OUTPUT_ENABLE)
         self.channels = tuple(n for n in READ_CHANNELS if n in found)
         for dev in self.devices:
@@ -124,9 +132,9 @@ class ModbusDriver(Driver):
         for dev in cfg["devices"].values():
             if CURRENT_SETPOINT in dev["register_map"]:
                 unit = dev["register_map"][CURRENT_SETPOINT].unit_id
-                where = (f"modbus-tcp:{dev['host'].lower()}:{dev['port']}" if dev["transport"] == "tcp"
-                         else f"serial:{os.path.realpath(str(dev['port']))}")
-                return [f"{where}:unit{unit}"]
+                links = (tcp_link_names(dev["host"], dev["port"]) if dev["transport"] == "tcp"
+                         else [f"serial:{os.path.realpath(str(dev['port']))}"])
+                return [f"{where}:unit{unit}" for where in links]
         return []
 
     @classmethod
@@ -140,6 +148,7 @@ class ModbusDriver(Driver):
         for name, raw in devices.items():
             key = key_name(prefix, f"devices.{name}")
             dev = validate_section(raw, DEVICE, key)
+            dev["register_map_key"] = _map_key(dev["register_map"], f"{key}.register_map", base_dir)
             dev["register_map"] = _load_map(dev["register_map"], f"{key}.register_map", base_dir)
             dev["port"] = _port(dev, key)
             for ch in dev["register_map"]:
@@ -206,7 +215,7 @@ class ModbusDriver(Driver):
             self.timeouts += 1
         return DriverError(self.last_error, reason)
 
-    def _call(self, dev: _Device, what: str, fn: Any, *args: Any, **kwargs: Any) -> Any:
+    def _call(self, dev: _Device, what: str, chans: tuple[Channel, ...], fn: Any, *args: Any, **kwargs: Any) -> Any:
         from pymodbus.exceptions import ConnectionException, ModbusIOException
 
         if dev.client is None:
@@ -221,8 +230,36 @@ class ModbusDriver(Driver):
             raise self._fail(dev, f"{what}: bad reply ({type(exc).__name__})", exc, "comms") from None
         if resp is None or resp.isError():
             code = getattr(resp, "exception_code", None)
+            if code in NO_SUCH:
+                raise self._refused(dev, chans, code)
             raise self._fail(dev, f"{what}: device answered with Modbus exception {code}", None, "comms")
         return resp
+
+    def _refused(self, dev: _Device, chans: tuple[Channel, ...], code: int) -> DriverError:
+        """Modbus exception 1 or 2: the channel (of a block: the ones the device refuses alone) by
+        its config key, and what to check. Off the hot path: a fault ends the tick anyway."""
+        which, words = NO_SUCH[code]
+        named = self._missing(dev, chans, code) if len(chans) > 1 else chans
+        keys = ", ".join(f"{dev.map_key}.{ch.name}.{which} "
+                         f"{ch.address if which == 'address' else ch.function}" for ch in named or chans)
+        self.errors += 1
+        self.last_error = (f"{keys}{'' if named else ' (one of them)'}: {words}: check the {which} in the rig's "
+                           f"manual (modbus device '{dev.name}' at {dev.where})")
+        return DriverError(self.last_error, REFUSED)
+
+    def _missing(self, dev: _Device, chans: tuple[Channel, ...], code: int) -> tuple[Channel, ...]:
+        """Of a block the device refused, the channels it refuses when asked for alone."""
+        readers = {"holding": "read_holding_registers", "input": "read_input_registers",
+                   "coil": "read_coils", "discrete": "read_discrete_inputs"}
+        missing = []
+        for ch in chans:
+            try:
+                resp = getattr(dev.client, readers[ch.function])(ch.address, count=ch.count, device_id=ch.unit_id)
+            except Exception:
+                continue                         # the link, not the register: leave it unnamed
+            if resp is not None and resp.isError() and getattr(resp, "exception_code", None) == code:
+                missing.append(ch)
+        return tuple(missing)
 
     def read(self, inputs: Inputs) -> None:
         for dev in self.devices:
@@ -232,7 +269,7 @@ class ModbusDriver(Driver):
                     fn = client.read_holding_registers if client else None
                 else:
                     fn = client.read_input_registers if client else None
-                resp = self._call(dev, f"read {blk.function} {blk.address}+{blk.count}", fn, blk.address,
+                resp = self._call(dev, f"read {blk.function} {blk.address}+{blk.count}", blk.channels, fn, blk.address,
                                   count=blk.count, device_id=blk.unit_id)
                 regs = resp.registers
                 if len(regs) < blk.count:
@@ -253,10 +290,10 @@ class ModbusDriver(Driver):
                               "comms") from None
         client = dev.client
         if len(words) == 1:
-            self._call(dev, f"write setpoint {ch.address}", client.write_register if client else None,
+            self._call(dev, f"write setpoint {ch.address}", self._setpoint_only, client.write_register if client else None,
                        ch.address, words[0], device_id=ch.unit_id)
         else:
-            self._call(dev, f"write setpoint {ch.address}", client.write_registers if client else None,
+            self._call(dev, f"write setpoint {ch.address}", self._setpoint_only, client.write_registers if client else None,
                        ch.address, words, device_id=ch.unit_id)
         self.last_written_A = current_A
 
@@ -276,12 +313,12 @@ class ModbusDriver(Driver):
         dev, ch = self._enable
         client = dev.client
         if ch.is_bit:
-            self._call(dev, f"write output_enable {ch.address}", client.write_coil if client else None,
+            self._call(dev, f"write output_enable {ch.address}", (ch,), client.write_coil if client else None,
                        ch.address, on, device_id=ch.unit_id)
         else:
             words = ch.encode(1 if on else 0)
             fn = (client.write_register if len(words) == 1 else client.write_registers) if client else None
-            self._call(dev, f"write output_enable {ch.address}", fn, ch.address,
+            self._call(dev, f"write output_enable {ch.address}", (ch,), fn, ch.address,
                        words[0] if len(words) == 1 else words, device_id=ch.unit_id)
         self.enabled = on
 
@@ -300,13 +337,20 @@ class ModbusDriver(Driver):
         return h
 
 
+def _map_path(value: str, base_dir: Path | None) -> Path:
+    p = Path(value).expanduser()
+    return base_dir / p if not p.is_absolute() and base_dir is not None else p
+
+
+def _map_key(value: Any, key: str, base_dir: Path | None) -> str:
+    """Where a device's channels are written, for a message naming one: a config key, or a file's."""
+    return f"register map {_map_path(value, base_dir)}: channels" if isinstance(value, str) else f"{key}.channels"
+
+
 def _load_map(value: Any, key: str, base_dir: Path | None) -> RegisterMap:
     try:
         if isinstance(value, str):
-            p = Path(value).expanduser()
-            if not p.is_absolute() and base_dir is not None:
-                p = base_dir / p
-            return load_register_map(p)
+            return load_register_map(_map_path(value, base_dir))
         if isinstance(value, dict):
             return RegisterMap.from_dict(value)
     except ConfigError as exc:
@@ -327,6 +371,20 @@ def _port(dev: dict[str, Any], key: str) -> Any:
         raise ConfigError(f"config key '{key}.port' must be the serial port path for RTU (e.g. /dev/ttyUSB0), "
                           f"got {port!r}")
     return port
+
+
+def tcp_link_names(host: str, port: int) -> list[str]:
+    """The names a Modbus TCP link is claimed by: one per address the host resolves to, so that
+    "localhost" and "127.0.0.1" (or a name and its IP) are one amplifier, which the host as text
+    missed (two controllers drove one amplifier, 2026-11-30). Any shared address collides: a name
+    resolving to 127.0.0.1 and ::1 meets a claim on either. A name that does not resolve is
+    named by its text, as before (the run then fails to connect, as a device that is down does)."""
+    try:
+        found = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except (socket.gaierror, UnicodeError):
+        return [f"modbus-tcp:{host.lower()}:{port}"]
+    addresses = sorted({str(info[4][0]) for info in found})
+    return [f"modbus-tcp:{address}:{port}" for address in addresses] or [f"modbus-tcp:{host.lower()}:{port}"]
 
 
 def _host_exists(host: str, key: str) -> None:

@@ -18,6 +18,7 @@ from typing import Any, Mapping
 
 from .. import safe_files
 from .paths import RuntimePaths
+from .status import counts_words
 
 NAME = "last-exit.json"
 KIND = safe_files.Kind("last-exit record", "--runtime-dir", lambda head: head.lstrip().startswith(b"{"))
@@ -44,6 +45,7 @@ def ended(config: str, started_unix: float, final: Mapping[str, Any], how: str, 
     return {"how": how, "pid": os.getpid(), "config": config, "started_unix": started_unix,
             "ended_unix": time.time(), "state": final.get("state"), "reason": reason,
             "exit_reason": final.get("exit_reason") or None, "faults": dict(final.get("fault_messages") or {}),
+            "fault_counts": dict(final.get("fault_counts") or {}),      # recovered ones too (a reconnect)
             "safe_current_written": final.get("at_safe_current"), "safe_current_A": final.get("safe_current_A"),
             "learned": (final.get("learning") or {}).get("saved")}
 
@@ -68,6 +70,8 @@ def describe(record: Mapping[str, Any]) -> str:
     if record.get("how") == "stopped":
         text = f"{when}: stopped ({record.get('reason') or record.get('exit_reason') or 'as asked'})"
         text += f"; faults still active: {faults}" if faults else ""
+        counted = counts_words(record.get("fault_counts"))
+        text += f"; faults since start (recovered ones too): {counted}" if counted else ""
     else:
         what = "on a fault" if record.get("how") == "fault" else "in a crash"
         text = f"{when} {what}: {faults or record.get('exit_reason') or record.get('reason') or '?'}"

@@ -62,6 +62,34 @@ def faults_of(status: Mapping[str, Any]) -> list[str]:
     return [str(faults)]
 
 
+def counts_words(counts: Any) -> str:
+    """Faults raised since the start, by name ('comms_error 9, sensor_nan 1'; '' for none)."""
+    if not isinstance(counts, Mapping):
+        return ""
+    return ", ".join(f"{name} {n}" for name, n in sorted(counts.items()) if n)
+
+
+def fault_history_rows(status: Mapping[str, Any], now: float | None = None) -> list[tuple[str, str]]:
+    """Faults since the start and the latest one that recovered: a comms fault that reconnected
+    leaves no active fault, and the table said 'faults none' through 9 of them in 3 s."""
+    counted = counts_words(status.get("fault_counts"))
+    if not counted:
+        return []
+    rows = [("faults since start", counted)]
+    listed = status.get("faults")
+    active = set(status.get("fault_messages") or {}) | set(listed if isinstance(listed, list) else [])
+    history = status.get("fault_history")
+    recovered = [h for h in history if isinstance(h, Mapping) and h.get("fault") not in active] \
+        if isinstance(history, list) else []
+    if recovered:
+        last = recovered[-1]
+        at = last.get("at_unix_s")
+        age = (f" {max(0.0, (time.time() if now is None else now) - at):.1f} s ago"
+               if isinstance(at, (int, float)) else "")
+        rows.append(("last recovered", f"{last.get('fault')}{age}: {last.get('message', '')}"))
+    return rows
+
+
 BEHIND_SHARE = 0.1
 """A loop whose ticks overran this often cannot keep its rate: a few overruns are a busy moment
 (a reload, a flush), one tick in ten is the computer or the link too slow for the rate asked."""
@@ -136,6 +164,7 @@ def fields(status: Mapping[str, Any], now: float | None = None) -> list[tuple[st
         ("reference", _num(_get(status, "reference_um", "last_reference_um"), ".3f", " um")),
         ("faults", ", ".join(faults_of(status)) or "none"),
     ]
+    rows += fault_history_rows(status, now)
     learning = status.get("learning") or {}
     if learning.get("enabled"):
         trend = " ".join(f"{v:.3f}" for v in learning.get("rms_trend_um", [])[-5:]) or "-"
