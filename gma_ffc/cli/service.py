@@ -85,7 +85,7 @@ def _stop(args: argparse.Namespace) -> int:
     from ..service import last_exit
     from ..service.daemon import stop
     from ..service.paths import runtime_paths
-    from ..service.status import counts_words, faults_of
+    from ..service.status import faults_of, since_start_clause
 
     runtime = runtime_paths(args.runtime_dir)
     result = stop(runtime, timeout_s=args.timeout)
@@ -96,12 +96,12 @@ def _stop(args: argparse.Namespace) -> int:
         faults = list(record.get("faults") or {})
         learned = last_exit.learned_words(record)
         tail = f"; {last_exit.safe_words(record)}" + (f"; {learned}" if learned else "")
-        counted = counts_words(record.get("fault_counts") or final.get("fault_counts"))
+        counted = since_start_clause(record.get("fault_counts") or final.get("fault_counts"))
     else:                                       # no record of this run: the status just before the stop
-        faults, tail, counted = faults_of(final), "", counts_words(final.get("fault_counts"))
+        faults, tail, counted = faults_of(final), "", since_start_clause(final.get("fault_counts"))
     print(f"{result.how} (pid {result.pid or '?'})"
           + (f"; faults active at the end: {', '.join(faults)}" if faults else "")
-          + (f"; faults since start (recovered ones too): {counted}" if counted else "") + tail)
+          + counted + tail)
     return 0
 
 

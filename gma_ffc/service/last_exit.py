@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 from .. import safe_files
 from .paths import RuntimePaths
-from .status import counts_words
+from .status import since_start_clause
 
 NAME = "last-exit.json"
 KIND = safe_files.Kind("last-exit record", "--runtime-dir", lambda head: head.lstrip().startswith(b"{"))
@@ -70,8 +70,7 @@ def describe(record: Mapping[str, Any]) -> str:
     if record.get("how") == "stopped":
         text = f"{when}: stopped ({record.get('reason') or record.get('exit_reason') or 'as asked'})"
         text += f"; faults still active: {faults}" if faults else ""
-        counted = counts_words(record.get("fault_counts"))
-        text += f"; faults since start (recovered ones too): {counted}" if counted else ""
+        text += since_start_clause(record.get("fault_counts"))
     else:
         what = "on a fault" if record.get("how") == "fault" else "in a crash"
         text = f"{when} {what}: {faults or record.get('exit_reason') or record.get('reason') or '?'}"

@@ -69,6 +69,12 @@ def counts_words(counts: Any) -> str:
     return ", ".join(f"{name} {n}" for name, n in sorted(counts.items()) if n)
 
 
+def since_start_clause(counts: Any) -> str:
+    """'; faults since start (recovered ones too): comms_error 9' for a one-line summary ('' for none)."""
+    counted = counts_words(counts)
+    return f"; faults since start (recovered ones too): {counted}" if counted else ""
+
+
 def fault_history_rows(status: Mapping[str, Any], now: float | None = None) -> list[tuple[str, str]]:
     """Faults since the start and the latest one that recovered: a comms fault that reconnected
     leaves no active fault, and the table said 'faults none' through 9 of them in 3 s."""
