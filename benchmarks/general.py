@@ -44,6 +44,8 @@ GENERAL_EIGHTEENTH_SEED draws a seventeenth. Its misses (stress-dependent play, 
 nested minor loops) were not fixed: GENERAL_NINETEENTH_SEED draws an eighteenth on the same diagnosis.
 Its play miss (short of the evidence on one run) is now said in cannot_conclude, and the recalibration's
 judges moved to a module of their own, the figures the same: GENERAL_TWENTIETH_SEED draws a nineteenth.
+Its one miss (heating at the effect-free floor, out of any model's reach) was not fixed:
+GENERAL_TWENTY_FIRST_SEED draws a twentieth on the same diagnosis.
 """
 
 from __future__ import annotations
@@ -100,6 +102,8 @@ GENERAL_NINETEENTH_SEED = 20261306   # an eighteenth never-tuned draw (2026-11-3
 GENERAL_TWENTIETH_SEED = 20261307    # a nineteenth never-tuned draw (2026-11-30, twenty-ninth session): the verdicts
                                      # as the eighteenth drew them, with the note short of the evidence; committed
                                      # before its first run
+GENERAL_TWENTY_FIRST_SEED = 20261308  # a twentieth never-tuned draw (2026-12-01, thirtieth session): the diagnosis
+                                      # as the nineteenth drew it; committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 

@@ -41,6 +41,7 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set general-eighteenth  # a seventeenth, after the loops judge the map
     .venv/bin/python scripts/bench_diagnose.py --set general-nineteenth  # an eighteenth, the same diagnosis
     .venv/bin/python scripts/bench_diagnose.py --set general-twentieth   # a nineteenth, with the note short of the evidence
+    .venv/bin/python scripts/bench_diagnose.py --set general-twenty-first  # a twentieth, the same diagnosis
 
 Beside the held-out blocks, every case is also judged on probes (`benchmarks.probes`): the same
 simulated actuator recorded again at loads, rates and drive shapes diagnose never saw; the extended
@@ -75,7 +76,7 @@ from benchmarks.general import (GENERAL_EIGHTH_SEED, GENERAL_FIFTH_SEED, GENERAL
                                 GENERAL_TWELFTH_SEED, GENERAL_THIRTEENTH_SEED, GENERAL_FOURTEENTH_SEED,
                                 GENERAL_FIFTEENTH_SEED, GENERAL_SIXTEENTH_SEED, GENERAL_SEVENTEENTH_SEED,
                                 GENERAL_EIGHTEENTH_SEED, GENERAL_NINETEENTH_SEED, GENERAL_TWENTIETH_SEED,
-                                general_cases)
+                                GENERAL_TWENTY_FIRST_SEED, general_cases)
 from benchmarks.probes import pooled, probe_bound, probe_recordings, probe_scores
 
 # the never-tuned general draws after the first, each drawn after the misses named were fixed
@@ -106,7 +107,9 @@ LATER_DRAWS = (("fresh", "a second", GENERAL_FRESH_SEED, "the first draw's misse
                ("nineteenth", "a nineteenth", GENERAL_NINETEENTH_SEED,
                 "nothing was changed in the diagnosis: a second look at the eighteenth's"),
                ("twentieth", "a twentieth", GENERAL_TWENTIETH_SEED,
-                "an effect short of the evidence on one run is said, the verdicts unchanged"))
+                "an effect short of the evidence on one run is said, the verdicts unchanged"),
+               ("twenty-first", "a twenty-first", GENERAL_TWENTY_FIRST_SEED,
+                "nothing was changed in the diagnosis: a second look at the twentieth's"))
 
 # the held-out-condition targets (issue 31), on the probes diagnose never saw
 PROBE_GAIN_EACH = 1.5        # every effect case at least this much better than the base
