@@ -7,8 +7,9 @@ meets exactly:
 - a dead-zone superposition's weights as the slopes of its linear pieces (`slope_basis`,
   `slopes_to_weights`, `weights_to_slopes`);
 - the play weights with w_h0's floor as a share of all of them (`PlayWeights`);
-- a slope's quadratic law in stress through its Bernstein coefficients, so the bound holds at
-  every stress of the range (`bernstein_fit`).
+- a slope's quadratic law in stress, the bound held at every stress of the range: a quadratic
+  programme on a grid grown by the exact worst stress (`slopes_in_stress`), or through the law's
+  Bernstein coefficients where that does not converge (`bernstein_fit`).
 
 `identify` uses them in every fit, so it never produces a model it refuses. Pure maths: no I/O.
 """
@@ -156,3 +157,78 @@ def bounded_least_squares(A: np.ndarray, y: np.ndarray, lower: np.ndarray, max_i
     CLI's output). A NaN in the result would still reach the model's own finiteness check."""
     with np.errstate(invalid="ignore"):
         return optimize.lsq_linear(A, y, bounds=(lower, np.inf), lsmr_tol="auto", max_iter=max_iter).x
+
+
+def powers_to_sigma(mid: float, half: float, degree: int) -> np.ndarray:
+    """Matrix T with [c0, c1, c2] = T @ [a0..a_degree] for sum a_p u^p, u = (sigma - mid)/half."""
+    T = np.zeros((3, degree + 1))
+    T[0, 0] = 1.0
+    if degree >= 1:
+        T[0, 1], T[1, 1] = -mid / half, 1.0 / half
+    if degree >= 2:
+        T[0, 2], T[1, 2], T[2, 2] = mid * mid / half ** 2, -2 * mid / half ** 2, 1.0 / half ** 2
+    return T
+
+
+def _slope_rows(u_pts: np.ndarray, degree: int, n_s: int, col_scale: np.ndarray) -> np.ndarray:
+    """The linear map from the scaled coefficients to the slopes at stresses u_pts, one row per (u, k)."""
+    rows = np.zeros((len(u_pts) * n_s, len(col_scale)))
+    for a, u in enumerate(u_pts):
+        for p in range(degree + 1):
+            for k in range(n_s):
+                rows[a * n_s + k, p * n_s + k] = u ** p
+    return rows / col_scale
+
+
+def slopes_in_stress(A: np.ndarray, y: np.ndarray, col_scale: np.ndarray, degree: int, n_s: int) -> np.ndarray:
+    """The scaled coefficients of the least squares (A / col_scale, y) with every dead-zone slope at
+    least eps at every normalised stress u in [-1, 1]: Proposition 3.1 across the stress range.
+
+    A's first (degree + 1) * n_s columns are the slopes' power coefficients in [p, k] order. SLSQP
+    runs on a grid of stresses grown by the exact worst point (`lowest_slope`); where that does not
+    converge to a feasible point, Proposition 3.1 becomes simple bounds (`bernstein_fit`). eps is
+    1e-3 of the largest slope at the range's centre: small enough not to bend the fit, large
+    enough that the inverse's slopes stay finite.
+    """
+    As = A / col_scale
+    G, g = As.T @ As, As.T @ y
+    G += 1e-12 * np.trace(G) / len(G) * np.eye(len(G))     # a ridge at rounding level: G may be singular
+    theta_s = np.linalg.solve(G, g)
+    s_scale = float(np.max(np.abs(_slope_rows(np.array([0.0]), degree, n_s, col_scale) @ theta_s))) or 1.0
+    eps = 1e-3 * s_scale
+    grid = list(np.linspace(-1.0, 1.0, 21))
+    for _ in range(10):
+        C = _slope_rows(np.array(grid), degree, n_s, col_scale)
+        if np.all(C @ theta_s >= eps * (1 - 1e-9)):
+            worst_u, worst_v = lowest_slope(theta_s / col_scale, degree, n_s)
+            if worst_v >= eps * (1 - 1e-6):
+                break
+            grid.append(worst_u)
+            C = _slope_rows(np.array(grid), degree, n_s, col_scale)
+        res = optimize.minimize(
+            lambda t: 0.5 * t @ G @ t - g @ t, theta_s, jac=lambda t: G @ t - g, method="SLSQP",
+            constraints=[{"type": "ineq", "fun": lambda t, C=C: C @ t - eps, "jac": lambda t, C=C: C}],
+            options={"maxiter": 500, "ftol": 1e-14})
+        theta_s = res.x
+    if lowest_slope(theta_s / col_scale, degree, n_s)[1] < eps * (1 - 1e-6):
+        theta_s = bernstein_fit(A, y, degree, n_s, eps) * col_scale
+    return theta_s
+
+
+def lowest_slope(theta: np.ndarray, degree: int, n_s: int) -> tuple[float, float]:
+    """Exact minimum over u in [-1, 1] of every slope polynomial (the ends, and a quadratic's
+    vertex inside): (where, value)."""
+    poly = theta[: (degree + 1) * n_s].reshape(degree + 1, n_s)
+    worst_u, worst_v = 0.0, np.inf
+    for k in range(n_s):
+        a = poly[:, k]
+        cands = [-1.0, 1.0]
+        if degree == 2 and a[2] > 0:
+            v = -a[1] / (2 * a[2])
+            if -1 < v < 1:
+                cands.append(float(v))
+        for u in cands:
+            val = sum(a[p] * u ** p for p in range(degree + 1))
+            if val < worst_v:
+                worst_u, worst_v = u, val
+    return worst_u, float(worst_v)

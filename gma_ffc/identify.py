@@ -39,8 +39,9 @@ import numpy as np
 from scipy import optimize
 
 from . import operators as ops
-from .constrained_weights import (PlayWeights, bernstein_fit, bounded_least_squares, deadzones_determined, determined,
-                                  intermediate_grid, slope_basis, slopes_and_offset, slopes_to_weights, weights_to_slopes)
+from .constrained_weights import (PlayWeights, bounded_least_squares, deadzones_determined, determined,
+                                  intermediate_grid, powers_to_sigma, slope_basis, slopes_and_offset, slopes_in_stress,
+                                  slopes_to_weights, weights_to_slopes)
 from .errors import FaultError, InputError
 from .identification_checks import (BUTTERFLY_SHARE, CLOCKWISE_WIDTH, FAST_LOOP_HZ, burn_in_end, butterfly_words,
                                     column_notes, fewer_operators, has_full_sweep, late_sweep_note, loop_rates_hz,
@@ -643,27 +644,16 @@ class SDPIIdentifier:
         n_coef = (degree + 1) * n_s
         col_scale = np.linalg.norm(A, axis=0)
         col_scale[col_scale == 0] = 1.0
-        theta = self._slopes_with_proposition_3_1(A, y, col_scale, degree, n_s) / col_scale
+        theta = slopes_in_stress(A, y, col_scale, degree, n_s) / col_scale
         slope_poly = theta[:n_coef].reshape(degree + 1, n_s)
         offset_poly = np.r_[theta[n_coef: n_coef + off_degree + 1], np.zeros(degree - off_degree)]
         for d, z in zip(data[1:], theta[n_coef + off_degree + 1:]):   # each recording onto the first's zero
             d.shift_zero(-float(z))
         # Back from normalised u = (sigma - mid)/half to plain sigma, coefficients (c0, c1, c2).
-        to_sigma = self._poly_in_sigma(mid, half, degree)
+        to_sigma = powers_to_sigma(mid, half, degree)
         slope_coeffs = to_sigma @ slope_poly  # (3, n_s)
         out_coeffs = to_sigma @ offset_poly
         return slopes_to_weights(slope_coeffs), out_coeffs
-
-    @staticmethod
-    def _poly_in_sigma(mid: float, half: float, degree: int) -> np.ndarray:
-        """Matrix T with [c0, c1, c2] = T @ [a0..a_degree] for sum a_p u^p, u = (sigma - mid)/half."""
-        T = np.zeros((3, degree + 1))
-        T[0, 0] = 1.0
-        if degree >= 1:
-            T[0, 1], T[1, 1] = -mid / half, 1.0 / half
-        if degree >= 2:
-            T[0, 2], T[1, 2], T[2, 2] = mid * mid / half ** 2, -2 * mid / half ** 2, 1.0 / half ** 2
-        return T
 
     def _stress_design(self, data: list[_Data], w_h: np.ndarray, r_s: np.ndarray, centre: tuple[float, float],
                        degree: int, off_degree: int, n_zero: int) -> tuple[np.ndarray, np.ndarray]:
@@ -684,64 +674,6 @@ class SDPIIdentifier:
             blocks.append(np.hstack([feats, powers[:, : off_degree + 1], own_zero]))
             targets.append(d.y[rows])
         return np.vstack(blocks), np.concatenate(targets)
-
-    def _slopes_with_proposition_3_1(self, A: np.ndarray, y: np.ndarray, col_scale: np.ndarray, degree: int,
-                                     n_s: int) -> np.ndarray:
-        """The scaled coefficients of the least squares (A / col_scale, y) with every dead-zone slope
-        at least eps at every stress of the range: SLSQP on a grid of stresses grown by the worst
-        point, and Proposition 3.1 as simple bounds (`bernstein_fit`) where that does not converge."""
-        As = A / col_scale
-        G, g = As.T @ As, As.T @ y
-        G += 1e-12 * np.trace(G) / len(G) * np.eye(len(G))
-
-        def slope_rows(u_pts: np.ndarray) -> np.ndarray:
-            """Linear map theta -> slopes at stresses u_pts, one row per (u, k)."""
-            rows = np.zeros((len(u_pts) * n_s, A.shape[1]))
-            for a, u in enumerate(u_pts):
-                for p in range(degree + 1):
-                    for k in range(n_s):
-                        rows[a * n_s + k, p * n_s + k] = u ** p
-            return rows / col_scale
-
-        theta_s = np.linalg.solve(G, g)
-        s_scale = float(np.max(np.abs(slope_rows(np.array([0.0])) @ theta_s))) or 1.0
-        eps = 1e-3 * s_scale
-        grid = list(np.linspace(-1.0, 1.0, 21))
-        for _ in range(10):
-            C = slope_rows(np.array(grid))
-            if np.all(C @ theta_s >= eps * (1 - 1e-9)):
-                worst_u, worst_v = self._min_slope(theta_s / col_scale, degree, n_s)
-                if worst_v >= eps * (1 - 1e-6):
-                    break
-                grid.append(worst_u)
-                C = slope_rows(np.array(grid))
-            res = optimize.minimize(
-                lambda t: 0.5 * t @ G @ t - g @ t, theta_s, jac=lambda t: G @ t - g, method="SLSQP",
-                constraints=[{"type": "ineq", "fun": lambda t, C=C: C @ t - eps, "jac": lambda t, C=C: C}],
-                options={"maxiter": 500, "ftol": 1e-14})
-            theta_s = res.x
-        if self._min_slope(theta_s / col_scale, degree, n_s)[1] < eps * (1 - 1e-6):
-            # the constrained solve did not converge to a feasible point: Proposition 3.1 as bounds
-            theta_s = bernstein_fit(A, y, degree, n_s, eps) * col_scale
-        return theta_s
-
-    @staticmethod
-    def _min_slope(theta: np.ndarray, degree: int, n_s: int) -> tuple[float, float]:
-        """Exact minimum over u in [-1, 1] of every slope polynomial: (where, value)."""
-        poly = theta[: (degree + 1) * n_s].reshape(degree + 1, n_s)
-        worst_u, worst_v = 0.0, np.inf
-        for k in range(n_s):
-            a = poly[:, k]
-            cands = [-1.0, 1.0]
-            if degree == 2 and a[2] > 0:
-                v = -a[1] / (2 * a[2])
-                if -1 < v < 1:
-                    cands.append(float(v))
-            for u in cands:
-                val = sum(a[p] * u ** p for p in range(degree + 1))
-                if val < worst_v:
-                    worst_u, worst_v = u, val
-        return worst_u, float(worst_v)
 
     def _refine_joint(self, data: list[_Data], w_h: np.ndarray, r_s: np.ndarray, coeffs: np.ndarray,
                       out_coeffs: np.ndarray, stress_range: tuple[float, float],

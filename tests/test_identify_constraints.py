@@ -10,9 +10,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gma_ffc import identify as ident
+from gma_ffc import constrained_weights
 from gma_ffc.cli import main
-from gma_ffc.constrained_weights import W0_MIN_SHARE, bernstein_fit
+from gma_ffc.constrained_weights import W0_MIN_SHARE, bernstein_fit, lowest_slope, slopes_in_stress
 from gma_ffc.identify import SDPIIdentifier
 from gma_ffc.model import SDPIModel, rms
 from gma_ffc.modelio import load_model
@@ -70,7 +70,7 @@ def test_the_stress_step_stays_within_proposition_31_when_its_constrained_solver
         def __init__(self, x0: np.ndarray) -> None:
             self.x = x0
 
-    monkeypatch.setattr(ident.optimize, "minimize", lambda fun, x0, **kw: Stalled(np.asarray(x0)))
+    monkeypatch.setattr(constrained_weights.optimize, "minimize", lambda fun, x0, **kw: Stalled(np.asarray(x0)))
     model = SDPIIdentifier(joint_passes=0).fit(recs[:2] + recs[3:]).model_
     _valid(model)
 
@@ -88,6 +88,27 @@ def test_the_bernstein_bounds_keep_every_slope_above_its_floor_at_every_stress(s
     u = np.linspace(-1.0, 1.0, 401)
     slopes = sum(poly[p][None, :] * u[:, None] ** p for p in range(degree + 1))
     assert slopes.min() >= eps * (1 - 1e-6)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31), degree=st.integers(0, 2), n_s=st.integers(1, 7), pull=st.floats(0.0, 20.0))
+def test_the_stress_law_keeps_every_slope_above_its_floor_at_every_stress(seed, degree, n_s, pull):
+    """`slopes_in_stress`, whichever of its two paths it takes: every slope at least 1e-3 of the
+    unconstrained fit's largest centre slope, at every stress of the range (checked on a fine grid, not on its own),
+    and `lowest_slope` finds the minimum the grid finds."""
+    rng = np.random.default_rng(seed)
+    n_coef = (degree + 1) * n_s
+    A = rng.normal(size=(120, n_coef + 2))
+    y = A[:, :n_coef] @ rng.normal(-pull, 3.0, size=n_coef) + rng.normal(size=120)   # slopes pulled negative
+    col_scale = np.linalg.norm(A, axis=0)
+    theta = slopes_in_stress(A, y, col_scale, degree, n_s) / col_scale
+    poly = theta[:n_coef].reshape(degree + 1, n_s)
+    u = np.linspace(-1.0, 1.0, 2001)
+    slopes = sum(poly[p][None, :] * u[:, None] ** p for p in range(degree + 1))
+    free = np.linalg.lstsq(A, y, rcond=None)[0]          # the floor is set by the unconstrained fit's
+    eps = 1e-3 * float(np.max(np.abs(free[:n_s])))      # largest slope at the centre (u = 0: the constant terms)
+    assert slopes.min() >= eps * (1 - 1e-4)
+    assert lowest_slope(theta, degree, n_s)[1] <= slopes.min() + 1e-9 * (1 + abs(slopes.min()))
 
 
 def test_bounded_least_squares_shows_no_warning_of_scipys_reflective_step():
