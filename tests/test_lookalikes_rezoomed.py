@@ -12,7 +12,7 @@ import math
 
 from benchmarks.cases import case_plant, case_recordings
 from benchmarks.general import GENERAL_FIFTEENTH_SEED, general_cases
-from gma_ffc.diagnose.fitting import Spec
+from gma_ffc.diagnose.specs import Spec
 from gma_ffc.diagnose.identification import check
 from gma_ffc.diagnose.problem import setup
 from gma_ffc.diagnose.search import SearchResult

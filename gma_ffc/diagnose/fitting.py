@@ -1,6 +1,6 @@
 """Fit effects around a fixed core and score them on held-out blocks.
 
-A model under test is a `Spec`: effect name -> the effect's nonlinear parameter (time constant,
+A model under test is a `Spec` (`specs.py`): effect name -> the effect's nonlinear parameter (time constant,
 delay, resonance). Given a spec, every linear parameter (static gain/offset/curvature, stress
 gain, creep and heating gains, stress-play weights) follows by least squares, because each
 effect is linear in them once its nonlinear parameter is fixed (the resonance filter is linear,
@@ -16,7 +16,7 @@ import functools
 import math
 import threading
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence, TypeVar
+from typing import Any, Callable, Sequence, TypeVar
 
 import numpy as np
 from scipy.linalg import lapack
@@ -30,6 +30,7 @@ from .cache import BoundedCache
 from .data import RecData, mean_stress, stress_levels, stress_span
 from .jumps import Jump
 from .rebase import identify_on
+from .specs import LeftOut, Score, Spec
 
 # the caches' byte budgets: each entry is as long as the recordings, so without them memory grows
 # with the recording (64 core runs of an hour at 1 kHz are 3.7 GB); within them a long recording
@@ -43,90 +44,6 @@ TABLE_CACHE_BYTES = 32 * 2 ** 20   # per-sample tables (`cached_table`): a reson
 SEARCHES_KEPT = 256              # searches' results kept per fitter (`searched`): a few kilobytes each (the specs and
                                  # one coefficient per column); a diagnosis makes 20-60, so a diagnosis keeps every one
 _T = TypeVar("_T")               # what an effect keeps in the fitter's cache (`Fitter.cached`)
-
-
-def _plain(p: Any) -> Any:
-    """A parameter as plain Python (grid points may be numpy scalars): equal values, equal specs."""
-    if isinstance(p, (bool, np.bool_)):
-        return bool(p)
-    if isinstance(p, (tuple, list, np.ndarray)):
-        return tuple(float(v) for v in p)
-    return float(p)
-
-
-class Spec(Mapping[str, Any]):
-    """A model under test: effect name -> its nonlinear parameter (time constant, delay, resonance
-    (f_ref_hz, zeta, beta_per_MPa), width chord step, True). An effect not in it is absent.
-    Hashable and order-free, so fits and core runs are cached by spec."""
-
-    __slots__ = ("_items",)
-
-    def __init__(self, items: Mapping[str, Any] | Iterable[tuple[str, Any]] = ()) -> None:
-        self._items = tuple(sorted((k, _plain(v)) for k, v in dict(items).items()))
-
-    def __getitem__(self, name: str) -> Any:
-        for k, v in self._items:
-            if k == name:
-                return v
-        raise KeyError(name)
-
-    def __iter__(self) -> Iterator[str]:
-        return (k for k, _ in self._items)
-
-    def __len__(self) -> int:
-        return len(self._items)
-
-    def __hash__(self) -> int:
-        return hash(self._items)
-
-    def __eq__(self, other: object) -> bool:
-        return isinstance(other, Spec) and self._items == other._items
-
-    def __repr__(self) -> str:
-        return f"Spec({dict(self._items)!r})"
-
-    def with_(self, name: str, p: Any) -> "Spec":
-        return Spec({**dict(self._items), name: p})
-
-    def without(self, name: str) -> "Spec":
-        return Spec({k: v for k, v in self._items if k != name})
-
-
-@dataclass
-class Score:
-    """Results of one spec: per-fold train/test loss (Huber when set, else squared error), the
-    test folds' plain squared error, and the all-data fit."""
-
-    sse_train: tuple[float, float]
-    sse_test: tuple[float, float]
-    n_train: tuple[int, int]
-    n_test: tuple[int, int]
-    sse_all: float
-    n_all: int
-    coef_all: np.ndarray | None
-    names: list[str]
-    sq_test: tuple[float, float] = (math.nan, math.nan)   # plain squared error on the test folds
-
-    def train_mse(self, fold: int) -> float:
-        return self.sse_train[fold] / max(self.n_train[fold], 1)
-
-    @property
-    def all_mse(self) -> float:
-        return self.sse_all / max(self.n_all, 1)
-
-    @property
-    def n_held_out(self) -> int:
-        return self.n_test[0] + self.n_test[1]
-
-    @property
-    def held_out_loss(self) -> float:
-        """Both folds' test loss per held-out sample (one spec scored on both folds)."""
-        return (self.sse_test[0] + self.sse_test[1]) / max(self.n_held_out, 1)
-
-    @property
-    def held_out_mse(self) -> float:
-        """Both folds' plain squared test error per held-out sample."""
-        return (self.sq_test[0] + self.sq_test[1]) / max(self.n_held_out, 1)
 
 
 @dataclass(frozen=True)
@@ -771,41 +688,6 @@ class Fitter:
             c = self._fit(X[tr], y[tr], specs[f])[0]
             out[te] = y[te] - X[te] @ c
         return out
-
-
-@dataclass(frozen=True)
-class LeftOut:
-    """One recording predicted by a fit on the others: the training loss per sample there, and on
-    the left-out recording the loss, the squared error and the sample count."""
-
-    train_loss: float
-    loss: float
-    sse: float
-    n: int
-
-
-@dataclass(frozen=True)
-class LeaveOneOut:
-    """Leave-one-recording-out: per recording, the loss, squared error and count when it was left
-    out of the fit; and the effect parameter chosen without it (None: none was searched)."""
-
-    loss: tuple[float, ...]
-    sse: tuple[float, ...]
-    n: tuple[int, ...]
-    params: tuple[Any, ...] = ()
-
-    @property
-    def loss_per_sample(self) -> float:
-        return sum(self.loss) / max(sum(self.n), 1)
-
-    @property
-    def mse(self) -> float:
-        return sum(self.sse) / max(sum(self.n), 1)
-
-    @classmethod
-    def of(cls, parts: Sequence[LeftOut], params: Sequence[Any] = ()) -> "LeaveOneOut":
-        return cls(tuple(p.loss for p in parts), tuple(p.sse for p in parts), tuple(p.n for p in parts),
-                   tuple(params))
 
 
 SENSOR_ZERO = "sensor_zero_"   # the columns' name prefixes of each later recording's sensor zero and of each

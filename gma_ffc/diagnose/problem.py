@@ -18,7 +18,8 @@ from ..recordings import Recording
 from .anchor import anchor_data, measured_loops
 from .checks import beyond_range_notes, check_overlap, check_recordings, enough_data
 from .data import RecData, noise_floor, prepare
-from .fitting import Fitter, FitSettings, Spec
+from .fitting import Fitter, FitSettings
+from .specs import Spec
 from .identification import IdentificationCheck, check
 from .jumps import jump_words, sensor_jumps
 from .locate import locate

@@ -21,7 +21,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..effects import REGISTRY
-from .fitting import Fitter, LeaveOneOut, Score, Spec
+from .fitting import Fitter
+from .specs import LeaveOneOut, Score, Spec
 from .scoring import Specs
 from .search import SearchResult
 from .state import Problem, Selection

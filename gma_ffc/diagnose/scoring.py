@@ -18,7 +18,8 @@ from ..effects import REGISTRY
 from ..effects.base import geom_refine, polish_factor
 from ..effects.static import StaticMap
 from ..extended import ExtendedModel
-from .fitting import Fitter, Spec
+from .fitting import Fitter
+from .specs import Spec
 from .search import SearchResult, search
 from .state import Trial
 

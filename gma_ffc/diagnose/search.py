@@ -15,7 +15,8 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from .fitting import Fitter, LeaveOneOut, LeftOut, Score, Spec
+from .fitting import Fitter
+from .specs import LeaveOneOut, LeftOut, Score, Spec
 
 ZOOM_LEVELS = 3       # zoom levels of a search unless the effect says otherwise
 POLISH_EVALS = 15     # per free coordinate: Nelder-Mead from the zoom's best point

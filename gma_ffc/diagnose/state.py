@@ -21,7 +21,8 @@ import numpy as np
 
 from ..extended import ExtendedModel
 from .data import RecData
-from .fitting import Fitter, LeaveOneOut
+from .fitting import Fitter
+from .specs import LeaveOneOut
 from .identification import IdentificationCheck
 from .locate import Located
 from .search import SearchResult
