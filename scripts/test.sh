@@ -22,8 +22,9 @@ mypy_pid=$!
 trap 'kill "$mypy_pid" 2>/dev/null || true; rm -f "$mypy_log"' EXIT
 # Three workers on two cores: the real-time tests go to one of them, together (`--dist loadgroup`,
 # tests/conftest.py), and mostly wait on the wall clock; the other two keep the cores busy meanwhile.
+# --durations: the slowest tests are printed at the end, so a suite that nears its 15 minutes shows where
 tests=0
-.venv/bin/python -m pytest -n 3 --dist loadgroup "$@" || tests=$?
+.venv/bin/python -m pytest -n 3 --dist loadgroup --durations=15 "$@" || tests=$?
 types=0
 wait "$mypy_pid" || types=$?
 cat "$mypy_log"
