@@ -81,6 +81,27 @@ def test_an_existing_file_that_is_not_this_rigs_telemetry_is_kept(tmp_path, caps
     assert "is not a telemetry file of this rig" in run_refused(capsys, "--config", str(cfg))
 
 
+def test_a_copied_config_is_told_of_its_missing_model_before_its_telemetry(tmp_path, capsys):
+    """A config copied to another folder with its telemetry still on the first rig's file: the run
+    named the telemetry first, and only once that was mended the model the copy had lost (a new
+    user's two rounds, 2026-11-30). The missing input comes first, named by its config key, and
+    following its advice leads to the telemetry's refusal, not to the same line again."""
+    out = tmp_path / "out"
+    out.mkdir()
+    recording = out / "tel.csv"
+    recording.write_text(f"# source: gma-ffc controller\n# config: {tmp_path / 'rig1.yaml'}\ntime_s\n0\n")
+    copied = tmp_path / "copy"
+    copied.mkdir()
+    cfg = write_config(copied / "rig2.yaml", str(recording))
+    cfg.write_text(cfg.read_text().replace(f"model: {MODEL}", "model: models/sim_sdpi.yaml"))
+    line = run_refused(capsys, "--config", str(cfg))
+    assert f"{copied / 'models' / 'sim_sdpi.yaml'}: no such file (config key 'model'" in line
+    assert "relative path resolves against the config's folder" in line
+    (copied / "models").mkdir()
+    (copied / "models" / "sim_sdpi.yaml").write_bytes(MODEL.read_bytes())      # the advice, followed
+    assert "is not a telemetry file of this rig" in run_refused(capsys, "--config", str(cfg))
+
+
 def _start_of(path: Path) -> str:
     return next(line for line in path.read_text().splitlines() if line.startswith("# start_unix_s"))
 

@@ -16,6 +16,7 @@ from typing import Any, Sequence
 
 from .. import safe_files
 from ..atomic import same_file
+from ..errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,15 @@ def inputs_of(cfg: Any) -> list[tuple[str, str]]:
         found.append(("reference.file", reference.get("file")))
     found.append(("driver.plant_config", getattr(cfg, "driver", {}).get("plant_config")))
     return [(key, str(path)) for key, path in found if isinstance(path, (str, os.PathLike)) and path]
+
+
+def check_inputs_exist(inputs: Sequence[tuple[str, str]], config_path: str) -> None:
+    """Refuse a file the run reads that is not there, before the outputs are judged: a config copied
+    to another folder has lost its model, and was told so only after its telemetry was mended."""
+    for key, path in inputs:
+        if not os.path.exists(path):
+            raise ConfigError(f"{path}: no such file (config key '{key}' in {config_path}; a relative path "
+                              "resolves against the config's folder)")
 
 
 def check_outputs(outputs: Sequence[Output], inputs: Sequence[tuple[str, str]] = ()) -> None:

@@ -29,7 +29,7 @@ from .control_plane import ControlPlane
 from .control_socket import jsonable, refuse_if_running
 from .diagnosis import check_state_dir
 from .notify import Notifier
-from .outputs import check_outputs, inputs_of, outputs_of
+from .outputs import check_inputs_exist, check_outputs, inputs_of, outputs_of
 from .paths import RuntimePaths, claim_lock, ensure_private_dir
 from .status import faults_of, progress_count, status_line
 from .watch import ModelOverride, ServiceWatch
@@ -364,7 +364,9 @@ class Service:
         """Refuse, before anything starts, a file this run would write unsafely: through a link,
         outside the config's output_dirs, over a file that is not ours or one the run reads, into
         a folder that takes no new file, or two outputs on one file; and a state folder background
-        diagnoses could not write in (one line naming what the user set, exit 2)."""
+        diagnoses could not write in (one line naming what the user set, exit 2). A missing input
+        is named first: it is the first thing to mend."""
+        check_inputs_exist(inputs_of(cfg), str(self.config_path))
         check_outputs(outputs_of(cfg, str(self.config_path), self.stats_json), inputs_of(cfg))
         check_state_dir(getattr(cfg, "monitor", None))
 
