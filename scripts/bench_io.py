@@ -33,7 +33,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from gma_ffc.modelio import load_model  # noqa: E402
-from gma_ffc.recordings import Recording, _format_meta, _parse_rows, read_recording, write_recording  # noqa: E402
+from gma_ffc.recordings import Recording, format_metadata, read_recording, write_recording  # noqa: E402
+from gma_ffc.recordings.csv_reader import _parse_rows  # noqa: E402
 
 
 def old_read(path: Path) -> np.ndarray:
@@ -47,7 +48,7 @@ def old_read(path: Path) -> np.ndarray:
 def old_write(path: Path, rec: Recording) -> None:
     names = list(rec.columns)
     with open(path, "w", encoding="utf-8", newline="\n") as fh:
-        fh.write(_format_meta(rec.metadata) + ",".join(names) + "\n")
+        fh.write(format_metadata(rec.metadata) + ",".join(names) + "\n")
         np.savetxt(fh, np.column_stack([rec.columns[n] for n in names]), delimiter=",", fmt="%.12g")
 
 

@@ -36,7 +36,7 @@ import numpy as np
 
 from .. import safe_files
 from ..errors import ConfigError
-from ..recordings import _format_meta
+from ..recordings import format_metadata
 
 log = logging.getLogger(__name__)
 
@@ -162,7 +162,7 @@ class Telemetry:
             self._lock.release()
 
     def _header(self) -> str:
-        return _format_meta(self.metadata) + ",".join(self.columns) + "\n"
+        return format_metadata(self.metadata) + ",".join(self.columns) + "\n"
 
     def _write_header(self) -> None:
         self._write_all(self._header().encode())
