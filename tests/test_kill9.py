@@ -21,6 +21,9 @@ MODEL = HERE.parent / "config" / "models" / "sim_sdpi.yaml"
 KILLS = 50
 
 
+# real time: the kills land 0.03-0.3 s into each run by the wall clock, so on a busy machine more of
+# them land before the first write, and the share read back (asserted: at least half) falls
+@pytest.mark.realtime
 @pytest.mark.slow
 def test_kill_9_fifty_times_leaves_every_file_readable(tmp_path, capsys):
     res = subprocess.run([sys.executable, str(HERE / "kill9_writer.py"), str(tmp_path), str(KILLS), "33"],
