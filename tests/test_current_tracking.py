@@ -303,9 +303,10 @@ def test_bad_values_name_the_key_and_what_to_write(key, value, message):
 ])
 def test_a_bad_value_in_a_config_file_is_one_line_and_exit_2(tmp_path, capsys, text, message):
     data = yaml.safe_load((ROOT / "config" / "sim.yaml").read_text())
-    data.update(model=str(MODEL), clock="simulated", telemetry={"path": None}, output_dirs=[])
+    data.update(model=str(MODEL), clock="simulated", telemetry={"path": None}, output_dirs=[],
+                current_tracking=yaml.safe_load(text))
     path = tmp_path / "bad.yaml"
-    path.write_text(yaml.safe_dump(data) + f"current_tracking: {text}\n")
+    path.write_text(yaml.safe_dump(data))
     assert main(["run", "--config", str(path), "--duration", "0.1"]) == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1 and "Traceback" not in err, err
