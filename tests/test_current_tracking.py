@@ -186,6 +186,21 @@ def test_an_amplifier_at_its_own_limit_trips_and_null_tolerance_switches_it_off(
     assert s["current_tracking"] == {"enabled": False, "why": "current_tracking.tolerance_A is null"}
 
 
+def test_negative_limits_need_a_bipolar_simulated_amplifier(models, tmp_path):
+    """hil_sim's amplifier is unipolar (0 to 4 A): limits that allow -1 A on it command a current it
+    cannot give, and the check says so; a plant config with a bipolar amplifier gives it, no fault."""
+    ref = {"kind": "sine", "frequency_hz": 1.0, "amplitude_um": 2.0, "offset_um": -10.0}   # below the stroke: -1 A
+    over = {"limits": {"current_min_A": -1.0, "current_max_A": 3.0, "slew_A_per_s": 500.0}}
+    s = ControllerManager(sim_cfg(ref, plant=None, **over), model=models[0]).run(duration_s=0.5)
+    assert s["state"] == "fault" and NAME in s["faults"] and "expected -1 A" in s["exit_reason"], s["exit_reason"]
+    bipolar = tmp_path / "bipolar.yaml"
+    bipolar.write_text("amplifier: {min_current_A: -4.0, max_current_A: 4.0}\n")
+    cfg = sim_cfg(ref, plant=bipolar, telemetry={"path": str(tmp_path / "bipolar.csv")}, **over)
+    s = ControllerManager(cfg, model=models[0]).run(duration_s=0.5)
+    assert s["state"] == "stopped" and NAME not in s["faults"], s["fault_messages"]
+    assert read_recording(cfg.telemetry["path"]).columns["current_A"].min() == pytest.approx(-1.0, abs=0.01)
+
+
 def test_a_driver_that_reads_no_current_is_not_tracked(models):
     from gma_ffc.drivers.sim import SimDriver
 
