@@ -27,6 +27,7 @@ from gma_ffc.control.reference import Playback
 from gma_ffc.drivers.base import CURRENT
 from gma_ffc.errors import ConfigError
 from gma_ffc.recordings import read_recording
+from gma_ffc.service.status import faults_of
 from gma_ffc.sil import cached_sdpi_and_mpi
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -59,7 +60,8 @@ def test_a_lagged_command_within_the_tolerance_never_trips(commands, period, lag
     expected = lagged(commands, tracker.alpha, commands[0])
     previous = commands[0]
     for k, c in enumerate(commands):
-        measured = expected[k] + 0.999 * tol * noise[k]       # anywhere within the tolerance
+        measured = expected[k] + (0.999 * tol * noise[k] if k else 0.0)   # anywhere within the tolerance (the
+                                                                          # lag starts at the first reading)
         assert tracker.update(measured, previous) == ""
         previous = c
 
@@ -264,6 +266,7 @@ def test_an_amplifier_switched_off_mid_run_is_the_fault_within_the_hold(strong_m
                     s["exit_reason"]), s["exit_reason"]         # the reading (with its noise) vs the expected
     assert "current_tracking.tolerance_A (0.3 A)" in s["exit_reason"]
     assert NAME in s["fault_messages"] and "amplifier is enabled" in s["fault_messages"][NAME]
+    assert faults_of(s)[0].startswith(f"{NAME}: the amplifier's measured current")      # as `gma-ffc status` lists it
     assert bench.rig.last_setpoint_A == 0.0 and not bench.rig.output_enabled     # the safe current, output off
     assert s["current_cmd_A"] == 0.0 and s["at_safe_current"]
     rec = read_recording(cfg.telemetry["path"])
