@@ -49,7 +49,7 @@ def test_memory_does_not_grow_with_the_number_of_ticks(model):
 class Quiet(SimDriver):
     """The sim driver without its plant: a device that answers at once, its displacement
     flickering in the last digit like a live sensor's (between two constants: the driver itself
-    allocates nothing)."""
+    allocates nothing), its current the last command's."""
 
     odd = False
 
@@ -58,7 +58,8 @@ class Quiet(SimDriver):
 
     def read(self, inputs):
         self.odd = not self.odd
-        inputs.force_N, inputs.current_A = 600.0, 1.0
+        last = self.last_written_A          # its current follows the command (the current tracking's check)
+        inputs.force_N, inputs.current_A = 600.0, (last if last == last else 0.0)
         inputs.displacement_um = 10.001 if self.odd else 10.0
 
     def write(self, current_A):
@@ -84,6 +85,7 @@ def test_ticks_and_their_broadcasts_keep_nothing(model, learning, floor_A):
     for b in ctrl.broadcasters:          # the plugged-in parts too (the model-fit monitor's prediction and ring)
         b.on_start(ctrl.setup)
     ctrl._start_schedule()
+    ctrl._has_current = True        # as `_start_and_loop` finds it: the current tracking runs in the ticks too
 
     def ticks(first, n):
         for k in range(first, first + n):

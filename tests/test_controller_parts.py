@@ -278,6 +278,7 @@ def test_every_run_starts_the_law_from_the_safe_current(models):  # noqa: F811
     class Logged(Quiet):
         def write(self, current_A):
             self.writes.append(current_A)
+            super().write(current_A)        # the current it reads follows
 
     cfg = validate_config({"rate_hz": 1000, "clock": "simulated", "model": "unused.yaml", "driver": {"kind": "sim"},
                            "reference": {"kind": "sine", "frequency_hz": 3, "amplitude_um": 8, "offset_um": 15},

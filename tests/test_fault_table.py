@@ -63,6 +63,12 @@ def _stuck(tick, tick0, inputs, ctrl):
     inputs.force_N = 600.0
 
 
+def _current(value):
+    def action(tick, tick0, inputs, ctrl):
+        inputs.current_A = value        # the amplifier switched off: the coil carries nothing
+    return action
+
+
 def _slow_tick(tick, tick0, inputs, ctrl):
     if tick == tick0:
         ctrl.clock.advance(0.3)      # a tick that took 0.3 s against a 0.1 s watchdog
@@ -105,6 +111,7 @@ CASES = [
     (safety.SENSOR_NAN, {"sensor": {"bad_ticks": 5}}, _at(500, _force(math.nan))),
     (safety.SENSOR_ABSURD, {"sensor": {"bad_ticks": 5}}, _at(500, _force(1e7))),
     (safety.SENSOR_STALE, {"sensor": {"stale_ticks": 50}}, _stuck_after_drift(300)),
+    (safety.CURRENT_NOT_FOLLOWING, {}, _at(500, _current(0.0))),     # at t = 0.5 s the sine is at its top
     (safety.STRESS_RANGE, {"stress": {"out_of_range": "clamp"}}, _at(400, _force(1500.0))),   # -39 MPa
     (safety.STRESS_RANGE, {"stress": {"out_of_range": "fault"}}, _at(400, _force(1500.0))),
     (safety.DRIVE_RANGE, {"limits": {**LIMITS, "current_max_A": 8.0, "beyond_model": "warn"}, "reference": BEYOND},
@@ -181,7 +188,8 @@ def test_each_row_of_the_fault_table_does_what_it_says(models, tmp_path, case): 
         assert log[i] == ("safe", SAFE)
         # one step, ignoring the slew limit: the command before was well away from the safe current
         assert log[i - 1][0] == "write" and abs(log[i - 1][1] - SAFE) > STEP
-        n_detect = {safety.SENSOR_NAN: 4, safety.SENSOR_ABSURD: 4, safety.SENSOR_STALE: 50}.get(name, 0)
+        n_detect = {safety.SENSOR_NAN: 4, safety.SENSOR_ABSURD: 4, safety.SENSOR_STALE: 50,
+                    safety.CURRENT_NOT_FOLLOWING: cfg.current_tracking["hold_s"] * RATE}.get(name, 0)
         assert i - mark <= n_detect + 1                  # the safe write came with the fault, nothing between
         if row.freeze_learning:
             assert [f for f in freezes if f[0] == i + 1 and name in f[1]], freezes   # frozen at the safe write

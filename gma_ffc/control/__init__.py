@@ -16,7 +16,8 @@ supervisor: resource manager and hardware lifecycle), `recorder` and `state_broa
 (broadcasters: telemetry and status, fed a `tick.Tick` each tick), `model_monitor` (a broadcaster:
 the model's prediction beside the command and the model-fit monitor), `builder` (config to parts),
 `setup` (what a reload swaps), `envelope` (the model's drive and stress ranges and their
-policies), `safety` (limits, sensor plausibility, the fault table), `faults` (fault bookkeeping),
+policies), `safety` (limits, sensor plausibility, the fault table), `current_tracking` (the
+measured coil current against the command), `faults` (fault bookkeeping),
 `watchdog`, `realtime` (SCHED_FIFO, GC, GIL interval), `learned_file`, `learning`, `config`,
 `scheduler`, `reference`, `telemetry` (the recording's writer thread).
 """

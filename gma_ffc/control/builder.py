@@ -19,6 +19,7 @@ from ..errors import ConfigError, ModelError
 from ..protocols import Model
 from . import safety
 from .config import ControllerConfig, stop_ramp_fits_after_reload
+from .current_tracking import CurrentTracker
 from .envelope import DriveRange, StressRange
 from .faults import FaultLog
 from .hardware import DriverSupervisor
@@ -123,8 +124,10 @@ def build_setup(cfg: ControllerConfig, model: Model) -> Setup:
                              lim["safe_current_A"])
     monitor = safety.SensorMonitor(cfg.stress["source"], cfg.rod_area_mm2, tuple(cfg.stress["valid_range_MPa"]),
                                    cfg.sensor["force_limit_N"], cfg.sensor["bad_ticks"], cfg.sensor["stale_ticks"])
-    return Setup(cfg, model, law, build_reference({**cfg.reference, "lead_s": 0.0}), limiter, monitor, stress_range,
-                 safety.fault_actions(cfg), float(lim["safe_current_A"]))
+    ct = cfg.current_tracking
+    tracking = CurrentTracker(ct["tolerance_A"], ct["lag_s"], ct["hold_s"], cfg.period_s)
+    return Setup(cfg, model, law, build_reference({**cfg.reference, "lead_s": 0.0}), limiter, monitor, tracking,
+                 stress_range, safety.fault_actions(cfg), float(lim["safe_current_A"]))
 
 
 # A current limit this many times the largest current the model was identified on lies far beyond

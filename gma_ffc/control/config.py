@@ -17,6 +17,7 @@ from typing import Any, Mapping
 from ..errors import ConfigError
 from ..schema import Field, pair, validate_section
 from ..yamlfile import read_yaml
+from .current_tracking import MIN_HOLD_TICKS
 from .envelope import BEYOND_POLICIES, STRESS_POLICIES
 from .learning import LearningConfig, reference_period_s
 
@@ -31,6 +32,7 @@ TOP = {
     "stress": Field("map", {}),
     "limits": Field("map", help="current and slew limits are required"),
     "sensor": Field("map", {}),
+    "current_tracking": Field("map", {}, help="the measured coil current against the command (docs/controller.md)"),
     "comms": Field("map", {}),
     "telemetry": Field("map", {}),
     "scheduler": Field("map", {}),
@@ -68,6 +70,42 @@ SENSOR = {
     # whatever the rod diameter says, so a wrong diameter cannot make an overload look plausible.
     "force_limit_N": Field("float", None, min=0.0, min_exclusive=True, nullable=True,
                            help="the load cell's rated capacity (N); only with stress.source: force"),
+}
+
+# Current tracking (control/current_tracking.py): the measured coil current against the command
+# through the amplifier's lag; on wherever the driver reads the current.
+AUTO = "auto"
+TRACKING_RANGE_DIVISOR = 10     # tolerance_A auto: a tenth of the current range
+DEFAULT_LAG_S = 1.0 / (2.0 * math.pi * 1000.0)
+DEFAULT_HOLD_S = 0.05
+
+
+def _tolerance(value: Any, key: str) -> Any:
+    if value == AUTO:
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise ConfigError(f"config key '{key}' must be a current in A above 0 (e.g. 0.3), '{AUTO}' (a tenth of the "
+                          f"current range) or null (no current tracking), got {value!r}")
+    return float(value)
+
+
+CURRENT_TRACKING = {
+    # auto: a tenth of the current range (limits.current_max_A - current_min_A: 0.3 A
+    # for 0-3 A). Far above what a healthy amplifier's reading strays by (an int16 register's 0.1 mA, a
+    # 12-bit ADC's 0.02 % of range, the simulated rig's 1 mA noise and 0.3 mA quantum), far below what
+    # an amplifier switched off leaves missing (the whole command, most of the range on a stroke).
+    "tolerance_A": Field("any", AUTO, nullable=True, check=_tolerance,
+                         help="how far the measured current may stray from the expected one (A); auto: a tenth "
+                              "of the current range; null: no current tracking"),
+    # a first-order 1 kHz current loop, 1/(2 pi 1 kHz) = 0.16 ms: hil_sim's amplifier (bandwidth_hz: 1000),
+    # and a usual linear current amplifier's; at the shipped rates (200-1000 Hz) it settles within a tick
+    "lag_s": Field("float", DEFAULT_LAG_S, min=0.0, max=10.0,
+                   help="the amplifier's current-loop time constant (s): 1 / (2 pi bandwidth)"),
+    # outlasts the lag's own transient (5 lags: 0.8 ms) and a reading a tick or two late on a busy
+    # link (10 ms at 200 Hz, the slowest shipped rate) five times over; still short against anyone
+    # switching an amplifier back on. At least two ticks (at rates under 40 Hz, two periods).
+    "hold_s": Field("float", DEFAULT_HOLD_S, min=0.0, min_exclusive=True,
+                    help="how long the departure must last before the fault (s)"),
 }
 
 COMMS = {
@@ -184,6 +222,7 @@ class ControllerConfig:
     stress: dict[str, Any]
     limits: dict[str, Any]
     sensor: dict[str, Any]
+    current_tracking: dict[str, Any]      # tolerance_A resolved (None: off), hold_s at least two ticks
     comms: dict[str, Any]
     telemetry: dict[str, Any]
     scheduler: dict[str, Any]
@@ -233,6 +272,7 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
     _limits_fit_the_setpoint(limits, driver)
     _calls_within_the_watchdog(driver, top["watchdog_s"])
     stress, sensor = _sensing(top["stress"], top["sensor"])
+    tracking = _current_tracking(top["current_tracking"], limits, top["rate_hz"])
     comms = _comms(top["comms"])
     telemetry = validate_section(top["telemetry"], TELEMETRY, "telemetry")
     if telemetry["path"] is not None:
@@ -244,7 +284,7 @@ def validate_config(data: Any, source: str = "<memory>", base_dir: str | Path | 
                                                           "monitor.state_dir": _diagnoses_of(monitor["state_dir"])})
     return ControllerConfig(rate_hz=top["rate_hz"], clock=top["clock"], model=_resolve(top["model"], base),
                             driver=driver, reference=reference, stress=stress, limits=limits, sensor=sensor,
-                            comms=comms, telemetry=telemetry,
+                            current_tracking=tracking, comms=comms, telemetry=telemetry,
                             scheduler=validate_section(top["scheduler"], SCHEDULER, "scheduler"),
                             watchdog_s=top["watchdog_s"], learning=learning, output_dirs=output_dirs,
                             monitor=monitor,
@@ -354,6 +394,22 @@ def _sensing(stress_raw: dict[str, Any], sensor_raw: dict[str, Any]) -> tuple[di
         raise ConfigError("config key 'sensor.force_limit_N' bounds a load cell's reading, but stress.source is "
                           f"{stress['source']!r}: remove it, or read the load cell (stress.source: force)")
     return stress, sensor
+
+
+def _current_tracking(raw: Any, limits: dict[str, Any], rate_hz: float) -> dict[str, Any]:
+    """The `current_tracking` section, its defaults resolved: tolerance_A 'auto' from the current
+    range, and the hold at least MIN_HOLD_TICKS ticks (a hold set shorter is refused)."""
+    tracking = validate_section(raw, CURRENT_TRACKING, "current_tracking")
+    if tracking["tolerance_A"] == AUTO:
+        tracking["tolerance_A"] = (limits["current_max_A"] - limits["current_min_A"]) / TRACKING_RANGE_DIVISOR
+    least = MIN_HOLD_TICKS / rate_hz
+    if tracking["hold_s"] < least:
+        if isinstance(raw, Mapping) and "hold_s" in raw:
+            raise ConfigError(f"config key 'current_tracking.hold_s' ({tracking['hold_s']:g} s) must hold at least "
+                              f"{MIN_HOLD_TICKS} ticks at rate_hz {rate_hz:g}, so that one late reading cannot trip "
+                              f"it: make it {least:g} s or more")
+        tracking["hold_s"] = least
+    return tracking
 
 
 def _comms(raw: dict[str, Any]) -> dict[str, Any]:

@@ -22,9 +22,10 @@ FAULT_HISTORY = 200     # most recent faults kept for the status (bounded for lo
 class TickFault(Exception):
     """Raised inside a tick to leave it for the fault path (only on the rare fault branch)."""
 
-    def __init__(self, name: str, message: str) -> None:
+    def __init__(self, name: str, message: str, reason: str | None = None) -> None:
         super().__init__(message)
         self.name = name
+        self.reason = message if reason is None else reason     # the exit reason, when it ends the run
 
 
 class FaultLog:
@@ -71,7 +72,7 @@ def driver_fault(exc: DriverError) -> str:
 def classify(exc: Exception) -> tuple[str, str, str]:
     """A tick's exception as (fault name, fault message, exit reason)."""
     if isinstance(exc, TickFault):
-        return exc.name, str(exc), str(exc)
+        return exc.name, str(exc), exc.reason
     if isinstance(exc, DriverError):
         return driver_fault(exc), str(exc), str(exc)
     message = f"{type(exc).__name__}: {exc}"

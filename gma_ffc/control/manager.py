@@ -259,6 +259,7 @@ class ControllerManager:
         last = old.limiter.last
         new.law.take_over(old.law, last)
         new.monitor.continue_from(old.monitor)
+        new.tracking.continue_from(old.tracking)
         new.limiter.continue_from(old.limiter)   # new limits approached within the slew limit
         self.hardware.comms = new.cfg.comms
         self.setup = new
@@ -341,6 +342,7 @@ class ControllerManager:
         self.recorder.stamp_start(self.started_unix_s)
         self._mode = RUNNING
         self._read_ok = False
+        self.setup.tracking.restart()
         self.watchdog.heartbeat = math.nan      # a stall is measured from this run's first tick
         self._relapses = 0
         self.state = State.RUNNING
@@ -361,6 +363,11 @@ class ControllerManager:
         bad = s.monitor.update(inputs.force_N, inputs.stress_MPa)
         if bad:
             raise TickFault(bad, s.monitor.message(bad, inputs.force_N if s.monitor.source_force else inputs.stress_MPa))
+        if self._has_current and s.tracking.enabled:    # the reading against the command held since the last tick
+            bad = s.tracking.update(inputs.current_A, s.limiter.last)
+            if bad:
+                message = s.tracking.message()
+                raise TickFault(bad, message, f"{bad}: {message}")
         stress = s.monitor.stress
         ref_now = s.reference_now.value(t)
         law = s.law
@@ -484,6 +491,7 @@ class ControllerManager:
         if reconnect and self._reconnect(self.setup.safe_A):
             self.setup.law.activate(self.setup.safe_A)
             self.setup.monitor.restart()
+            self.setup.tracking.restart()
             self.state = State.RUNNING
             return RESUME
         self.exit_reason = reason

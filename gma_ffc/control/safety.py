@@ -34,6 +34,9 @@ WATCHDOG = "watchdog"
 SENSOR_NAN = "sensor_nan"          # NaN or missing
 SENSOR_ABSURD = "sensor_absurd"    # outside the plausible range
 SENSOR_STALE = "sensor_stale"      # unchanged for stale_ticks ticks
+# the amplifier's measured current left the command (through its lag) for current_tracking.hold_s:
+# switched off or tripped, a broken coil wire, or at its own current limit (control/current_tracking.py)
+CURRENT_NOT_FOLLOWING = "current_not_following"
 STRESS_RANGE = "stress_out_of_model_range"
 DRIVE_RANGE = "drive_out_of_model_range"   # the inverse asks for a drive the model was not identified on
 STOP = "stop_requested"
@@ -87,6 +90,8 @@ FAULT_ACTIONS: Mapping[str, FaultAction] = MappingProxyType({
     SENSOR_NAN: _IMMEDIATE_STOP,
     SENSOR_ABSURD: _IMMEDIATE_STOP,
     SENSOR_STALE: _IMMEDIATE_STOP,
+    CURRENT_NOT_FOLLOWING: _IMMEDIATE_STOP,     # no command reaches the coil: ramping it is pointless, and an
+                                                # amplifier switched back on must find the safe current waiting
     STRESS_RANGE: _FLAG_ONLY,                   # stress.out_of_range: clamp (fault: _RAMP_FAULT)
     DRIVE_RANGE: _FLAG_ONLY,                    # limits.beyond_model: warn | clamp (fault: _RAMP_FAULT)
     STOP: FaultAction("ramp", "stop", True, "stopped"),   # a stop request, the end of --duration

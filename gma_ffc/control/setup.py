@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 from ..protocols import Model
 from .config import ControllerConfig
+from .current_tracking import CurrentTracker
 from .envelope import StressRange
 from .law import FeedforwardController
 from .reference import Reference
@@ -31,6 +32,7 @@ class Setup:
     reference_now: Reference         # the reference for the tick's own instant (telemetry, learning)
     limiter: Limiter                 # current and slew limits
     monitor: SensorMonitor           # load cell -> stress, plausibility
+    tracking: CurrentTracker         # the measured current against the command (where the driver reads it)
     stress_range: StressRange        # the model's identified stress range and its policy
     fault_table: dict[str, FaultAction]   # safety.FAULT_ACTIONS resolved for this config
     safe_A: float                    # limits.safe_current_A

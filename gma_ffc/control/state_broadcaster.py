@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any
 
+from ..drivers.base import CURRENT
 from .tick import OUTSIDE_DRIVE, OUTSIDE_STRESS, Tick
 
 if TYPE_CHECKING:
@@ -63,6 +64,7 @@ class StateBroadcaster:
             "reconnects": self.hardware.reconnects,
             "at_safe_current": self.hardware.at_safe,     # the last write was the safe current
             "safe_current_A": setup.safe_A,
+            "current_tracking": setup.tracking.status(CURRENT in self.hardware.driver.channels),
             "exit_reason": exit_reason,
             "started_unix_s": started_unix_s,
             "model_kind": setup.model.kind,
