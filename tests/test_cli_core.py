@@ -430,3 +430,32 @@ def test_python_dash_m_gma_ffc_is_the_command():
     bad = subprocess.run([sys.executable, "-m", "gma_ffc", "no-such-command"], capture_output=True, text=True,
                          timeout=120)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
+
+
+def test_an_extended_model_with_load_dynamics_runs_readings_beyond_the_range_by_noise(workdir: Path, capsys):
+    """The plain model clamps stress readings beyond its range by the load cell's noise; the extended
+    model diagnose writes (its load dynamics read the load cell) refused the same recording in
+    simulate and invert ('stress ... outside the model's identified range'). It low-passes the
+    readings to the load's static stress, so readings clamped by noise leave it within the range."""
+    from gma_ffc.extended import ExtendedModel
+    from gma_ffc.modelio import save_model
+
+    dyn = {"form": "rod_load", "f_ref_hz": 500.0, "zeta": 0.05, "beta_per_MPa": 0.0, "stress_ref_MPa": -11.3,
+           "stress_lowpass_hz": 1.0}
+    save_model(ExtendedModel(load_model(workdir / "model.yaml"), {"dynamics": dyn}, ["mechanical_dynamics"]),
+               workdir / "extended_dyn.yaml")
+    rec = read_recording(workdir / "id_11.3.csv")
+    noise = np.random.default_rng(6).normal(0.0, 0.01, len(rec))
+    cols = dict(rec.columns)
+    cols["stress_MPa"] = -11.3 + noise - noise.max() + 0.02               # at most 0.02 MPa above -11.3
+    write_recording(workdir / "noisy_dyn.csv", Recording(cols, dict(rec.metadata)))
+    ref = read_recording(workdir / "ref.csv", require=("time_s",))
+    write_recording(workdir / "ref_noisy.csv", Recording({**ref.columns, "stress_MPa": cols["stress_MPa"]}, {}))
+    for model in ("model.yaml", "extended_dyn.yaml"):
+        capsys.readouterr()
+        assert main(["simulate", "--model", str(workdir / model), str(workdir / "noisy_dyn.csv"),
+                     "-o", str(workdir / f"noisy_dyn_{model}.csv")]) == 0, capsys.readouterr().err
+        assert "clamped into it" in capsys.readouterr().err
+        assert main(["invert", "--model", str(workdir / model), str(workdir / "ref_noisy.csv"),
+                     "-o", str(workdir / f"drive_noisy_{model}.csv"), "--limit", "0", "3"]) == 0, \
+            capsys.readouterr().err

@@ -161,12 +161,14 @@ def recorded_stress(rec: Recording, stress: Any, override: float | None) -> np.n
 
 def _noise_clamped(model: Model, rec: Recording, s: np.ndarray) -> np.ndarray:
     """`s` with the readings that leave the model's stress range by noise alone clamped into it
-    (said on stderr); any other stress as it is, for the model to judge (a model that reads the
-    load cell through its own dynamics, whose inertial force may leave the range, sees it raw)."""
+    (said on stderr); any other stress as it is, for the model to judge. A model that reads the load
+    cell through its own dynamics (an extended model's rod_load) gets the same: it low-passes the
+    readings to the load's static stress, so readings clamped by noise keep that inside the range
+    (left raw, they were refused where the plain model ran); inertial force past the noise stays raw."""
     from ..diagnose.noise import second_difference_sigma
 
     rng = model.stress_range_MPa
-    if rng is None or not np.all(np.isfinite(s)) or getattr(model, "transforms_stress", False):
+    if rng is None or not np.all(np.isfinite(s)):
         return s
     lo, hi = rng
     beyond = max(lo - float(s.min()), float(s.max()) - hi, 0.0)
