@@ -127,3 +127,21 @@ def test_without_ident_an_mpi_voltage_model_is_not_told_of_eddy_lags_or_loop_wid
         assert ("stress" in note) == (srange is not None), note
     sdpi = SimpleNamespace(drive_name="current_A", stress_range_MPa=(-20.0, -5.0), provenance={})
     assert "stress_dependent_play's loop-width law" in check(sdpi, []).words()
+
+
+def test_one_identification_recording_given_is_not_told_all_1_recordings():
+    """A model identified on one recording (the measured piezo's first half) and diagnosed with it
+    given to --ident: the report and the command said 'All 1 identification recordings given match'."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.identification import check
+
+    fp = {"name": "a.csv", "bytes": 10, "sha256": "aa"}
+    model = SimpleNamespace(drive_name="voltage_V", stress_range_MPa=None,
+                            provenance={"recordings": ["a.csv"], "identification_files": [fp]})
+    one = check(model, ["a.csv"], [fp]).words()
+    assert "All 1" not in one and "recordings given match" not in one
+    assert one == "The identification recording given (a.csv) matches the model's record by name, size and content."
+    fp2 = {"name": "b.csv", "bytes": 20, "sha256": "bb"}
+    model.provenance = {"recordings": ["a.csv", "b.csv"], "identification_files": [fp, fp2]}
+    assert check(model, ["a.csv", "b.csv"], [fp, fp2]).words().startswith("All 2 identification recordings given match")
