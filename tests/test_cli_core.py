@@ -459,3 +459,24 @@ def test_an_extended_model_with_load_dynamics_runs_readings_beyond_the_range_by_
         assert main(["invert", "--model", str(workdir / model), str(workdir / "ref_noisy.csv"),
                      "-o", str(workdir / f"drive_noisy_{model}.csv"), "--limit", "0", "3"]) == 0, \
             capsys.readouterr().err
+
+
+@pytest.mark.parametrize("stress, says", [(-11.0, "reaches 0.3 MPa outside the model's identified range -24..-11.3 MPa"),
+                                          (17.0, "negate the stress_MPa column")])
+def test_invert_with_an_extended_model_refuses_a_stress_as_the_plain_model_does(workdir: Path, capsys, stress, says):
+    """An extended model's invert said 'stress -11..-11 MPa is outside the model's range -24..-11.3 MPa'
+    (three digits: it read as inside) with no advice, and for a load cell logging compression as
+    positive did not say to negate it, as the plain model's invert does."""
+    from gma_ffc.extended import ExtendedModel
+    from gma_ffc.modelio import save_model
+
+    save_model(ExtendedModel(load_model(workdir / "model.yaml"), {"creep": {"gain": 0.01, "tau_s": 3.0}}, ["creep"]),
+               workdir / "extended_creep.yaml")
+    ref = read_recording(workdir / "ref.csv", require=("time_s",))
+    write_recording(workdir / "ref_off.csv", Recording({**ref.columns, "stress_MPa": np.full(len(ref), stress)}, {}))
+    for model in ("model.yaml", "extended_creep.yaml"):
+        capsys.readouterr()
+        assert main(["invert", "--model", str(workdir / model), str(workdir / "ref_off.csv"),
+                     "-o", str(workdir / "drive_off.csv")]) == 2
+        err = capsys.readouterr().err
+        assert says in err and err.count("\n") == 1, (model, err)
