@@ -128,3 +128,36 @@ def enough_data(data: Sequence[RecData], min_samples: int, clamped_share: float 
             cannot.append(f"{d.name}: {d.clamped_fraction:.0%} of the samples are at stresses outside the "
                           "model's range; they were compared at the nearest stress of the range")
     return n_samples, too_little, slow_only, cannot
+
+
+# the measured displacement's swing against the model's for the same drive: this far apart (either way)
+# no physics the vocabulary holds explains it (saturation, heating and creep move it by percents)
+SCALE_SLIP_RATIO = 30.0
+SCALE_DRIVE_SHARE = 0.2       # judged only where the drive sweeps this share of the identified range
+
+
+def check_displacement_scale(model: Any, data: Sequence[RecData], predicted: Sequence[np.ndarray]) -> None:
+    """Refuse a recording whose measured displacement swings 30x more or less than the model predicts
+    for its drive: a displacement in mm or nm under displacement_um, a sensor that does not read the
+    actuator, or a model of another actuator. Left to the fits, the static gain took the unit's place
+    ('unexplained', an extended model with gain 0.001). The message names the factor to convert by."""
+    lo, hi = (float(v) for v in model.drive_range)
+    for d, yp in zip(data, predicted):
+        u_lo, u_hi = np.percentile(d.u, [1.0, 99.0])
+        if not (np.isfinite(hi - lo) and u_hi - u_lo >= SCALE_DRIVE_SHARE * (hi - lo)):
+            continue
+        measured = float(np.subtract(*np.percentile(d.y, [99.0, 1.0])))
+        model_swing = float(np.subtract(*np.percentile(yp, [99.0, 1.0])))
+        if model_swing <= 0 or not (measured > 0):
+            continue
+        ratio = measured / model_swing
+        if 1 / SCALE_SLIP_RATIO <= ratio <= SCALE_SLIP_RATIO:
+            continue
+        power = 10.0 ** (3 * round(np.log10(ratio) / 3)) if abs(np.log10(ratio)) >= 2 else ratio
+        factor = max(power, 1 / power)
+        factor_text = f"{factor:.0f}" if factor >= 10 else f"{factor:.3g}"
+        convert = f"{'multiply' if ratio < 1 else 'divide'} displacement_um by {factor_text}"
+        raise InputError(
+            f"{d.name}: the measured displacement swings {measured:.3g} um where the model predicts {model_swing:.3g} um "
+            f"for this drive ({ratio:.3g}x): a displacement in another unit ({convert}), a sensor that does not read "
+            "this actuator, or a model of another actuator (identify one from this actuator's recordings)")
