@@ -480,3 +480,24 @@ def test_invert_with_an_extended_model_refuses_a_stress_as_the_plain_model_does(
                      "-o", str(workdir / "drive_off.csv")]) == 2
         err = capsys.readouterr().err
         assert says in err and err.count("\n") == 1, (model, err)
+
+
+def test_a_drive_in_milliamperes_under_current_a_is_told_the_factor(workdir: Path, capsys, tmp_path):
+    """Milliamperes logged under current_A (1000x the identified 0-3 A): simulate warned 'identify the
+    model from recordings over the whole drive range used', advice no rig can follow (3000 A), and
+    diagnose said to record inside the range or identify over these drives. Both now name the factor;
+    divided by it, the recording runs without a warning."""
+    rec = read_recording(workdir / "id_15.2.csv")
+    write_recording(tmp_path / "mA.csv", Recording({**rec.columns, "current_A": rec.drive * 1000.0}, {}))
+    capsys.readouterr()
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(tmp_path / "mA.csv"),
+                 "-o", str(tmp_path / "mA_sim.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "divide current_A by 1000" in err and "whole drive range used" not in err, err
+    assert main(["diagnose", "--model", str(workdir / "model.yaml"), str(tmp_path / "mA.csv"),
+                 "--out", str(tmp_path / "diag")]) == 2
+    err = capsys.readouterr().err
+    assert "divide current_A by 1000" in err and err.count("\n") == 1, err
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "id_15.2.csv"),
+                 "-o", str(tmp_path / "A_sim.csv")]) == 0
+    assert "warning" not in capsys.readouterr().err

@@ -185,7 +185,7 @@ def _noise_clamped(model: Model, rec: Recording, s: np.ndarray) -> np.ndarray:
 def beyond_drive_range(model: Model, rec: Recording) -> str | None:
     """One sentence when `rec`'s drive leaves the range `model` was identified on (the prediction
     there is an extrapolation), else None."""
-    from ..drive import outside_range
+    from ..drive import outside_range, unit_slip
 
     lo, hi = (float(v) for v in model.drive_range)
     outside = outside_range(rec.drive, (lo, hi))
@@ -193,10 +193,11 @@ def beyond_drive_range(model: Model, rec: Recording) -> str | None:
         return None
     unit = drive_unit(model.drive_name)
     where = np.flatnonzero(outside)
+    advice = (unit_slip(rec.drive, (lo, hi), rec.drive_name) or
+              "identify the model from recordings over the whole drive range used")
     return (f"{rec.source}: the drive ({float(rec.drive.min()):.4g}..{float(rec.drive.max()):.4g} {unit}) leaves the "
             f"range the model was identified on ({lo:.4g}..{hi:.4g} {unit}) at {where.size} of {len(rec)} samples, "
-            f"first at t = {rec.time_text(where[0])} s: the prediction there is an extrapolation; identify the "
-            "model from recordings over the whole drive range used")
+            f"first at t = {rec.time_text(where[0])} s: the prediction there is an extrapolation; {advice}")
 
 
 def check_drive_name(model: Model, rec: Recording) -> None:

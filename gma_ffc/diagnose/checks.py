@@ -6,7 +6,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..drive import HOLD_S, drive_unit, holds, outside_range, reversals
+from ..drive import HOLD_S, drive_unit, holds, outside_range, reversals, unit_slip
 from ..errors import InputError
 from ..model import stress_sign_advice
 from ..recordings import Recording
@@ -63,6 +63,8 @@ def check_overlap(model: Any, recordings: Sequence[Recording], margin: float = 0
         a, b, held = advised_range((lo, hi), drive_limits, drive_unit(model.drive_name))
         advice = (f"record inside {a:.3g}..{b:.3g}{held}, or identify a model from recordings covering these "
                   "drives" if a < b else held)
+        slips = [unit_slip(r.drive, (lo, hi), r.drive_name) for r in recordings]
+        advice = next((f"{r.name}: {w}" for r, w in zip(recordings, slips) if w), advice)
         raise InputError(
             f"cannot conclude anything: the recordings' drive never enters the range the model was identified on "
             f"({lo:.3g}..{hi:.3g}); {advice}")
