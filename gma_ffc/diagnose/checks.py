@@ -160,6 +160,6 @@ def check_displacement_scale(model: Any, data: Sequence[RecData], predicted: Seq
         factor_text = f"{factor:.0f}" if factor >= 10 else f"{factor:.3g}"
         convert = f"{'multiply' if ratio < 1 else 'divide'} displacement_um by {factor_text}"
         raise InputError(
-            f"{d.name}: the measured displacement swings {measured:.3g} um where the model predicts {model_swing:.3g} um "
-            f"for this drive ({ratio:.3g}x): a displacement in another unit ({convert}), a sensor that does not read "
+            f"{d.name}: the measured displacement swings {measured:.3g} um where the model predicts "
+            f"{model_swing:.3g} um for this drive ({ratio:.3g}x): a displacement in another unit ({convert}), a sensor that does not read "
             "this actuator, or a model of another actuator (identify one from this actuator's recordings)")
