@@ -206,6 +206,17 @@ def _fall(d: Any, yb: np.ndarray, yf: np.ndarray) -> np.ndarray:
     return np.square(d.y - yb) - np.square(d.y - yf)
 
 
+def _overlay_title(name: str, named: bool, helps: bool) -> str:
+    """The before-and-after panel's title. With effects named the panel shows where they help most
+    (`_shown`); where even there the extended model misses by more than the base, they help nowhere
+    on this recording, and the title says so (its legend's two RMS figures said it against the title)."""
+    if not named:
+        return f"{name}: where the residual is largest"
+    if helps:
+        return f"{name}: where the named effects help most"
+    return f"{name}: the named effects do not help on it (least harm shown)"
+
+
 def plot_overlays(dg: Diagnosis, render: Any = None) -> Any:
     """Measured against base and extended where the residual is largest, and beside it the two
     residuals on their own scale (on the displacement scale a 0.3 um improvement is invisible)."""
@@ -225,8 +236,7 @@ def plot_overlays(dg: Diagnosis, render: Any = None) -> Any:
             ax.plot(d.t[a:b], yb[a:b], lw=0.9, color="0.55", ls="--", label="base model")
         ax.plot(d.t[a:b], yf[a:b], lw=0.9, color="tab:blue",
                 label="base model (= extended)" if same else "extended model")
-        ax.set_title(f"{d.name}: {'where the named effects help most' if named else 'where the residual is largest'}",
-                     fontsize=9)
+        ax.set_title(_overlay_title(d.name, named, _rms((d.y - yf)[a:b]) < _rms((d.y - yb)[a:b])), fontsize=9)
         ax.set_ylabel("displacement (um)")
         _time_axis(ax)
         _legend_outside(ax)
