@@ -501,3 +501,18 @@ def test_a_drive_in_milliamperes_under_current_a_is_told_the_factor(workdir: Pat
     assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "id_15.2.csv"),
                  "-o", str(tmp_path / "A_sim.csv")]) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+def test_a_model_and_a_recording_given_in_each_others_place_are_named_as_such(workdir: Path, capsys):
+    """A model file given as the recording was refused as "column 'format: gma-ffc-model' has no
+    unit", and a recording given to --model as "not a model file (expected a YAML mapping)": true,
+    but neither said the two were swapped. Both now do; given in their places, simulate runs."""
+    model, rec = str(workdir / "model.yaml"), str(workdir / "id_15.2.csv")
+    out = str(workdir / "swapped.csv")
+    assert main(["simulate", "--model", model, model, "-o", out]) == 2
+    err = capsys.readouterr().err
+    assert "is a gma-ffc model file, not a recording" in err and err.count("\n") == 1, err
+    assert main(["simulate", "--model", rec, rec, "-o", out]) == 2
+    err = capsys.readouterr().err
+    assert "is a recording, not a model file" in err and "--model" in err and err.count("\n") == 1, err
+    assert main(["simulate", "--model", model, rec, "-o", out]) == 0
