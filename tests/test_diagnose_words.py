@@ -145,3 +145,17 @@ def test_one_identification_recording_given_is_not_told_all_1_recordings():
     fp2 = {"name": "b.csv", "bytes": 20, "sha256": "bb"}
     model.provenance = {"recordings": ["a.csv", "b.csv"], "identification_files": [fp, fp2]}
     assert check(model, ["a.csv", "b.csv"], [fp, fp2]).words().startswith("All 2 identification recordings given match")
+
+
+def test_the_validation_of_a_voltage_driven_actuator_without_stress_does_not_speak_of_stress():
+    """The measured piezo (voltage_V, no stress column, an MPI model): its report said 'Models are
+    simulated over the whole recording from its drive and stress only'. There is no stress."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.explain import validation_words
+
+    for srange, words in ((None, "from its drive only,"), ((-24.0, -11.3), "from its drive and stress only,")):
+        fitter = SimpleNamespace(model=SimpleNamespace(stress_range_MPa=srange), data=[object()], sensor_jumps=[],
+                                 stress_varies=False, delta=0.1)
+        text = validation_words(fitter, 0.04, 0.75, 6.0)       # type: ignore[arg-type]
+        assert words in text, text
