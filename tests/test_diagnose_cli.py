@@ -288,3 +288,21 @@ def test_a_displacement_in_another_unit_is_refused_naming_the_factor(case_files,
     assert code == 2, err
     assert says in err and "scaled.csv" in err and err.count("\n") == 1 and "Traceback" not in err
     assert not out_dir.exists()
+
+
+def test_an_extended_model_is_diagnosed_through_its_base_as_the_service_does(case_files, capsys, tmp_path):
+    """diagnose refused an extended model: 'diagnose its base sdpi/mpi model instead', advice a user
+    holding only extended_model.yaml (a colleague's, a service's diagnosis folder) could not follow:
+    no command writes the base out. The service's background diagnosis runs the base the extended model
+    keeps; the command now does the same, and says so."""
+    from gma_ffc.extended import ExtendedModel
+
+    base = load_model(case_files / "model.yaml")
+    save_model(ExtendedModel(base, {"creep": {"gain": 0.01, "tau_s": 3.0}}, ["creep"]), tmp_path / "extended.yaml")
+    out_dir = tmp_path / "diag"
+    code, out, err = _run(capsys, "diagnose", "--model", str(tmp_path / "extended.yaml"),
+                          str(case_files / "long_run.csv"), "--out", str(out_dir))
+    assert code == 0, err
+    assert "extended.yaml is an extended model (creep)" in err and "diagnosed through the" in err
+    doc = json.loads((out_dir / "diagnosis.json").read_text())
+    assert doc["verdict"] == ["thermal_drift"]
