@@ -516,3 +516,22 @@ def test_a_model_and_a_recording_given_in_each_others_place_are_named_as_such(wo
     err = capsys.readouterr().err
     assert "is a recording, not a model file" in err and "--model" in err and err.count("\n") == 1, err
     assert main(["simulate", "--model", model, rec, "-o", out]) == 0
+
+
+def test_identify_names_a_recording_whose_displacement_is_in_another_unit(workdir: Path, capsys, tmp_path):
+    """One identification recording's displacement logged in mm under displacement_um, beside others
+    in um: identify said 'the displacement hardly follows the drive ... check that the columns are the
+    drive and the displacement of one actuator', naming every file. It names the one, and the factor;
+    multiplied by it, the recordings identify."""
+    rec = read_recording(workdir / "id_19.1.csv")
+    write_recording(tmp_path / "in_mm.csv", Recording({**rec.columns, "displacement_um": rec.displacement_um / 1000},
+                                                      {}))
+    argv = ["identify", str(workdir / "id_11.3.csv"), str(workdir / "id_15.2.csv"), str(tmp_path / "in_mm.csv"),
+            "-o", str(tmp_path / "m.yaml")]
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "in_mm.csv" in err and "id_11.3.csv" not in err.split(":")[1] and "multiply displacement_um by 1000" in err
+    assert err.count("\n") == 1 and not (tmp_path / "m.yaml").exists()
+    write_recording(tmp_path / "in_mm.csv", Recording(dict(rec.columns), {}))
+    assert main(argv) == 0
