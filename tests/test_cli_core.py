@@ -535,3 +535,19 @@ def test_identify_names_a_recording_whose_displacement_is_in_another_unit(workdi
     assert err.count("\n") == 1 and not (tmp_path / "m.yaml").exists()
     write_recording(tmp_path / "in_mm.csv", Recording(dict(rec.columns), {}))
     assert main(argv) == 0
+
+
+def test_simulate_warns_of_a_measured_displacement_in_another_unit(workdir: Path, capsys, tmp_path):
+    """simulate of a recording whose displacement is in mm under displacement_um printed 'RMS vs
+    measured 32.97 um' and nothing else: the comparison is meaningless, and the factor is named."""
+    rec = read_recording(workdir / "id_15.2.csv")
+    write_recording(tmp_path / "in_mm.csv", Recording({**rec.columns, "displacement_um": rec.displacement_um / 1000},
+                                                      {}))
+    capsys.readouterr()
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(tmp_path / "in_mm.csv"),
+                 "-o", str(tmp_path / "p.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "warning:" in err and "multiply displacement_um by 1000" in err, err
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "id_15.2.csv"),
+                 "-o", str(tmp_path / "p.csv")]) == 0
+    assert "warning" not in capsys.readouterr().err

@@ -140,26 +140,34 @@ SCALE_DRIVE_SHARE = 0.2       # judged only where the drive sweeps this share of
 
 def check_displacement_scale(model: Any, data: Sequence[RecData], predicted: Sequence[np.ndarray]) -> None:
     """Refuse a recording whose measured displacement swings 30x more or less than the model predicts
-    for its drive: a displacement in mm or nm under displacement_um, a sensor that does not read the
-    actuator, or a model of another actuator. Left to the fits, the static gain took the unit's place
-    ('unexplained', an extended model with gain 0.001). The message names the factor to convert by."""
-    lo, hi = (float(v) for v in model.drive_range)
+    for its drive (`displacement_scale_words`). Left to the fits, the static gain took the unit's place
+    ('unexplained', an extended model with gain 0.001)."""
     for d, yp in zip(data, predicted):
-        u_lo, u_hi = np.percentile(d.u, [1.0, 99.0])
-        if not (np.isfinite(hi - lo) and u_hi - u_lo >= SCALE_DRIVE_SHARE * (hi - lo)):
-            continue
-        measured = float(np.subtract(*np.percentile(d.y, [99.0, 1.0])))
-        model_swing = float(np.subtract(*np.percentile(yp, [99.0, 1.0])))
-        if model_swing <= 0 or not (measured > 0):
-            continue
-        ratio = measured / model_swing
-        if 1 / SCALE_SLIP_RATIO <= ratio <= SCALE_SLIP_RATIO:
-            continue
-        power = 10.0 ** (3 * round(np.log10(ratio) / 3)) if abs(np.log10(ratio)) >= 2 else ratio
-        factor = max(power, 1 / power)
-        factor_text = f"{factor:.0f}" if factor >= 10 else f"{factor:.3g}"
-        convert = f"{'multiply' if ratio < 1 else 'divide'} displacement_um by {factor_text}"
-        raise InputError(
-            f"{d.name}: the measured displacement swings {measured:.3g} um where the model predicts "
-            f"{model_swing:.3g} um for this drive ({ratio:.3g}x): a displacement in another unit ({convert}), a sensor that does not read "
+        words = displacement_scale_words(d.u, model.drive_range, d.y, yp)
+        if words:
+            raise InputError(f"{d.name}: {words}")
+
+
+def displacement_scale_words(drive: np.ndarray, drive_range: Any, measured: np.ndarray, predicted: np.ndarray) -> str:
+    """'' or why a measured displacement swinging 30x more or less than the model's prediction for the
+    same drive (judged where the drive sweeps a fifth of the identified range) cannot be compared: a
+    displacement in mm or nm under displacement_um (with the factor to convert by), a sensor that does
+    not read the actuator, or a model of another actuator."""
+    lo, hi = (float(v) for v in drive_range)
+    u_lo, u_hi = np.percentile(drive, [1.0, 99.0])
+    if not (np.isfinite(hi - lo) and u_hi - u_lo >= SCALE_DRIVE_SHARE * (hi - lo)):
+        return ""
+    swing = float(np.subtract(*np.percentile(measured, [99.0, 1.0])))
+    model_swing = float(np.subtract(*np.percentile(predicted, [99.0, 1.0])))
+    if not (model_swing > 0 and swing > 0):
+        return ""
+    ratio = swing / model_swing
+    if 1 / SCALE_SLIP_RATIO <= ratio <= SCALE_SLIP_RATIO:
+        return ""
+    power = 10.0 ** (3 * round(np.log10(ratio) / 3)) if abs(np.log10(ratio)) >= 2 else ratio
+    factor = max(power, 1 / power)
+    factor_text = f"{factor:.0f}" if factor >= 10 else f"{factor:.3g}"
+    convert = f"{'multiply' if ratio < 1 else 'divide'} displacement_um by {factor_text}"
+    return (f"the measured displacement swings {swing:.3g} um where the model predicts {model_swing:.3g} um for "
+            f"this drive ({ratio:.3g}x): a displacement in another unit ({convert}), a sensor that does not read "
             "this actuator, or a model of another actuator (identify one from this actuator's recordings)")
