@@ -138,6 +138,28 @@ def outside_range(u: np.ndarray, drive_range: tuple[float, float], margin: float
     return (u < lo - wide) | (u > hi + wide)
 
 
+UNIT_SLIP_RATIO = 30.0     # a drive this many times the identified range's extent is a unit, not a range
+
+
+def unit_slip(u: np.ndarray, drive_range: tuple[float, float], column: str) -> str:
+    """'' or, when the drive reaches 30x the largest magnitude of `drive_range` (milliamperes or
+    millivolts logged under current_A or voltage_V), the conversion that brings it back: advice to
+    identify over such a drive (3000 A) is none a rig can follow."""
+    lo, hi = (float(v) for v in drive_range)
+    top = max(abs(lo), abs(hi))
+    peak = float(np.max(np.abs(u))) if np.size(u) else 0.0
+    if not (np.isfinite(top) and top > 0 and peak >= UNIT_SLIP_RATIO * top):
+        return ""
+    ratio = peak / top
+    prefix = {3: "m", 6: "u"}.get(3 * round(np.log10(ratio) / 3))    # milli or micro: the slips a logger makes
+    if prefix is None:
+        return ""
+    unit = drive_unit(column)
+    factor = 1000 if prefix == "m" else 1000000
+    return (f"the drive reaches {ratio:.0f}x the largest drive identified ({top:.4g} {unit}): a drive in another "
+            f"unit ({prefix}{unit} under {column}?): divide {column} by {factor}")
+
+
 OCTAVE = 2.0 ** 0.5       # half an octave either side: a band one octave wide
 
 

@@ -210,10 +210,11 @@ class ExtendedModel:
         r = np.asarray(reference_um, dtype=float)
         if t.shape != r.shape or t.ndim != 1 or t.size < 2:
             raise ModelError("time_s and reference_um must be 1-D of equal length (at least 2 samples)")
-        lo, hi = self.stress_range_MPa or (-math.inf, math.inf)
         s = _stress_array(stress_MPa, t.size) if stress_MPa is not None else None
-        if s is not None and (s.min() < lo - 1e-9 or s.max() > hi + 1e-9):
-            raise ModelError(f"stress {s.min():.3g}..{s.max():.3g} MPa is outside the model's range {lo:.3g}..{hi:.3g} MPa")
+        if s is not None and self.stress_range_MPa is not None:
+            from .model import refuse_stress_outside
+
+            refuse_stress_outside(s, self.stress_range_MPa)     # the plain model's words and advice
         if self.preview_s > 0:
             r = np.interp(t + self.preview_s, t, r)
         dt = float(np.median(np.diff(t)))

@@ -167,3 +167,32 @@ def mixed_sign_notes(recordings: Sequence[Recording]) -> list[str]:
     return [f"stress_MPa is positive in {odd} but negative in {negative} other recording(s), and "
             "compression is negative in gma-ffc's recordings (docs/recordings.md): if the positive ones are "
             "compressive loads logged with the other sign, negate their stress_MPa column before identifying"]
+
+
+SCALE_RATIO = 30.0     # recordings of one actuator whose displacement per drive differs this much: a unit
+
+
+def scale_mismatch(recordings: Sequence[Recording]) -> str:
+    """'' or the refusal's words when a recording's displacement swing per drive swing is 30x off the
+    others' median (a displacement in mm or nm under displacement_um, another actuator's run): the fit
+    took it in as the same actuator's and wrote a model, or called the lot 'hardly follows the drive'."""
+    swings = [float(np.subtract(*np.percentile(r.drive, [99.0, 1.0]))) for r in recordings]
+    widest = max(swings, default=0.0)
+    gains = []
+    for r, du in zip(recordings, swings):     # judged where the drive sweeps a fifth of the widest sweep or more
+        y = r.displacement_um
+        dy = float(np.subtract(*np.percentile(y, [99.0, 1.0]))) if y is not None else 0.0
+        gains.append((r.name, dy / du) if du >= 0.2 * widest > 0 and dy > 0 else (r.name, np.nan))
+    known = [g for _, g in gains if np.isfinite(g)]
+    if len(known) < 2:
+        return ""
+    mid = float(np.median(known))
+    odd = [(name, g / mid) for name, g in gains if np.isfinite(g) and not (1 / SCALE_RATIO <= g / mid <= SCALE_RATIO)]
+    if not odd or len(odd) * 2 >= len(known):
+        return ""
+    name, ratio = odd[0]
+    factor = 10.0 ** (3 * round(float(np.log10(ratio)) / 3))
+    convert = (f"{'multiply' if ratio < 1 else 'divide'} displacement_um by {max(factor, 1 / factor):.0f}"
+               if abs(np.log10(ratio)) >= 2 else "check its columns")
+    return (f"{name}: its displacement per drive is {ratio:.3g}x the other recordings' (a displacement in another "
+            f"unit: {convert}; or a run of another actuator: identify each actuator on its own)")

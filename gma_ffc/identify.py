@@ -45,7 +45,7 @@ from .constrained_weights import (PlayWeights, bounded_least_squares, deadzones_
 from .errors import FaultError, InputError
 from .identification_checks import (BUTTERFLY_SHARE, CLOCKWISE_WIDTH, FAST_LOOP_HZ, burn_in_end, butterfly_words,
                                     column_notes, fewer_operators, has_full_sweep, late_sweep_note, loop_rates_hz,
-                                    travel_against_drive)
+                                    scale_mismatch, travel_against_drive)
 from .initial_state import first_direction, monotone_play_state, resolve
 from .inverse import deadzone_inverse
 from .model import SDPIModel, rms
@@ -179,6 +179,9 @@ class SDPIIdentifier:
         self._check_settings()
         self._pass = ""          # which fit the progress's steps belong to: the first, or one again (and why)
         self.notes_: list[str] = []
+        mismatch = scale_mismatch(recordings)
+        if mismatch:
+            raise InputError(mismatch)
         data = self._prepare(recordings)
         self.output_sign_ = self._orientation(data)
         self._check_loop_direction(data)

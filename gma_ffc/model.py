@@ -72,6 +72,21 @@ def stress_sign_advice(stress: np.ndarray, stress_range: tuple[float, float]) ->
     return ("the readings negated lie in it: compression is negative in gma-ffc's recordings (docs/recordings.md); "
             "if the load cell logs compression as positive, negate the stress_MPa column")
 
+
+def refuse_stress_outside(stress: np.ndarray, stress_range: tuple[float, float]) -> None:
+    """ModelError when `stress` leaves `stress_range` (beyond a rounding's tolerance): how far, in
+    four digits (three made -11.3 look inside -24.3..-11.3), and what to do (every model kind's words)."""
+    lo, hi = stress_range
+    s = np.asarray(stress, dtype=float)
+    tol = 1e-6 * max(1.0, abs(lo), abs(hi))
+    if s.size == 0 or (s.min() >= lo - tol and s.max() <= hi + tol):
+        return
+    beyond = max(lo - float(s.min()), float(s.max()) - hi)
+    raise ModelError(
+        f"stress {s.min():.4g}..{s.max():.4g} MPa reaches {beyond:.2g} MPa outside the model's identified "
+        f"range {lo:.4g}..{hi:.4g} MPa; {stress_sign_advice(s, (lo, hi)) or 'identify with recordings covering it'}")
+
+
 @dataclass(eq=False)
 class SDPIModel:
     """y = c(sigma) + sum_j w_sj(sigma) S_{r_sj}[ sum_i w_hi H_{r_hi}[x - x_c] ].
@@ -268,12 +283,7 @@ class SDPIModel:
         if not np.all(np.isfinite(s)):
             raise ModelError("stress contains NaN or infinite values")
         lo, hi = self.stress_range_MPa
-        tol = 1e-6 * max(1.0, abs(lo), abs(hi))
-        if s.min() < lo - tol or s.max() > hi + tol:
-            beyond = max(lo - float(s.min()), float(s.max()) - hi)
-            raise ModelError(
-                f"stress {s.min():.4g}..{s.max():.4g} MPa reaches {beyond:.2g} MPa outside the model's identified "
-                f"range {lo:.4g}..{hi:.4g} MPa; {stress_sign_advice(s, (lo, hi)) or 'identify with recordings covering it'}")
+        refuse_stress_outside(s, (lo, hi))
         return np.ascontiguousarray(np.clip(s, lo, hi))
 
     def forward_state(self, initial_drive: float, play_state: Any = None) -> np.ndarray:

@@ -430,3 +430,124 @@ def test_python_dash_m_gma_ffc_is_the_command():
     bad = subprocess.run([sys.executable, "-m", "gma_ffc", "no-such-command"], capture_output=True, text=True,
                          timeout=120)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
+
+
+def test_an_extended_model_with_load_dynamics_runs_readings_beyond_the_range_by_noise(workdir: Path, capsys):
+    """The plain model clamps stress readings beyond its range by the load cell's noise; the extended
+    model diagnose writes (its load dynamics read the load cell) refused the same recording in
+    simulate and invert ('stress ... outside the model's identified range'). It low-passes the
+    readings to the load's static stress, so readings clamped by noise leave it within the range."""
+    from gma_ffc.extended import ExtendedModel
+    from gma_ffc.modelio import save_model
+
+    dyn = {"form": "rod_load", "f_ref_hz": 500.0, "zeta": 0.05, "beta_per_MPa": 0.0, "stress_ref_MPa": -11.3,
+           "stress_lowpass_hz": 1.0}
+    save_model(ExtendedModel(load_model(workdir / "model.yaml"), {"dynamics": dyn}, ["mechanical_dynamics"]),
+               workdir / "extended_dyn.yaml")
+    rec = read_recording(workdir / "id_11.3.csv")
+    noise = np.random.default_rng(6).normal(0.0, 0.01, len(rec))
+    cols = dict(rec.columns)
+    cols["stress_MPa"] = -11.3 + noise - noise.max() + 0.02               # at most 0.02 MPa above -11.3
+    write_recording(workdir / "noisy_dyn.csv", Recording(cols, dict(rec.metadata)))
+    ref = read_recording(workdir / "ref.csv", require=("time_s",))
+    write_recording(workdir / "ref_noisy.csv", Recording({**ref.columns, "stress_MPa": cols["stress_MPa"]}, {}))
+    for model in ("model.yaml", "extended_dyn.yaml"):
+        capsys.readouterr()
+        assert main(["simulate", "--model", str(workdir / model), str(workdir / "noisy_dyn.csv"),
+                     "-o", str(workdir / f"noisy_dyn_{model}.csv")]) == 0, capsys.readouterr().err
+        assert "clamped into it" in capsys.readouterr().err
+        assert main(["invert", "--model", str(workdir / model), str(workdir / "ref_noisy.csv"),
+                     "-o", str(workdir / f"drive_noisy_{model}.csv"), "--limit", "0", "3"]) == 0, \
+            capsys.readouterr().err
+
+
+@pytest.mark.parametrize("stress, says", [(-11.0, "reaches 0.3 MPa outside the model's identified range -24..-11.3 MPa"),
+                                          (17.0, "negate the stress_MPa column")])
+def test_invert_with_an_extended_model_refuses_a_stress_as_the_plain_model_does(workdir: Path, capsys, stress, says):
+    """An extended model's invert said 'stress -11..-11 MPa is outside the model's range -24..-11.3 MPa'
+    (three digits: it read as inside) with no advice, and for a load cell logging compression as
+    positive did not say to negate it, as the plain model's invert does."""
+    from gma_ffc.extended import ExtendedModel
+    from gma_ffc.modelio import save_model
+
+    save_model(ExtendedModel(load_model(workdir / "model.yaml"), {"creep": {"gain": 0.01, "tau_s": 3.0}}, ["creep"]),
+               workdir / "extended_creep.yaml")
+    ref = read_recording(workdir / "ref.csv", require=("time_s",))
+    write_recording(workdir / "ref_off.csv", Recording({**ref.columns, "stress_MPa": np.full(len(ref), stress)}, {}))
+    for model in ("model.yaml", "extended_creep.yaml"):
+        capsys.readouterr()
+        assert main(["invert", "--model", str(workdir / model), str(workdir / "ref_off.csv"),
+                     "-o", str(workdir / "drive_off.csv")]) == 2
+        err = capsys.readouterr().err
+        assert says in err and err.count("\n") == 1, (model, err)
+
+
+def test_a_drive_in_milliamperes_under_current_a_is_told_the_factor(workdir: Path, capsys, tmp_path):
+    """Milliamperes logged under current_A (1000x the identified 0-3 A): simulate warned 'identify the
+    model from recordings over the whole drive range used', advice no rig can follow (3000 A), and
+    diagnose said to record inside the range or identify over these drives. Both now name the factor;
+    divided by it, the recording runs without a warning."""
+    rec = read_recording(workdir / "id_15.2.csv")
+    write_recording(tmp_path / "mA.csv", Recording({**rec.columns, "current_A": rec.drive * 1000.0}, {}))
+    capsys.readouterr()
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(tmp_path / "mA.csv"),
+                 "-o", str(tmp_path / "mA_sim.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "divide current_A by 1000" in err and "whole drive range used" not in err, err
+    assert main(["diagnose", "--model", str(workdir / "model.yaml"), str(tmp_path / "mA.csv"),
+                 "--out", str(tmp_path / "diag")]) == 2
+    err = capsys.readouterr().err
+    assert "divide current_A by 1000" in err and err.count("\n") == 1, err
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "id_15.2.csv"),
+                 "-o", str(tmp_path / "A_sim.csv")]) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_a_model_and_a_recording_given_in_each_others_place_are_named_as_such(workdir: Path, capsys):
+    """A model file given as the recording was refused as "column 'format: gma-ffc-model' has no
+    unit", and a recording given to --model as "not a model file (expected a YAML mapping)": true,
+    but neither said the two were swapped. Both now do; given in their places, simulate runs."""
+    model, rec = str(workdir / "model.yaml"), str(workdir / "id_15.2.csv")
+    out = str(workdir / "swapped.csv")
+    assert main(["simulate", "--model", model, model, "-o", out]) == 2
+    err = capsys.readouterr().err
+    assert "is a gma-ffc model file, not a recording" in err and err.count("\n") == 1, err
+    assert main(["simulate", "--model", rec, rec, "-o", out]) == 2
+    err = capsys.readouterr().err
+    assert "is a recording, not a model file" in err and "--model" in err and err.count("\n") == 1, err
+    assert main(["simulate", "--model", model, rec, "-o", out]) == 0
+
+
+def test_identify_names_a_recording_whose_displacement_is_in_another_unit(workdir: Path, capsys, tmp_path):
+    """One identification recording's displacement logged in mm under displacement_um, beside others
+    in um: identify said 'the displacement hardly follows the drive ... check that the columns are the
+    drive and the displacement of one actuator', naming every file. It names the one, and the factor;
+    multiplied by it, the recordings identify."""
+    rec = read_recording(workdir / "id_19.1.csv")
+    write_recording(tmp_path / "in_mm.csv", Recording({**rec.columns, "displacement_um": rec.displacement_um / 1000},
+                                                      {}))
+    argv = ["identify", str(workdir / "id_11.3.csv"), str(workdir / "id_15.2.csv"), str(tmp_path / "in_mm.csv"),
+            "-o", str(tmp_path / "m.yaml")]
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "in_mm.csv" in err and "id_11.3.csv" not in err.split(":")[1] and "multiply displacement_um by 1000" in err
+    assert err.count("\n") == 1 and not (tmp_path / "m.yaml").exists()
+    write_recording(tmp_path / "in_mm.csv", Recording(dict(rec.columns), {}))
+    assert main(argv) == 0
+
+
+def test_simulate_warns_of_a_measured_displacement_in_another_unit(workdir: Path, capsys, tmp_path):
+    """simulate of a recording whose displacement is in mm under displacement_um printed 'RMS vs
+    measured 32.97 um' and nothing else: the comparison is meaningless, and the factor is named."""
+    rec = read_recording(workdir / "id_15.2.csv")
+    write_recording(tmp_path / "in_mm.csv", Recording({**rec.columns, "displacement_um": rec.displacement_um / 1000},
+                                                      {}))
+    capsys.readouterr()
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(tmp_path / "in_mm.csv"),
+                 "-o", str(tmp_path / "p.csv")]) == 0
+    err = capsys.readouterr().err
+    assert "warning:" in err and "multiply displacement_um by 1000" in err, err
+    assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "id_15.2.csv"),
+                 "-o", str(tmp_path / "p.csv")]) == 0
+    assert "warning" not in capsys.readouterr().err

@@ -269,3 +269,40 @@ def test_dash_o_names_the_output_folder_as_in_the_other_commands():
     short = build_parser().parse_args(["diagnose", "--model", "m.yaml", "rec.csv", "-o", "diag"])
     long = build_parser().parse_args(["diagnose", "--model", "m.yaml", "rec.csv", "--out", "diag"])
     assert short.out == long.out == "diag" and short.recordings == ["rec.csv"]
+
+
+@pytest.mark.parametrize("factor, says", [(1e-3, "multiply displacement_um by 1000"),
+                                          (1e3, "divide displacement_um by 1000")])
+def test_a_displacement_in_another_unit_is_refused_naming_the_factor(case_files, capsys, tmp_path, factor, says):
+    """A displacement logged in mm (or nm) under displacement_um: diagnose said 'unexplained: nothing in
+    the vocabulary explains it', and wrote an extended model whose static gain, 0.00099, took the
+    unit's place (on 1 s recordings: 'too little data'). The swing measured against the model's
+    swing for the same drive is a unit slip, a sensor not reading the actuator or another
+    actuator's model: refused before any fit, with the factor."""
+    rec = read_recording(case_files / "long_run.csv")
+    scaled = Recording({**rec.columns, "displacement_um": rec.displacement_um * factor}, dict(rec.metadata))
+    write_recording(tmp_path / "scaled.csv", scaled)
+    out_dir = tmp_path / "out"
+    code, out, err = _run(capsys, "diagnose", "--model", str(case_files / "model.yaml"), str(tmp_path / "scaled.csv"),
+                          "--out", str(out_dir))
+    assert code == 2, err
+    assert says in err and "scaled.csv" in err and err.count("\n") == 1 and "Traceback" not in err
+    assert not out_dir.exists()
+
+
+def test_an_extended_model_is_diagnosed_through_its_base_as_the_service_does(case_files, capsys, tmp_path):
+    """diagnose refused an extended model: 'diagnose its base sdpi/mpi model instead', advice a user
+    holding only extended_model.yaml (a colleague's, a service's diagnosis folder) could not follow:
+    no command writes the base out. The service's background diagnosis runs the base the extended model
+    keeps; the command now does the same, and says so."""
+    from gma_ffc.extended import ExtendedModel
+
+    base = load_model(case_files / "model.yaml")
+    save_model(ExtendedModel(base, {"creep": {"gain": 0.01, "tau_s": 3.0}}, ["creep"]), tmp_path / "extended.yaml")
+    out_dir = tmp_path / "diag"
+    code, out, err = _run(capsys, "diagnose", "--model", str(tmp_path / "extended.yaml"),
+                          str(case_files / "long_run.csv"), "--out", str(out_dir))
+    assert code == 0, err
+    assert "extended.yaml is an extended model (creep)" in err and "diagnosed through the" in err
+    doc = json.loads((out_dir / "diagnosis.json").read_text())
+    assert doc["verdict"] == ["thermal_drift"]

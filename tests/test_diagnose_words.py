@@ -127,3 +127,35 @@ def test_without_ident_an_mpi_voltage_model_is_not_told_of_eddy_lags_or_loop_wid
         assert ("stress" in note) == (srange is not None), note
     sdpi = SimpleNamespace(drive_name="current_A", stress_range_MPa=(-20.0, -5.0), provenance={})
     assert "stress_dependent_play's loop-width law" in check(sdpi, []).words()
+
+
+def test_one_identification_recording_given_is_not_told_all_1_recordings():
+    """A model identified on one recording (the measured piezo's first half) and diagnosed with it
+    given to --ident: the report and the command said 'All 1 identification recordings given match'."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.identification import check
+
+    fp = {"name": "a.csv", "bytes": 10, "sha256": "aa"}
+    model = SimpleNamespace(drive_name="voltage_V", stress_range_MPa=None,
+                            provenance={"recordings": ["a.csv"], "identification_files": [fp]})
+    one = check(model, ["a.csv"], [fp]).words()
+    assert "All 1" not in one and "recordings given match" not in one
+    assert one == "The identification recording given (a.csv) matches the model's record by name, size and content."
+    fp2 = {"name": "b.csv", "bytes": 20, "sha256": "bb"}
+    model.provenance = {"recordings": ["a.csv", "b.csv"], "identification_files": [fp, fp2]}
+    assert check(model, ["a.csv", "b.csv"], [fp, fp2]).words().startswith("All 2 identification recordings given match")
+
+
+def test_the_validation_of_a_voltage_driven_actuator_without_stress_does_not_speak_of_stress():
+    """The measured piezo (voltage_V, no stress column, an MPI model): its report said 'Models are
+    simulated over the whole recording from its drive and stress only'. There is no stress."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.explain import validation_words
+
+    for srange, words in ((None, "from its drive only,"), ((-24.0, -11.3), "from its drive and stress only,")):
+        fitter = SimpleNamespace(model=SimpleNamespace(stress_range_MPa=srange), data=[object()], sensor_jumps=[],
+                                 stress_varies=False, delta=0.1)
+        text = validation_words(fitter, 0.04, 0.75, 6.0)       # type: ignore[arg-type]
+        assert words in text, text

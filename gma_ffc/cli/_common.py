@@ -161,12 +161,14 @@ def recorded_stress(rec: Recording, stress: Any, override: float | None) -> np.n
 
 def _noise_clamped(model: Model, rec: Recording, s: np.ndarray) -> np.ndarray:
     """`s` with the readings that leave the model's stress range by noise alone clamped into it
-    (said on stderr); any other stress as it is, for the model to judge (a model that reads the
-    load cell through its own dynamics, whose inertial force may leave the range, sees it raw)."""
+    (said on stderr); any other stress as it is, for the model to judge. A model that reads the load
+    cell through its own dynamics (an extended model's rod_load) gets the same: it low-passes the
+    readings to the load's static stress, so readings clamped by noise keep that inside the range
+    (left raw, they were refused where the plain model ran); inertial force past the noise stays raw."""
     from ..diagnose.noise import second_difference_sigma
 
     rng = model.stress_range_MPa
-    if rng is None or not np.all(np.isfinite(s)) or getattr(model, "transforms_stress", False):
+    if rng is None or not np.all(np.isfinite(s)):
         return s
     lo, hi = rng
     beyond = max(lo - float(s.min()), float(s.max()) - hi, 0.0)
@@ -183,7 +185,7 @@ def _noise_clamped(model: Model, rec: Recording, s: np.ndarray) -> np.ndarray:
 def beyond_drive_range(model: Model, rec: Recording) -> str | None:
     """One sentence when `rec`'s drive leaves the range `model` was identified on (the prediction
     there is an extrapolation), else None."""
-    from ..drive import outside_range
+    from ..drive import outside_range, unit_slip
 
     lo, hi = (float(v) for v in model.drive_range)
     outside = outside_range(rec.drive, (lo, hi))
@@ -191,10 +193,11 @@ def beyond_drive_range(model: Model, rec: Recording) -> str | None:
         return None
     unit = drive_unit(model.drive_name)
     where = np.flatnonzero(outside)
+    advice = (unit_slip(rec.drive, (lo, hi), rec.drive_name) or
+              "identify the model from recordings over the whole drive range used")
     return (f"{rec.source}: the drive ({float(rec.drive.min()):.4g}..{float(rec.drive.max()):.4g} {unit}) leaves the "
             f"range the model was identified on ({lo:.4g}..{hi:.4g} {unit}) at {where.size} of {len(rec)} samples, "
-            f"first at t = {rec.time_text(where[0])} s: the prediction there is an extrapolation; identify the "
-            "model from recordings over the whole drive range used")
+            f"first at t = {rec.time_text(where[0])} s: the prediction there is an extrapolation; {advice}")
 
 
 def check_drive_name(model: Model, rec: Recording) -> None:

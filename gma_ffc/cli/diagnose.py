@@ -73,9 +73,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--out {out} exists and is not a folder")
     from ..atomic import check_folder_writable
 
-    model = load_model(args.model)
-    if model.kind == "extended":      # said first: another --out alone would not make this model diagnosable
-        raise InputError(f"{args.model} is already an extended model; diagnose its base sdpi/mpi model instead")
+    model = _diagnosable(load_model(args.model), args.model)
     _refuse_outputs_over_inputs(args, out)
     refuse_repeats([*args.recordings, *args.ident])
     check_folder_writable(out, str(out))          # now, not after the whole analysis
@@ -111,6 +109,19 @@ def run(args: argparse.Namespace) -> int:
 
 
 OUTPUTS = ("diagnosis.json", "report.html", "extended_model.yaml")
+
+
+def _diagnosable(model: Any, path: str) -> Any:
+    """The model to diagnose: an extended model (diagnose's own output, adopted or handed on) through
+    the sdpi/mpi model it extends, as the service's background diagnosis does, said on stderr. It was
+    refused with 'diagnose its base instead', which no command lets a user holding only it follow."""
+    if getattr(model, "kind", None) != "extended":
+        return model
+    effects = ", ".join(model.effects) or "no effects"
+    print(f"note: {path} is an extended model ({effects}); diagnosed through the {model.base.kind} model it extends, "
+          "as the controller's background diagnosis does: 'before' is that model, and the effects are searched "
+          "again from it", file=sys.stderr)
+    return model.base
 
 
 def _refuse_outputs_over_inputs(args: argparse.Namespace, out: Path) -> None:

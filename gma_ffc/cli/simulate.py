@@ -80,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
     note = beyond_drive_range(model, rec)
     if note is not None:
         print(f"warning: {note}", file=sys.stderr)
+    _warn_of_a_scale_slip(rec, pred, model)
     print(f"predicted {len(rec)} samples -> {args.output}{_fit_words(rec, pred, start)}")
     print(f"initial state: {how}" + (" (the start `gma-ffc invert` gave this drive, from the file's metadata)"
                                      if from_file else ""))
@@ -100,6 +101,18 @@ def _output_columns(rec: Recording, stress: np.ndarray | None, pred: np.ndarray)
     for name, values in rec.columns.items():
         cols.setdefault(name, values)
     return cols
+
+
+def _warn_of_a_scale_slip(rec: Recording, pred: np.ndarray, model: Any) -> None:
+    """A measured displacement 30x off the prediction's swing (mm under displacement_um): the RMS
+    printed beside it compares two units, so say so, with the factor (diagnose refuses it)."""
+    if rec.displacement_um is None:
+        return
+    from ..diagnose.checks import displacement_scale_words
+
+    words = displacement_scale_words(rec.drive, model.drive_range, rec.displacement_um, pred)
+    if words:
+        print(f"warning: {rec.source}: {words}", file=sys.stderr)
 
 
 def _refuse_an_unreadable_prediction(pred: np.ndarray, rec: Recording, model: Any) -> None:

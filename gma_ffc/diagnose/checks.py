@@ -6,7 +6,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..drive import HOLD_S, drive_unit, holds, outside_range, reversals
+from ..drive import HOLD_S, drive_unit, holds, outside_range, reversals, unit_slip
 from ..errors import InputError
 from ..model import stress_sign_advice
 from ..recordings import Recording
@@ -63,6 +63,8 @@ def check_overlap(model: Any, recordings: Sequence[Recording], margin: float = 0
         a, b, held = advised_range((lo, hi), drive_limits, drive_unit(model.drive_name))
         advice = (f"record inside {a:.3g}..{b:.3g}{held}, or identify a model from recordings covering these "
                   "drives" if a < b else held)
+        slips = [unit_slip(r.drive, (lo, hi), r.drive_name) for r in recordings]
+        advice = next((f"{r.name}: {w}" for r, w in zip(recordings, slips) if w), advice)
         raise InputError(
             f"cannot conclude anything: the recordings' drive never enters the range the model was identified on "
             f"({lo:.3g}..{hi:.3g}); {advice}")
@@ -128,3 +130,44 @@ def enough_data(data: Sequence[RecData], min_samples: int, clamped_share: float 
             cannot.append(f"{d.name}: {d.clamped_fraction:.0%} of the samples are at stresses outside the "
                           "model's range; they were compared at the nearest stress of the range")
     return n_samples, too_little, slow_only, cannot
+
+
+# the measured displacement's swing against the model's for the same drive: this far apart (either way)
+# no physics the vocabulary holds explains it (saturation, heating and creep move it by percents)
+SCALE_SLIP_RATIO = 30.0
+SCALE_DRIVE_SHARE = 0.2       # judged only where the drive sweeps this share of the identified range
+
+
+def check_displacement_scale(model: Any, data: Sequence[RecData], predicted: Sequence[np.ndarray]) -> None:
+    """Refuse a recording whose measured displacement swings 30x more or less than the model predicts
+    for its drive (`displacement_scale_words`). Left to the fits, the static gain took the unit's place
+    ('unexplained', an extended model with gain 0.001)."""
+    for d, yp in zip(data, predicted):
+        words = displacement_scale_words(d.u, model.drive_range, d.y, yp)
+        if words:
+            raise InputError(f"{d.name}: {words}")
+
+
+def displacement_scale_words(drive: np.ndarray, drive_range: Any, measured: np.ndarray, predicted: np.ndarray) -> str:
+    """'' or why a measured displacement swinging 30x more or less than the model's prediction for the
+    same drive (judged where the drive sweeps a fifth of the identified range) cannot be compared: a
+    displacement in mm or nm under displacement_um (with the factor to convert by), a sensor that does
+    not read the actuator, or a model of another actuator."""
+    lo, hi = (float(v) for v in drive_range)
+    u_lo, u_hi = np.percentile(drive, [1.0, 99.0])
+    if not (np.isfinite(hi - lo) and u_hi - u_lo >= SCALE_DRIVE_SHARE * (hi - lo)):
+        return ""
+    swing = float(np.subtract(*np.percentile(measured, [99.0, 1.0])))
+    model_swing = float(np.subtract(*np.percentile(predicted, [99.0, 1.0])))
+    if not (model_swing > 0 and swing > 0):
+        return ""
+    ratio = swing / model_swing
+    if 1 / SCALE_SLIP_RATIO <= ratio <= SCALE_SLIP_RATIO:
+        return ""
+    power = 10.0 ** (3 * round(np.log10(ratio) / 3)) if abs(np.log10(ratio)) >= 2 else ratio
+    factor = max(power, 1 / power)
+    factor_text = f"{factor:.0f}" if factor >= 10 else f"{factor:.3g}"
+    convert = f"{'multiply' if ratio < 1 else 'divide'} displacement_um by {factor_text}"
+    return (f"the measured displacement swings {swing:.3g} um where the model predicts {model_swing:.3g} um for "
+            f"this drive ({ratio:.3g}x): a displacement in another unit ({convert}), a sensor that does not read "
+            "this actuator, or a model of another actuator (identify one from this actuator's recordings)")

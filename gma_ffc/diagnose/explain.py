@@ -186,6 +186,12 @@ def _zero_words(fitter: Fitter) -> str:
     return (" In every fit, the null's included, " + "; ".join(parts) + ".") if parts else ""
 
 
+def _reads_stress(fitter: Fitter) -> bool:
+    """Does the model read a stress (an SDPI)? A stress-independent one, as for a voltage-driven piezo
+    without a stress column, runs from the drive alone, and the words say so."""
+    return getattr(fitter.model, "stress_range_MPa", None) is not None
+
+
 def validation_words(fitter: Fitter, null_cv: float, min_mse_ratio: float, min_loglik_gain: float,
                      held_out: bool = True) -> str:
     """How every figure of the diagnosis was validated."""
@@ -198,7 +204,8 @@ def validation_words(fitter: Fitter, null_cv: float, min_mse_ratio: float, min_l
     return (
         f"each recording was cut into {N_BLOCKS} contiguous time blocks; every model was fitted on the even blocks "
         "and scored on the odd ones, and the other way round (2-fold blocked cross-validation). Models are "
-        "simulated over the whole recording from its drive and stress only, so no held-out displacement "
+        f"simulated over the whole recording from its drive{' and stress' if _reads_stress(fitter) else ''} "
+        "only, so no held-out displacement "
         "enters a fit. Nonlinear parameters (time constants, delay, resonance) are chosen per fold from that "
         "fold's training blocks. rms_before is the base model as given; rms_after is the held-out RMS of the "
         "selected model; the null every effect had to beat is the base with a static recalibration "

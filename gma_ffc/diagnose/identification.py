@@ -68,6 +68,8 @@ class IdentificationCheck:
         if self.missing:
             return (f"{len(self.given)} of the model's {len(self.recorded)} identification recordings given, "
                     f"each matching its record by {how}; not given: {', '.join(self.missing)}.")
+        if len(self.recorded) == 1:
+            return f"The identification recording given ({self.recorded[0]}) matches the model's record by {how}."
         return (f"All {len(self.recorded)} identification recordings given match the model's record by {how}.")
 
     def to_json(self) -> dict[str, Any]:

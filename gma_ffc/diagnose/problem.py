@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import InputError
 from ..recordings import Recording
 from .anchor import anchor_data, measured_loops
-from .checks import beyond_range_notes, check_overlap, check_recordings, enough_data
+from .checks import beyond_range_notes, check_displacement_scale, check_overlap, check_recordings, enough_data
 from .data import RecData, noise_floor, prepare
 from .fitting import Fitter, FitSettings
 from .specs import Spec
@@ -75,6 +75,7 @@ def _null_model(fitter: Fitter, data: list[RecData], n_samples: int, noise: floa
     without rows has no coefficients, and one to a few loops would be judged on its own loops)."""
     say("simulating the base model")
     base_pred = tuple(yc for _, yc in fitter.core(Spec()))
+    check_displacement_scale(fitter.model, data, base_pred)
     _ = fitter.yc_center          # computed once, before any threads share the fitter
     notes = []
     for d, yc in zip(data, base_pred):     # before any fit: each jump is a column of every design

@@ -67,6 +67,13 @@ def _legend_outside(ax: Any) -> None:
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, frameon=False)
 
 
+def _time_axis(ax: Any) -> None:
+    """The x-axis in seconds, its ticks the times themselves: a short window late in a long run
+    read '0.040 ... +1.5e2' (matplotlib's offset), which a reader takes for 0.04 s."""
+    ax.set_xlabel("time (s)")
+    ax.ticklabel_format(axis="x", useOffset=False)
+
+
 def plot_residuals(dg: Diagnosis, render: Any = None) -> Any:
     plt = _plt()
     n = len(dg.data)
@@ -89,7 +96,7 @@ def plot_residuals(dg: Diagnosis, render: Any = None) -> Any:
         _scale_to_scored(ax, d, ([] if same else [d.y - yb]) + [d.y - yn, d.y - yf])
         ax.set_title(d.name, fontsize=9)
         ax.set_ylabel("residual (um)")
-        ax.set_xlabel("time (s)")
+        _time_axis(ax)
         _legend_outside(ax)
     return (render or _png)(fig)      # render=lambda fig: fig hands tests the figure
 
@@ -109,10 +116,18 @@ def _scale_to_scored(ax: Any, d: Any, residuals: list[np.ndarray]) -> None:
         ax.set_ylim(lo - pad, hi + pad)
 
 
-def _crossings(u: np.ndarray) -> int:
-    """How often the drive crosses the middle of its swing (two per cycle)."""
+# a crossing counts once the drive has gone this share of the recording's drive range past the
+# middle of its swing: a drive held at rest, its measured noise crossing its own middle, is no cycle
+CROSSING_BAND_SHARE = 0.05
+
+
+def _crossings(u: np.ndarray, band: float = 0.0) -> int:
+    """How often the drive crosses the middle of its swing (two per cycle), from below `mid - band`
+    to above `mid + band` or back (the noise of a drive at rest within the band counts nothing)."""
     seg = u - 0.5 * (float(np.min(u)) + float(np.max(u)))
-    return int(np.sum(np.diff(np.signbit(seg)) != 0))
+    side = np.sign(seg) * (np.abs(seg) > band)
+    side = side[side != 0]
+    return int(np.sum(side[1:] != side[:-1]))
 
 
 def _window(d: Any, span_s: tuple[float, float], whole_cycle: bool = False) -> slice:
@@ -123,10 +138,12 @@ def _window(d: Any, span_s: tuple[float, float], whole_cycle: bool = False) -> s
     a = int(np.searchsorted(d.t, span_s[0]))
     b = max(int(np.searchsorted(d.t, span_s[1])), a + 2)
     n = d.t.size
+    lo, hi = np.percentile(d.u, [1.0, 99.0])
+    band = CROSSING_BAND_SHARE * float(hi - lo)
     limit = min(a + 4 * (b - a), n)
-    while whole_cycle and b < limit and _crossings(d.u[a:b]) < 3:
+    while whole_cycle and b < limit and _crossings(d.u[a:b], band) < 3:
         b = min(b + max((b - a) // 2, 1), limit)
-    c = _crossings(d.u[a:b])
+    c = _crossings(d.u[a:b], band)
     if c >= 10:
         b = a + max(int(10 * (b - a) / c), 20)
     return slice(a, min(b, a + (20000 if whole_cycle else 4000), n))
@@ -189,6 +206,17 @@ def _fall(d: Any, yb: np.ndarray, yf: np.ndarray) -> np.ndarray:
     return np.square(d.y - yb) - np.square(d.y - yf)
 
 
+def _overlay_title(name: str, named: bool, helps: bool) -> str:
+    """The before-and-after panel's title. With effects named the panel shows where they help most
+    (`_shown`); where even there the extended model misses by more than the base, they help nowhere
+    on this recording, and the title says so (its legend's two RMS figures said it against the title)."""
+    if not named:
+        return f"{name}: where the residual is largest"
+    if helps:
+        return f"{name}: where the named effects help most"
+    return f"{name}: the named effects do not help on it (least harm shown)"
+
+
 def plot_overlays(dg: Diagnosis, render: Any = None) -> Any:
     """Measured against base and extended where the residual is largest, and beside it the two
     residuals on their own scale (on the displacement scale a 0.3 um improvement is invisible)."""
@@ -208,10 +236,9 @@ def plot_overlays(dg: Diagnosis, render: Any = None) -> Any:
             ax.plot(d.t[a:b], yb[a:b], lw=0.9, color="0.55", ls="--", label="base model")
         ax.plot(d.t[a:b], yf[a:b], lw=0.9, color="tab:blue",
                 label="base model (= extended)" if same else "extended model")
-        ax.set_title(f"{d.name}: {'where the named effects help most' if named else 'where the residual is largest'}",
-                     fontsize=9)
+        ax.set_title(_overlay_title(d.name, named, _rms((d.y - yf)[a:b]) < _rms((d.y - yb)[a:b])), fontsize=9)
         ax.set_ylabel("displacement (um)")
-        ax.set_xlabel("time (s)")
+        _time_axis(ax)
         _legend_outside(ax)
         axr.axhline(0.0, color="0.8", lw=0.8)
         # the RMS in the legend: beside a residual ten times larger, the smaller one reads as a flat line
@@ -222,7 +249,7 @@ def plot_overlays(dg: Diagnosis, render: Any = None) -> Any:
                  label=f"measured - {'model' if same else 'extended'} (RMS {_rms((d.y - yf)[a:b]):.3g} um)")
         axr.set_title("residual, own scale" if same else "residuals, own scale", fontsize=9)
         axr.set_ylabel("residual (um)")
-        axr.set_xlabel("time (s)")
+        _time_axis(axr)
         _legend_outside(axr)
     return (render or _png)(fig)      # render=lambda fig: fig hands tests the figure
 

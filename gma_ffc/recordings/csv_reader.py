@@ -71,6 +71,10 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
     lines = _head_lines(path, source)
     meta_lines, header_idx = _metadata_and_header(lines, source)
     header = lines[header_idx]
+    if header.strip().replace(" ", "") == "format:gma-ffc-model":
+        raise RecordingError(f"{source} is a gma-ffc model file, not a recording: give a recording here (time_s, the "
+                             "drive, displacement_um; docs/recordings.md), and a model, where a command takes one, "
+                             "with --model")
     first_row = next((ln for ln in lines[header_idx + 1:] if ln.strip() and not ln.lstrip().startswith("#")), "")
     delimiter, decimal = _dialect(header, first_row)
     names = [n.strip().strip('"') for n in header.split(delimiter)]
