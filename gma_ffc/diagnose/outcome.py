@@ -17,6 +17,7 @@ from .data import none_scored, unscored_starts_note
 from .explain import drive_unit, explain, identification_rms, runner_up_words, validation_words
 from .locate import locate
 from .problem import scored
+from .scoring import evidence_weight
 from .results import Candidate, Diagnosis
 from .state import Final, Problem, RoundRecord, Selection
 from .polarity import displacement_inverted
@@ -35,7 +36,7 @@ def candidates(sel: Selection, unit: str = "A") -> dict[str, Candidate]:
         t = sel.trials.get(name)
         if t is not None:
             c.result, c.cv_mse, c.cv_loss, c.params, c.round = t.result, t.cv_mse, t.cv_loss, dict(t.params), t.round
-            c.loglik_gain, c.evidence = t.loglik_gain, t.evidence
+            c.loglik_gain, c.evidence = t.loglik_gain, evidence_weight(t.loglik_gain)
             if unit == "V":
                 c.params.update({k.replace("_per_A2", "_per_V2"): v for k, v in t.params.items() if "_per_A2" in k})
             if t.leave_one_out is not None:

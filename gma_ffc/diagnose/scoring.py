@@ -2,8 +2,8 @@
 
 `search_all` searches several effects' parameters on held-out blocks (in parallel threads);
 `score_round` turns a round's searches into frozen `state.Trial`s with the penalised held-out
-log-likelihood gain of each (on the residual's effective sample count) and their relative
-evidence. Deciding what to accept is `selection`'s job; this module only measures. Pure maths.
+log-likelihood gain of each (on the residual's effective sample count); `evidence_weight` says
+what such a gain means as a weight. Deciding what to accept is `selection`'s job; this module only measures. Pure maths.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Sequence
 
 import numpy as np
+from scipy import special
 
 from ..effects import REGISTRY
 from ..effects.base import geom_refine, polish_factor
@@ -30,6 +31,15 @@ def loglik_gain(n_eff: float, loss_without: float, loss: float, n_params: int) -
     """Penalised held-out log-likelihood gain (nats) of a model that takes the loss per sample from
     `loss_without` to `loss` on n_eff effectively independent samples, one nat per parameter."""
     return 0.5 * n_eff * math.log(loss_without / max(loss, 1e-300)) - n_params
+
+
+def evidence_weight(gain_nats: float) -> float:
+    """The Akaike weight of the model with an effect against the same model without it, from the
+    penalised held-out log-likelihood gain: 1 / (1 + exp(-gain)); 0 where no gain was measured.
+    Each effect is weighed against its own absence, so a weight never depends on which other
+    candidates a round fitted or set aside (a round's shared weights gave a named effect 0.000
+    beside a look-alike the leave-one-out refused)."""
+    return float(special.expit(gain_nats)) if math.isfinite(gain_nats) else 0.0
 
 
 def effective_samples(resid: np.ndarray, lengths: Sequence[int]) -> float:
@@ -203,10 +213,7 @@ def score_round(fitter: Fitter, base: Specs, loss_without: float, names: list[st
     # effective sample count of the noise, from the best candidate's held-out residual
     n_eff = effective_samples(fitter.test_residuals(results[leader].specs), fitter.segment_lengths)
     gains = [loglik_gain(n_eff, loss_without, results[n].cv_loss, REGISTRY[n].count_params(fitter)) for n in names]
-    top = max(0.0, max(gains))
-    weights = np.exp(np.clip(np.array(gains) - top, -700, 0))
-    norm = math.exp(-top) + float(weights.sum())
     trials = [Trial(n, results[n], params_of(fitter, n, results[n].specs[2], results[n].coef_all, results[n].names),
-                    rnd, g, float(w / norm)) for n, g, w in zip(names, gains, weights)]
+                    rnd, g) for n, g in zip(names, gains)]
     trials.sort(key=lambda t: t.cv_loss)
     return trials, n_eff

@@ -73,7 +73,6 @@ class Trial:
     params: Mapping[str, float]
     round: int
     loglik_gain: float = math.nan
-    evidence: float = 0.0
     leave_one_out: LeaveOneOut | None = None     # its law judged on each recording it was not fitted on
 
     @property
