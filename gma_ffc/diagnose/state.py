@@ -117,6 +117,9 @@ class Selection:
     leave_one_out: LeaveOneOut | None = None        # the current model, each recording fitted without it
     null_leave_one_out: LeaveOneOut | None = None   # the null model's (None: one recording, or too little data)
     set_aside: Mapping[str, str] = field(default_factory=dict)  # failed a check this round: its reason before
+    # (named, a look-alike of it that fitted the held-out blocks better in its round but whose law did
+    # not carry to a recording left out, why the recordings cannot tell them apart): see `_undecided`
+    undecided: tuple[tuple[str, str, str], ...] = ()
 
     @property
     def cur_cv(self) -> float:
