@@ -30,6 +30,7 @@ import yaml
 from gma_ffc.control.config import validate_config
 from gma_ffc.control.manager import ControllerManager
 from gma_ffc.control.scheduler import SimulatedClock
+from gma_ffc.modelio import save_model
 from gma_ffc.registers import load_register_map
 from gma_ffc.service.paths import RuntimePaths
 from gma_ffc.service.runner import Service
@@ -67,6 +68,15 @@ class ScriptedClock(SimulatedClock):
 @pytest.fixture(scope="module")
 def model(request):
     return cached_sdpi_and_mpi(request.config.cache.mkdir("gma_ffc_sil_models"), None)[0]
+
+
+@pytest.fixture(scope="module")
+def model_file(model, tmp_path_factory):
+    """The model as the config names it: a service refuses a config whose model file is missing,
+    before anything starts (the controller here is built around the model object itself)."""
+    path = tmp_path_factory.mktemp("model") / "sdpi.yaml"
+    save_model(model, path)
+    return str(path)
 
 
 def noisy_plant():
@@ -108,7 +118,7 @@ def start_service(cfg, ctrl, runtime):
 
 @pytest.mark.slow
 @pytest.mark.realtime   # the Modbus requests have a 0.5 s wall-clock timeout: a busy machine can fault a tick
-def test_heating_rig_drifts_diagnosis_names_it_and_the_extended_model_fits_again(tmp_path, model):
+def test_heating_rig_drifts_diagnosis_names_it_and_the_extended_model_fits_again(tmp_path, model, model_file):
     plant = noisy_plant()
     heating_at = 60.0
     clock = ScriptedClock([(heating_at, lambda: plant._p.__setitem__(K.P_ON_THERMAL, 1.0))])
@@ -119,7 +129,7 @@ def test_heating_rig_drifts_diagnosis_names_it_and_the_extended_model_fits_again
     runtime = RuntimePaths(short_dir())
     try:
         cfg = validate_config({
-            "rate_hz": RATE, "model": "unused.yaml", "reference": REFERENCE, "limits": LIMITS, "watchdog_s": 1.0,
+            "rate_hz": RATE, "model": model_file, "reference": REFERENCE, "limits": LIMITS, "watchdog_s": 1.0,
             "driver": {"kind": "modbus", "devices": {"amp": {"transport": "tcp", "host": host, "port": port,
                                                              "timeout_s": 0.5, "register_map": rmap.to_dict()}}},
             "telemetry": {"path": str(tmp_path / "telemetry.csv")},
@@ -169,13 +179,13 @@ def test_heating_rig_drifts_diagnosis_names_it_and_the_extended_model_fits_again
 # real time: each of the 120 samples waits for the monitor, which runs at 2 Hz of wall time, so the
 # test is ~60 s of waiting and ~5 s of CPU; on the real-time worker it leaves the others' cores busy
 @pytest.mark.realtime
-def test_nothing_changing_stays_ok_for_ten_minutes(tmp_path, model):
+def test_nothing_changing_stays_ok_for_ten_minutes(tmp_path, model, model_file):
     """The same rig with nothing switched on: sampled every 5 s of loop time, never drifting."""
     samples = []
     plant_yaml = tmp_path / "plant.yaml"
     plant_yaml.write_text(yaml.safe_dump({"noise": {"enabled": True}}))
     cfg = validate_config({
-        "rate_hz": RATE, "clock": "simulated", "model": "unused.yaml", "reference": REFERENCE, "limits": LIMITS,
+        "rate_hz": RATE, "clock": "simulated", "model": model_file, "reference": REFERENCE, "limits": LIMITS,
         "driver": {"kind": "sim", "plant_config": str(plant_yaml), "seed": 5,
                    "load_mass_kg": PlantConfig().mass_for_stress(STRESS)},
         "telemetry": {"path": None}, "monitor": {"window_s": 30.0}})
@@ -198,13 +208,13 @@ def test_nothing_changing_stays_ok_for_ten_minutes(tmp_path, model):
     assert max(s["ratio"] for s in samples[6:]) < 2.0
 
 
-def test_metrics_are_scraped_while_the_loop_runs(tmp_path, model):
+def test_metrics_are_scraped_while_the_loop_runs(tmp_path, model, model_file):
     from prometheus_client.parser import text_string_to_metric_families
 
     plant_yaml = tmp_path / "plant.yaml"
     plant_yaml.write_text(yaml.safe_dump({"noise": {"enabled": True}}))
     cfg = validate_config({
-        "rate_hz": RATE, "model": "unused.yaml", "reference": REFERENCE, "limits": LIMITS,
+        "rate_hz": RATE, "model": model_file, "reference": REFERENCE, "limits": LIMITS,
         "driver": {"kind": "sim", "plant_config": str(plant_yaml), "load_mass_kg": PlantConfig().mass_for_stress(STRESS)},
         "telemetry": {"path": None}, "monitor": {"window_s": 1.0, "on_drift": "warn"}, "metrics": {"port": 0}})
     ctrl = ControllerManager(cfg, model=model)
