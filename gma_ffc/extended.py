@@ -44,6 +44,7 @@ from .effects import by_block_key
 from .effects.base import BatchSignals, Effect, EffectState, PlayStart, StepSignals, time_steps
 from .effects.static import StaticMap
 from .errors import ModelError
+from .model import refuse_stress_outside
 
 KIND = "extended"
 SOLVE_TOL = 1e-12          # the inverse's core-input solve: converged within this fraction of the drive range
@@ -212,8 +213,6 @@ class ExtendedModel:
             raise ModelError("time_s and reference_um must be 1-D of equal length (at least 2 samples)")
         s = _stress_array(stress_MPa, t.size) if stress_MPa is not None else None
         if s is not None and self.stress_range_MPa is not None:
-            from .model import refuse_stress_outside
-
             refuse_stress_outside(s, self.stress_range_MPa)     # the plain model's words and advice
         if self.preview_s > 0:
             r = np.interp(t + self.preview_s, t, r)
