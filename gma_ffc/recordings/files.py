@@ -4,7 +4,6 @@ identifies a file by name, size and content hash."""
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 

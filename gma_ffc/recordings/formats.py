@@ -4,7 +4,6 @@ one numeric vector is named with what it is and how to save it."""
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
