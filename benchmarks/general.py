@@ -45,7 +45,9 @@ nested minor loops) were not fixed: GENERAL_NINETEENTH_SEED draws an eighteenth 
 Its play miss (short of the evidence on one run) is now said in cannot_conclude, and the recalibration's
 judges moved to a module of their own, the figures the same: GENERAL_TWENTIETH_SEED draws a nineteenth.
 Its one miss (heating at the effect-free floor, out of any model's reach) was not fixed:
-GENERAL_TWENTY_FIRST_SEED draws a twentieth on the same diagnosis.
+GENERAL_TWENTY_FIRST_SEED draws a twentieth on the same diagnosis. Its play misses were not fixed; a
+better look-alike refused only by the leave-one-out is now left undecided, and each candidate's evidence
+is weighed against its own absence: GENERAL_TWENTY_SECOND_SEED draws a twenty-first on that diagnosis.
 """
 
 from __future__ import annotations
@@ -104,6 +106,8 @@ GENERAL_TWENTIETH_SEED = 20261307    # a nineteenth never-tuned draw (2026-11-30
                                      # before its first run
 GENERAL_TWENTY_FIRST_SEED = 20261308  # a twentieth never-tuned draw (2026-12-01, thirtieth session): the diagnosis
                                       # as the nineteenth drew it; committed before its first run
+GENERAL_TWENTY_SECOND_SEED = 20261309  # a twenty-first never-tuned draw (2026-12-01, thirty-first session):
+                                       # undecided look-alikes and evidence against absence; committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
