@@ -8,6 +8,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from gma_ffc.control.config import validate_config
 from gma_ffc.control.manager import ControllerManager
 from gma_ffc.drivers import driver_class
@@ -85,6 +87,7 @@ def test_sim_driver_lifecycle(tmp_path):
     _assert_order(calls)
 
 
+@pytest.mark.realtime   # a 0.2 s link timeout on the wall clock: a busy machine can fault a tick
 def test_modbus_driver_lifecycle(tmp_path):
     rig = _rig()
     rmap = load_register_map(MAP)
@@ -99,6 +102,7 @@ def test_modbus_driver_lifecycle(tmp_path):
     _assert_device_order(rig)
 
 
+@pytest.mark.realtime   # a 0.2 s link timeout on the wall clock: a busy machine can fault a tick
 def test_serial_driver_lifecycle(tmp_path):
     rig = _rig()
     with SerialAmplifierEmulator(rig) as emu:
