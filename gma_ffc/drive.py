@@ -7,6 +7,8 @@ from typing import Iterator
 
 import numpy as np
 
+from .unit_slips import thousands_exponent
+
 
 def reversals(u: np.ndarray) -> int:
     """Turning points of the drive by more than 10 % of its span (hysteresis-style counting)."""
@@ -151,11 +153,12 @@ def unit_slip(u: np.ndarray, drive_range: tuple[float, float], column: str) -> s
     if not (np.isfinite(top) and top > 0 and peak >= UNIT_SLIP_RATIO * top):
         return ""
     ratio = peak / top
-    prefix = {3: "m", 6: "u"}.get(3 * round(np.log10(ratio) / 3))    # milli or micro: the slips a logger makes
+    exponent = thousands_exponent(ratio)
+    prefix = {3: "m", 6: "u"}.get(exponent)    # milli or micro: the slips a logger makes
     if prefix is None:
         return ""
     unit = drive_unit(column)
-    factor = 1000 if prefix == "m" else 1000000
+    factor = 10 ** exponent
     return (f"the drive reaches {ratio:.0f}x the largest drive identified ({top:.4g} {unit}): a drive in another "
             f"unit ({prefix}{unit} under {column}?): divide {column} by {factor}")
 

@@ -15,6 +15,7 @@ from . import operators as ops
 from .drive import loop_frequency_hz
 from .recordings import Recording
 from .sensor_holds import held_notes, held_samples
+from .unit_slips import unit_slip_factor
 
 
 def has_full_sweep(x: np.ndarray, tol: float = 0.1) -> bool:
@@ -191,8 +192,8 @@ def scale_mismatch(recordings: Sequence[Recording]) -> str:
     if not odd or len(odd) * 2 >= len(known):
         return ""
     name, ratio = odd[0]
-    factor = 10.0 ** (3 * round(float(np.log10(ratio)) / 3))
+    factor = unit_slip_factor(ratio)
     convert = (f"{'multiply' if ratio < 1 else 'divide'} displacement_um by {max(factor, 1 / factor):.0f}"
-               if abs(np.log10(ratio)) >= 2 else "check its columns")
+               if factor is not None else "check its columns")
     return (f"{name}: its displacement per drive is {ratio:.3g}x the other recordings' (a displacement in another "
             f"unit: {convert}; or a run of another actuator: identify each actuator on its own)")

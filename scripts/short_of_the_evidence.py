@@ -27,7 +27,7 @@ CASE = "nineteenth:stress_dependent_play@default"
 
 def summary(label: str, dg) -> str:
     rounds = "; ".join(f"round {r['round']}: {r['n_eff']:.0f} effective samples, best {r['table'][0][0]} "
-                       f"{r['table'][0][2]:.3g} nats" for r in dg.rounds)
+                       f"{r['table'][0][2]:.3g} nats" for r in dg.rounds if r['table'])   # none: all set aside
     return f"{label}: {dg.outcome}, verdict {dg.verdict or '-'} ({rounds})"
 
 

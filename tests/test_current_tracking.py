@@ -221,6 +221,26 @@ def test_a_driver_that_reads_no_current_is_not_tracked(models):
     assert s["current_tracking"] == {"enabled": False, "why": "the driver reads no current"}
 
 
+def test_the_status_says_the_tracking_the_loop_ran_with(models):
+    """The status and the loop read one fact, the manager's `reads_current`, taken from the driver's
+    channels at start: the status recomputed it from the driver's channels as they were when asked,
+    and said "the driver reads no current" after a run the loop had tracked, once a driver forgot
+    its channels on close."""
+    from gma_ffc.drivers.sim import SimDriver
+
+    class ForgetsItsChannelsOnClose(SimDriver):
+        def close(self):
+            super().close()
+            self.channels = ()
+
+    cfg = sim_cfg({"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0}, plant=None)
+    ctrl = ControllerManager(cfg, model=models[0], driver=ForgetsItsChannelsOnClose(cfg.driver, cfg.period_s))
+    assert ctrl.reads_current and ctrl.status()["current_tracking"]["enabled"]      # before a run: the driver's word
+    s = ctrl.run(duration_s=0.3)
+    assert s["state"] == "stopped" and not s["faults"] and ctrl.driver.channels == ()
+    assert ctrl.reads_current and s["current_tracking"]["enabled"] and s["current_measured"]
+
+
 # ---- the Modbus TCP emulator: the amplifier off mid-run ------------------------------------------------
 @pytest.fixture(scope="module")
 def strong_models(request):

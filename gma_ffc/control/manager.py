@@ -91,7 +91,7 @@ class ControllerManager:
         self._stop_started = 0.0
         self._read_ok = False
         self._stress_out = False
-        self._has_current = False
+        self._has_current = CURRENT in self.driver.channels   # the driver's word before it opens; read again at start
         self._relapses = 0          # reconnects since the last tick whose command got through
         self.setup.law.activate(self.setup.safe_A)
         for b in self.broadcasters:
@@ -123,9 +123,16 @@ class ControllerManager:
         if self.state in (State.IDLE, State.STOPPED, State.FAULT):
             self._apply_pending()
 
+    @property
+    def reads_current(self) -> bool:
+        """Does the driver read the coil current, as the loop takes it (from the driver's channels at
+        start; before a run, as the driver gives them)? The current tracking runs on it; the status says it."""
+        return self._has_current
+
     def status(self) -> dict[str, Any]:
         """Thread-safe snapshot for the service, the CLI and tests (`state_broadcaster`)."""
-        snap = self.state_broadcaster.status(self.setup, self.state.value, self.exit_reason, self.started_unix_s)
+        snap = self.state_broadcaster.status(self.setup, self.state.value, self.exit_reason, self.started_unix_s,
+                                             self.reads_current)
         for b in self.broadcasters:
             snap.update(b.status_fields())
         return snap

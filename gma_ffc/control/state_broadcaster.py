@@ -12,7 +12,6 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any
 
-from ..drivers.base import CURRENT
 from .tick import OUTSIDE_DRIVE, OUTSIDE_STRESS, Tick
 
 if TYPE_CHECKING:
@@ -40,8 +39,10 @@ class StateBroadcaster:
         if which & OUTSIDE_STRESS:
             self.stress_outside_ticks += 1
 
-    def status(self, setup: Setup, state: str, exit_reason: str, started_unix_s: float | None) -> dict[str, Any]:
-        """Thread-safe snapshot (the runner passes its setup and its lifecycle: state, exit reason, start)."""
+    def status(self, setup: Setup, state: str, exit_reason: str, started_unix_s: float | None,
+               reads_current: bool) -> dict[str, Any]:
+        """Thread-safe snapshot (the runner passes its setup, its lifecycle: state, exit reason, start, and
+        whether the loop reads the coil current: `ControllerManager.reads_current`, its one source)."""
         faults, history = self.faults.snapshot()
         law, tick = setup.law, self.tick
         return {
@@ -64,7 +65,7 @@ class StateBroadcaster:
             "reconnects": self.hardware.reconnects,
             "at_safe_current": self.hardware.at_safe,     # the last write was the safe current
             "safe_current_A": setup.safe_A,
-            "current_tracking": setup.tracking.status(CURRENT in self.hardware.driver.channels),
+            "current_tracking": setup.tracking.status(reads_current),
             "exit_reason": exit_reason,
             "started_unix_s": started_unix_s,
             "model_kind": setup.model.kind,

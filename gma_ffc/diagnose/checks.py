@@ -11,6 +11,7 @@ from ..errors import InputError
 from ..model import stress_sign_advice
 from ..recordings import Recording
 from ..sensor_holds import held_notes
+from ..unit_slips import unit_slip_factor
 from .data import N_BLOCKS, RecData, advised_range, unscored_note
 from .locate import LEAST_WINDOW
 
@@ -164,7 +165,8 @@ def displacement_scale_words(drive: np.ndarray, drive_range: Any, measured: np.n
     ratio = swing / model_swing
     if 1 / SCALE_SLIP_RATIO <= ratio <= SCALE_SLIP_RATIO:
         return ""
-    power = 10.0 ** (3 * round(np.log10(ratio) / 3)) if abs(np.log10(ratio)) >= 2 else ratio
+    slip = unit_slip_factor(ratio)
+    power = ratio if slip is None else slip       # nearer 1 than a unit's slip: the ratio itself converts
     factor = max(power, 1 / power)
     factor_text = f"{factor:.0f}" if factor >= 10 else f"{factor:.3g}"
     convert = f"{'multiply' if ratio < 1 else 'divide'} displacement_um by {factor_text}"

@@ -380,6 +380,32 @@ def candidates_table(doc: dict) -> str:
     return "".join(rows) + "</table>"
 
 
+def rounds_table(doc: dict) -> str:
+    """The report's table of the selection rounds: every candidate each round scored, best first,
+    with its figures and its decision (accepted, or why it was set aside); '' with no round."""
+    if not doc["rounds"]:
+        return ""
+    e = html.escape
+    rows = ["<h2>Selection rounds</h2><table><tr><th>round</th><th>RMS at start (um)</th><th>n_eff</th>"
+            "<th>candidate</th><th>held-out RMS (um)</th><th>gain (nats)</th><th>decision</th></tr>"]
+    for r in doc["rounds"]:          # the round's figures once, beside its first candidate
+        span = f"<td rowspan='{len(r['scored'])}'>"
+        head = (f"{span}{r['round']}</td>{span}{_figure(r['rms_at_start_um'], '.4g')}</td>"
+                f"{span}{_figure(r['n_eff'], '.0f')}</td>")
+        for c in r["scored"]:
+            name = e(c["effect"])
+            rows.append(f"<tr>{head}<td>{f'<b>{name}</b>' if c['effect'] == r['accepted'] else name}</td>"
+                        f"<td>{_figure(c['validation_rms_um'], '.4g')}</td>"
+                        f"<td>{_figure(c['heldout_loglik_gain'], '.1f')}</td><td>{e(c['decision'])}</td></tr>")
+            head = ""
+    return "".join(rows) + "</table>"
+
+
+def _figure(v: float | None, spec: str) -> str:
+    """A figure of a table, or '-' where none was measured (null in diagnosis.json)."""
+    return "-" if v is None else format(v, spec)
+
+
 def render_html(dg: Diagnosis, doc: dict) -> str:
     overlay = ("Where the residual is largest: measured and model (nothing was accepted, so there is no "
                "'after'), and the residual" if _unchanged(dg) else
@@ -421,14 +447,7 @@ def render_html(dg: Diagnosis, doc: dict) -> str:
         parts.append(f"<tr><td>{e(loc['recording'])}</td><td>{e(loc['where'])}</td>"
                      f"<td>{loc['residual_rms_um']:.4g}</td><td>{loc['residual_rms_recalibrated_um']:.4g}</td></tr>")
     parts.append("</table>")
-    if dg.rounds:
-        parts.append("<h2>Selection rounds</h2><table><tr><th>round</th><th>RMS at start (um)</th>"
-                     "<th>n_eff</th><th>tried: held-out RMS / gain (nats)</th><th>accepted</th></tr>")
-        for r in dg.rounds:
-            tried = "; ".join(f"{n}: {v:.4g} / {g:.1f}" for n, v, g in r["table"])
-            parts.append(f"<tr><td>{r['round']}</td><td>{r['current_rms_um']:.4g}</td><td>{r['n_eff']:.0f}</td>"
-                         f"<td>{e(tried)}</td><td>{e(str(r['accepted'] or '-'))}</td></tr>")
-        parts.append("</table>")
+    parts.append(rounds_table(doc))
     parts.append(f"<h2>Validation</h2><p>{e(dg.validation)}</p>")
     parts.append(f"<h2>Extended model</h2><p><a href='{MODEL_FILE}'>{MODEL_FILE}</a>: blocks "
                  f"{e(', '.join(k for k, v in dg.extended.blocks().items() if v))}; "

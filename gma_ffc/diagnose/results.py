@@ -99,8 +99,20 @@ class Diagnosis:
             "initial_state": self.initial_states(),
             "identification": dict(self.identification),
             "leave_one_out": dict(self.leave_one_out),
+            "rounds": [round_json(r) for r in self.rounds],
             "extended_model": model_file,
         }
+
+
+def round_json(r: dict) -> dict:
+    """A selection round as diagnosis.json gives it: the held-out RMS it started from, what it
+    accepted, and every candidate it scored with its figures and its decision (accepted, or why it
+    was set aside: `state.RoundRecord`). A figure that was not measured is null."""
+    return {"round": r["round"], "rms_at_start_um": _finite_or_none(r["current_rms_um"]),
+            "n_eff": _finite_or_none(r["n_eff"]), "accepted": r["accepted"],
+            "scored": [{"effect": name, "validation_rms_um": _finite_or_none(rms),
+                        "heldout_loglik_gain": None if not math.isfinite(gain) else round(gain, 2),
+                        "decision": decision} for name, rms, gain, decision in r["scored"]]}
 
 
 def verdict_words(verdict: list[str], tentative: list[str]) -> str:
@@ -119,6 +131,10 @@ def rms_summary(doc: dict) -> str:
     if doc["initial_state"] and all(s["scored_share"] == 0 for s in doc["initial_state"]):
         return f"RMS {doc['rms_before_um']:.4g} um over every sample: none could be scored, so nothing was held out {floor}"
     return f"held-out RMS {doc['rms_before_um']:.4g} um -> {doc['rms_after_um']:.4g} um {floor}"
+
+
+def _finite_or_none(v: float) -> float | None:
+    return _round(v) if math.isfinite(v) else None
 
 
 def _round(v: float) -> float | None:

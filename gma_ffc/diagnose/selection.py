@@ -229,8 +229,24 @@ class EffectSelector:
     def earns_place(self, loss: float, loglik_gain: float, loss_without: float, noise: float) -> bool:
         """Does an effect that takes the held-out loss from `loss_without` to `loss` (with that
         log-likelihood gain, its parameters paid for) earn its place in the model?"""
-        return (loss < self.min_mse_ratio * loss_without and loglik_gain > self.min_loglik_gain
-                and math.sqrt(loss_without) - math.sqrt(loss) > self.min_removed_noise * noise)
+        return not self.shortfall(loss, loglik_gain, loss_without, noise)
+
+    def shortfall(self, loss: float, loglik_gain: float, loss_without: float, noise: float) -> str:
+        """'' when such an effect earns its place (`earns_place`), else which of the rule's terms it
+        misses, in words (the report's rounds table gives them for a round's best not accepted)."""
+        missed = []
+        if not loss < self.min_mse_ratio * loss_without:
+            share = 1.0 - loss / loss_without if loss_without > 0 else math.nan
+            missed.append(f"takes {share:.0%} of the held-out loss, where an effect must take more than "
+                          f"{1.0 - self.min_mse_ratio:.0%}")
+        if not loglik_gain > self.min_loglik_gain:
+            missed.append(f"below the evidence: {loglik_gain:.3g} nats, where more than {self.min_loglik_gain:g} "
+                          "are needed")
+        removed, needed = math.sqrt(loss_without) - math.sqrt(loss), self.min_removed_noise * noise
+        if not removed > needed:
+            missed.append(f"takes {removed:.3g} um off the held-out error, where more than {needed:.3g} um "
+                          f"({self.min_removed_noise:g} of the noise floor) is needed")
+        return "; ".join(missed)
 
     # ------------------------------------------------------------------ what can be tested
     def _open(self, problem: Problem) -> Selection:
@@ -270,11 +286,12 @@ class EffectSelector:
         trials, n_eff = score_round(problem.fitter, sel.fit.specs, sel.cur_loss, todo, rnd, self.threads_)
         if not trials:
             return sel, False
-        earlier = sel.trials
+        earlier, scored = sel.trials, tuple(trials)
         sel = dataclasses.replace(sel, trials={**sel.trials, **{t.effect: t for t in trials}})
         best = trials[0]
         ok = self.accepts(best, sel.cur_loss, problem.noise)
         refused: list[Trial] = []      # winners whose law did not carry to a recording left out
+        set_aside: dict[str, str] = {}     # the winners set aside, and why: the report lists them
         # signature checks: a winner without its effect's signature is set aside, and the next one checked;
         # once another effect is accepted, it is tried again on top of it
         while ok:
@@ -292,24 +309,61 @@ class EffectSelector:
                                           outside_class=failure.reason)
             else:
                 sel = sel.aside(best.effect, failure.reason)
+            set_aside[best.effect] = _set_aside_words(failure, by_leave_one_out=bool(refused) and refused[-1] is best)
             trials = trials[1:]
             if not trials:
-                return sel, False
+                record = self._round_record(problem, sel, rnd, n_eff, scored, trials, set_aside, None, refused)
+                return dataclasses.replace(sel, rounds=sel.rounds + (record,)), False
             best = trials[0]
             ok = self.accepts(best, sel.cur_loss, problem.noise)
-        record = RoundRecord(rnd, n_eff, math.sqrt(sel.cur_cv),
-                             tuple((t.effect, math.sqrt(t.cv_mse), t.loglik_gain) for t in trials),
-                             best.effect if ok else None)
+        record = self._round_record(problem, sel, rnd, n_eff, scored, trials, set_aside, best if ok else None,
+                                    refused)
         sel = dataclasses.replace(sel, rounds=sel.rounds + (record,))
         if not ok:
             return self._look_ahead(problem, sel, earlier, best, n_eff, say)
         ambiguous = sel.ambiguous
-        if len(trials) > 1 and trials[1].loglik_gain > self.min_loglik_gain and \
-                best.loglik_gain - trials[1].loglik_gain < self.ambiguous_nats:
+        if len(trials) > 1 and self._alike(best, trials[1]):
             ambiguous += ((best.effect, trials[1].effect),)
         return dataclasses.replace(sel.readmitted(), accepted=sel.accepted + (best.effect,), fit=best.result,
                                    ambiguous=ambiguous, undecided=sel.undecided + _undecided(best, refused),
                                    leave_one_out=problem.leave_one_out(best.result.specs[2])), True
+
+    def _alike(self, best: Trial, runner_up: Trial) -> bool:
+        """Is a round's runner-up significant and within `ambiguous_nats` of its best (a look-alike the
+        data do not tell apart)?"""
+        return runner_up.loglik_gain > self.min_loglik_gain and \
+            best.loglik_gain - runner_up.loglik_gain < self.ambiguous_nats
+
+    def _round_record(self, problem: Problem, sel: Selection, rnd: int, n_eff: float, scored: Sequence[Trial],
+                      kept: Sequence[Trial], set_aside: Mapping[str, str], accepted: Trial | None,
+                      refused: Sequence[Trial]) -> RoundRecord:
+        """What a round tried and decided: the candidates it kept in the running (`kept`, best first),
+        and every one it `scored` with its decision (`RoundRecord.scored`): accepted, or why not. Those
+        `set_aside` by a check carry its words; a refused look-alike of the accepted one that fitted
+        better is left undecided beside it (`_undecided`)."""
+        decisions = dict(set_aside)
+        if accepted is not None:
+            for named, other, _ in _undecided(accepted, refused):
+                decisions[other] += (f"; left undecided beside {named}, which fitted worse: these recordings cannot "
+                                     "tell the two apart (see what cannot be concluded)")
+        for place, trial in enumerate(kept):
+            if trial is accepted:
+                decisions[trial.effect] = "accepted"
+            elif place == 0:
+                decisions[trial.effect] = "not accepted: " + self.shortfall(trial.cv_loss, trial.loglik_gain,
+                                                                            sel.cur_loss, problem.noise)
+            elif place == 1 and accepted is not None and self._alike(accepted, trial):
+                decisions[trial.effect] = (f"a look-alike of {accepted.effect}: within {self.ambiguous_nats:g} nats "
+                                           "of it, the data do not tell the two apart")
+            elif accepted is not None:
+                decisions[trial.effect] = f"behind {accepted.effect}, accepted: a round accepts one effect"
+            else:
+                decisions[trial.effect] = (f"behind {kept[0].effect}, the round's best, not accepted: a round "
+                                           "decides on its best alone")
+        return RoundRecord(rnd, n_eff, math.sqrt(sel.cur_cv),
+                           tuple((t.effect, math.sqrt(t.cv_mse), t.loglik_gain) for t in kept),
+                           None if accepted is None else accepted.effect,
+                           tuple((t.effect, math.sqrt(t.cv_mse), t.loglik_gain, decisions[t.effect]) for t in scored))
 
     def _look_ahead(self, problem: Problem, sel: Selection, earlier: Mapping[str, Trial], round_best: Trial,
                     n_eff: float, say: Callable[[str], None]) -> tuple[Selection, bool]:
@@ -350,7 +404,9 @@ class EffectSelector:
             sel.readmitted(), accepted=sel.accepted[:-1] + (first.effect, second.effect), fit=second.result,
             trials={**sel.trials, first.effect: first, second.effect: second},
             swapped=sel.swapped + ((last, first.effect, math.sqrt(sel.cur_cv), math.sqrt(second.cv_mse)),),
-            rounds=sel.rounds[:-1] + (dataclasses.replace(sel.rounds[-1], accepted=second.effect),),
+            rounds=sel.rounds[:-1] + (sel.rounds[-1].accepting(second.effect, {
+                first.effect: f"accepted in {last}'s place, with {second.effect} (the figures here: beside {last})",
+                second.effect: f"accepted with {first.effect} in {last}'s place (the figures here: beside {last})"}),),
             leave_one_out=problem.leave_one_out(second.result.specs[2])), True
 
     def _pair_checked(self, problem: Problem, sel: Selection, first: Trial,
@@ -417,7 +473,8 @@ class EffectSelector:
         fitter = problem.fitter
         importance: dict[str, float] = {}
         sel = dataclasses.replace(sel, ambiguous=())
-        n_eff_last = sel.rounds[-1].n_eff if sel.rounds else 1.0
+        # the last round that kept a candidate in the running (one whose every winner was set aside ends the rounds)
+        n_eff_last = next((r.n_eff for r in reversed(sel.rounds) if r.table), 1.0)
         for name in list(sel.accepted):
             if name not in sel.accepted:
                 continue
@@ -728,6 +785,15 @@ def _restarted(core: Any, data: Sequence[Any], rule: Any) -> list[Any]:
     state by `rule`."""
     return [dataclasses.replace(d, start=core.resolve_initial_state(
         d.u, d.s if core.stress_range_MPa is not None else None, rule, d.y, d.t)) for d in data]
+
+
+def _set_aside_words(failure: SignatureFailure, by_leave_one_out: bool) -> str:
+    """What became of a round's winner set aside by a check, for the report's rounds table."""
+    if by_leave_one_out:
+        return f"refused by the leave-one-recording-out: {failure.reason}"
+    if failure.outside_class:
+        return f"outside the model's class, so nothing is named: {failure.reason}"
+    return f"set aside, not its effect's signature: {failure.reason}"
 
 
 def _undecided(named: Trial, refused: Sequence[Trial]) -> tuple[tuple[str, str, str], ...]:

@@ -86,17 +86,29 @@ class Trial:
 
 @dataclass(frozen=True)
 class RoundRecord:
-    """What a round tried and decided (the report's table)."""
+    """What a round tried and decided (the report's table).
+
+    `table` holds the candidates the round kept in the running, best first: the ones the notes on
+    its best read. `scored` holds every candidate it scored, best first, each with what became of
+    it: accepted, or why it was set aside (a failed signature check, refused by the leave-one-out,
+    short of the rule, behind the round's best). A reader of the report sees them all."""
 
     round: int
     n_eff: float
     current_rms_um: float
     table: tuple[tuple[str, float, float], ...]      # (effect, held-out RMS, log-likelihood gain)
     accepted: str | None
+    scored: tuple[tuple[str, float, float, str], ...] = ()   # (effect, held-out RMS, gain, its decision)
+
+    def accepting(self, effect: str, decisions: Mapping[str, str]) -> "RoundRecord":
+        """The record with `effect` accepted after all (a look-ahead's pair in the place of the effect
+        accepted before), and the effects in `decisions` with the decision given there."""
+        rows = tuple((name, rms, gain, decisions.get(name, decision)) for name, rms, gain, decision in self.scored)
+        return replace(self, accepted=effect, scored=rows)
 
     def as_dict(self) -> dict[str, Any]:
         return {"round": self.round, "n_eff": self.n_eff, "current_rms_um": self.current_rms_um,
-                "table": list(self.table), "accepted": self.accepted}
+                "table": list(self.table), "accepted": self.accepted, "scored": list(self.scored)}
 
 
 @dataclass(frozen=True)
