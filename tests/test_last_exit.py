@@ -155,3 +155,22 @@ def test_stop_and_status_name_the_faults_that_recovered(rig, capsys, monkeypatch
     assert "faults active at the end" not in out and len(out.strip().splitlines()) == 1
     code, _, err = status_cli(runtime, capsys)
     assert code == 1 and "faults since start (recovered ones too): comms_error 9, comms_timeout 2" in err, err
+
+
+def test_stop_with_nothing_running_says_how_the_last_run_ended(rig, capsys):
+    """`gma-ffc stop` after a `kill -9` said only "no controller running", which reads as all is well;
+    `status` said the run left no exit record and to check the amplifier. `stop` now says it too."""
+    _, runtime = rig
+    runtime.directory.mkdir(mode=0o700)
+    last_exit.write(runtime, {**last_exit.started("cfg.yaml"), "pid": 999999})
+    code = main(["stop", "--runtime-dir", str(runtime.directory)])
+    err = capsys.readouterr().err
+    assert code == 1 and "no controller running" in err and "left no exit record: it was killed" in err, err
+    assert "check the amplifier" in err and len(err.strip().splitlines()) == 1
+
+
+def test_stop_with_nothing_ever_run_is_the_old_answer(rig, capsys):
+    _, runtime = rig
+    code = main(["stop", "--runtime-dir", str(runtime.directory)])
+    err = capsys.readouterr().err
+    assert code == 1 and "no controller running" in err and "last run" not in err

@@ -82,13 +82,18 @@ def _start(args: argparse.Namespace) -> int:
 
 
 def _stop(args: argparse.Namespace) -> int:
+    from ..errors import NotRunningError
     from ..service import last_exit
     from ..service.daemon import stop
     from ..service.paths import runtime_paths
     from ..service.status import faults_of, since_start_clause
 
     runtime = runtime_paths(args.runtime_dir)
-    result = stop(runtime, timeout_s=args.timeout)
+    try:
+        result = stop(runtime, timeout_s=args.timeout)
+    except NotRunningError as exc:       # as `status` says it: a run killed before its end needs a look
+        record = last_exit.read(runtime)
+        raise NotRunningError(f"{exc}; {last_exit.describe(record)}" if record else str(exc)) from None
     record = last_exit.read(runtime)
     final = result.final_status or {}
     if record and record.get("pid") == result.pid and record.get("how") != "running":

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import safe_files
-from ..errors import FaultError, GmaError, InputError, NoAnswerError
+from ..errors import FaultError, GmaError, InputError, NoAnswerError, NotRunningError
 from .control_socket import ask, check_socket_path, refuse_if_running, request
 from .paths import RuntimePaths, ensure_private_dir
 
@@ -164,7 +164,7 @@ def stop(runtime: RuntimePaths, *, timeout_s: float = 10.0, term_timeout_s: floa
         reply = request(runtime.socket, {"cmd": "status"}, timeout_s=2.0)
     except FaultError:
         if pid is None or not process_alive(pid) or not looks_like_gma_ffc(pid):
-            raise FaultError(f"no controller running (socket {runtime.socket})") from None
+            raise NotRunningError(f"no controller running (socket {runtime.socket})") from None
         asked = False     # a live controller behind a dead socket: straight to SIGTERM
     else:
         if not reply.get("ok"):   # e.g. not the owner: never signal someone else's controller
