@@ -60,6 +60,8 @@ def test_example_configs_load(name):
     ("driver.load_mass_kg", -3, r"'driver.load_mass_kg' must be >= 0"),
     ("driver.load_schedule", [[1, 5], [0.5, 2]], r"'driver.load_schedule' times must increase"),
     ("limits.stop_ramp_max_s", 0, r"'limits.stop_ramp_max_s' \(0 s\) is shorter than a stop's ramp"),
+    # 7 mm typed in metres: every load-cell reading was absurd, found only once the rig ran (exit 1)
+    ("stress.rod_diameter_mm", 0.007, r"'stress.rod_diameter_mm' \(0.007\) is under 1 mm.*in millimetres"),
     ("driver", {"kind": "serial", "port": "/dev/ttyS0", "queries": {"force_N": "F?"}, "timeout_s": 5},
      r"'driver.timeout_s' \(5 s\) must be below watchdog_s \(0.5 s\)"),
 ])

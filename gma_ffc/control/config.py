@@ -22,6 +22,17 @@ from .envelope import BEYOND_POLICIES, STRESS_POLICIES
 from .learning import LearningConfig, reference_period_s
 
 DEFAULT_ROD_DIAMETER_MM = 7.0
+# A GMA's Terfenol-D rod is millimetres to tens of millimetres across (the paper's 7 mm); under 1 mm is
+# a unit slip (7 mm typed in metres, centimetres or inches), which made every load-cell reading look
+# absurd only once the rig ran, after the amplifier was opened.
+MIN_ROD_DIAMETER_MM = 1.0
+
+
+def _rod_diameter(value: float, key: str) -> float:
+    if value < MIN_ROD_DIAMETER_MM:
+        raise ConfigError(f"config key '{key}' ({value:g}) is under {MIN_ROD_DIAMETER_MM:g} mm, thinner than any "
+                          f"GMA's rod: give the diameter in millimetres (0.007 m is 7 mm)")
+    return value
 
 TOP = {
     "rate_hz": Field("float", 1000.0, min=0.0, min_exclusive=True, max=100_000.0),
@@ -45,7 +56,7 @@ TOP = {
 }
 
 STRESS = {
-    "rod_diameter_mm": Field("float", DEFAULT_ROD_DIAMETER_MM, min=0.0, min_exclusive=True),
+    "rod_diameter_mm": Field("float", DEFAULT_ROD_DIAMETER_MM, min=0.0, min_exclusive=True, check=_rod_diameter),
     "source": Field("choice", "force", choices=("force", "stress")),
     "out_of_range": Field("choice", "clamp", choices=STRESS_POLICIES),
     "valid_range_MPa": Field("list", [-80.0, 10.0], check=pair),
