@@ -181,6 +181,18 @@ def test_a_stop_ramp_cut_short_is_refused_and_the_advised_time_is_accepted():
     assert cfg.limits["stop_ramp_max_s"] * slow["slew_A_per_s"] >= 3.0
 
 
+def test_a_stop_ramp_too_long_for_a_milliampere_limit_says_to_check_the_limit_first():
+    """`current_max_A: 3000` (3 A typed in mA) was told only to set stop_ramp_max_s to 6.1; done, the
+    run was refused as a unit slip. The message names the limit to correct first; corrected, it loads."""
+    slip = {"current_min_A": 0, "current_max_A": 3000, "slew_A_per_s": 500.0}
+    with pytest.raises(ConfigError, match=r"If limits.current_max_A \(3000 A\) is not the coil's limit in "
+                                          r"amperes.*correct it first\. Set limits.stop_ramp_max_s to 6.1"):
+        validate_config(with_("limits", slip))
+    assert validate_config(with_("limits", {**slip, "current_max_A": 3.0})).limits["current_max_A"] == 3.0
+    with pytest.raises(ConfigError, match=r"If limits.current_min_A \(-3000 A\)"):
+        validate_config(with_("limits", {**slip, "current_min_A": -3000, "current_max_A": 3}))
+
+
 def test_every_modbus_device_timeout_is_held_below_the_watchdog():
     cfg = yaml.safe_load((ROOT / "config" / "modbus_tcp.yaml").read_text())
     next(iter(cfg["driver"]["devices"].values()))["timeout_s"] = 5.0

@@ -343,8 +343,22 @@ def _stop_ramp_fits(limits: dict[str, Any], rate_hz: float, since: Mapping[str, 
         raise ConfigError(
             f"config key 'limits.stop_ramp_max_s' ({limits['stop_ramp_max_s']:g} s) is shorter than a stop's ramp "
             f"to the safe current at the slew limit{start}: {farthest:g} A at {slew:g} A/s takes {need_s:.3g} s, "
-            f"and cutting it short would write the safe current in one step beyond the slew limit. Set "
-            f"limits.stop_ramp_max_s to {enough:g} or more, or raise limits.slew_A_per_s")
+            f"and cutting it short would write the safe current in one step beyond the slew limit. "
+            f"{_far_limit_first(limits, farthest)}Set limits.stop_ramp_max_s to {enough:g} or more, or raise "
+            f"limits.slew_A_per_s")
+
+
+def _far_limit_first(limits: Mapping[str, Any], farthest: float) -> str:
+    """The limit that makes the ramp long, to check before lengthening the ramp: `current_max_A: 3000`
+    (milliamperes typed as amperes) was told only to set stop_ramp_max_s to 6.1, and then refused as
+    a unit slip once the model was read. '' when the farthest end is the running limits' (a reload)."""
+    safe = limits["safe_current_A"]
+    spans = {"current_max_A": limits["current_max_A"] - safe, "current_min_A": safe - limits["current_min_A"]}
+    for key, span in spans.items():
+        if span == farthest:
+            return (f"If limits.{key} ({limits[key]:g} A) is not the coil's limit in amperes (milliamperes "
+                    "typed as amperes are 1000x), correct it first. ")
+    return ""
 
 
 def stop_ramp_fits_after_reload(running: Mapping[str, Any], new: Mapping[str, Any], rate_hz: float) -> None:
