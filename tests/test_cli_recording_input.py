@@ -104,3 +104,22 @@ def test_simulate_of_an_inverted_drive_keeps_the_reference_it_was_inverted_from(
     back = read_recording(out, require=("time_s", "drive", "reference_um"))
     np.testing.assert_array_equal(back.columns["reference_um"], read_recording(
         workdir / "ref.csv", require=("time_s", "reference_um")).columns["reference_um"])
+
+
+def test_identify_on_a_hil_sim_folder_glob_names_the_manifest_and_the_advised_glob_fits(tmp_path, capsys):
+    """`gma-ffc identify rec/* -o model.yaml` on a `hil_sim record` folder took in its manifest.yaml and
+    said "column 'generator: python -m hil_sim record' has no unit". It now says the file is YAML, not
+    a recording, and gives the glob that leaves it out; that glob fits a model."""
+    from hil_sim.record import write_recordings
+
+    rec = tmp_path / "rec"
+    write_recordings("identification", rec, effects=["noise"], stresses=[-11.3, -19.1])
+    everything = sorted(str(p) for p in rec.iterdir())
+    assert any(p.endswith("manifest.yaml") for p in everything)
+    words = _one_line_refusal(["identify", *everything, "-o", str(tmp_path / "model.yaml")], capsys)
+    assert "manifest.yaml is a YAML file, not a recording" in words, words
+    advised = re.search(r"give (\S+)$", words).group(1)
+    assert advised == str(rec / "*.csv")
+    assert main(["identify", *map(str, sorted(Path(advised).parent.glob(Path(advised).name))),
+                 "-o", str(tmp_path / "model.yaml")]) == 0
+    assert load_model(tmp_path / "model.yaml").kind == "sdpi"

@@ -75,6 +75,11 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
         raise RecordingError(f"{source} is a gma-ffc model file, not a recording: give a recording here (time_s, the "
                              "drive, displacement_um; docs/recordings.md), and a model, where a command takes one, "
                              "with --model")
+    if path.suffix.lower() in (".yaml", ".yml"):
+        # `gma-ffc identify rec/*` takes in the manifest.yaml `hil_sim record` writes beside its recordings;
+        # read as a CSV, its first line was "a column without a unit"
+        raise RecordingError(f"{source} is a YAML file, not a recording (.csv, .mat, .tdms or .h5; "
+                             f"docs/recordings.md): leave it out, e.g. give {path.parent / '*.csv'}")
     first_row = next((ln for ln in lines[header_idx + 1:] if ln.strip() and not ln.lstrip().startswith("#")), "")
     delimiter, decimal = _dialect(header, first_row)
     names = [n.strip().strip('"') for n in header.split(delimiter)]
