@@ -159,6 +159,10 @@ def _reload(args: argparse.Namespace) -> int:
     message: dict[str, str] = {"cmd": "reload"}
     if args.model is not None:
         model = Path(args.model).expanduser().resolve()      # the service's working directory is not ours
+        if model.is_dir():     # a background diagnosis' folder, as status names its report's
+            inside = model / "extended_model.yaml"
+            raise InputError(f"--model {args.model} is a folder, not a model file: give "
+                             + (f"{inside}" if inside.is_file() else "the model file in it"))
         if not model.is_file():
             raise InputError(f"--model {args.model}: no such file")
         message["model"] = str(model)
