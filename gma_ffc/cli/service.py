@@ -74,7 +74,11 @@ def _start(args: argparse.Namespace) -> int:
     from ..service.paths import runtime_paths
 
     runtime = runtime_paths(args.runtime_dir)
-    started = start(Path(args.config), runtime, duration_s=args.duration, timeout_s=args.timeout)
+    try:
+        started = start(Path(args.config), runtime, duration_s=args.duration, timeout_s=args.timeout)
+    except KeyboardInterrupt:       # start() has stopped the controller it was starting
+        print("gma-ffc start: interrupted; the controller it was starting was stopped (SIGTERM)", file=sys.stderr)
+        return 130
     print(f"started: pid {started.pid}, socket {runtime.socket}, log {runtime.log_file}")
     if started.status:
         print(started.status)

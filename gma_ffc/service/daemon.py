@@ -109,8 +109,27 @@ def start(config: Path, runtime: RuntimePaths, *, duration_s: float | None = Non
             notify_path.unlink()
 
 
+# How long an interrupted start waits for the controller it was starting to leave after SIGTERM: a
+# controller still importing dies at once, one past its start ramps to the safe current (a few s).
+ABANDON_WAIT_S = 5.0
+
+
 def _wait_ready(child: subprocess.Popen, listener: socket.socket, runtime: RuntimePaths,
                 log_offset: int, timeout_s: float) -> Started:
+    """Wait for READY; Ctrl-C (KeyboardInterrupt) stops the controller being started, then goes on up:
+    it ran on, driving the rig, after the one who started it had cancelled."""
+    try:
+        return _wait_ready_loop(child, listener, runtime, log_offset, timeout_s)
+    except KeyboardInterrupt:
+        with contextlib.suppress(ProcessLookupError):
+            child.send_signal(signal.SIGTERM)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            child.wait(ABANDON_WAIT_S)
+        raise
+
+
+def _wait_ready_loop(child: subprocess.Popen, listener: socket.socket, runtime: RuntimePaths,
+                     log_offset: int, timeout_s: float) -> Started:
     deadline = time.monotonic() + timeout_s
     listener.settimeout(POLL_S)
     while time.monotonic() < deadline:
