@@ -163,7 +163,8 @@ MONITOR = {
     "max_per_hour": Field("int", 2, min=0, max=60, help="background diagnoses at most this often (0: never)"),
     "state_dir": Field("str", None, nullable=True,
                        help="where diagnoses are written (default: $STATE_DIRECTORY, else $XDG_STATE_HOME/gma-ffc, "
-                            "else /var/lib/gma-ffc for root, ~/.local/state/gma-ffc for others)"),
+                            "else /var/lib/gma-ffc for root, ~/.local/state/gma-ffc for others; the first of "
+                            "output_dirs when the config names them and that default lies outside)"),
 }
 
 # Prometheus metrics (gma_ffc/service/metrics.py). Loopback by default: the figures say what the
