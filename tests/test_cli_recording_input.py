@@ -123,3 +123,21 @@ def test_identify_on_a_hil_sim_folder_glob_names_the_manifest_and_the_advised_gl
     assert main(["identify", *map(str, sorted(Path(advised).parent.glob(Path(advised).name))),
                  "-o", str(tmp_path / "model.yaml")]) == 0
     assert load_model(tmp_path / "model.yaml").kind == "sdpi"
+
+
+def test_identify_on_a_telemetry_folder_glob_names_the_lock_file_and_the_folder(workdir, tmp_path, capsys):
+    """A controller leaves NAME.csv.lock (its pid) beside its telemetry, and now its background
+    diagnoses' folder: `gma-ffc identify telemetry/*` said "column '8096' has no unit" of the lock
+    and "cannot read ([Errno 21] Is a directory ...)" of the folder. Each is named for what it is,
+    with the glob that leaves it out; that glob reads."""
+    tel = tmp_path / "telemetry"
+    (tel / "diagnoses").mkdir(parents=True)
+    for name in ("id_15.2.csv", "id_19.1.csv"):
+        (tel / name).write_bytes((workdir / name).read_bytes())
+    (tel / "id_15.2.csv.lock").write_text("8096\n")
+    out = str(tmp_path / "model.yaml")
+    words = _one_line_refusal(["identify", str(tel / "id_15.2.csv.lock"), str(tel / "id_19.1.csv"), "-o", out], capsys)
+    assert "is a controller's telemetry lock file" in words and words.rstrip().endswith(f"give {tel / '*.csv'}"), words
+    words = _one_line_refusal(["identify", str(tel / "diagnoses"), str(tel / "id_19.1.csv"), "-o", out], capsys)
+    assert f"{tel / 'diagnoses'} is a folder, not a recording" in words, words
+    assert main(["identify", *map(str, sorted(tel.glob("*.csv"))), "-o", out]) == 0

@@ -39,6 +39,9 @@ def _head_lines(path: Path, source: str) -> list[str]:
             head = fh.read(65536)
     except FileNotFoundError:
         raise RecordingError(f"{source}: no such file") from None
+    except IsADirectoryError:      # a glob's folder (a telemetry folder's diagnoses/)
+        raise RecordingError(f"{source} is a folder, not a recording: give the recordings in it, e.g. "
+                             f"{path / '*.csv'}, or leave it out") from None
     except OSError as exc:
         raise RecordingError(f"{source}: cannot read ({exc})") from None
     try:
@@ -63,6 +66,13 @@ def _metadata_and_header(lines: list[str], source: str) -> tuple[list[tuple[int,
     raise RecordingError(f"{source}: no header line (expected e.g. 'time_s,current_A,displacement_um')")
 
 
+# Files a folder's glob (`gma-ffc identify rec/*`) takes in beside the recordings, by suffix: the
+# manifest.yaml `hil_sim record` writes, and the NAME.csv.lock a controller leaves beside its telemetry.
+# Read as a CSV, each was "column '...' has no unit", which named no cause.
+NOT_RECORDINGS = {".yaml": "a YAML file", ".yml": "a YAML file",
+                  ".lock": "a controller's telemetry lock file (it holds the writer's pid)"}
+
+
 def read_csv(path: Path, require: Sequence[str]) -> Recording:
     """A CSV recording: Arrow's multi-threaded C++ parser for the rows, this module's checks and
     messages for everything else. Spreadsheet exports are understood: a UTF-8 byte-order mark is
@@ -75,10 +85,9 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
         raise RecordingError(f"{source} is a gma-ffc model file, not a recording: give a recording here (time_s, the "
                              "drive, displacement_um; docs/recordings.md), and a model, where a command takes one, "
                              "with --model")
-    if path.suffix.lower() in (".yaml", ".yml"):
-        # `gma-ffc identify rec/*` takes in the manifest.yaml `hil_sim record` writes beside its recordings;
-        # read as a CSV, its first line was "a column without a unit"
-        raise RecordingError(f"{source} is a YAML file, not a recording (.csv, .mat, .tdms or .h5; "
+    what = NOT_RECORDINGS.get(path.suffix.lower())
+    if what is not None:
+        raise RecordingError(f"{source} is {what}, not a recording (.csv, .mat, .tdms or .h5; "
                              f"docs/recordings.md): leave it out, e.g. give {path.parent / '*.csv'}")
     first_row = next((ln for ln in lines[header_idx + 1:] if ln.strip() and not ln.lstrip().startswith("#")), "")
     delimiter, decimal = _dialect(header, first_row)
