@@ -388,3 +388,27 @@ def test_killed_process_loses_at_most_a_second_of_telemetry(models, tmp_path):
     rec = read_recording(out)                 # whole lines only: a valid recording
     assert rec.time_s[-1] >= elapsed - 1.0 - 0.2
     assert len(rec) >= (elapsed - 1.0 - 0.2) * 500 * 0.9
+
+
+def test_a_first_glitch_of_the_load_cell_leaves_telemetry_that_simulate_and_diagnose_read(models, tmp_path, capsys):
+    """The load cell's first two readings missing (a transmitter settling; bad_ticks 3 rides them out):
+    the controller held the safe current, and its telemetry's first rows had no stress. simulate and
+    diagnose refused the whole run's telemetry ("'stress_MPa' is nan or empty ... put the stress at
+    that time in the cell"). Those leading rows are left out, with a note; the rest is read."""
+    from gma_ffc.cli import main
+    from gma_ffc.modelio import save_model
+
+    def inject(tick, inputs):
+        if tick <= 2:
+            inputs.force_N = math.nan
+
+    ctrl, driver, cfg = make(tmp_path, models, inject, sensor={"bad_ticks": 3})
+    s = ctrl.run(duration_s=0.6)
+    assert s["ok"], s["fault_messages"]
+    rec = read_recording(cfg.telemetry["path"])
+    assert rec.rows_left_out == 2 and np.all(np.isfinite(rec.stress_MPa)) and rec.time_s.size == s["ticks"] - 2
+    assert "the first 2 rows (lines 11-12) have no stress" in rec.notes[0], rec.notes
+    save_model(models[0], tmp_path / "model.yaml")
+    assert main(["simulate", "--model", str(tmp_path / "model.yaml"), cfg.telemetry["path"],
+                 "-o", str(tmp_path / "predicted.csv")]) == 0
+    assert "have no stress" in capsys.readouterr().err

@@ -121,8 +121,26 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
             body = [ln.rstrip()[:-1] if ln.rstrip().endswith(delimiter) else ln for ln in body]
         data = _parse_rows(body, len(names), source, header_line, delimiter, decimal)
         columns = {n: data[:, k] for k, n in enumerate(names)}
-    rec = Recording(columns, meta, source, notes)
+    left_out = _rows_before_a_stress(columns, meta)
+    if left_out:
+        columns = {n: c[left_out:] for n, c in columns.items()}
+        notes.append(f"{source}: the first {left_out} rows (lines {header_line + 1}-{header_line + left_out}) have "
+                     "no stress: the controller's load cell had given no good reading yet, and it held the safe "
+                     "current; they were left out")
+    rec = Recording(columns, meta, source, notes, rows_left_out=left_out)
     return validate(rec, require, header_line)
+
+
+def _rows_before_a_stress(columns: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> int:
+    """How many leading rows of a gma-ffc telemetry file have no stress. The controller writes the last
+    good stress, so only rows before the load cell's first good reading are empty; one such row (a
+    transmitter settling, a first Modbus read answered with the invalid marker) made the whole run's
+    telemetry unreadable to simulate and diagnose. 0 for any other file, or when no row has a stress."""
+    stress = columns.get("stress_MPa")
+    if stress is None or not str(meta.get("source", "")).startswith("gma-ffc controller"):
+        return 0
+    finite = np.isfinite(stress)
+    return int(np.argmax(finite)) if finite.any() else 0
 
 
 TORN_TAIL_BYTES = 65536      # a data line is far shorter than this
