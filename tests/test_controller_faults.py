@@ -406,9 +406,38 @@ def test_a_first_glitch_of_the_load_cell_leaves_telemetry_that_simulate_and_diag
     s = ctrl.run(duration_s=0.6)
     assert s["ok"], s["fault_messages"]
     rec = read_recording(cfg.telemetry["path"])
-    assert rec.rows_left_out == 2 and np.all(np.isfinite(rec.stress_MPa)) and rec.time_s.size == s["ticks"] - 2
+    assert rec.file_rows[0] == 2 and np.all(np.isfinite(rec.stress_MPa)) and rec.time_s.size == s["ticks"] - 2
     assert "the first 2 rows (lines 11-12) have no stress" in rec.notes[0], rec.notes
     save_model(models[0], tmp_path / "model.yaml")
     assert main(["simulate", "--model", str(tmp_path / "model.yaml"), cfg.telemetry["path"],
                  "-o", str(tmp_path / "predicted.csv")]) == 0
     assert "have no stress" in capsys.readouterr().err
+
+
+def test_a_dropped_displacement_reading_leaves_telemetry_that_simulate_and_diagnose_read(models, tmp_path, capsys):
+    """One displacement reading the sensor did not give (tick 300): its telemetry cell was empty, and
+    simulate and diagnose refused the whole run ("'displacement_um' is nan or empty"). The row is left
+    out, with a note naming its line, as the model-fit monitor's window already does; the rest is read,
+    and a later bad cell is still named at its own line in the file."""
+    from gma_ffc.cli import main
+    from gma_ffc.modelio import save_model
+
+    def inject(tick, inputs):
+        if tick == 300:
+            inputs.displacement_um = math.nan
+
+    ctrl, driver, cfg = make(tmp_path, models, inject)
+    s = ctrl.run(duration_s=0.6)
+    assert s["ok"], s["fault_messages"]
+    rec = read_recording(cfg.telemetry["path"])
+    assert rec.time_s.size == s["ticks"] - 1 and np.all(np.isfinite(rec.columns["displacement_um"]))
+    assert "1 row has no displacement" in rec.notes[0] and "first at line 310" in rec.notes[0], rec.notes
+    save_model(models[0], tmp_path / "model.yaml")
+    assert main(["simulate", "--model", str(tmp_path / "model.yaml"), cfg.telemetry["path"],
+                 "-o", str(tmp_path / "predicted.csv")]) == 0
+    lines = open(cfg.telemetry["path"]).read().splitlines()
+    lines[399] = lines[399].replace(lines[399].split(",")[0], "0", 1)       # time going back at line 400
+    (tmp_path / "back.csv").write_text("\n".join(lines) + "\n")
+    from gma_ffc.errors import RecordingError
+    with pytest.raises(RecordingError, match=r"back.csv, line 400: time does not increase"):
+        read_recording(tmp_path / "back.csv")

@@ -121,26 +121,40 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
             body = [ln.rstrip()[:-1] if ln.rstrip().endswith(delimiter) else ln for ln in body]
         data = _parse_rows(body, len(names), source, header_line, delimiter, decimal)
         columns = {n: data[:, k] for k, n in enumerate(names)}
-    left_out = _rows_before_a_stress(columns, meta)
-    if left_out:
-        columns = {n: c[left_out:] for n, c in columns.items()}
-        notes.append(f"{source}: the first {left_out} rows (lines {header_line + 1}-{header_line + left_out}) have "
-                     "no stress: the controller's load cell had given no good reading yet, and it held the safe "
-                     "current; they were left out")
-    rec = Recording(columns, meta, source, notes, rows_left_out=left_out)
+    keep, words = _telemetry_rows_kept(columns, meta, header_line)
+    file_rows = None
+    if keep is not None:
+        file_rows = np.flatnonzero(keep)
+        columns = {n: c[keep] for n, c in columns.items()}
+        notes.extend(f"{source}: {w}; they were left out" for w in words)
+    rec = Recording(columns, meta, source, notes, file_rows=file_rows)
     return validate(rec, require, header_line)
 
 
-def _rows_before_a_stress(columns: Mapping[str, np.ndarray], meta: Mapping[str, Any]) -> int:
-    """How many leading rows of a gma-ffc telemetry file have no stress. The controller writes the last
-    good stress, so only rows before the load cell's first good reading are empty; one such row (a
-    transmitter settling, a first Modbus read answered with the invalid marker) made the whole run's
-    telemetry unreadable to simulate and diagnose. 0 for any other file, or when no row has a stress."""
-    stress = columns.get("stress_MPa")
-    if stress is None or not str(meta.get("source", "")).startswith("gma-ffc controller"):
-        return 0
-    finite = np.isfinite(stress)
-    return int(np.argmax(finite)) if finite.any() else 0
+def _telemetry_rows_kept(columns: Mapping[str, np.ndarray], meta: Mapping[str, Any],
+                         header_line: int) -> tuple[Any, list[str]]:
+    """In a gma-ffc telemetry file, the rows to keep (None: all) and what was left out. The controller
+    writes the last good stress, so only rows before the load cell's first good reading have none;
+    a displacement reading the sensor did not give is empty. One such row (a transmitter settling, a
+    dropped sample) made the whole run's telemetry unreadable to simulate and diagnose. A column
+    empty throughout is left to the checks (nothing would be left)."""
+    if not str(meta.get("source", "")).startswith("gma-ffc controller"):
+        return None, []
+    keep = np.ones(len(next(iter(columns.values()), ())), dtype=bool)
+    words = []
+    stress, shown = columns.get("stress_MPa"), columns.get("displacement_um")
+    if stress is not None and np.isfinite(stress).any() and not np.isfinite(stress[0]):
+        first = int(np.argmax(np.isfinite(stress)))
+        keep[:first] = False
+        words.append(f"the first {first} rows (lines {header_line + 1}-{header_line + first}) have no stress (the "
+                     "load cell had given no good reading yet, and the controller held the safe current)")
+    if shown is not None and np.isfinite(shown).any() and not np.isfinite(shown[keep]).all():
+        missing = keep & ~np.isfinite(shown)
+        keep &= ~missing
+        n = int(missing.sum())
+        words.append(f"{n} {'row has' if n == 1 else 'rows have'} no displacement (readings the sensor did not "
+                     f"give; the first at line {header_line + 1 + int(np.argmax(missing))})")
+    return (keep, words) if words else (None, [])
 
 
 TORN_TAIL_BYTES = 65536      # a data line is far shorter than this
