@@ -7,6 +7,7 @@ the run left in its runtime directory."""
 from __future__ import annotations
 
 import json
+import os
 import math
 from pathlib import Path
 
@@ -174,3 +175,27 @@ def test_stop_with_nothing_ever_run_is_the_old_answer(rig, capsys):
     code = main(["stop", "--runtime-dir", str(runtime.directory)])
     err = capsys.readouterr().err
     assert code == 1 and "no controller running" in err and "last run" not in err
+
+
+def test_status_as_another_user_names_the_system_services_folder_and_its_user(rig, capsys, monkeypatch, tmp_path):
+    """A lab user's `gma-ffc status` while the systemd service ran (as user gma-ffc, in /run/gma-ffc)
+    said only "no controller running (socket /run/user/1000/gma-ffc/control.sock)". It names the
+    service's folder and user; as that user, the default runtime folder is the service's."""
+    import pwd
+
+    from gma_ffc.service import paths
+
+    system = tmp_path / "run-gma-ffc"
+    system.mkdir(mode=0o700)
+    nobody = pwd.getpwnam("nobody")
+    os.chown(system, nobody.pw_uid, nobody.pw_gid)
+    monkeypatch.setattr(paths, "SYSTEM_RUNTIME_DIR", str(system))
+    _, runtime = rig
+    for command in ("status", "stop"):
+        assert main([command, "--runtime-dir", str(runtime.directory)]) == 1
+        err = capsys.readouterr().err
+        assert f"the system service keeps its controller's socket in {system}, user nobody" in err, err
+        assert "'sudo -u nobody gma-ffc status'" in err and len(err.strip().splitlines()) == 1
+    monkeypatch.setattr(paths.os, "geteuid", lambda: nobody.pw_uid)       # as that user, as advised
+    assert paths.default_runtime_dir({}) == system
+    assert paths.system_service_hint(paths.RuntimePaths(system)) == ""

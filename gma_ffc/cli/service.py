@@ -89,7 +89,7 @@ def _stop(args: argparse.Namespace) -> int:
     from ..errors import NotRunningError
     from ..service import last_exit
     from ..service.daemon import stop
-    from ..service.paths import runtime_paths
+    from ..service.paths import runtime_paths, system_service_hint
     from ..service.status import faults_of, since_start_clause
 
     runtime = runtime_paths(args.runtime_dir)
@@ -97,7 +97,8 @@ def _stop(args: argparse.Namespace) -> int:
         result = stop(runtime, timeout_s=args.timeout)
     except NotRunningError as exc:       # as `status` says it: a run killed before its end needs a look
         record = last_exit.read(runtime)
-        raise NotRunningError(f"{exc}; {last_exit.describe(record)}" if record else str(exc)) from None
+        said = f"{exc}; {last_exit.describe(record)}" if record else str(exc)
+        raise NotRunningError(said + system_service_hint(runtime)) from None
     record = last_exit.read(runtime)
     final = result.final_status or {}
     if record and record.get("pid") == result.pid and record.get("how") != "running":
@@ -140,10 +141,12 @@ def _not_running(args: argparse.Namespace, runtime, exc: Exception) -> int:
     """Nothing answers: say so, with how the last run ended when it left a record (exit 1 as before)."""
     from ..errors import NotRunningError
     from ..service import last_exit
+    from ..service.paths import system_service_hint
 
     record = last_exit.read(runtime)
     if not args.json:
-        raise NotRunningError(f"{exc}; {last_exit.describe(record)}" if record else str(exc))
+        said = f"{exc}; {last_exit.describe(record)}" if record else str(exc)
+        raise NotRunningError(said + system_service_hint(runtime))
     # machine readers always get JSON: say that nothing runs there, and exit as before (1)
     doc: dict[str, object] = {"state": "not running", "socket": str(runtime.socket), "message": str(exc)}
     if record:
