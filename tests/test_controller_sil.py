@@ -367,3 +367,31 @@ def test_telemetry_feeds_identify(models, tmp_path):
     model = SDPIIdentifier(n_play=10, n_deadzone=7).fit([rec]).model_
     pred = model.simulate(rec.time_s, rec.drive, rec.stress_MPa)
     assert np.sqrt(np.mean((pred - rec.displacement_um) ** 2)) < 1.0
+
+
+def test_a_model_identified_with_compression_positive_is_named_and_identified_again_it_runs(tmp_path, capsys):
+    """Recordings with compression positive (identify notes it, and fits anyway): on the rig at
+    -15 MPa every tick was 'outside the model's range [11.26, 19.41] MPa: clamped', no word why. The
+    message says the stress negated is inside and to negate the recordings' stress; so identified
+    again, the same run has no stress fault."""
+    from gma_ffc.cli import main
+    from gma_ffc.modelio import load_model
+    from gma_ffc.recordings import Recording, write_recording
+    from hil_sim.record import make_recording
+
+    for stress in (-11.3, -19.1):
+        rec = make_recording("identification", stress_MPa=stress, effects=["noise"])
+        write_recording(tmp_path / f"neg_{-stress}.csv", rec)
+        write_recording(tmp_path / f"pos_{-stress}.csv",
+                        Recording({**rec.columns, "stress_MPa": -rec.columns["stress_MPa"]}, rec.metadata))
+    for sign in ("pos", "neg"):
+        assert main(["identify", *map(str, sorted(tmp_path.glob(f"{sign}_*.csv"))), "-o",
+                     str(tmp_path / f"{sign}.yaml")]) == 0
+    capsys.readouterr()
+    runs = {}
+    for sign in ("pos", "neg"):
+        runs[sign] = ControllerManager(sim_cfg(tmp_path, sign, load_mass_kg=15.0),
+                                       model=load_model(tmp_path / f"{sign}.yaml")).run(duration_s=0.3)
+    words = runs["pos"]["fault_messages"]["stress_out_of_model_range"]
+    assert "the stress negated" in words and "negate their stress_MPa and identify again" in words, words
+    assert "stress_out_of_model_range" not in runs["neg"]["fault_messages"], runs["neg"]["fault_messages"]
