@@ -191,6 +191,9 @@ def test_a_stop_ramp_too_long_for_a_milliampere_limit_says_to_check_the_limit_fi
     assert validate_config(with_("limits", {**slip, "current_max_A": 3.0})).limits["current_max_A"] == 3.0
     with pytest.raises(ConfigError, match=r"If limits.current_min_A \(-3000 A\)"):
         validate_config(with_("limits", {**slip, "current_min_A": -3000, "current_max_A": 3}))
+    with pytest.raises(ConfigError) as err:                 # a slow slew on a 3 A coil: no word of milliamperes
+        validate_config(with_("limits", {**slip, "current_max_A": 3.0, "slew_A_per_s": 0.5}))
+    assert "milliamperes" not in str(err.value) and "Set limits.stop_ramp_max_s to 6.1" in str(err.value)
 
 
 def test_every_modbus_device_timeout_is_held_below_the_watchdog():

@@ -349,14 +349,20 @@ def _stop_ramp_fits(limits: dict[str, Any], rate_hz: float, since: Mapping[str, 
             f"limits.slew_A_per_s")
 
 
+# A lab GMA's coil amplifier gives a few amperes to a few tens (the paper's rig 3 A): a current limit
+# this large is most likely milliamperes typed as amperes, worth naming before a longer stop ramp.
+LIKELY_MILLIAMPERES_A = 100.0
+
+
 def _far_limit_first(limits: Mapping[str, Any], farthest: float) -> str:
     """The limit that makes the ramp long, to check before lengthening the ramp: `current_max_A: 3000`
     (milliamperes typed as amperes) was told only to set stop_ramp_max_s to 6.1, and then refused as
-    a unit slip once the model was read. '' when the farthest end is the running limits' (a reload)."""
+    a unit slip once the model was read. '' for a limit below LIKELY_MILLIAMPERES_A, and when the
+    farthest end is the running limits' (a reload)."""
     safe = limits["safe_current_A"]
     spans = {"current_max_A": limits["current_max_A"] - safe, "current_min_A": safe - limits["current_min_A"]}
     for key, span in spans.items():
-        if span == farthest:
+        if span == farthest and abs(limits[key]) >= LIKELY_MILLIAMPERES_A:
             return (f"If limits.{key} ({limits[key]:g} A) is not the coil's limit in amperes (milliamperes "
                     "typed as amperes are 1000x), correct it first. ")
     return ""
