@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -441,3 +442,36 @@ def test_a_dropped_displacement_reading_leaves_telemetry_that_simulate_and_diagn
     from gma_ffc.errors import RecordingError
     with pytest.raises(RecordingError, match=r"back.csv, line 400: time does not increase"):
         read_recording(tmp_path / "back.csv")
+
+
+def test_a_telemetry_write_that_fails_shows_in_the_status_while_the_run_goes_on(models, tmp_path, monkeypatch):
+    """A full disk: the writer kept `telemetry write failed` to itself until the stop, and the status
+    table of a running controller said "faults none" with the file far behind the run. The status
+    carries the error and the table a telemetry row, while the loop keeps control."""
+    import errno
+
+    from gma_ffc.control.telemetry import Telemetry
+    from gma_ffc.service.status import format_table
+
+    ctrl, driver, cfg = make(tmp_path, models)
+    wrote = Telemetry._write_all
+
+    def full(tel, data):            # the disk fills after the first block
+        if tel.rows_written:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        wrote(tel, data)
+    monkeypatch.setattr(Telemetry, "_write_all", full)
+    stop = threading.Event()
+    runner = threading.Thread(target=ctrl.run, args=(stop, 60.0))
+    runner.start()
+    try:
+        deadline = time.monotonic() + 30.0
+        while not (ctrl.status().get("telemetry") or {}).get("error") and time.monotonic() < deadline:
+            time.sleep(0.01)
+        status = ctrl.status()
+    finally:
+        stop.set()
+        runner.join(30.0)
+    assert status["state"] == "running" and status["telemetry"]["error"] == "telemetry write failed: No space left on device"
+    row = next(line for line in format_table(status).splitlines() if line.startswith("telemetry"))
+    assert "No space left on device" in row and f"rows written to {cfg.telemetry['path']}" in row, row

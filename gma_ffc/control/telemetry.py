@@ -228,6 +228,9 @@ class Telemetry:
             self._header_written = True
             self.rows_written += len(block)
         except OSError as exc:   # disk full etc.: reported in status, the loop keeps control
+            if not self.error:
+                log.warning("telemetry write failed: %s (%s); the loop keeps control, rows are lost until "
+                            "it can write", exc.strerror, self.path)
             self.error = f"telemetry write failed: {exc.strerror}"
 
     def _write_all(self, data: bytes) -> None:
