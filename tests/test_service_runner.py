@@ -743,21 +743,23 @@ def test_ctrl_c_while_start_waits_stops_the_controller_it_was_starting(tmp_path,
             raise KeyboardInterrupt
 
     try:
-        with pytest.raises(KeyboardInterrupt):
+        with pytest.raises(daemon.StartInterrupted):
             daemon._wait_ready(child, CtrlC(), RuntimePaths(tmp_path / "rt"), 0, 30.0)
         assert child.poll() == -signal.SIGTERM
     finally:
         child.kill()
         child.wait()
 
-    def interrupted_start(*_a, **_k):
-        raise KeyboardInterrupt
-    monkeypatch.setattr(daemon, "start", interrupted_start)
     cfg = tmp_path / "c.yaml"
     cfg.write_text("model: m.yaml\n")
-    assert main(["start", "--config", str(cfg), "--runtime-dir", str(tmp_path / "rt")]) == 130
-    err = capsys.readouterr().err
-    assert err == "gma-ffc start: interrupted; the controller it was starting was stopped (SIGTERM)\n", err
+    for raised, said in ((daemon.StartInterrupted, "; the controller it was starting was stopped (SIGTERM)"),
+                         (KeyboardInterrupt, "")):       # before any controller was started: nothing to stop
+        def interrupted_start(*_a, raised=raised, **_k):
+            raise raised
+        monkeypatch.setattr(daemon, "start", interrupted_start)
+        assert main(["start", "--config", str(cfg), "--runtime-dir", str(tmp_path / "rt")]) == 130
+        err = capsys.readouterr().err
+        assert err == f"gma-ffc start: interrupted{said}\n", err
 
 
 def test_ctrl_c_while_the_commands_load_is_one_line_not_a_traceback(monkeypatch, capsys):

@@ -70,13 +70,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _start(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..service.daemon import start
+    from ..service.daemon import StartInterrupted, start
     from ..service.paths import runtime_paths
 
     runtime = runtime_paths(args.runtime_dir)
     try:
         started = start(Path(args.config), runtime, duration_s=args.duration, timeout_s=args.timeout)
-    except KeyboardInterrupt:       # start() has stopped the controller it was starting
+    except StartInterrupted:        # start() has stopped the controller it was starting
         print("gma-ffc start: interrupted; the controller it was starting was stopped (SIGTERM)", file=sys.stderr)
         return 130
     print(f"started: pid {started.pid}, socket {runtime.socket}, log {runtime.log_file}")

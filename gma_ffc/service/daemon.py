@@ -109,6 +109,10 @@ def start(config: Path, runtime: RuntimePaths, *, duration_s: float | None = Non
             notify_path.unlink()
 
 
+class StartInterrupted(KeyboardInterrupt):
+    """Ctrl-C while a controller was starting: it was sent SIGTERM (and waited for)."""
+
+
 # How long an interrupted start waits for the controller it was starting to leave after SIGTERM: a
 # controller still importing dies at once, one past its start ramps to the safe current (a few s).
 ABANDON_WAIT_S = 5.0
@@ -125,7 +129,7 @@ def _wait_ready(child: subprocess.Popen, listener: socket.socket, runtime: Runti
             child.send_signal(signal.SIGTERM)
         with contextlib.suppress(subprocess.TimeoutExpired):
             child.wait(ABANDON_WAIT_S)
-        raise
+        raise StartInterrupted from None
 
 
 def _wait_ready_loop(child: subprocess.Popen, listener: socket.socket, runtime: RuntimePaths,
