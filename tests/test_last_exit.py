@@ -199,3 +199,17 @@ def test_status_as_another_user_names_the_system_services_folder_and_its_user(ri
     monkeypatch.setattr(paths.os, "geteuid", lambda: nobody.pw_uid)       # as that user, as advised
     assert paths.default_runtime_dir({}) == system
     assert paths.system_service_hint(paths.RuntimePaths(system)) == ""
+
+
+def test_reload_with_nothing_running_says_how_the_last_run_ended(rig, capsys):
+    """A reload after the controller ended on a fault said only "no controller running": the
+    fault that ended it was told by status alone."""
+    tmp, runtime = rig
+    svc = Service(tmp / "cfg.yaml", runtime=runtime, install_signal_handlers=False,
+                  load_config=load_config, make_controller=nan_after(200))
+    with pytest.raises(FaultError, match="sensor_nan"):
+        svc.run()
+    assert main(["reload", "--runtime-dir", str(runtime.directory)]) == 1
+    err = capsys.readouterr().err
+    assert "no controller running" in err and "on a fault: sensor_nan" in err and "safe current (0 A) written" in err
+    assert len(err.strip().splitlines()) == 1

@@ -89,16 +89,14 @@ def _stop(args: argparse.Namespace) -> int:
     from ..errors import NotRunningError
     from ..service import last_exit
     from ..service.daemon import stop
-    from ..service.paths import runtime_paths, system_service_hint
+    from ..service.paths import runtime_paths
     from ..service.status import faults_of, since_start_clause
 
     runtime = runtime_paths(args.runtime_dir)
     try:
         result = stop(runtime, timeout_s=args.timeout)
-    except NotRunningError as exc:       # as `status` says it: a run killed before its end needs a look
-        record = last_exit.read(runtime)
-        said = f"{exc}; {last_exit.describe(record)}" if record else str(exc)
-        raise NotRunningError(said + system_service_hint(runtime)) from None
+    except NotRunningError as exc:
+        raise _nothing_runs(runtime, exc) from None
     record = last_exit.read(runtime)
     final = result.final_status or {}
     if record and record.get("pid") == result.pid and record.get("how") != "running":
@@ -137,16 +135,26 @@ def _status(args: argparse.Namespace) -> int:
     return 0
 
 
-def _not_running(args: argparse.Namespace, runtime, exc: Exception) -> int:
-    """Nothing answers: say so, with how the last run ended when it left a record (exit 1 as before)."""
+def _nothing_runs(runtime, exc: Exception) -> Exception:
+    """What `status`, `stop` and `reload` say when nothing answers: that, how the last run ended when it
+    left a record (a run killed before its end needs a look at the amplifier), and where the system
+    service's controller answers when its folder is another user's (exit 1 as before)."""
     from ..errors import NotRunningError
     from ..service import last_exit
     from ..service.paths import system_service_hint
 
     record = last_exit.read(runtime)
+    said = f"{exc}; {last_exit.describe(record)}" if record else str(exc)
+    return NotRunningError(said + system_service_hint(runtime))
+
+
+def _not_running(args: argparse.Namespace, runtime, exc: Exception) -> int:
+    """Nothing answers: say so (`_nothing_runs`); JSON always for `--json` (exit 1 as before)."""
+    from ..service import last_exit
+
+    record = last_exit.read(runtime)
     if not args.json:
-        said = f"{exc}; {last_exit.describe(record)}" if record else str(exc)
-        raise NotRunningError(said + system_service_hint(runtime))
+        raise _nothing_runs(runtime, exc)
     # machine readers always get JSON: say that nothing runs there, and exit as before (1)
     doc: dict[str, object] = {"state": "not running", "socket": str(runtime.socket), "message": str(exc)}
     if record:
@@ -159,7 +167,7 @@ def _not_running(args: argparse.Namespace, runtime, exc: Exception) -> int:
 def _reload(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..errors import InputError
+    from ..errors import InputError, NotRunningError
     from ..service.control_socket import request
     from ..service.paths import runtime_paths
 
@@ -173,7 +181,11 @@ def _reload(args: argparse.Namespace) -> int:
         if not model.is_file():
             raise InputError(f"--model {args.model}: no such file")
         message["model"] = str(model)
-    reply = request(runtime_paths(args.runtime_dir).socket, message, timeout_s=60.0)
+    runtime = runtime_paths(args.runtime_dir)
+    try:
+        reply = request(runtime.socket, message, timeout_s=60.0)
+    except NotRunningError as exc:      # as status says it: a controller that ended on a fault is named
+        raise _nothing_runs(runtime, exc) from None
     if not reply.get("ok"):
         raise InputError(str(reply.get("error") or reply.get("message") or "the controller refused the reload"))
     print(reply.get("message", "reloaded"))
