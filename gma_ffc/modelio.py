@@ -40,8 +40,10 @@ def _class_for(kind: str) -> Any:
 def model_from_dict(d: Any, source: str = "<dict>") -> Model:
     """Build the model a dict describes; ModelError (naming `source`) if it is not a valid model."""
     if isinstance(d, str) and d.lstrip().split(",", 1)[0].split(";", 1)[0].split("\t", 1)[0] == "time_s":
-        raise ModelError(f"{source} is a recording, not a model file: give it in the recording's place, and with "
-                         "--model a model file from gma-ffc identify (or diagnose's extended_model.yaml)")
+        # `reload --model` and a config's `model` key have no recording's place: say what goes where
+        raise ModelError(f"{source} is a recording, not a model file: the model (--model, or a config's 'model' "
+                         "key) is a file from gma-ffc identify (or diagnose's extended_model.yaml); a recording "
+                         "goes where a command reads one")
     if not isinstance(d, dict):
         raise ModelError(f"{source}: not a model file (expected a YAML mapping)")
     if d.get("format") != FORMAT:

@@ -134,8 +134,12 @@ run install -d -m 0755 "$(dirname "$config")"
 run install -d -m 0755 "$unit_dir"
 run install -m 0644 "$unit" "$unit_dir/gma-ffc.service"
 if [ ! -f "$config" ]; then
-    echo "note: $config does not exist yet: copy one of $here/config/*.yaml there, point" \
-         "'telemetry.path' into /var/lib/gma-ffc and set 'output_dirs: [/var/lib/gma-ffc]'" >&2
+    # the config's relative 'model' (models/sim_sdpi.yaml) resolves against the config's folder:
+    # copied alone, the config names a model that is not there
+    echo "note: $config does not exist yet: copy one of $here/config/*.yaml there;" \
+         "copy its model (or your own, from 'gma-ffc identify') to $(dirname "$config")/model.yaml and set" \
+         "'model: model.yaml'; point 'telemetry.path' into /var/lib/gma-ffc and set" \
+         "'output_dirs: [/var/lib/gma-ffc]'" >&2
 fi
 if command -v systemctl >/dev/null 2>&1 && [ -d /run/systemd/system ]; then
     run systemctl daemon-reload

@@ -189,3 +189,24 @@ def test_the_service_passes_its_drive_limits_to_the_diagnosis_it_starts(tmp_path
                  "--drive-limits", "2.5", "0.25"]) == 2
     err = capsys.readouterr().err
     assert "--drive-limits needs LO < HI, got 2.5 0.25" in err and len(err.strip().splitlines()) == 1
+
+
+def test_with_output_dirs_and_no_state_dir_diagnoses_go_in_the_first_output_dir(tmp_path, monkeypatch):
+    """config/sim.yaml names output_dirs: [telemetry] and no monitor.state_dir: the default state
+    folder (/var/lib/gma-ffc for root, ~/.local/state/gma-ffc) lay outside it, so every background
+    diagnosis of that config failed, after the drift, on "outside the directories the config names
+    for output". The default is then the first output_dir; a default already inside them stays."""
+    from gma_ffc.service.diagnosis import check_state_dir, state_dir_for
+
+    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path / "var" / "lib" / "gma-ffc"))
+    out = tmp_path / "rig" / "telemetry"
+    monitor = {"enabled": True, "window_s": 6.0, "trigger_s": 5.0, "on_drift": "diagnose", "max_per_hour": 2,
+               "state_dir": None}
+    assert state_dir_for(monitor, (str(out),)) == out
+    assert state_dir_for(monitor, (str(tmp_path / "var"),)) == tmp_path / "var" / "lib" / "gma-ffc"
+    assert state_dir_for(monitor) == tmp_path / "var" / "lib" / "gma-ffc"
+    check_state_dir(monitor, (str(out),))
+    bg = BackgroundDiagnosis(monitor, lambda s: Window(window_recording(), load_model(MODEL)),
+                             output_dirs=(str(out),))
+    folder, _argv = bg._prepare(1000.0)
+    assert folder.parent == out / "diagnoses" and (folder / "window.csv").is_file()

@@ -518,6 +518,30 @@ def test_a_model_and_a_recording_given_in_each_others_place_are_named_as_such(wo
     assert main(["simulate", "--model", model, rec, "-o", out]) == 0
 
 
+def test_a_wrong_model_for_the_controller_is_named_without_advice_that_does_not_apply(workdir: Path, tmp_path, capsys):
+    """`reload --model` on a background diagnosis' folder said "no such file" of a folder that is there,
+    and a recording given as the controller's model was told to "give it in the recording's place",
+    which reload and a config's 'model' key do not have. The folder's message names its
+    extended_model.yaml, a file; the recording's names the config key."""
+    from gma_ffc.errors import ModelError
+    from gma_ffc.modelio import load_model
+
+    diagnosis = tmp_path / "diagnoses" / "20261201-040000"
+    diagnosis.mkdir(parents=True)
+    (diagnosis / "extended_model.yaml").write_text((workdir / "model.yaml").read_text())
+    runtime = str(tmp_path / "rt")
+    assert main(["reload", "--model", str(diagnosis), "--runtime-dir", runtime]) == 2
+    err = capsys.readouterr().err
+    assert f"is a folder, not a model file: give {diagnosis / 'extended_model.yaml'}\n" in err, err
+    advised = err.rsplit("give ", 1)[1].strip()
+    assert load_model(advised).kind == load_model(workdir / "model.yaml").kind
+    assert main(["reload", "--model", advised, "--runtime-dir", runtime]) == 1     # now only: nothing runs
+    assert "no controller running" in capsys.readouterr().err
+    with pytest.raises(ModelError) as exc:
+        load_model(workdir / "id_15.2.csv")
+    assert "recording's place" not in str(exc.value) and "a config's 'model' key" in str(exc.value)
+
+
 def test_identify_names_a_recording_whose_displacement_is_in_another_unit(workdir: Path, capsys, tmp_path):
     """One identification recording's displacement logged in mm under displacement_um, beside others
     in um: identify said 'the displacement hardly follows the drive ... check that the columns are the

@@ -104,3 +104,40 @@ def test_simulate_of_an_inverted_drive_keeps_the_reference_it_was_inverted_from(
     back = read_recording(out, require=("time_s", "drive", "reference_um"))
     np.testing.assert_array_equal(back.columns["reference_um"], read_recording(
         workdir / "ref.csv", require=("time_s", "reference_um")).columns["reference_um"])
+
+
+def test_identify_on_a_hil_sim_folder_glob_names_the_manifest_and_the_advised_glob_fits(tmp_path, capsys):
+    """`gma-ffc identify rec/* -o model.yaml` on a `hil_sim record` folder took in its manifest.yaml and
+    said "column 'generator: python -m hil_sim record' has no unit". It now says the file is YAML, not
+    a recording, and gives the glob that leaves it out; that glob fits a model."""
+    from hil_sim.record import write_recordings
+
+    rec = tmp_path / "rec"
+    write_recordings("identification", rec, effects=["noise"], stresses=[-11.3, -19.1])
+    everything = sorted(str(p) for p in rec.iterdir())
+    assert any(p.endswith("manifest.yaml") for p in everything)
+    words = _one_line_refusal(["identify", *everything, "-o", str(tmp_path / "model.yaml")], capsys)
+    assert "manifest.yaml is a YAML file, not a recording" in words, words
+    advised = re.search(r"give (\S+)$", words).group(1)
+    assert advised == str(rec / "*.csv")
+    assert main(["identify", *map(str, sorted(Path(advised).parent.glob(Path(advised).name))),
+                 "-o", str(tmp_path / "model.yaml")]) == 0
+    assert load_model(tmp_path / "model.yaml").kind == "sdpi"
+
+
+def test_identify_on_a_telemetry_folder_glob_names_the_lock_file_and_the_folder(workdir, tmp_path, capsys):
+    """A controller leaves NAME.csv.lock (its pid) beside its telemetry, and now its background
+    diagnoses' folder: `gma-ffc identify telemetry/*` said "column '8096' has no unit" of the lock
+    and "cannot read ([Errno 21] Is a directory ...)" of the folder. Each is named for what it is,
+    with the glob that leaves it out; that glob reads."""
+    tel = tmp_path / "telemetry"
+    (tel / "diagnoses").mkdir(parents=True)
+    for name in ("id_15.2.csv", "id_19.1.csv"):
+        (tel / name).write_bytes((workdir / name).read_bytes())
+    (tel / "id_15.2.csv.lock").write_text("8096\n")
+    out = str(tmp_path / "model.yaml")
+    words = _one_line_refusal(["identify", str(tel / "id_15.2.csv.lock"), str(tel / "id_19.1.csv"), "-o", out], capsys)
+    assert "is a controller's telemetry lock file" in words and words.rstrip().endswith(f"give {tel / '*.csv'}"), words
+    words = _one_line_refusal(["identify", str(tel / "diagnoses"), str(tel / "id_19.1.csv"), "-o", out], capsys)
+    assert f"{tel / 'diagnoses'} is a folder, not a recording" in words, words
+    assert main(["identify", *map(str, sorted(tel.glob("*.csv"))), "-o", out]) == 0

@@ -60,6 +60,8 @@ def test_example_configs_load(name):
     ("driver.load_mass_kg", -3, r"'driver.load_mass_kg' must be >= 0"),
     ("driver.load_schedule", [[1, 5], [0.5, 2]], r"'driver.load_schedule' times must increase"),
     ("limits.stop_ramp_max_s", 0, r"'limits.stop_ramp_max_s' \(0 s\) is shorter than a stop's ramp"),
+    # 7 mm typed in metres: every load-cell reading was absurd, found only once the rig ran (exit 1)
+    ("stress.rod_diameter_mm", 0.007, r"'stress.rod_diameter_mm' \(0.007\) is under 1 mm.*in millimetres"),
     ("driver", {"kind": "serial", "port": "/dev/ttyS0", "queries": {"force_N": "F?"}, "timeout_s": 5},
      r"'driver.timeout_s' \(5 s\) must be below watchdog_s \(0.5 s\)"),
 ])
@@ -177,6 +179,21 @@ def test_a_stop_ramp_cut_short_is_refused_and_the_advised_time_is_accepted():
     advised = float(re.search(r"stop_ramp_max_s to ([0-9.]+) or more", str(e.value)).group(1))
     cfg = validate_config(with_("limits", {**slow, "stop_ramp_max_s": advised}))
     assert cfg.limits["stop_ramp_max_s"] * slow["slew_A_per_s"] >= 3.0
+
+
+def test_a_stop_ramp_too_long_for_a_milliampere_limit_says_to_check_the_limit_first():
+    """`current_max_A: 3000` (3 A typed in mA) was told only to set stop_ramp_max_s to 6.1; done, the
+    run was refused as a unit slip. The message names the limit to correct first; corrected, it loads."""
+    slip = {"current_min_A": 0, "current_max_A": 3000, "slew_A_per_s": 500.0}
+    with pytest.raises(ConfigError, match=r"If limits.current_max_A \(3000 A\) is not the coil's limit in "
+                                          r"amperes.*correct it first\. Set limits.stop_ramp_max_s to 6.1"):
+        validate_config(with_("limits", slip))
+    assert validate_config(with_("limits", {**slip, "current_max_A": 3.0})).limits["current_max_A"] == 3.0
+    with pytest.raises(ConfigError, match=r"If limits.current_min_A \(-3000 A\)"):
+        validate_config(with_("limits", {**slip, "current_min_A": -3000, "current_max_A": 3}))
+    with pytest.raises(ConfigError) as err:                 # a slow slew on a 3 A coil: no word of milliamperes
+        validate_config(with_("limits", {**slip, "current_max_A": 3.0, "slew_A_per_s": 0.5}))
+    assert "milliamperes" not in str(err.value) and "Set limits.stop_ramp_max_s to 6.1" in str(err.value)
 
 
 def test_every_modbus_device_timeout_is_held_below_the_watchdog():

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -388,3 +389,89 @@ def test_killed_process_loses_at_most_a_second_of_telemetry(models, tmp_path):
     rec = read_recording(out)                 # whole lines only: a valid recording
     assert rec.time_s[-1] >= elapsed - 1.0 - 0.2
     assert len(rec) >= (elapsed - 1.0 - 0.2) * 500 * 0.9
+
+
+def test_a_first_glitch_of_the_load_cell_leaves_telemetry_that_simulate_and_diagnose_read(models, tmp_path, capsys):
+    """The load cell's first two readings missing (a transmitter settling; bad_ticks 3 rides them out):
+    the controller held the safe current, and its telemetry's first rows had no stress. simulate and
+    diagnose refused the whole run's telemetry ("'stress_MPa' is nan or empty ... put the stress at
+    that time in the cell"). Those leading rows are left out, with a note; the rest is read."""
+    from gma_ffc.cli import main
+    from gma_ffc.modelio import save_model
+
+    def inject(tick, inputs):
+        if tick <= 2:
+            inputs.force_N = math.nan
+
+    ctrl, driver, cfg = make(tmp_path, models, inject, sensor={"bad_ticks": 3})
+    s = ctrl.run(duration_s=0.6)
+    assert s["ok"], s["fault_messages"]
+    rec = read_recording(cfg.telemetry["path"])
+    assert rec.file_rows[0] == 2 and np.all(np.isfinite(rec.stress_MPa)) and rec.time_s.size == s["ticks"] - 2
+    assert "the first 2 rows (lines 11-12) have no stress" in rec.notes[0], rec.notes
+    save_model(models[0], tmp_path / "model.yaml")
+    assert main(["simulate", "--model", str(tmp_path / "model.yaml"), cfg.telemetry["path"],
+                 "-o", str(tmp_path / "predicted.csv")]) == 0
+    assert "have no stress" in capsys.readouterr().err
+
+
+def test_a_dropped_displacement_reading_leaves_telemetry_that_simulate_and_diagnose_read(models, tmp_path, capsys):
+    """One displacement reading the sensor did not give (tick 300): its telemetry cell was empty, and
+    simulate and diagnose refused the whole run ("'displacement_um' is nan or empty"). The row is left
+    out, with a note naming its line, as the model-fit monitor's window already does; the rest is read,
+    and a later bad cell is still named at its own line in the file."""
+    from gma_ffc.cli import main
+    from gma_ffc.modelio import save_model
+
+    def inject(tick, inputs):
+        if tick == 300:
+            inputs.displacement_um = math.nan
+
+    ctrl, driver, cfg = make(tmp_path, models, inject)
+    s = ctrl.run(duration_s=0.6)
+    assert s["ok"], s["fault_messages"]
+    rec = read_recording(cfg.telemetry["path"])
+    assert rec.time_s.size == s["ticks"] - 1 and np.all(np.isfinite(rec.columns["displacement_um"]))
+    assert "1 row has no displacement" in rec.notes[0] and "first at line 310" in rec.notes[0], rec.notes
+    save_model(models[0], tmp_path / "model.yaml")
+    assert main(["simulate", "--model", str(tmp_path / "model.yaml"), cfg.telemetry["path"],
+                 "-o", str(tmp_path / "predicted.csv")]) == 0
+    lines = open(cfg.telemetry["path"]).read().splitlines()
+    lines[399] = lines[399].replace(lines[399].split(",")[0], "0", 1)       # time going back at line 400
+    (tmp_path / "back.csv").write_text("\n".join(lines) + "\n")
+    from gma_ffc.errors import RecordingError
+    with pytest.raises(RecordingError, match=r"back.csv, line 400: time does not increase"):
+        read_recording(tmp_path / "back.csv")
+
+
+def test_a_telemetry_write_that_fails_shows_in_the_status_while_the_run_goes_on(models, tmp_path, monkeypatch):
+    """A full disk: the writer kept `telemetry write failed` to itself until the stop, and the status
+    table of a running controller said "faults none" with the file far behind the run. The status
+    carries the error and the table a telemetry row, while the loop keeps control."""
+    import errno
+
+    from gma_ffc.control.telemetry import Telemetry
+    from gma_ffc.service.status import format_table
+
+    ctrl, driver, cfg = make(tmp_path, models)
+    wrote = Telemetry._write_all
+
+    def full(tel, data):            # the disk fills after the first block
+        if tel.rows_written:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        wrote(tel, data)
+    monkeypatch.setattr(Telemetry, "_write_all", full)
+    stop = threading.Event()
+    runner = threading.Thread(target=ctrl.run, args=(stop, 60.0))
+    runner.start()
+    try:
+        deadline = time.monotonic() + 30.0
+        while not (ctrl.status().get("telemetry") or {}).get("error") and time.monotonic() < deadline:
+            time.sleep(0.01)
+        status = ctrl.status()
+    finally:
+        stop.set()
+        runner.join(30.0)
+    assert status["state"] == "running" and status["telemetry"]["error"] == "telemetry write failed: No space left on device"
+    row = next(line for line in format_table(status).splitlines() if line.startswith("telemetry"))
+    assert "No space left on device" in row and f"rows written to {cfg.telemetry['path']}" in row, row

@@ -304,3 +304,22 @@ def test_a_drive_below_the_model_and_the_current_floor_is_reported_as_clipped_in
     messages = [h["message"] for h in s["fault_history"] if h["fault"] == "drive_out_of_model_range"]
     assert messages and all(m.endswith("clipped to 0 A by limits.current_min_A (limits.beyond_model: warn)")
                             for m in messages), messages
+
+
+def test_an_absurd_load_cell_reading_says_where_the_range_comes_from_and_the_sign_slip():
+    """A Modbus load cell scaled -0.1 N/count (compression read negative) faulted with 'outside the
+    plausible -384.8 .. 3079 N (last value -434.7)', and -434.7 N looks plausible to anyone. The
+    message now gives the stress it is on the configured rod and says to negate the scale; negated,
+    the reading is accepted (the advice works)."""
+    mon = safety.SensorMonitor("force", AREA, (-80.0, 10.0), None, 1, 0)
+    assert mon.update(-434.7, math.nan) == safety.SENSOR_ABSURD
+    words = mon.message(safety.SENSOR_ABSURD, -434.7)
+    assert "-434.7 N is 11.3 MPa on the 7 mm rod (stress.rod_diameter_mm)" in words, words
+    assert "[-80, 10]" in words and "negate its scale" in words
+    assert mon.update(434.7, math.nan) == ""
+    far = mon.message(safety.SENSOR_ABSURD, 5000.0)        # too far either way: no sign advice
+    assert "negate" not in far and "check the load cell's scale and unit (N)" in far, far
+    transmitter = safety.SensorMonitor("stress", AREA, (-80.0, 10.0), None, 1, 0)
+    assert transmitter.update(math.nan, 15.2) == safety.SENSOR_ABSURD
+    assert "negate its scale" in transmitter.message(safety.SENSOR_ABSURD, 15.2)
+    assert transmitter.update(math.nan, -15.2) == ""

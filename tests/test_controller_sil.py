@@ -300,6 +300,37 @@ def test_a_current_limit_far_beyond_the_model_is_refused_as_a_likely_unit_slip(m
     ControllerManager(limits_cfg(tmp_path, "mA", current_max_A=most, stop_ramp_max_s=2.0), model=models[0])
 
 
+def reference_cfg(tmp_path, name, reference):
+    cfg = sim_cfg(tmp_path, name, load_mass_kg=15.0)
+    return validate_config({**cfg.raw, "reference": reference})
+
+
+def multisine(scale):
+    return {"kind": "multisine", "offset_um": 15.0 * scale,
+            "components": [{"frequency_hz": 3.0, "amplitude_um": 12.0 * scale}]}
+
+
+@pytest.mark.parametrize("slipped,advised", [
+    ({"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12000.0, "offset_um": 15000.0},   # nm typed as um
+     {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0}),
+    (multisine(1000.0), multisine(1.0)),
+])
+def test_a_reference_far_beyond_the_models_reach_is_refused_as_a_likely_unit_slip(models, tmp_path, slipped, advised):
+    """A sine of 12000 um about 15000 um (nanometres typed as micrometres) for a 54 um actuator ran 2 s
+    with every tick at 3 A, exit 0, the inverse asking for 174 A. Refused, naming the keys and the
+    model's reach; the reference in micrometres (as advised) runs."""
+    from gma_ffc.errors import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        ControllerManager(reference_cfg(tmp_path, "nm", slipped), model=models[0])
+    words = str(err.value)
+    assert "micrometres, not nanometres" in words and "amplitude_um" in words, words
+    reach = float(re.search(r"within about ([\d.]+) um", words).group(1))
+    assert 30.0 < reach < 80.0                                   # the simulated rig's stroke
+    summary = ControllerManager(reference_cfg(tmp_path, "um", advised), model=models[0]).run(duration_s=0.5)
+    assert summary["ok"] and not summary["fault_messages"], summary["fault_messages"]
+
+
 def test_reload_refuses_restart_keys_and_keeps_old(models, tmp_path):
     from gma_ffc.errors import ConfigError
 
@@ -336,3 +367,31 @@ def test_telemetry_feeds_identify(models, tmp_path):
     model = SDPIIdentifier(n_play=10, n_deadzone=7).fit([rec]).model_
     pred = model.simulate(rec.time_s, rec.drive, rec.stress_MPa)
     assert np.sqrt(np.mean((pred - rec.displacement_um) ** 2)) < 1.0
+
+
+def test_a_model_identified_with_compression_positive_is_named_and_identified_again_it_runs(tmp_path, capsys):
+    """Recordings with compression positive (identify notes it, and fits anyway): on the rig at
+    -15 MPa every tick was 'outside the model's range [11.26, 19.41] MPa: clamped', no word why. The
+    message says the stress negated is inside and to negate the recordings' stress; so identified
+    again, the same run has no stress fault."""
+    from gma_ffc.cli import main
+    from gma_ffc.modelio import load_model
+    from gma_ffc.recordings import Recording, write_recording
+    from hil_sim.record import make_recording
+
+    for stress in (-11.3, -19.1):
+        rec = make_recording("identification", stress_MPa=stress, effects=["noise"])
+        write_recording(tmp_path / f"neg_{-stress}.csv", rec)
+        write_recording(tmp_path / f"pos_{-stress}.csv",
+                        Recording({**rec.columns, "stress_MPa": -rec.columns["stress_MPa"]}, rec.metadata))
+    for sign in ("pos", "neg"):
+        assert main(["identify", *map(str, sorted(tmp_path.glob(f"{sign}_*.csv"))), "-o",
+                     str(tmp_path / f"{sign}.yaml")]) == 0
+    capsys.readouterr()
+    runs = {}
+    for sign in ("pos", "neg"):
+        runs[sign] = ControllerManager(sim_cfg(tmp_path, sign, load_mass_kg=15.0),
+                                       model=load_model(tmp_path / f"{sign}.yaml")).run(duration_s=0.3)
+    words = runs["pos"]["fault_messages"]["stress_out_of_model_range"]
+    assert "the stress negated" in words and "negate their stress_MPa and identify again" in words, words
+    assert "stress_out_of_model_range" not in runs["neg"]["fault_messages"], runs["neg"]["fault_messages"]

@@ -330,3 +330,20 @@ def test_a_register_the_device_does_not_have_is_named_by_its_key_and_stops_at_on
     enables = [c for c in bench.rig.history() if c.kind != "setpoint"]
     assert len(enables) <= 2, enables                  # on once for the first tick, off at the end: no toggling
     assert bench.rig.last_setpoint_A == 0.0 and not bench.rig.output_enabled
+
+
+def test_an_rtu_port_that_is_not_there_is_named_and_the_port_it_advises_connects(models, bench_factory, tmp_path):
+    """config/modbus_rtu.yaml on a PC without its USB adapter said only "modbus device 'bus' at
+    /dev/ttyUSB0: cannot connect" (the serial driver says "No such file"): no word that the port is
+    missing. It says so, and which key to set; set to a port that is there (the emulator's), it runs."""
+    bench = bench_factory("rtu", "amplifier_int16.yaml")
+    good = bench.cfg(tmp_path, "rtu", 100)
+    missing = str(tmp_path / "ttyUSB0")
+    raw = {**good.raw, "driver": {**good.raw["driver"], "devices": {
+        "amp": {**good.raw["driver"]["devices"]["amp"], "port": missing}}}, "comms": {"max_attempts": 1}}
+    summary = ControllerManager(validate_config(raw), model=models[0]).run(duration_s=0.3)
+    words = summary["fault_messages"].get("comms_error", "")
+    assert not summary["ok"] and f"{missing} does not exist: is the adapter plugged in?" in words, words
+    assert "set driver.devices.amp.port" in words
+    summary = ControllerManager(good, model=models[0]).run(duration_s=0.3)
+    assert summary["ok"], summary["fault_messages"]

@@ -708,3 +708,25 @@ def test_the_emulator_commands_sensors_are_noisy_like_a_real_rigs_unless_asked_n
         finally:
             emu.terminate()
             emu.wait(10)
+
+
+def test_a_port_in_use_is_bad_input_and_the_free_port_it_advises_serves(rig):
+    """Two emulators on 5020 (the config's port, the docs' example): the second said "cannot listen
+    on 127.0.0.1:5020: Address already in use", exit 1 as for a fault. It is the user's to fix (exit
+    2) and names --port 0; so started, it serves on a free port."""
+    import socket
+
+    m = load_register_map(DEVICE_CONFIGS / "amplifier_int16.yaml")
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(InputError, match=r"it is in use .* give --port 0 for a free port") as err:
+            ModbusEmulator(rig, m, port=port).start()
+        assert err.value.exit_code == 2
+        with ModbusEmulator(rig, m, port=0) as emu:
+            host, free = emu.address
+            assert free not in (0, port)
+            client = ModbusTcpClient(host, port=free)
+            assert client.connect()
+            client.close()

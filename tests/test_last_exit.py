@@ -7,6 +7,7 @@ the run left in its runtime directory."""
 from __future__ import annotations
 
 import json
+import os
 import math
 from pathlib import Path
 
@@ -155,3 +156,60 @@ def test_stop_and_status_name_the_faults_that_recovered(rig, capsys, monkeypatch
     assert "faults active at the end" not in out and len(out.strip().splitlines()) == 1
     code, _, err = status_cli(runtime, capsys)
     assert code == 1 and "faults since start (recovered ones too): comms_error 9, comms_timeout 2" in err, err
+
+
+def test_stop_with_nothing_running_says_how_the_last_run_ended(rig, capsys):
+    """`gma-ffc stop` after a `kill -9` said only "no controller running", which reads as all is well;
+    `status` said the run left no exit record and to check the amplifier. `stop` now says it too."""
+    _, runtime = rig
+    runtime.directory.mkdir(mode=0o700)
+    last_exit.write(runtime, {**last_exit.started("cfg.yaml"), "pid": 999999})
+    code = main(["stop", "--runtime-dir", str(runtime.directory)])
+    err = capsys.readouterr().err
+    assert code == 1 and "no controller running" in err and "left no exit record: it was killed" in err, err
+    assert "check the amplifier" in err and len(err.strip().splitlines()) == 1
+
+
+def test_stop_with_nothing_ever_run_is_the_old_answer(rig, capsys):
+    _, runtime = rig
+    code = main(["stop", "--runtime-dir", str(runtime.directory)])
+    err = capsys.readouterr().err
+    assert code == 1 and "no controller running" in err and "last run" not in err
+
+
+def test_status_as_another_user_names_the_system_services_folder_and_its_user(rig, capsys, monkeypatch, tmp_path):
+    """A lab user's `gma-ffc status` while the systemd service ran (as user gma-ffc, in /run/gma-ffc)
+    said only "no controller running (socket /run/user/1000/gma-ffc/control.sock)". It names the
+    service's folder and user; as that user, the default runtime folder is the service's."""
+    import pwd
+
+    from gma_ffc.service import paths
+
+    system = tmp_path / "run-gma-ffc"
+    system.mkdir(mode=0o700)
+    nobody = pwd.getpwnam("nobody")
+    os.chown(system, nobody.pw_uid, nobody.pw_gid)
+    monkeypatch.setattr(paths, "SYSTEM_RUNTIME_DIR", str(system))
+    _, runtime = rig
+    for command in ("status", "stop"):
+        assert main([command, "--runtime-dir", str(runtime.directory)]) == 1
+        err = capsys.readouterr().err
+        assert f"the system service keeps its controller's socket in {system}, user nobody" in err, err
+        assert "'sudo -u nobody gma-ffc status'" in err and len(err.strip().splitlines()) == 1
+    monkeypatch.setattr(paths.os, "geteuid", lambda: nobody.pw_uid)       # as that user, as advised
+    assert paths.default_runtime_dir({}) == system
+    assert paths.system_service_hint(paths.RuntimePaths(system)) == ""
+
+
+def test_reload_with_nothing_running_says_how_the_last_run_ended(rig, capsys):
+    """A reload after the controller ended on a fault said only "no controller running": the
+    fault that ended it was told by status alone."""
+    tmp, runtime = rig
+    svc = Service(tmp / "cfg.yaml", runtime=runtime, install_signal_handlers=False,
+                  load_config=load_config, make_controller=nan_after(200))
+    with pytest.raises(FaultError, match="sensor_nan"):
+        svc.run()
+    assert main(["reload", "--runtime-dir", str(runtime.directory)]) == 1
+    err = capsys.readouterr().err
+    assert "no controller running" in err and "on a fault: sensor_nan" in err and "safe current (0 A) written" in err
+    assert len(err.strip().splitlines()) == 1

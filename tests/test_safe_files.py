@@ -267,3 +267,41 @@ def test_a_file_of_another_owner_is_refused(tmp_path):
     os.chown(path, 65534, 65534)
     with pytest.raises(OutputRefused, match="belongs to uid 65534"):
         safe_files.open_for_writing(path, (), safe_files.TELEMETRY_LOCK)
+
+
+def test_a_taken_telemetry_lock_advises_a_stop_that_reaches_the_holder(tmp_path):
+    """The refusal said "stop it first ('gma-ffc stop', or 'kill PID')": for a holder started with
+    --runtime-dir or --no-socket, 'gma-ffc stop' answered "no controller running". It advises the
+    SIGTERM that reaches any holder; done, the lock is free."""
+    import re
+    import signal
+    import textwrap
+
+    from gma_ffc.control.telemetry import TelemetryLock
+    from gma_ffc.errors import ConfigError
+
+    tel = tmp_path / "tel.csv"
+    holder = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
+        import sys, time
+        from gma_ffc.control.telemetry import TelemetryLock
+        TelemetryLock({str(tel)!r}).acquire()
+        print("held", flush=True)
+        time.sleep(60)
+        """)], stdout=subprocess.PIPE, text=True, cwd=Path(__file__).resolve().parents[1])
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(ConfigError) as err:
+            TelemetryLock(tel).acquire()
+        words = str(err.value)
+        assert "gma-ffc stop" not in words, words
+        pid = int(re.search(r"'kill (\d+)' \(SIGTERM\)", words).group(1))
+        assert pid == holder.pid
+        os.kill(pid, signal.SIGTERM)                   # as advised
+        holder.wait(10)
+        lock = TelemetryLock(tel)
+        lock.acquire()
+        assert lock.held
+        lock.release()
+    finally:
+        holder.kill()
+        holder.wait()

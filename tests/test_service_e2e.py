@@ -359,3 +359,31 @@ def test_a_model_of_a_voltage_drive_is_refused_by_the_current_controller(rig):
     line = one_line_error(res, 2)
     assert "the model's drive is voltage_V" in line and "current_A" in line, line
     assert not (tmp / "telemetry.csv").exists()           # refused before anything was driven
+
+
+def test_the_install_note_on_a_missing_config_gives_a_config_that_loads(tmp_path):
+    """install_service.sh's note said to copy a config/*.yaml to /etc/gma-ffc and set its telemetry and
+    output_dirs. Followed, the config named 'models/sim_sdpi.yaml' beside it, which was not there: the
+    service would not start. The note now says where the model goes; followed, the config loads and
+    its controller builds."""
+    import re
+
+    from gma_ffc.control.config import load_config
+    from gma_ffc.control.manager import ControllerManager
+
+    etc, var = tmp_path / "etc", tmp_path / "var"
+    etc.mkdir(), var.mkdir()
+    config = etc / "config.yaml"
+    res = subprocess.run([str(ROOT / "scripts" / "install_service.sh"), "--dry-run", "--config", str(config)],
+                         capture_output=True, text=True)
+    note = next(line for line in res.stderr.splitlines() if "does not exist yet" in line)
+    model_to = re.search(r"to (\S+/model\.yaml) and set 'model: model\.yaml'", note)
+    assert model_to and Path(model_to.group(1)) == etc / "model.yaml", note
+    # what the note says, on the shipped simulated rig's config (a real clock is not needed to build)
+    shutil.copy(ROOT / "config" / "sim.yaml", config)
+    shutil.copy(ROOT / "config" / "models" / "sim_sdpi.yaml", model_to.group(1))
+    text = re.sub(r"(?m)^model: .*$", "model: model.yaml", config.read_text())
+    text = re.sub(r"(?m)^output_dirs: .*$", f"output_dirs: [{var}]", text)
+    config.write_text(re.sub(r"(?m)^  path: telemetry/sim_run.csv", f"  path: {var}/sim_run.csv", text))
+    ctrl = ControllerManager(load_config(config))
+    assert ctrl.setup.cfg.model == str(etc / "model.yaml")

@@ -721,3 +721,53 @@ def test_a_background_diagnosis_that_concluded_nothing_says_why_and_quotes_no_un
     named = {"outcome": "effects_named", "effects": ["thermal_drift"], "rms_before_um": 0.5, "rms_after_um": 0.1,
              "scored": True, "cannot_conclude": ["something minor"]}
     assert summary_words(named) == "effects_named: thermal_drift (held-out RMS 0.5 -> 0.1 um)"
+
+
+def test_ctrl_c_while_start_waits_stops_the_controller_it_was_starting(tmp_path, monkeypatch, capsys):
+    """Ctrl-C during `gma-ffc start`'s wait for READY said "interrupted" and left the controller
+    starting: it then ran on, driving the rig, after the one who started it had cancelled. The wait
+    now sends it SIGTERM and waits for it; the command says so, exit 130."""
+    import subprocess
+    import sys
+
+    from gma_ffc.cli import main
+    from gma_ffc.service import daemon
+
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+
+    class CtrlC:
+        def settimeout(self, _s):
+            pass
+
+        def recv(self, _n):
+            raise KeyboardInterrupt
+
+    try:
+        with pytest.raises(daemon.StartInterrupted):
+            daemon._wait_ready(child, CtrlC(), RuntimePaths(tmp_path / "rt"), 0, 30.0)
+        assert child.poll() == -signal.SIGTERM
+    finally:
+        child.kill()
+        child.wait()
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("model: m.yaml\n")
+    for raised, said in ((daemon.StartInterrupted, "; the controller it was starting was stopped (SIGTERM)"),
+                         (KeyboardInterrupt, "")):       # before any controller was started: nothing to stop
+        def interrupted_start(*_a, raised=raised, **_k):
+            raise raised
+        monkeypatch.setattr(daemon, "start", interrupted_start)
+        assert main(["start", "--config", str(cfg), "--runtime-dir", str(tmp_path / "rt")]) == 130
+        err = capsys.readouterr().err
+        assert err == f"gma-ffc start: interrupted{said}\n", err
+
+
+def test_ctrl_c_while_the_commands_load_is_one_line_not_a_traceback(monkeypatch, capsys):
+    """Ctrl-C in the half second every command spends importing numba printed a 50-line traceback."""
+    import gma_ffc.cli as cli
+
+    def slow_import():
+        raise KeyboardInterrupt
+    monkeypatch.setattr(cli, "build_parser", slow_import)
+    assert cli.main(["status"]) == 130
+    assert capsys.readouterr().err == "gma-ffc: interrupted\n"

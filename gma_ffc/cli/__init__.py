@@ -53,7 +53,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt:
+        # Ctrl-C while the subcommands load (numba's import alone takes about half a second, on
+        # every command) printed a 50-line traceback; as `dispatch` does for one at work
+        print("gma-ffc: interrupted", file=sys.stderr)
+        return 130
     return dispatch(f"gma-ffc {args.command}", lambda: args.func(args))
 
 

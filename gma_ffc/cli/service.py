@@ -70,11 +70,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _start(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..service.daemon import start
+    from ..service.daemon import StartInterrupted, start
     from ..service.paths import runtime_paths
 
     runtime = runtime_paths(args.runtime_dir)
-    started = start(Path(args.config), runtime, duration_s=args.duration, timeout_s=args.timeout)
+    try:
+        started = start(Path(args.config), runtime, duration_s=args.duration, timeout_s=args.timeout)
+    except StartInterrupted:        # start() has stopped the controller it was starting
+        print("gma-ffc start: interrupted; the controller it was starting was stopped (SIGTERM)", file=sys.stderr)
+        return 130
     print(f"started: pid {started.pid}, socket {runtime.socket}, log {runtime.log_file}")
     if started.status:
         print(started.status)
@@ -82,13 +86,17 @@ def _start(args: argparse.Namespace) -> int:
 
 
 def _stop(args: argparse.Namespace) -> int:
+    from ..errors import NotRunningError
     from ..service import last_exit
     from ..service.daemon import stop
     from ..service.paths import runtime_paths
     from ..service.status import faults_of, since_start_clause
 
     runtime = runtime_paths(args.runtime_dir)
-    result = stop(runtime, timeout_s=args.timeout)
+    try:
+        result = stop(runtime, timeout_s=args.timeout)
+    except NotRunningError as exc:
+        raise _nothing_runs(runtime, exc) from None
     record = last_exit.read(runtime)
     final = result.final_status or {}
     if record and record.get("pid") == result.pid and record.get("how") != "running":
@@ -127,14 +135,26 @@ def _status(args: argparse.Namespace) -> int:
     return 0
 
 
-def _not_running(args: argparse.Namespace, runtime, exc: Exception) -> int:
-    """Nothing answers: say so, with how the last run ended when it left a record (exit 1 as before)."""
+def _nothing_runs(runtime, exc: Exception) -> Exception:
+    """What `status`, `stop` and `reload` say when nothing answers: that, how the last run ended when it
+    left a record (a run killed before its end needs a look at the amplifier), and where the system
+    service's controller answers when its folder is another user's (exit 1 as before)."""
     from ..errors import NotRunningError
+    from ..service import last_exit
+    from ..service.paths import system_service_hint
+
+    record = last_exit.read(runtime)
+    said = f"{exc}; {last_exit.describe(record)}" if record else str(exc)
+    return NotRunningError(said + system_service_hint(runtime))
+
+
+def _not_running(args: argparse.Namespace, runtime, exc: Exception) -> int:
+    """Nothing answers: say so (`_nothing_runs`); JSON always for `--json` (exit 1 as before)."""
     from ..service import last_exit
 
     record = last_exit.read(runtime)
     if not args.json:
-        raise NotRunningError(f"{exc}; {last_exit.describe(record)}" if record else str(exc))
+        raise _nothing_runs(runtime, exc)
     # machine readers always get JSON: say that nothing runs there, and exit as before (1)
     doc: dict[str, object] = {"state": "not running", "socket": str(runtime.socket), "message": str(exc)}
     if record:
@@ -147,17 +167,25 @@ def _not_running(args: argparse.Namespace, runtime, exc: Exception) -> int:
 def _reload(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..errors import InputError
+    from ..errors import InputError, NotRunningError
     from ..service.control_socket import request
     from ..service.paths import runtime_paths
 
     message: dict[str, str] = {"cmd": "reload"}
     if args.model is not None:
         model = Path(args.model).expanduser().resolve()      # the service's working directory is not ours
+        if model.is_dir():     # a background diagnosis' folder, as status names its report's
+            inside = model / "extended_model.yaml"
+            raise InputError(f"--model {args.model} is a folder, not a model file: give "
+                             + (f"{inside}" if inside.is_file() else "the model file in it"))
         if not model.is_file():
             raise InputError(f"--model {args.model}: no such file")
         message["model"] = str(model)
-    reply = request(runtime_paths(args.runtime_dir).socket, message, timeout_s=60.0)
+    runtime = runtime_paths(args.runtime_dir)
+    try:
+        reply = request(runtime.socket, message, timeout_s=60.0)
+    except NotRunningError as exc:      # as status says it: a controller that ended on a fault is named
+        raise _nothing_runs(runtime, exc) from None
     if not reply.get("ok"):
         raise InputError(str(reply.get("error") or reply.get("message") or "the controller refused the reload"))
     print(reply.get("message", "reloaded"))

@@ -13,6 +13,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from ..drivers import Driver, DriverProtocol, Inputs, driver_class
 from ..drivers.base import DISPLACEMENT, FORCE, INSTANCE_MEMBERS, STRESS, missing_members
 from ..errors import ConfigError, ModelError
@@ -116,6 +118,7 @@ def build_setup(cfg: ControllerConfig, model: Model) -> Setup:
     _drives_a_current(cfg, model)
     _limits_near_the_model(cfg, model)
     reference = build_reference(cfg.reference, model.preview_s)
+    _reference_within_reach(cfg, model, reference)
     stress_range = StressRange.of_model(model, cfg.stress["out_of_range"])
     warm_up(model, cfg.period_s, stress_range)
     law = FeedforwardController(model, reference, model.inverse_stepper(cfg.period_s, initial_drive=lim["safe_current_A"]),
@@ -151,6 +154,39 @@ def _limits_near_the_model(cfg: ControllerConfig, model: Model) -> None:
                 f"model was identified on ({extent:.3g} A, {cfg.model}): check its unit (amperes, not milliamperes) "
                 f"and set it to the coil's limit, at most {LIMIT_BEYOND_MODEL_FACTOR * extent:.3g} A for this "
                 "model; to drive further, identify a model over the wider current first")
+
+
+# A reference this many times the largest displacement the model gives over its identified drive range
+# is nothing the actuator can follow, and most likely a unit slip (nanometres typed as micrometres are
+# 1000x); it ran with every tick at a current limit and exit 0. A reference a little past the stroke
+# is limits.beyond_model's to handle (warn, clamp or fault).
+REFERENCE_BEYOND_REACH_FACTOR = 10.0
+REFERENCE_KEYS = {"sine": "reference.amplitude_um and offset_um", "triangle": "reference.amplitude_um and offset_um",
+                  "multisine": "reference.components' amplitude_um and reference.offset_um",
+                  "playback": "the reference_um column of reference.file"}
+
+
+def _reference_within_reach(cfg: ControllerConfig, model: Model, reference: Reference) -> None:
+    """ConfigError for a reference over REFERENCE_BEYOND_REACH_FACTOR times the model's reach."""
+    reach, peak = _model_reach_um(model), reference.peak_um()
+    if not (math.isfinite(reach) and reach > 0.0) or peak <= REFERENCE_BEYOND_REACH_FACTOR * reach:
+        return
+    raise ConfigError(
+        f"config key 'reference' asks for up to {peak:g} um, {peak / reach:.0f}x the most the model gives over its "
+        f"identified drive range ({reach:.3g} um, {cfg.model}): check the unit of "
+        f"{REFERENCE_KEYS.get(cfg.reference['kind'], 'the reference')} (micrometres, not nanometres) and keep "
+        f"the reference within about {reach:.3g} um; no drive the model knows reaches it")
+
+
+def _model_reach_um(model: Model) -> float:
+    """The largest |displacement| of a full sweep of the model's drive range, at each end of its stresses."""
+    lo, hi = (float(v) for v in model.drive_range)
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return math.nan
+    sweep = np.concatenate([np.linspace(lo, hi, 200), np.linspace(hi, lo, 200)])
+    times = np.arange(sweep.size) / sweep.size      # a 1 s sweep, as learning's gain table takes it
+    stresses = [None] if model.stress_range_MPa is None else [float(s) for s in model.stress_range_MPa]
+    return max(float(np.max(np.abs(model.simulate(times, sweep, s)))) for s in stresses)
 
 
 def _drives_a_current(cfg: ControllerConfig, model: Model) -> None:

@@ -22,6 +22,17 @@ from .envelope import BEYOND_POLICIES, STRESS_POLICIES
 from .learning import LearningConfig, reference_period_s
 
 DEFAULT_ROD_DIAMETER_MM = 7.0
+# A GMA's Terfenol-D rod is millimetres to tens of millimetres across (the paper's 7 mm); under 1 mm is
+# a unit slip (7 mm typed in metres, centimetres or inches), which made every load-cell reading look
+# absurd only once the rig ran, after the amplifier was opened.
+MIN_ROD_DIAMETER_MM = 1.0
+
+
+def _rod_diameter(value: float, key: str) -> float:
+    if value < MIN_ROD_DIAMETER_MM:
+        raise ConfigError(f"config key '{key}' ({value:g}) is under {MIN_ROD_DIAMETER_MM:g} mm, thinner than any "
+                          f"GMA's rod: give the diameter in millimetres (0.007 m is 7 mm)")
+    return value
 
 TOP = {
     "rate_hz": Field("float", 1000.0, min=0.0, min_exclusive=True, max=100_000.0),
@@ -45,7 +56,7 @@ TOP = {
 }
 
 STRESS = {
-    "rod_diameter_mm": Field("float", DEFAULT_ROD_DIAMETER_MM, min=0.0, min_exclusive=True),
+    "rod_diameter_mm": Field("float", DEFAULT_ROD_DIAMETER_MM, min=0.0, min_exclusive=True, check=_rod_diameter),
     "source": Field("choice", "force", choices=("force", "stress")),
     "out_of_range": Field("choice", "clamp", choices=STRESS_POLICIES),
     "valid_range_MPa": Field("list", [-80.0, 10.0], check=pair),
@@ -152,7 +163,8 @@ MONITOR = {
     "max_per_hour": Field("int", 2, min=0, max=60, help="background diagnoses at most this often (0: never)"),
     "state_dir": Field("str", None, nullable=True,
                        help="where diagnoses are written (default: $STATE_DIRECTORY, else $XDG_STATE_HOME/gma-ffc, "
-                            "else /var/lib/gma-ffc for root, ~/.local/state/gma-ffc for others)"),
+                            "else /var/lib/gma-ffc for root, ~/.local/state/gma-ffc for others; the first of "
+                            "output_dirs when the config names them and that default lies outside)"),
 }
 
 # Prometheus metrics (gma_ffc/service/metrics.py). Loopback by default: the figures say what the
@@ -332,8 +344,28 @@ def _stop_ramp_fits(limits: dict[str, Any], rate_hz: float, since: Mapping[str, 
         raise ConfigError(
             f"config key 'limits.stop_ramp_max_s' ({limits['stop_ramp_max_s']:g} s) is shorter than a stop's ramp "
             f"to the safe current at the slew limit{start}: {farthest:g} A at {slew:g} A/s takes {need_s:.3g} s, "
-            f"and cutting it short would write the safe current in one step beyond the slew limit. Set "
-            f"limits.stop_ramp_max_s to {enough:g} or more, or raise limits.slew_A_per_s")
+            f"and cutting it short would write the safe current in one step beyond the slew limit. "
+            f"{_far_limit_first(limits, farthest)}Set limits.stop_ramp_max_s to {enough:g} or more, or raise "
+            f"limits.slew_A_per_s")
+
+
+# A lab GMA's coil amplifier gives a few amperes to a few tens (the paper's rig 3 A): a current limit
+# this large is most likely milliamperes typed as amperes, worth naming before a longer stop ramp.
+LIKELY_MILLIAMPERES_A = 100.0
+
+
+def _far_limit_first(limits: Mapping[str, Any], farthest: float) -> str:
+    """The limit that makes the ramp long, to check before lengthening the ramp: `current_max_A: 3000`
+    (milliamperes typed as amperes) was told only to set stop_ramp_max_s to 6.1, and then refused as
+    a unit slip once the model was read. '' for a limit below LIKELY_MILLIAMPERES_A, and when the
+    farthest end is the running limits' (a reload)."""
+    safe = limits["safe_current_A"]
+    spans = {"current_max_A": limits["current_max_A"] - safe, "current_min_A": safe - limits["current_min_A"]}
+    for key, span in spans.items():
+        if span == farthest and abs(limits[key]) >= LIKELY_MILLIAMPERES_A:
+            return (f"If limits.{key} ({limits[key]:g} A) is not the coil's limit in amperes (milliamperes "
+                    "typed as amperes are 1000x), correct it first. ")
+    return ""
 
 
 def stop_ramp_fits_after_reload(running: Mapping[str, Any], new: Mapping[str, Any], rate_hz: float) -> None:

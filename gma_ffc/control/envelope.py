@@ -106,4 +106,13 @@ class StressRange:
 
     def message(self, stress: float) -> str:
         return (f"stress {stress:.2f} MPa outside the model's range [{self.lo:.2f}, {self.hi:.2f}] MPa: "
-                f"{_STRESS_VERB[self.policy]}")
+                f"{_STRESS_VERB[self.policy]}{self._sign_advice(stress)}")
+
+    def _sign_advice(self, stress: float) -> str:
+        """The model identified with compression positive (its range on the other side of zero, the
+        stress negated inside it): every tick ran clamped to the wrong end, and the message said only
+        "outside the range". identify notes a positive stress_MPa; a model made despite it lands here."""
+        if self.lo > 0.0 and self.lo <= -stress <= self.hi:      # a range of tension, the compression inside it
+            return (f"; the stress negated ({-stress:.2f} MPa) is inside it: the model's recordings had "
+                    "compression positive, where gma-ffc's are negative; negate their stress_MPa and identify again")
+        return ""

@@ -164,4 +164,4 @@ class TelemetryRecorder(Broadcaster):
         if tel is None:
             return None
         return {"path": str(tel.path) if tel.path else None, "rows": tel.head, "rows_written": tel.rows_written,
-                "dropped": tel.dropped}
+                "dropped": tel.dropped, "error": tel.error or None}

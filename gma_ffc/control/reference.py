@@ -30,6 +30,10 @@ class Reference:
         """Vectorised evaluation for tests and reports (not used on the hot path)."""
         return np.array([self.value(float(x)) for x in np.asarray(t, dtype=float)])
 
+    def peak_um(self) -> float:  # pragma: no cover - interface
+        """The largest |value| the reference can take (a bound, checked against the model's reach)."""
+        raise NotImplementedError
+
 
 class Sine(Reference):
     def __init__(self, frequency_hz: float, amplitude_um: float, offset_um: float = 0.0,
@@ -42,6 +46,9 @@ class Sine(Reference):
 
     def value(self, t: float) -> float:
         return self.c + self.a * math.sin(self.w * (t + self.lead_s) + self.phi)
+
+    def peak_um(self) -> float:
+        return abs(self.c) + abs(self.a)
 
 
 class Triangle(Reference):
@@ -58,6 +65,9 @@ class Triangle(Reference):
         x = ((t + self.lead_s) * self.f) % 1.0
         tri = 4.0 * x - 1.0 if x < 0.5 else 3.0 - 4.0 * x
         return self.c + self.a * tri
+
+    def peak_um(self) -> float:
+        return abs(self.c) + abs(self.a)
 
 
 class MultiSine(Reference):
@@ -76,6 +86,9 @@ class MultiSine(Reference):
         for k in range(self.n):
             y += a[k] * math.sin(w[k] * tt + phi[k])
         return y
+
+    def peak_um(self) -> float:
+        return abs(self.c) + sum(abs(a) for a in self.a)
 
 
 class Playback(Reference):
@@ -112,6 +125,9 @@ class Playback(Reference):
         self.i = i
         t0, t1 = ts[i], ts[i + 1]
         return rs[i] + (rs[i + 1] - rs[i]) * (tt - t0) / (t1 - t0)
+
+    def peak_um(self) -> float:
+        return max(abs(v) for v in self.r)
 
 
 def build_reference(section: dict[str, Any], preview_s: float = 0.0) -> Reference:

@@ -273,4 +273,26 @@ class SensorMonitor:
         what = {SENSOR_NAN: "missing or NaN", SENSOR_STALE: "stuck (unchanged)",
                 SENSOR_ABSURD: f"absurd (outside the plausible {self.raw_lo:.4g} .. {self.raw_hi:.4g} "
                                f"{'N' if self.source_force else 'MPa'})"}[fault]
-        return f"load-cell reading {what} for {n} ticks (last value {raw!r})"
+        text = f"load-cell reading {what} for {n} ticks (last value {raw!r})"
+        return text + self._absurd_advice(raw) if fault == SENSOR_ABSURD else text
+
+    def _absurd_advice(self, raw: float) -> str:
+        """Where the plausible range comes from, and the sign slip when the reading negated is plausible:
+        a load cell reading compression as a negative force (or a transmitter giving compression as a
+        positive stress) has every reading outside the range, and the bare numbers did not say why."""
+        if self.source_force:
+            diameter_mm = 2.0 * math.sqrt(self.area / math.pi)
+            words = (f": {raw:.6g} N is {-raw / self.area:.4g} MPa on the {diameter_mm:.4g} mm rod "
+                     f"(stress.rod_diameter_mm), against stress.valid_range_MPa [{self.lo:g}, {self.hi:g}]"
+                     + ("" if math.isinf(self.force_limit) else f" and sensor.force_limit_N {self.force_limit:g}"))
+            flip = (f"{-raw:.6g} N would be plausible: if the load cell reads compression as a negative "
+                    "force, negate its scale (stress = -force / rod area)")
+            check = "check the load cell's scale and unit (N) and stress.rod_diameter_mm (millimetres)"
+        else:
+            words = f": stress.valid_range_MPa is [{self.lo:g}, {self.hi:g}]"
+            flip = (f"{-raw:.6g} MPa would be plausible: if the transmitter gives compression as a positive "
+                    "stress, negate its scale")
+            check = "check the transmitter's scale and unit (MPa)"
+        if raw != 0.0 and self.raw_lo <= -raw <= self.raw_hi:
+            return f"{words}; compression is negative stress, and {flip}"
+        return f"{words}; {check}"

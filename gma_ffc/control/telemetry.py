@@ -83,9 +83,11 @@ class TelemetryLock:
         except BlockingIOError:
             holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
             os.close(fd)
+            # 'gma-ffc stop' alone reaches only a controller in the default runtime folder ("no controller
+            # running" for one started with --runtime-dir or --no-socket); SIGTERM reaches any
             raise ConfigError(f"telemetry file {self.path} is being written by another controller (pid {holder}); "
-                              f"stop it first ('gma-ffc stop', or 'kill {holder}': either leaves its amplifier "
-                              "at the safe current) or give this one another telemetry.path") from None
+                              f"stop it first ('kill {holder}' (SIGTERM) ramps its amplifier to the safe current "
+                              "and ends it) or give this one another telemetry.path") from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         self._fd = fd
@@ -226,6 +228,9 @@ class Telemetry:
             self._header_written = True
             self.rows_written += len(block)
         except OSError as exc:   # disk full etc.: reported in status, the loop keeps control
+            if not self.error:
+                log.warning("telemetry write failed: %s (%s); the loop keeps control, rows are lost until "
+                            "it can write", exc.strerror, self.path)
             self.error = f"telemetry write failed: {exc.strerror}"
 
     def _write_all(self, data: bytes) -> None:

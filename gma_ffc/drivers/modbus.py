@@ -89,6 +89,15 @@ class _Device:
         c = self.cfg
         return f"{c['host']}:{c['port']}" if c["transport"] == "tcp" else str(c["port"])
 
+    def why_no_connection(self) -> str:
+        """What is known of a failed connect: a serial port that is not there (pymodbus says only
+        False, and "cannot connect" alone sent a lab to check baud rates and wiring)."""
+        port = str(self.cfg["port"])
+        if self.cfg["transport"] != "tcp" and not os.path.exists(port):
+            return (f" ({port} does not exist: is the adapter plugged in? 'ls /dev/serial/by-id/' lists the serial "
+                    f"ports by adapter; set driver.devices.{self.name}.port to one)")
+        return ""
+
 
 def _invalid_marker(ch: Channel) -> float:
     """The physical value of an integer channel's "invalid" raw value: the most negative for
@@ -193,7 +202,8 @@ class ModbusDriver(Driver):
                 ok = False
                 self.last_error = f"{type(exc).__name__}: {exc}"
             if not ok:
-                raise DriverError(f"modbus device '{dev.name}' at {dev.where}: cannot connect", "comms")
+                raise DriverError(f"modbus device '{dev.name}' at {dev.where}: cannot connect{dev.why_no_connection()}",
+                                  "comms")
         self.enabled = False
 
     def close(self) -> None:

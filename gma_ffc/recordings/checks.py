@@ -45,7 +45,8 @@ def _at_line(source: str, line: int) -> str:
 def _at_row(rec: Recording, row: int) -> str:
     """Where a row's message points: its line in a text file, else its sample number (from 1, as
     MATLAB indexes it)."""
-    return f"{rec.source}, line {rec.header_line + 1 + row}" if rec.header_line > 0 else f"{rec.source}, sample {row + 1}"
+    in_file = row if rec.file_rows is None else int(rec.file_rows[row])
+    return f"{rec.source}, line {rec.header_line + 1 + in_file}" if rec.header_line > 0 else f"{rec.source}, sample {row + 1}"
 
 
 def check_column_name(name: str, source: str, line: int) -> None:

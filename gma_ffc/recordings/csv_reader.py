@@ -39,6 +39,9 @@ def _head_lines(path: Path, source: str) -> list[str]:
             head = fh.read(65536)
     except FileNotFoundError:
         raise RecordingError(f"{source}: no such file") from None
+    except IsADirectoryError:      # a glob's folder (a telemetry folder's diagnoses/)
+        raise RecordingError(f"{source} is a folder, not a recording: give the recordings in it, e.g. "
+                             f"{path / '*.csv'}, or leave it out") from None
     except OSError as exc:
         raise RecordingError(f"{source}: cannot read ({exc})") from None
     try:
@@ -63,6 +66,13 @@ def _metadata_and_header(lines: list[str], source: str) -> tuple[list[tuple[int,
     raise RecordingError(f"{source}: no header line (expected e.g. 'time_s,current_A,displacement_um')")
 
 
+# Files a folder's glob (`gma-ffc identify rec/*`) takes in beside the recordings, by suffix: the
+# manifest.yaml `hil_sim record` writes, and the NAME.csv.lock a controller leaves beside its telemetry.
+# Read as a CSV, each was "column '...' has no unit", which named no cause.
+NOT_RECORDINGS = {".yaml": "a YAML file", ".yml": "a YAML file",
+                  ".lock": "a controller's telemetry lock file (it holds the writer's pid)"}
+
+
 def read_csv(path: Path, require: Sequence[str]) -> Recording:
     """A CSV recording: Arrow's multi-threaded C++ parser for the rows, this module's checks and
     messages for everything else. Spreadsheet exports are understood: a UTF-8 byte-order mark is
@@ -75,6 +85,10 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
         raise RecordingError(f"{source} is a gma-ffc model file, not a recording: give a recording here (time_s, the "
                              "drive, displacement_um; docs/recordings.md), and a model, where a command takes one, "
                              "with --model")
+    what = NOT_RECORDINGS.get(path.suffix.lower())
+    if what is not None:
+        raise RecordingError(f"{source} is {what}, not a recording (.csv, .mat, .tdms or .h5; "
+                             f"docs/recordings.md): leave it out, e.g. give {path.parent / '*.csv'}")
     first_row = next((ln for ln in lines[header_idx + 1:] if ln.strip() and not ln.lstrip().startswith("#")), "")
     delimiter, decimal = _dialect(header, first_row)
     names = [n.strip().strip('"') for n in header.split(delimiter)]
@@ -107,8 +121,40 @@ def read_csv(path: Path, require: Sequence[str]) -> Recording:
             body = [ln.rstrip()[:-1] if ln.rstrip().endswith(delimiter) else ln for ln in body]
         data = _parse_rows(body, len(names), source, header_line, delimiter, decimal)
         columns = {n: data[:, k] for k, n in enumerate(names)}
-    rec = Recording(columns, meta, source, notes)
+    keep, words = _telemetry_rows_kept(columns, meta, header_line)
+    file_rows = None
+    if keep is not None:
+        file_rows = np.flatnonzero(keep)
+        columns = {n: c[keep] for n, c in columns.items()}
+        notes.extend(f"{source}: {w}; they were left out" for w in words)
+    rec = Recording(columns, meta, source, notes, file_rows=file_rows)
     return validate(rec, require, header_line)
+
+
+def _telemetry_rows_kept(columns: Mapping[str, np.ndarray], meta: Mapping[str, Any],
+                         header_line: int) -> tuple[Any, list[str]]:
+    """In a gma-ffc telemetry file, the rows to keep (None: all) and what was left out. The controller
+    writes the last good stress, so only rows before the load cell's first good reading have none;
+    a displacement reading the sensor did not give is empty. One such row (a transmitter settling, a
+    dropped sample) made the whole run's telemetry unreadable to simulate and diagnose. A column
+    empty throughout is left to the checks (nothing would be left)."""
+    if not str(meta.get("source", "")).startswith("gma-ffc controller"):
+        return None, []
+    keep = np.ones(len(next(iter(columns.values()), ())), dtype=bool)
+    words = []
+    stress, shown = columns.get("stress_MPa"), columns.get("displacement_um")
+    if stress is not None and np.isfinite(stress).any() and not np.isfinite(stress[0]):
+        first = int(np.argmax(np.isfinite(stress)))
+        keep[:first] = False
+        words.append(f"the first {first} rows (lines {header_line + 1}-{header_line + first}) have no stress (the "
+                     "load cell had given no good reading yet, and the controller held the safe current)")
+    if shown is not None and np.isfinite(shown).any() and not np.isfinite(shown[keep]).all():
+        missing = keep & ~np.isfinite(shown)
+        keep &= ~missing
+        n = int(missing.sum())
+        words.append(f"{n} {'row has' if n == 1 else 'rows have'} no displacement (readings the sensor did not "
+                     f"give; the first at line {header_line + 1 + int(np.argmax(missing))})")
+    return (keep, words) if words else (None, [])
 
 
 TORN_TAIL_BYTES = 65536      # a data line is far shorter than this

@@ -43,6 +43,7 @@ class Recording:
     source: str = "<memory>"
     notes: list[str] = field(default_factory=list)      # what reading it left out, said to the user
     header_line: int = 0            # the header's line in the file (0: no lines, .mat/.tdms/.h5); `validate` sets it
+    file_rows: Any = None           # each row's data row in the file, when some were left out (telemetry); else None
 
     def __post_init__(self) -> None:
         self.columns = {k: np.ascontiguousarray(v, dtype=float) for k, v in self.columns.items()}

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import safe_files
-from ..errors import FaultError, GmaError, InputError, NoAnswerError
+from ..errors import FaultError, GmaError, InputError, NoAnswerError, NotRunningError
 from .control_socket import ask, check_socket_path, refuse_if_running, request
 from .paths import RuntimePaths, ensure_private_dir
 
@@ -109,8 +109,31 @@ def start(config: Path, runtime: RuntimePaths, *, duration_s: float | None = Non
             notify_path.unlink()
 
 
+class StartInterrupted(KeyboardInterrupt):
+    """Ctrl-C while a controller was starting: it was sent SIGTERM (and waited for)."""
+
+
+# How long an interrupted start waits for the controller it was starting to leave after SIGTERM: a
+# controller still importing dies at once, one past its start ramps to the safe current (a few s).
+ABANDON_WAIT_S = 5.0
+
+
 def _wait_ready(child: subprocess.Popen, listener: socket.socket, runtime: RuntimePaths,
                 log_offset: int, timeout_s: float) -> Started:
+    """Wait for READY; Ctrl-C (KeyboardInterrupt) stops the controller being started, then goes on up:
+    it ran on, driving the rig, after the one who started it had cancelled."""
+    try:
+        return _wait_ready_loop(child, listener, runtime, log_offset, timeout_s)
+    except KeyboardInterrupt:
+        with contextlib.suppress(ProcessLookupError):
+            child.send_signal(signal.SIGTERM)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            child.wait(ABANDON_WAIT_S)
+        raise StartInterrupted from None
+
+
+def _wait_ready_loop(child: subprocess.Popen, listener: socket.socket, runtime: RuntimePaths,
+                     log_offset: int, timeout_s: float) -> Started:
     deadline = time.monotonic() + timeout_s
     listener.settimeout(POLL_S)
     while time.monotonic() < deadline:
@@ -164,7 +187,7 @@ def stop(runtime: RuntimePaths, *, timeout_s: float = 10.0, term_timeout_s: floa
         reply = request(runtime.socket, {"cmd": "status"}, timeout_s=2.0)
     except FaultError:
         if pid is None or not process_alive(pid) or not looks_like_gma_ffc(pid):
-            raise FaultError(f"no controller running (socket {runtime.socket})") from None
+            raise NotRunningError(f"no controller running (socket {runtime.socket})") from None
         asked = False     # a live controller behind a dead socket: straight to SIGTERM
     else:
         if not reply.get("ok"):   # e.g. not the owner: never signal someone else's controller

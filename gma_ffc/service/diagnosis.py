@@ -21,7 +21,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 from .daemon import _last_error as last_error_line
 from .status import summary_words
@@ -58,7 +58,25 @@ def default_state_dir(environ: dict[str, str] | None = None) -> Path:
     return Path.home() / ".local" / "state" / "gma-ffc"
 
 
-def check_state_dir(monitor_cfg: dict[str, Any] | None) -> None:
+def state_dir_for(monitor_cfg: dict[str, Any], output_dirs: Sequence[str] = ()) -> Path:
+    """`monitor.state_dir`, else the default (`default_state_dir`), unless the config names output_dirs
+    and the default lies outside them: then the first of them. Every background diagnosis of a
+    config with output_dirs and no state_dir (the shipped config/sim.yaml's) failed, hours into the
+    run, on "outside the directories the config names for output"."""
+    from ..safe_files import OutputRefused, area_of
+
+    if monitor_cfg.get("state_dir"):
+        return Path(monitor_cfg["state_dir"])
+    default = default_state_dir()
+    if output_dirs:
+        try:
+            area_of(default / "diagnoses", output_dirs)      # as each diagnosis checks it
+        except OutputRefused:
+            return Path(output_dirs[0])
+    return default
+
+
+def check_state_dir(monitor_cfg: dict[str, Any] | None, output_dirs: Sequence[str] = ()) -> None:
     """With background diagnoses on, refuse at start a state folder they could not be written in
     (read-only, not this user's, a file in the way): it was found only when the first diagnosis
     started, maybe hours into the run. The probe is `atomic.check_folder_writable`'s."""
@@ -68,7 +86,7 @@ def check_state_dir(monitor_cfg: dict[str, Any] | None) -> None:
     cfg = monitor_cfg or {}
     if not (cfg.get("enabled") and cfg.get("on_drift") == "diagnose" and cfg.get("max_per_hour", 0) > 0):
         return
-    folder = Path(cfg["state_dir"]) if cfg.get("state_dir") else default_state_dir()
+    folder = state_dir_for(cfg, output_dirs)
     unset = "" if cfg.get("state_dir") else f" (not set: the default {folder})"
     try:
         check_folder_writable(folder / "diagnoses", f"config key 'monitor.state_dir'{unset}")
@@ -89,7 +107,7 @@ class BackgroundDiagnosis:
         self.take_window = take_window
         self.python = python
         self.now = now
-        self.state_dir = Path(monitor_cfg["state_dir"]) if monitor_cfg.get("state_dir") else default_state_dir()
+        self.state_dir = state_dir_for(monitor_cfg, output_dirs)
         self.child: subprocess.Popen | None = None
         self.started: list[float] = []          # wall-clock starts within the last hour
         self.diagnosed_episode: float | None = None

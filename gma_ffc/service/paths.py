@@ -67,6 +67,27 @@ def default_runtime_dir(environ: dict[str, str] | None = None) -> Path:
     return system if uid == 0 else Path(f"/tmp/gma-ffc-{uid}")
 
 
+def system_service_hint(runtime: RuntimePaths) -> str:
+    """'' or where the system service's controller answers, when `runtime` is not that folder and the
+    folder belongs to another user: `gma-ffc status` as oneself said "no controller running" of a
+    service that ran, its folder being another user's (the unit's User=)."""
+    import pwd
+
+    system = Path(SYSTEM_RUNTIME_DIR)
+    try:
+        owner = system.stat().st_uid
+    except OSError:
+        return ""
+    if owner == os.geteuid() or os.path.abspath(runtime.directory) == str(system):
+        return ""
+    try:
+        name = pwd.getpwuid(owner).pw_name
+    except KeyError:
+        name = str(owner)
+    return (f"; the system service keeps its controller's socket in {system}, user {name}: ask as that user, "
+            f"e.g. 'sudo -u {name} gma-ffc status'")
+
+
 def runtime_paths(directory: str | os.PathLike | None = None) -> RuntimePaths:
     """Resolve the directory without touching the file system (clients only read)."""
     return RuntimePaths(Path(directory) if directory else default_runtime_dir())

@@ -368,7 +368,7 @@ class Service:
         is named first: it is the first thing to mend."""
         check_inputs_exist(inputs_of(cfg), str(self.config_path))
         check_outputs(outputs_of(cfg, str(self.config_path), self.stats_json), inputs_of(cfg))
-        check_state_dir(getattr(cfg, "monitor", None))
+        check_state_dir(getattr(cfg, "monitor", None), tuple(getattr(cfg, "output_dirs", ())))
 
     def _install_handlers(self) -> dict[int, Any]:
         def on_stop(signum: int, _frame: Any) -> None:

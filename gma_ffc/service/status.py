@@ -193,6 +193,7 @@ def fields(status: Mapping[str, Any], now: float | None = None) -> list[tuple[st
     socket_row = _socket_trouble(status.get("control_socket") or {})
     if socket_row:
         rows.append(("control socket", socket_row))
+    rows += _telemetry_rows(status.get("telemetry") or {})
     rows += model_fit_rows(status)
     rows += diagnosis_rows(status.get("diagnosis") or {})
     reload = svc.get("last_reload")
@@ -203,6 +204,17 @@ def fields(status: Mapping[str, Any], now: float | None = None) -> list[tuple[st
     if svc.get("config"):
         rows.append(("config", str(svc["config"])))
     return rows
+
+
+def _telemetry_rows(tel: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """A row only when telemetry is in trouble: a write that failed (a full disk) left the file behind
+    the run, and the table said nothing of it until the stop."""
+    if not tel.get("error") and not tel.get("dropped"):
+        return []
+    lost = f"{tel.get('dropped')} rows dropped (the writer fell behind); " if tel.get("dropped") else ""
+    failed = f"{tel['error']}; " if tel.get("error") else ""
+    return [("telemetry", f"{failed}{lost}{tel.get('rows_written', 0)} of {tel.get('rows', 0)} rows written "
+                          f"to {tel.get('path')}")]
 
 
 _SOCKET_TROUBLE = (("refused_uid", "connections from other users refused"), ("bad", "bad requests"),

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import errno
 import math
 import random
 import socket
@@ -25,7 +26,7 @@ from pymodbus.exceptions import NoSuchIdException
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.server.requesthandler import ServerRequestHandler
 
-from gma_ffc.errors import ConfigError, FaultError
+from gma_ffc.errors import ConfigError, FaultError, InputError
 from gma_ffc.registers import (
     CURRENT_SETPOINT, HEARTBEAT, OUTPUT_ENABLE, STATUS, TYPES, Channel, RegisterMap,
 )
@@ -231,6 +232,10 @@ def _check_bindable(host: str, port: int) -> None:
             probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
             probe.bind(infos[0][4])
     except OSError as exc:
+        if exc.errno == errno.EADDRINUSE:        # the user's to fix, with a way that always works
+            raise InputError(f"cannot listen on {host}:{port}: it is in use (another emulator, or a real device's "
+                             "server): stop that, or give --port 0 for a free port (printed as 'connect: "
+                             "HOST:PORT') and set the config's driver.devices.NAME.port to it") from None
         raise FaultError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") from None
 
 
@@ -339,7 +344,7 @@ class ModbusEmulator:
         self._thread.start()
         if not self._ready.wait(timeout_s) or self._error is not None:
             self.stop()
-            if isinstance(self._error, FaultError):
+            if isinstance(self._error, (FaultError, InputError)):
                 raise self._error
             raise FaultError(f"modbus {self.transport} emulator failed to start: {self._error or 'timeout'}")
         return self.address
