@@ -28,16 +28,22 @@ from typing import Any
 
 import numpy as np
 
-KINDS = ("relaxed", "estimate", "drive")
+KINDS = ("relaxed", "estimate", "drive", "plays")
 DEFAULT = "estimate"
 
 
 @dataclass(frozen=True)
 class InitialStateSpec:
-    """What the user asked for (``--initial-state relaxed|estimate|drive:VALUE``)."""
+    """What the user asked for (``--initial-state relaxed|estimate|drive:VALUE|plays:FILE``).
+
+    A ``plays`` spec holds the play outputs themselves (`plays`, the model's play units: drive -
+    input_offset) and the file they came from (`source`); `gma_ffc.known_state.read_play_state`
+    makes one, since `parse` does no I/O."""
 
     kind: str = DEFAULT
     drive: float | None = None
+    plays: tuple[float, ...] | None = None
+    source: str | None = None
 
     @classmethod
     def parse(cls, text: "str | InitialStateSpec") -> "InitialStateSpec":
@@ -53,9 +59,15 @@ class InitialStateSpec:
                 v = float("nan")
             if np.isfinite(v):
                 return cls("drive", v)
+        if t.startswith("plays:"):
+            raise ValueError(f"initial state {text!r}: a known state (plays:FILE) is taken by gma-ffc "
+                             "diagnose only (its file is read by gma_ffc.known_state); use relaxed, estimate "
+                             "or drive:VALUE")
         raise ValueError(f"initial state {text!r}: use relaxed, estimate or drive:VALUE (e.g. drive:0)")
 
     def __str__(self) -> str:
+        if self.kind == "plays":
+            return f"plays:{self.source}"
         return f"drive:{self.drive:g}" if self.kind == "drive" else self.kind
 
 
@@ -175,6 +187,8 @@ def resolve(model: Any, drive: Any, stress_MPa: Any = None, spec: "str | Initial
     """The initial play state of `model` (an SDPI/MPI core) for a run on `drive`."""
     x = np.ascontiguousarray(drive, dtype=float)
     sp = InitialStateSpec.parse(spec)
+    if sp.kind == "plays":
+        return given_state(model, sp, x[0])
     settled = settled_index(model, x)
     if sp.kind == "relaxed":
         return ResolvedInitialState(relaxed_state(model, x[0]), settled, "relaxed at the first drive value")
@@ -194,6 +208,20 @@ def resolve(model: Any, drive: Any, stress_MPa: Any = None, spec: "str | Initial
     where = "" if time_s is None or n_used >= len(x) else f" over the first {float(np.asarray(time_s)[n_used - 1] - np.asarray(time_s)[0]):.3g} s"
     return ResolvedInitialState(state, settled, f"estimated from the measured displacement{where} "
                                                 f"(play states fitted until they settle)")
+
+
+def given_state(model: Any, spec: InitialStateSpec, first_drive: float) -> ResolvedInitialState:
+    """The play outputs a `plays` spec gives, held to eq. (2) at the first drive value (a no-op
+    for a state followed along this drive column; a state followed along the command is a
+    tracking error away). Known, so nothing waits for it to be forgotten: settled index 0.
+    ValueError unless there is one finite value per play."""
+    p = np.asarray(spec.plays if spec.plays is not None else (), dtype=float)
+    n = int(np.asarray(model.play_thresholds).size)
+    if p.shape != (n,) or not np.all(np.isfinite(p)):
+        raise ValueError(f"initial state {spec}: the model has {n} plays, the state gives "
+                         f"{p.size} values{'' if np.all(np.isfinite(p)) else ' (not all finite)'}")
+    return ResolvedInitialState(_clamp_to_first(model, p, first_drive), 0,
+                                f"known: the play outputs at the first sample, from {spec.source}")
 
 
 RANDOM_HISTORIES = 4096      # random longer histories scored as starts (batches of numpy work)

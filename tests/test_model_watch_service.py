@@ -5,6 +5,10 @@
   then drifting; the background diagnosis (a real `gma-ffc diagnose` child) names the heating;
   `gma-ffc status --json` shows it with the report's path; `gma-ffc reload --model` with the
   extended model brings the residual ratio back to ok.
+* The same heating under the shipped config/sim.yaml's narrow tracking sine (0.36-1.8 A of the
+  model's 0-3 A), on the in-process simulated rig: the diagnosis is handed the play state at its
+  window's first sample, so it scores the window and names the heating (with the state unknown
+  it scored none of it: the drive never sweeps far enough to forget the start).
 * Nothing changing: ok for 10 minutes of loop time, never drifting.
 * Metrics: scraped over HTTP while the loop runs, parsed as Prometheus text.
 
@@ -31,9 +35,11 @@ from gma_ffc.control.config import validate_config
 from gma_ffc.control.manager import ControllerManager
 from gma_ffc.control.scheduler import SimulatedClock
 from gma_ffc.modelio import save_model
+from gma_ffc.recordings import read_recording
 from gma_ffc.registers import load_register_map
 from gma_ffc.service.paths import RuntimePaths
 from gma_ffc.service.runner import Service
+from gma_ffc.service.watch import ServiceWatch
 from gma_ffc.sil import cached_sdpi_and_mpi
 from hil_sim import kernels as K
 from hil_sim.emulators.modbus import ModbusEmulator
@@ -47,6 +53,10 @@ STRESS = -15.2
 # does not score a recording until it has; see docs/monitor.md).
 REFERENCE = {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 25.5, "offset_um": 26.0, "lead_s": 1.0 / RATE}
 LIMITS = {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": 500.0}
+# The shipped config/sim.yaml's tracking reference and model: 3-27 um, the drive 0.36-1.8 A.
+SHIPPED_MODEL = Path(__file__).resolve().parents[1] / "config" / "models" / "sim_sdpi.yaml"
+NARROW = {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0, "phase_deg": -90.0,
+          "lead_s": 1.0 / RATE}
 
 
 class ScriptedClock(SimulatedClock):
@@ -174,6 +184,56 @@ def test_heating_rig_drifts_diagnosis_names_it_and_the_extended_model_fits_again
     assert status["monitor"]["state"] == "drifting"
     assert ok["ratio"] < 2.0 and "replayed from the start of the recording" in ok["prediction"], ok
     assert not thread.is_alive()
+
+
+@pytest.mark.slow
+def test_a_narrow_tracking_run_that_heats_gets_a_diagnosis_that_scores_its_window_and_names_the_heating(tmp_path):
+    """The lab's defect: under the shipped narrow sine, the background diagnosis could score none of
+    its 30 s window (the drive never sweeps the model's range, so the unknown hysteresis state at
+    the window's start never stops mattering) and never concluded. The service's parts (the
+    controller's model-fit monitor, `ServiceWatch` and its background diagnosis, a real `gma-ffc
+    diagnose` child) on the simulated rig, the coil heating from 60 s; the service's poll comes
+    once a second of loop time, the loop waiting for the monitor to catch up, as if it took no time."""
+    plant_yaml = tmp_path / "plant.yaml"
+    plant_yaml.write_text(yaml.safe_dump({"noise": {"enabled": True}}))
+    cfg = validate_config({
+        "rate_hz": RATE, "clock": "simulated", "model": str(SHIPPED_MODEL), "reference": NARROW, "limits": LIMITS,
+        "driver": {"kind": "sim", "plant_config": str(plant_yaml), "seed": 5,
+                   "load_mass_kg": PlantConfig().mass_for_stress(STRESS)},
+        "telemetry": {"path": None},
+        "monitor": {"window_s": 30.0, "trigger_s": 10.0, "max_per_hour": 2, "state_dir": str(tmp_path / "state")}})
+    holder = {}
+
+    def service_poll(at_s):
+        def poll():
+            def caught_up():
+                m = holder["ctrl"].status()["monitor"]
+                return m if (m.get("t_s") or -1.0) >= at_s - 2.0 / RATE else None
+            wait(caught_up, 60, f"the monitor to reach {at_s} s")
+            holder["watch"].poll(holder["ctrl"].status())
+        return poll
+
+    def heat():
+        holder["ctrl"].driver.plant._p[K.P_ON_THERMAL] = 1.0
+
+    clock = ScriptedClock([(60.0, heat)] + [(float(k), service_poll(float(k))) for k in range(1, 121)])
+    ctrl = holder["ctrl"] = ControllerManager(cfg, clock=clock)
+    watch = holder["watch"] = ServiceWatch(cfg, ctrl)
+    try:
+        assert ctrl.run(duration_s=120.5)["ok"]
+        bg = watch.diagnosis
+        wait(lambda: bg.poll("ok", None, None) or bg.child is None, 300, "the diagnosis to finish")
+    finally:
+        watch.close()
+    last = bg.status()["last"]
+    assert last is not None and bg.status()["in_last_hour"] == 1, bg.status()
+    folder = Path(last["folder"])
+    window = read_recording(folder / "window.csv")
+    assert 0.2 < window.drive.min() and window.drive.max() < 2.0        # the narrow run: 0.36-1.8 A of 0-3 A
+    (state,) = json.loads((folder / "diagnosis.json").read_text())["initial_state"]
+    assert state["how"].startswith("known") and state["scored_share"] == 1.0, state
+    assert (folder / "initial_state.json").is_file()
+    assert last["scored"] and last["outcome"] == "effects_named" and "thermal_drift" in last["effects"], last
 
 
 # real time: each of the 120 samples waits for the monitor, which runs at 2 Hz of wall time, so the

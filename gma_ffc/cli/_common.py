@@ -206,11 +206,15 @@ def check_drive_name(model: Model, rec: Recording) -> None:
         raise InputError(f"{rec.source}: drive column is {rec.drive_name} but the model was identified on {name}")
 
 
-def add_initial_state_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--initial-state", default="estimate", metavar="RULE", type=_initial_state,
+def add_initial_state_option(p: argparse.ArgumentParser, plays: bool = False) -> None:
+    """--initial-state; with `plays` (diagnose) it also takes plays:FILE, a known state."""
+    known = (", or plays:FILE (the play outputs at the first sample, known: a JSON file such as the "
+             "service writes beside a background diagnosis's window; every sample is then scored)") if plays else ""
+    p.add_argument("--initial-state", default="estimate", metavar="RULE",
+                   type=_initial_state_or_plays if plays else _initial_state,
                    help="hysteresis state at the first sample: estimate (default: fitted to the measured "
                         "displacement where there is one, else consistent with the drive's first monotone "
-                        "stretch), relaxed, or drive:VALUE (relaxed at that drive)")
+                        f"stretch), relaxed, or drive:VALUE (relaxed at that drive){known}")
 
 
 def _initial_state(text: str) -> Any:
@@ -220,6 +224,36 @@ def _initial_state(text: str) -> Any:
         return InitialStateSpec.parse(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _initial_state_or_plays(text: str) -> Any:
+    """`_initial_state`, and plays:FILE read here (argparse's type: a bad file is one line, exit 2)."""
+    if not str(text).strip().startswith("plays:"):
+        try:
+            return _initial_state(text)
+        except argparse.ArgumentTypeError as exc:
+            raise argparse.ArgumentTypeError(f"{exc}, or plays:FILE") from None
+    from ..known_state import read_play_state
+
+    try:
+        return read_play_state(str(text).strip().split(":", 1)[1])
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def check_known_plays(model: Any, spec: Any, n_recordings: int) -> None:
+    """InputError unless a plays:FILE state fits: one recording (the state is its first sample's)
+    and one value per play of the model's core."""
+    if getattr(spec, "kind", None) != "plays":
+        return
+    if n_recordings != 1:
+        raise InputError(f"--initial-state {spec} gives the state at one recording's first sample: "
+                         f"give that recording alone (got {n_recordings})")
+    core = getattr(model, "base", model)
+    n = int(np.asarray(core.play_thresholds).size)
+    if len(spec.plays) != n:
+        raise InputError(f"--initial-state {spec}: {len(spec.plays)} play values, but the model has {n} plays "
+                         "(the state must come from this model)")
 
 
 def check_initial_drive(model: Any, drive: float | None, option: str) -> None:

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ._common import (add_group_option, add_initial_state_option, check_drive_name, check_initial_drive,
+from ._common import (add_group_option, add_initial_state_option, check_drive_name, check_initial_drive, check_known_plays,
                       finite_float, note_gaps, refuse_repeats, refuse_same_rows)
 
 HELP = """\
@@ -51,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--drive-limits", nargs=2, type=finite_float, metavar=("LO", "HI"),
                    help="the drive the rig's controller allows (its limits.current_min_A and current_max_A): "
                         "advice on what to record stays within it, e.g. --drive-limits 0 3")
-    add_initial_state_option(p)
+    add_initial_state_option(p, plays=True)
     add_group_option(p)
     p.set_defaults(func=run)
 
@@ -79,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
     check_folder_writable(out, str(out))          # now, not after the whole analysis
     check_initial_drive(model, args.initial_state.drive, "--initial-state drive:")
     paths, ident_paths, fingerprints = _split_paths(model, args.recordings, args.ident)
+    check_known_plays(model, args.initial_state, len(paths))
     recs = [read_recording(p, require=("time_s", "drive", "displacement_um"), group=args.group) for p in paths]
     ident = [read_recording(p, require=("time_s", "drive", "displacement_um"), group=args.group)
              for p in ident_paths]

@@ -12,7 +12,8 @@ manager's lifecycle:
   by replaying history, off the loop; `on_setup` hands it to the watch, which adopts it before
   the next block;
 * `status_fields`: the monitor's state for the controller's status; `window` the last seconds as
-  a recording for the service's background diagnosis.
+  a recording for the service's background diagnosis, `start_state` the play state at its first
+  sample (followed since the run started), so the diagnosis scores all of it.
 """
 
 from __future__ import annotations
@@ -80,6 +81,10 @@ class ModelMonitor(Broadcaster):
 
             raise GmaError("the controller has not started: there is no telemetry to take")
         return self.watch.window(seconds)
+
+    def start_state(self, recording: Any) -> dict[str, Any] | None:
+        """The play state at the first sample of a `window` (`model_watch.ModelWatch.start_state`)."""
+        return None if self.watch is None else self.watch.start_state(recording)
 
 
 def _play_state(setup: Setup) -> Any:

@@ -16,6 +16,10 @@ recording a background diagnosis fitted it on when the model comes from one (its
 `window.csv`), then the retained rows after it; else the retained rows alone. The writer's thread
 then adopts it before the next block, stepping only the rows kept since. Its monitor starts
 afresh (`unknown`): the new model is judged on ticks it was not fitted on.
+
+Beside the prediction, the writer's thread follows the plays of the model a diagnosis runs on
+from the run's start (`play_memory.PlayMemory`), so `start_state` can say what state a window
+starts in: diagnose then scores the window from its first sample (`--initial-state plays:FILE`).
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from ..drive import drive_unit
 from ..drivers.base import DISPLACEMENT
 from ..protocols import Model
 from .fit_monitor import OFF, FitMonitor, identification_error_um
+from .play_memory import PlayMemory
 from .prediction import RAMPING, Prediction, predict_block
 from .recent import RecentRows
 
@@ -73,6 +78,7 @@ class ModelWatch:
         self.fit: FitMonitor | None = None
         self.replay = ""
         self.metadata: dict[str, Any] = {}
+        self.plays: PlayMemory | None = None   # the diagnosed core's plays since the run started
         keep = min(int((monitor_cfg["window_s"] + EXTRA_HISTORY_S) / period_s), MAX_HISTORY_ROWS)
         self.rows = RecentRows(keep, len(self.columns), max(CATCH_UP_MARGIN, int(1.0 / period_s))) \
             if self.enabled else None
@@ -94,6 +100,7 @@ class ModelWatch:
         self.model = model
         self.prediction = Prediction(model, self.period_s, drive, play_state)
         self.fit = self._fit_monitor(model)
+        self.plays = PlayMemory.of(model, drive, play_state, self.cfg["window_s"] + EXTRA_HISTORY_S)
         self.replay = "started with the run, at the inverse's initial state"
         self._fed = self.rows.head if self.rows is not None else 0
 
@@ -170,6 +177,8 @@ class ModelWatch:
         with self._lock:
             self.model, self.prediction, self.fit, self.replay = \
                 prepared.model, prepared.prediction, prepared.fit, prepared.replay
+            if self.plays is not None and not self.plays.follows(prepared.model):
+                self.plays = None     # other plays: their state since the start is not known
             self._fed = self.rows.head            # the new model is judged on the ticks after it
 
     # ---- the telemetry writer's thread ---------------------------------------------------------
@@ -191,6 +200,8 @@ class ModelWatch:
             residual = block[:, c[DISPLACEMENT]] - predicted
             residual[(flags.astype(np.int64) & RAMPING) != 0] = math.nan     # a ramp's readings are not judged
             block[:, c[RESIDUAL]] = residual
+        if self.plays is not None:
+            self.plays.advance(block[:, c["time_s"]], self._drive(block))
         self.rows.push_block(block[:, :len(self.columns)])
 
     # ---- reporting and snapshots (off the loop) ---------------------------------------------------
@@ -235,3 +246,27 @@ class ModelWatch:
                 "rows_left_out": int((~keep).sum())}
         return Recording(cols, meta, "window.csv"), self.model
 
+    def start_state(self, recording: Any) -> dict[str, Any] | None:
+        """The play state at `recording`'s first sample (a window `window` took), for a diagnosis:
+        the plays followed since the run started, brought to that row from the retained rows. None
+        when it is not known (no plays, a reload to other plays, the history no longer reaching
+        back to an anchor)."""
+        memory = self.plays
+        if memory is None or self.rows is None or not len(recording.time_s):
+            return None
+        retained = self.rows.last(self.rows.capacity - self.rows.margin)
+        c = self._col
+        t0 = float(recording.time_s[0])
+        plays = memory.state_at(retained[:, c["time_s"]], self._drive(retained), t0)
+        if plays is None:
+            return None
+        stress = recording.columns.get("stress_MPa")
+        return {"plays": plays.tolist(), "time_s": t0, "drive": float(recording.drive[0]),
+                "stress_MPa": float(stress[0]) if stress is not None else math.nan,
+                "how": "followed along the drive since the run started at rest at the safe current"}
+
+    def _drive(self, rows: np.ndarray) -> np.ndarray:
+        """The drive the plays follow: the window's drive column (the measured current, which
+        diagnose simulates on), the command where a reading is missing."""
+        measured, command = rows[:, self._col["current_A"]], rows[:, self._col["current_cmd_A"]]
+        return np.where(np.isfinite(measured), measured, command)

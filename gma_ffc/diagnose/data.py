@@ -8,7 +8,8 @@ only, so no measured output of a held-out block ever enters a fit; only the loss
 A sample is scored where what is known decides the model's output there: where the band the
 unknown initial state leaves (`gma_ffc.state_band`, the state the run starts from included) is
 no wider than the recording's noise floor. Elsewhere a residual may be the start-up transient, and
-no fit or score sees it.
+no fit or score sees it. A state given as known (``plays:FILE``: the service followed the plays
+since its run started) leaves no band at all: every sample is scored.
 """
 
 from __future__ import annotations
@@ -225,7 +226,10 @@ def start_and_scored(core: Any, drive: np.ndarray, stress: Any, rule: Any, measu
     measurement cannot tell the two apart: they differ by less than the noise floor, as a mean
     square, where they differ at all (the estimate had fitted the model's own error). When it can
     (a demagnetised start's virgin curve, a history beyond the range), the estimate stays and
-    the band widens to hold it, so what it leaves unknown is not scored."""
+    the band widens to hold it, so what it leaves unknown is not scored. A known state (``plays``)
+    is taken as given, and every sample is scored."""
+    if InitialStateSpec.parse(rule).kind == "plays":     # known, not guessed: the band is zero everywhere
+        return core.resolve_initial_state(drive, stress, rule, None, time_s), np.ones(len(drive), dtype=bool), False
     y = np.asarray(measured_um, dtype=float)
     floor = noise_floor(y)
     box = output_band(core, drive, stress)

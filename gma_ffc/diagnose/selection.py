@@ -43,6 +43,7 @@ from ..effects.base import SignatureCheck, SignatureFailure
 from ..drive import dominant_band
 from ..errors import InputError
 from ..extended import ExtendedModel
+from ..initial_state import InitialStateSpec
 from ..recordings import Recording
 from . import recalibration
 from .explain import decider
@@ -782,7 +783,10 @@ def _name_nothing(sel: Selection, why: str) -> Selection:
 
 def _restarted(core: Any, data: Sequence[Any], rule: Any) -> list[Any]:
     """The recordings as they are (rows, folds, what is not scored), each with `core`'s own initial
-    state by `rule`."""
+    state by `rule`. A known state (``plays``) is the base's plays on the recorded drive, not those
+    of a core identified again through an input effect: that core's is estimated."""
+    if InitialStateSpec.parse(rule).kind == "plays":
+        rule = "estimate"
     return [dataclasses.replace(d, start=core.resolve_initial_state(
         d.u, d.s if core.stress_range_MPa is not None else None, rule, d.y, d.t)) for d in data]
 

@@ -2,8 +2,12 @@
 service writes the last `window_s` of telemetry as a recording in its state directory and runs
 `gma-ffc diagnose` on it in a child process (nice 19, SCHED_OTHER, bound to the service: see
 `diagnose_child`), one at a time and at most `max_per_hour`. The status names the outcome, the
-effects and where the report is. Nothing here changes the running model: `gma-ffc reload --model
-DIR/extended_model.yaml` adopts the extended model, after the checks of any reload.
+effects and where the report is. The model-fit monitor knows the hysteresis state at the window's
+first sample (it followed the plays since the run started): it is written beside the window as
+initial_state.json and given to diagnose (`--initial-state plays:FILE`), so every sample of the
+window is scored, however little of the drive range the run sweeps. Nothing here changes the
+running model: `gma-ffc reload --model DIR/extended_model.yaml` adopts the extended model, after
+the checks of any reload.
 
 The service calls `poll` from its supervising thread (never the loop's) a few times a second; it
 does nothing unless a child finished or a drift has lasted long enough. `close` kills the child.
@@ -43,6 +47,7 @@ class Window:
 
     recording: Any        # gma_ffc.recordings.Recording
     model: Any            # the running model (an extended model is diagnosed through its base)
+    start: dict[str, Any] | None = None   # the base's play state at the first sample, when known
 
 
 def default_state_dir(environ: dict[str, str] | None = None) -> Path:
@@ -172,6 +177,13 @@ class BackgroundDiagnosis:
         save_model(model, folder / "model.yaml")
         argv = [self.python, "-m", "gma_ffc.service.diagnose_child", str(os.getpid()), "--", "diagnose",
                 "--model", str(folder / "model.yaml"), str(folder / "window.csv"), "--out", str(folder)]
+        if window.start is not None:        # known: diagnose scores the window from its first sample
+            from ..known_state import write_play_state
+
+            write_play_state(folder / "initial_state.json", window.start["plays"], time_s=window.start["time_s"],
+                             drive=window.start["drive"], stress_MPa=window.start["stress_MPa"],
+                             how=window.start["how"])
+            argv += ["--initial-state", f"plays:{folder / 'initial_state.json'}"]
         if self.drive_limits is not None:
             argv += ["--drive-limits", *(repr(float(v)) for v in self.drive_limits)]
         return folder, argv

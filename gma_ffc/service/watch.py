@@ -7,12 +7,15 @@ supervising thread or the metrics server's, never in the loop's.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
 from .diagnosis import BackgroundDiagnosis, Window
 from .metrics import MetricsServer
+
+log = logging.getLogger("gma_ffc.service")
 
 
 class ServiceWatch:
@@ -32,9 +35,17 @@ class ServiceWatch:
         self._last: dict[str, Any] = {}
 
     def _window(self, seconds: float) -> Window:
+        """The last `seconds` of telemetry, the running model, and the play state at the first sample
+        (None when not known: diagnose then estimates it and scores what the drive decides)."""
         assert self.part is not None
         recording, model = self.part.window(seconds)
-        return Window(recording, model)
+        try:
+            start = self.part.start_state(recording)
+        except Exception as exc:   # noqa: BLE001 - the diagnosis still runs, on the state it estimates
+            log.warning("background diagnosis: the play state at the window's start is not known (%s: %s)",
+                        type(exc).__name__, exc)
+            start = None
+        return Window(recording, model, start)
 
     def start(self) -> None:
         if self.metrics is not None:
