@@ -3,8 +3,9 @@
 Diagnoses benchmark cases from benchmarks/general.py at half length (a resonance with eddy
 currents, heating with creep, stress-dependent play, a null) with two source trees, one case at a
 time and the trees alternating (this host's speed drifts; alternating keeps the comparison fair),
-each run a fresh process with one search thread. Prints per case the wall time of each tree and
-their ratio, and whether the verdict, the outcome, every candidate's parameters and held-out
+each run a fresh process with one search thread. Prints per case the CPU time of each tree's
+diagnosis and their ratio (the wall time too: on a host shared with other jobs it drifts by more
+than the change, so the ratio quoted is the CPU time's), and whether the verdict, the outcome, every candidate's parameters and held-out
 figures and the RMS figures are equal to the last digit.
 
     python scripts/check_diagnose_unchanged.py BEFORE_TREE AFTER_TREE [--case NAME ...]
@@ -36,14 +37,14 @@ def fingerprint(name: str) -> dict:
 
     case = {c.name: c for c in general_cases()}[name]
     model, ident, rec = case_recordings(case, scale=SCALE)
-    started = time.perf_counter()
+    started, cpu_started = time.perf_counter(), time.process_time()
     dg = diagnose(model, [rec], identification=ident)
-    wall = time.perf_counter() - started
+    wall, cpu = time.perf_counter() - started, time.process_time() - cpu_started
     candidates = [{"effect": c.effect, "accepted": c.accepted, "reason": c.reason, "round": c.round,
                    "params": {k: repr(v) for k, v in c.params.items()},
                    "figures": [repr(v) for v in (c.cv_mse, c.cv_loss, c.loglik_gain, c.evidence, c.leave_one_out_mse)]}
                   for c in dg.candidates]
-    return {"wall_s": wall, "result": {
+    return {"wall_s": wall, "cpu_s": cpu, "result": {
         "verdict": list(dg.verdict), "outcome": dg.outcome, "tentative": list(dg.tentative),
         "cannot_conclude": list(dg.cannot_conclude), "candidates": candidates,
         "rms": [repr(v) for v in (dg.rms_before_um, dg.rms_recalibrated_um, dg.rms_after_um, dg.noise_um)]}}
@@ -69,19 +70,19 @@ def main(argv: list[str] | None = None) -> int:
     if len(args.trees) != 2:
         ap.error("give two trees: BEFORE_TREE AFTER_TREE")
     before_tree, after_tree = args.trees
-    same_everywhere, totals = True, [0.0, 0.0]
+    same_everywhere, totals = True, [0.0, 0.0]     # CPU s
     for name in args.case or CASES:
         before, after = run_in(before_tree, name), run_in(after_tree, name)
         same = before["result"] == after["result"]
         same_everywhere &= same
-        totals[0] += before["wall_s"]
-        totals[1] += after["wall_s"]
-        print(f"{name}: {before['wall_s']:.1f} s -> {after['wall_s']:.1f} s "
-              f"({before['wall_s'] / after['wall_s']:.2f}x); verdict {after['result']['verdict']}, "
+        totals[0] += before["cpu_s"]
+        totals[1] += after["cpu_s"]
+        print(f"{name}: CPU {before['cpu_s']:.1f} s -> {after['cpu_s']:.1f} s ({before['cpu_s'] / after['cpu_s']:.2f}x), "
+              f"wall {before['wall_s']:.1f} s -> {after['wall_s']:.1f} s; verdict {after['result']['verdict']}, "
               f"results {'identical' if same else 'DIFFER'}", flush=True)
         if not same:
             print(json.dumps({"before": before["result"], "after": after["result"]}, indent=1))
-    print(f"all: {totals[0]:.1f} s -> {totals[1]:.1f} s ({totals[0] / totals[1]:.2f}x); "
+    print(f"all: CPU {totals[0]:.1f} s -> {totals[1]:.1f} s ({totals[0] / totals[1]:.2f}x); "
           f"results {'identical' if same_everywhere else 'DIFFER'}")
     return 0 if same_everywhere else 1
 
