@@ -14,6 +14,7 @@ import pytest
 
 from gma_ffc.cli import main
 from gma_ffc.model import rms
+from gma_ffc.model_reach import model_reach_um
 from gma_ffc.modelio import load_model
 from gma_ffc.recordings import Recording, read_recording, write_recording
 from cli_workdir import STRESSES, make_cli_workdir
@@ -185,11 +186,31 @@ def test_invert_refuses_a_drive_no_recording_may_hold_and_its_limit_advice_works
     out = workdir / "far_drive.csv"
     assert main(["invert", "--model", str(workdir / "model.yaml"), str(ref), "-o", str(out)]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "past the 1e+06 A a recording may hold" in err and not out.exists()
+    assert err.count("\n") == 1 and "x the most the model gives" in err and not out.exists()
     limit = re.search(r"add --limit (\S+) (\S+)", err).groups()
     assert main(["invert", "--model", str(workdir / "model.yaml"), str(ref), "-o", str(out), "--limit", *limit]) == 0
     assert main(["simulate", "--model", str(workdir / "model.yaml"), str(out), "-o", str(workdir / "far_back.csv")]) == 0
 
+
+
+def test_invert_refuses_a_reference_far_beyond_the_models_reach_as_the_controller_does(workdir: Path, capsys) -> None:
+    """A reference 500x the model's stroke (nanometres typed as micrometres) was inverted to a drive
+    of hundreds of amperes and written with exit 0 and a warning. Refused now, one line, no file,
+    as the controller refuses it; twice the stroke is still extrapolation, warned of and written."""
+    ref = read_recording(workdir / "ref.csv", require=("time_s",))
+    model = load_model(workdir / "model.yaml")
+    reach = model_reach_um(model)
+    out = workdir / "drive_slip.csv"
+    for factor, code in ((500.0, 2), (2.0, 0)):
+        slip = workdir / f"ref_x{factor:g}.csv"
+        peak = float(np.max(np.abs(ref.columns["reference_um"])))
+        write_recording(slip, Recording({**ref.columns, "reference_um": factor * reach / peak * ref.columns["reference_um"]}, {}))
+        assert main(["invert", "--model", str(workdir / "model.yaml"), str(slip), "-o", str(out)]) == code
+        err = capsys.readouterr().err
+        if code == 2:
+            assert err.count("\n") == 1 and "500x the most the model gives" in err and not out.exists()
+        else:
+            assert "leaves the identified range" in err and out.exists()
 
 
 def test_simulate_refuses_a_prediction_no_recording_may_hold(tmp_path: Path, capsys) -> None:

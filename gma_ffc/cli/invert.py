@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from typing import Any
 
@@ -11,6 +12,7 @@ import numpy as np
 from ..errors import InputError
 from ..initial_state import InitialStateSpec
 from ..model import SDPIModel
+from ..model_reach import REFERENCE_BEYOND_REACH_FACTOR, model_reach_um
 from ..modelio import load_model
 from ..recordings import MAGNITUDE_BOUNDS, Recording, read_recording, write_recording
 from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_initial_drive,
@@ -59,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
     check_initial_drive(model, args.initial_drive, "--initial-drive ")
     rec = read_recording(args.reference, require=("time_s", "reference_um"), group=args.group)
     stress = stress_for(model, rec, args.stress)
+    if not args.limit:
+        _refuse_a_reference_beyond_reach(model, rec)
     kwargs, how, start_spec = _start(model, args, rec, stress)
     with np.errstate(all="ignore"):         # a diverging inverse is refused below, in one line
         drive = model.invert(rec.time_s, rec.columns["reference_um"], stress, **kwargs)
@@ -96,6 +100,21 @@ def run(args: argparse.Namespace) -> int:
     print(f"drive {drive.min():.4g}..{drive.max():.4g} for {len(drive)} samples -> {args.output}")
     print(f"initial state: {how}")
     return 0
+
+
+def _refuse_a_reference_beyond_reach(model: Any, rec: Recording) -> None:
+    """A reference over REFERENCE_BEYOND_REACH_FACTOR times the model's reach is most likely a unit
+    slip: refused, as the controller refuses it, unless --limit says the drive is to be clipped."""
+    reach = model_reach_um(model)
+    ref = rec.columns["reference_um"]
+    k = int(np.argmax(np.abs(ref)))
+    if not (math.isfinite(reach) and reach > 0.0) or abs(ref[k]) <= REFERENCE_BEYOND_REACH_FACTOR * reach:
+        return
+    lo, hi = model.drive_range
+    raise InputError(f"{rec.source}: the reference reaches {ref[k]:.4g} um at t = {rec.time_text(k)} s, "
+                     f"{abs(ref[k]) / reach:.0f}x the most the model gives over its identified drive range "
+                     f"({reach:.3g} um): check the reference's unit (micrometres, not nanometres), or add "
+                     f"--limit {lo:.6g} {hi:.6g} to clip the drive to that range; {_reach_advice(model, rec)}")
 
 
 def _refuse_a_diverged_inverse(drive: np.ndarray, rec: Recording, model: Any) -> None:

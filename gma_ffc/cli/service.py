@@ -152,9 +152,9 @@ def _not_running(args: argparse.Namespace, runtime, exc: Exception) -> int:
     """Nothing answers: say so (`_nothing_runs`); JSON always for `--json` (exit 1 as before)."""
     from ..service import last_exit
 
-    record = last_exit.read(runtime)
     if not args.json:
         raise _nothing_runs(runtime, exc)
+    record = last_exit.read(runtime)
     # machine readers always get JSON: say that nothing runs there, and exit as before (1)
     doc: dict[str, object] = {"state": "not running", "socket": str(runtime.socket), "message": str(exc)}
     if record:

@@ -18,6 +18,7 @@ import numpy as np
 from ..drivers import Driver, DriverProtocol, Inputs, driver_class
 from ..drivers.base import DISPLACEMENT, FORCE, INSTANCE_MEMBERS, STRESS, missing_members
 from ..errors import ConfigError, ModelError
+from ..model_reach import REFERENCE_BEYOND_REACH_FACTOR, model_reach_um
 from ..protocols import Model
 from . import safety
 from .config import ControllerConfig, stop_ramp_fits_after_reload
@@ -156,11 +157,6 @@ def _limits_near_the_model(cfg: ControllerConfig, model: Model) -> None:
                 "model; to drive further, identify a model over the wider current first")
 
 
-# A reference this many times the largest displacement the model gives over its identified drive range
-# is nothing the actuator can follow, and most likely a unit slip (nanometres typed as micrometres are
-# 1000x); it ran with every tick at a current limit and exit 0. A reference a little past the stroke
-# is limits.beyond_model's to handle (warn, clamp or fault).
-REFERENCE_BEYOND_REACH_FACTOR = 10.0
 REFERENCE_KEYS = {"sine": "reference.amplitude_um and offset_um", "triangle": "reference.amplitude_um and offset_um",
                   "multisine": "reference.components' amplitude_um and reference.offset_um",
                   "playback": "the reference_um column of reference.file"}
@@ -168,7 +164,7 @@ REFERENCE_KEYS = {"sine": "reference.amplitude_um and offset_um", "triangle": "r
 
 def _reference_within_reach(cfg: ControllerConfig, model: Model, reference: Reference) -> None:
     """ConfigError for a reference over REFERENCE_BEYOND_REACH_FACTOR times the model's reach."""
-    reach, peak = _model_reach_um(model), reference.peak_um()
+    reach, peak = model_reach_um(model), reference.peak_um()
     if not (math.isfinite(reach) and reach > 0.0) or peak <= REFERENCE_BEYOND_REACH_FACTOR * reach:
         return
     raise ConfigError(
@@ -176,17 +172,6 @@ def _reference_within_reach(cfg: ControllerConfig, model: Model, reference: Refe
         f"identified drive range ({reach:.3g} um, {cfg.model}): check the unit of "
         f"{REFERENCE_KEYS.get(cfg.reference['kind'], 'the reference')} (micrometres, not nanometres) and keep "
         f"the reference within about {reach:.3g} um; no drive the model knows reaches it")
-
-
-def _model_reach_um(model: Model) -> float:
-    """The largest |displacement| of a full sweep of the model's drive range, at each end of its stresses."""
-    lo, hi = (float(v) for v in model.drive_range)
-    if not (math.isfinite(lo) and math.isfinite(hi)):
-        return math.nan
-    sweep = np.concatenate([np.linspace(lo, hi, 200), np.linspace(hi, lo, 200)])
-    times = np.arange(sweep.size) / sweep.size      # a 1 s sweep, as learning's gain table takes it
-    stresses = [None] if model.stress_range_MPa is None else [float(s) for s in model.stress_range_MPa]
-    return max(float(np.max(np.abs(model.simulate(times, sweep, s)))) for s in stresses)
 
 
 def _drives_a_current(cfg: ControllerConfig, model: Model) -> None:

@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping
 import numpy as np
 
 from ..errors import ConfigError
+from ..model_reach import full_range_sweep
 from .learning_kernels import filter_coefficient, highpass_change, learn_period, lowpass_circular, period_difference
 from .learning_watch import BACK_OFF, HOLD, BaselineWatch
 from .safety import LIMITS, RAMP
@@ -575,19 +576,15 @@ def model_gain_table(model: Model, n: int = 33) -> Callable[[float], float] | No
     Returns a function stress -> gain (interpolated in a table built once here, so the
     per-period call is cheap); None for a stress-independent model.
     """
-    rng, drive = model.stress_range_MPa, model.drive_range
-    if rng is None or not all(math.isfinite(v) for v in drive):
+    rng, drive = model.stress_range_MPa, full_range_sweep(model)
+    if rng is None or drive is None:
         return None
     lo, hi = float(rng[0]), float(rng[1])
     stresses = np.linspace(lo, hi, n)
-    sweep = np.concatenate([np.linspace(drive[0], drive[1], 200), np.linspace(drive[1], drive[0], 200)])
-    # a 1 s sweep: an extended model's effects are functions of time (a lag, heating), and at 1 Hz
-    # they leave the stroke as the quasi-static core gives it; the plain model ignores the times
-    times = np.arange(sweep.size) * (1.0 / sweep.size)
+    span = max(float(np.ptp(drive[1])), 1e-300)
     gains = np.empty(n)
     for i, s in enumerate(stresses):
-        y = model.simulate(times, sweep, s)
-        gains[i] = float(np.ptp(y)) / max(drive[1] - drive[0], 1e-300)
+        gains[i] = float(np.ptp(model.simulate(*drive, s))) / span
     xs, gs = stresses.tolist(), gains.tolist()
 
     def gain(stress: float) -> float:
