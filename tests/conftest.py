@@ -47,7 +47,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     # this order, and the five resonance diagnoses (45-110 s each, in a file late in the alphabet)
     # otherwise ran last, one worker finishing them while the other waited; the short tests now fill
     # in at the end
-    items.sort(key=lambda item: (item.get_closest_marker("realtime") is None, item.get_closest_marker("slow") is None))
+    items.sort(key=lambda item: (item.get_closest_marker("realtime") is None,
+                                 item.get_closest_marker("slow") is None and item.get_closest_marker("nightly") is None))
 
 
 @pytest.fixture(scope="session")

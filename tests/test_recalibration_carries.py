@@ -5,6 +5,7 @@ beside them (curvature, stress gain) took up part of the slow effects on the one
 probes at other loads, rates and drive shapes gained only 1.22x over the base. Judged by leaving
 each of the recording's stress levels out, those terms do not carry, and are left out (issue 31:
 an effect that does not improve the conditions it was not fitted on is not accepted).
+A whole draw's case (75 s on 2 cores): the nightly tier's (`scripts/test.sh --nightly`).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from gma_ffc.diagnose.engine import diagnose
 from gma_ffc.effects.static import StaticMap
 
 
-@pytest.mark.slow
+@pytest.mark.nightly
 def test_heating_with_creep_keeps_only_the_recalibration_that_carries_to_other_loads():
     case = {c.name: c for c in general_cases(GENERAL_ELEVENTH_SEED, prefix="eleventh")}["eleventh:thermal_drift+creep"]
     model, ident, rec = case_recordings(case)      # whole: at half or 3/4 length heating is not named
