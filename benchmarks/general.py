@@ -48,6 +48,8 @@ Its one miss (heating at the effect-free floor, out of any model's reach) was no
 GENERAL_TWENTY_FIRST_SEED draws a twentieth on the same diagnosis. Its play misses were not fixed; a
 better look-alike refused only by the leave-one-out is now left undecided, and each candidate's evidence
 is weighed against its own absence: GENERAL_TWENTY_SECOND_SEED draws a twenty-first on that diagnosis.
+Its play miss was not fixed; the background diagnosis gained a known start state (diagnose's
+--initial-state plays:, unused here): GENERAL_TWENTY_THIRD_SEED draws a twenty-second.
 """
 
 from __future__ import annotations
@@ -108,6 +110,8 @@ GENERAL_TWENTY_FIRST_SEED = 20261308  # a twentieth never-tuned draw (2026-12-01
                                       # as the nineteenth drew it; committed before its first run
 GENERAL_TWENTY_SECOND_SEED = 20261309  # a twenty-first never-tuned draw (2026-12-01, thirty-first session):
                                        # undecided look-alikes and evidence against absence; committed before its first run
+GENERAL_TWENTY_THIRD_SEED = 20261310   # a twenty-second never-tuned draw (2026-12-01, thirty-second session):
+                                       # the diagnosis as the twenty-first drew it; committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 

@@ -43,6 +43,7 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set general-twentieth   # a nineteenth, with the note short of the evidence
     .venv/bin/python scripts/bench_diagnose.py --set general-twenty-first  # a twentieth, the same diagnosis
     .venv/bin/python scripts/bench_diagnose.py --set general-twenty-second  # a twenty-first, look-alikes left undecided
+    .venv/bin/python scripts/bench_diagnose.py --set general-twenty-third  # a twenty-second, the same diagnosis
 
 Beside the held-out blocks, every case is also judged on probes (`benchmarks.probes`): the same
 simulated actuator recorded again at loads, rates and drive shapes diagnose never saw; the extended
@@ -77,7 +78,8 @@ from benchmarks.general import (GENERAL_EIGHTH_SEED, GENERAL_FIFTH_SEED, GENERAL
                                 GENERAL_TWELFTH_SEED, GENERAL_THIRTEENTH_SEED, GENERAL_FOURTEENTH_SEED,
                                 GENERAL_FIFTEENTH_SEED, GENERAL_SIXTEENTH_SEED, GENERAL_SEVENTEENTH_SEED,
                                 GENERAL_EIGHTEENTH_SEED, GENERAL_NINETEENTH_SEED, GENERAL_TWENTIETH_SEED,
-                                GENERAL_TWENTY_FIRST_SEED, GENERAL_TWENTY_SECOND_SEED, general_cases)
+                                GENERAL_TWENTY_FIRST_SEED, GENERAL_TWENTY_SECOND_SEED, GENERAL_TWENTY_THIRD_SEED,
+                                general_cases)
 from benchmarks.probes import pooled, probe_bound, probe_recordings, probe_scores
 
 # the never-tuned general draws after the first, each drawn after the misses named were fixed
@@ -112,7 +114,9 @@ LATER_DRAWS = (("fresh", "a second", GENERAL_FRESH_SEED, "the first draw's misse
                ("twenty-first", "a twenty-first", GENERAL_TWENTY_FIRST_SEED,
                 "nothing was changed in the diagnosis: a second look at the twentieth's"),
                ("twenty-second", "a twenty-second", GENERAL_TWENTY_SECOND_SEED,
-                "a better look-alike refused only by the leave-one-out is left undecided; evidence against absence"))
+                "a better look-alike refused only by the leave-one-out is left undecided; evidence against absence"),
+               ("twenty-third", "a twenty-third", GENERAL_TWENTY_THIRD_SEED,
+                "nothing was changed in the diagnosis: a second look at the twenty-second's"))
 
 # the held-out-condition targets (issue 31), on the probes diagnose never saw
 PROBE_GAIN_EACH = 1.5        # every effect case at least this much better than the base
