@@ -92,3 +92,10 @@ def piezo_csv(tmp_path_factory: pytest.TempPathFactory):
     from measured import piezo_csv as find
 
     return find(tmp_path_factory.mktemp("measured"))
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus: int, config: pytest.Config) -> None:
+    """Say so when the nightly tier was left out (xdist's summary does not count deselected tests)."""
+    if "not nightly" in (config.getoption("markexpr", "") or ""):
+        terminalreporter.write_line("the nightly tier (past never-tuned draws' cases, pyproject.toml's `nightly`) "
+                                    "was left out: `scripts/test.sh --nightly` runs it too")
