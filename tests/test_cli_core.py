@@ -187,6 +187,10 @@ def test_invert_refuses_a_drive_no_recording_may_hold_and_its_limit_advice_works
     assert main(["invert", "--model", str(workdir / "model.yaml"), str(ref), "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "x the most the model gives" in err and not out.exists()
+    # a --limit too wide to clip anything lets the inverse through: its drive no file may hold is refused
+    assert main(["invert", "--model", str(workdir / "model.yaml"), str(ref), "-o", str(out), "--limit", "-1e9", "1e9"]) == 2
+    wide = capsys.readouterr().err
+    assert wide.count("\n") == 1 and "past the 1e+06 A a recording may hold" in wide and not out.exists()
     limit = re.search(r"add --limit (\S+) (\S+)", err).groups()
     assert main(["invert", "--model", str(workdir / "model.yaml"), str(ref), "-o", str(out), "--limit", *limit]) == 0
     assert main(["simulate", "--model", str(workdir / "model.yaml"), str(out), "-o", str(workdir / "far_back.csv")]) == 0
@@ -596,3 +600,12 @@ def test_simulate_warns_of_a_measured_displacement_in_another_unit(workdir: Path
     assert main(["simulate", "--model", str(workdir / "model.yaml"), str(workdir / "id_15.2.csv"),
                  "-o", str(tmp_path / "p.csv")]) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("text", ["-1e9", "-2.5E-3", "-3", "-.5", "-2."])
+def test_a_negative_number_in_any_notation_is_a_value_not_an_option(text: str) -> None:
+    """`--limit -1e9 1e9` was read as an option `-1e9`: "expected 2 arguments", and nothing said why."""
+    from gma_ffc.cli import build_parser
+
+    args = build_parser().parse_args(["invert", "--model", "m.yaml", "ref.csv", "-o", "out.csv", "--limit", text, "1e9"])
+    assert args.limit[0] == float(text)

@@ -10,11 +10,15 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
-from typing import Sequence
+from typing import Any, Sequence
 
 from ..console import dispatch
 
+# What argparse takes for a negative number rather than an option: its own forms (-3, -.5, -2.5) and
+# scientific notation (-1e9, -2.5E-3)
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 # Order here is the order in `gma-ffc --help`.
 SUBCOMMAND_MODULES = ("identify", "simulate", "invert", "diagnose", "run", "service", "demo")
 
@@ -33,7 +37,13 @@ typical session:
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse, but bad usage is one line and exit 2, as the CLI contract says."""
+    """argparse, but bad usage is one line and exit 2, as the CLI contract says, and a negative number
+    in scientific notation is a value: argparse took `--limit -1e9 1e9` for an option `-1e9` and said
+    only "expected 2 arguments"."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = NEGATIVE_NUMBER
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
