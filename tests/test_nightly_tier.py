@@ -9,7 +9,7 @@ import re
 from pathlib import Path
 
 TESTS = Path(__file__).parent
-PAST_DRAW = re.compile(r"GENERAL_[A-Z]+_SEED")
+PAST_DRAW = re.compile(r"GENERAL_[A-Z_]+_SEED")
 
 
 def _nightly_tests() -> list[tuple[str, ast.FunctionDef]]:

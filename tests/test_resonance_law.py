@@ -47,6 +47,28 @@ def test_the_resonance_law_carries_to_a_load_the_diagnosis_never_held():
     # 5 %: the damping ratio is 0.2, so a 5 % frequency error moves the response near the peak by
     # about a quarter of its height; the law fitted before this test's fix was 11 % off
     assert f_heavy == pytest.approx(f_plant, rel=0.05)
+    # the fit improves at each of the recording's three loads: the law is measured, and not said to be extrapolated
+    assert not any("extrapolated" in line for line in dg.cannot_conclude), dg.cannot_conclude
+
+
+@pytest.mark.nightly
+def test_a_law_fitted_where_one_load_alone_shows_the_resonance_is_said_to_be_extrapolated():
+    """The twenty-third never-tuned draw's resonance on a drawn actuator (looked at once; development
+    since). Driven hard at its least compressive load only, the law came out 3x too steep: right
+    there, 20 % low at the heaviest load, where a probe went from 2.5 to 6.0 um. The recording's
+    heavy load shows no resonance (the base as given 0.19 um there, the fit 0.21 um), so the law's
+    course there is extrapolated, and diagnose says so, with the load to record at."""
+    from benchmarks.general import GENERAL_TWENTY_THIRD_SEED
+
+    case = {c.name: c for c in general_cases(GENERAL_TWENTY_THIRD_SEED, prefix="twenty-third")}[
+        "twenty-third:mechanical_dynamics@other"]
+    model, ident, rec = case_recordings(case)
+    dg = diagnose(model, [rec], identification=ident)
+    assert dg.verdict == ["mechanical_dynamics"]
+    said = [line for line in dg.cannot_conclude if "extrapolated" in line]
+    assert len(said) == 1 and "record a drive that excites the resonance" in said[0], dg.cannot_conclude
+    heaviest = float(static_stress(rec.stress_MPa, np.gradient(rec.time_s)).min())
+    assert f"at {heaviest:.3g} MPa" in said[0]
 
 
 @pytest.mark.slow
