@@ -66,11 +66,13 @@ def extrapolation_words(span: tuple[tuple[float, float], tuple[float, float]] | 
         return ""
     far = lo if abs(lo - 0.5 * (a + b)) > abs(hi - 0.5 * (a + b)) else hi   # the loads' end farthest from it
     f_far = law_frequency(params, far)
-    at_far = f" (the law puts it at {f_far:.4g} Hz there)" if math.isfinite(f_far) else ""
+    # half to twice the law's frequency there: a law that far off would be no law at all
+    sweep = (f"a sine swept from {0.5 * f_far:.3g} to {2.0 * f_far:.3g} Hz about the {f_far:.4g} Hz the law puts "
+             "there, or fast steps" if math.isfinite(f_far) else "fast steps, or a sine swept through the resonance")
     return (f"mechanical_dynamics: the resonance improves the fit only at static stresses {_mpa(a)} to {_mpa(b)} of "
             f"the recordings' {_mpa(lo)} to {_mpa(hi)}, so its shift with the load beyond them is extrapolated "
-            f"from the law's form, not measured; to measure it, record a drive that excites the resonance (a sine "
-            f"near it, or fast steps) at {_mpa(far)}{at_far}")
+            f"from the law's form, not measured; to measure it, record a drive that excites the resonance "
+            f"({sweep}) at {_mpa(far)}")
 
 
 def law_frequency(params: Mapping[str, float], stress_MPa: float) -> float:
