@@ -39,3 +39,12 @@ def model_reach_um(model: Model) -> float:
         return math.nan
     stresses = [None] if model.stress_range_MPa is None else [float(s) for s in model.stress_range_MPa]
     return max(float(np.max(np.abs(model.simulate(*drive, s)))) for s in stresses)
+
+
+def reach_exceeded(model: Model, peak_um: float) -> float | None:
+    """The model's reach (`model_reach_um`) when a reference peaking at |peak_um| is over
+    REFERENCE_BEYOND_REACH_FACTOR times it; None when it is not (or the reach is unknown)."""
+    reach = model_reach_um(model)
+    if not (math.isfinite(reach) and reach > 0.0) or abs(peak_um) <= REFERENCE_BEYOND_REACH_FACTOR * reach:
+        return None
+    return reach

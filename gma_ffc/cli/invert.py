@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from typing import Any
 
@@ -12,7 +11,7 @@ import numpy as np
 from ..errors import InputError
 from ..initial_state import InitialStateSpec
 from ..model import SDPIModel
-from ..model_reach import REFERENCE_BEYOND_REACH_FACTOR, model_reach_um
+from ..model_reach import reach_exceeded
 from ..modelio import load_model
 from ..recordings import MAGNITUDE_BOUNDS, Recording, read_recording, write_recording
 from ._common import (add_group_option, add_initial_state_option, add_stress_option, check_initial_drive,
@@ -105,10 +104,10 @@ def run(args: argparse.Namespace) -> int:
 def _refuse_a_reference_beyond_reach(model: Any, rec: Recording) -> None:
     """A reference over REFERENCE_BEYOND_REACH_FACTOR times the model's reach is most likely a unit
     slip: refused, as the controller refuses it, unless --limit says the drive is to be clipped."""
-    reach = model_reach_um(model)
     ref = rec.columns["reference_um"]
     k = int(np.argmax(np.abs(ref)))
-    if not (math.isfinite(reach) and reach > 0.0) or abs(ref[k]) <= REFERENCE_BEYOND_REACH_FACTOR * reach:
+    reach = reach_exceeded(model, float(ref[k]))
+    if reach is None:
         return
     lo, hi = model.drive_range
     raise InputError(f"{rec.source}: the reference reaches {ref[k]:.4g} um at t = {rec.time_text(k)} s, "

@@ -18,7 +18,7 @@ import numpy as np
 from ..drivers import Driver, DriverProtocol, Inputs, driver_class
 from ..drivers.base import DISPLACEMENT, FORCE, INSTANCE_MEMBERS, STRESS, missing_members
 from ..errors import ConfigError, ModelError
-from ..model_reach import REFERENCE_BEYOND_REACH_FACTOR, model_reach_um
+from ..model_reach import reach_exceeded
 from ..protocols import Model
 from . import safety
 from .config import ControllerConfig, stop_ramp_fits_after_reload
@@ -164,8 +164,9 @@ REFERENCE_KEYS = {"sine": "reference.amplitude_um and offset_um", "triangle": "r
 
 def _reference_within_reach(cfg: ControllerConfig, model: Model, reference: Reference) -> None:
     """ConfigError for a reference over REFERENCE_BEYOND_REACH_FACTOR times the model's reach."""
-    reach, peak = model_reach_um(model), reference.peak_um()
-    if not (math.isfinite(reach) and reach > 0.0) or peak <= REFERENCE_BEYOND_REACH_FACTOR * reach:
+    peak = reference.peak_um()
+    reach = reach_exceeded(model, peak)
+    if reach is None:
         return
     raise ConfigError(
         f"config key 'reference' asks for up to {peak:g} um, {peak / reach:.0f}x the most the model gives over its "
