@@ -263,3 +263,60 @@ def test_the_regressors_are_each_term_through_the_load_dynamics(m, n, f_hz, zeta
     for j in range(m):
         want = RK.forward(np.ascontiguousarray(X[:, j]), dt, s, 2 * np.pi * f_hz, zeta, beta, -11.0, X[0, j])
         np.testing.assert_allclose(got[j], want, rtol=1e-12, atol=1e-12)
+
+
+
+def _held(block: dict, lo: float, hi: float) -> dict:
+    return RL.make_block(block["f_ref_hz"], block["zeta"], block["beta_per_MPa"], block["stress_ref_MPa"],
+                         held=(lo, hi))
+
+
+@settings(max_examples=40, deadline=None)
+@given(lo=st.floats(-24.0, -12.0), width=st.one_of(st.floats(0.0, 10.0), st.just(math.inf)),
+       open_below=st.booleans(), beta=st.floats(0.05, 1.0), seed=st.integers(0, 10_000))
+def test_a_held_law_is_the_free_law_at_the_stress_clipped_to_its_range(lo, width, open_below, beta, seed):
+    """law_held_below_MPa / law_held_above_MPa hold the resonance beyond them at its value there:
+    the same as the free law run on the static stress clipped there; inside, nothing changes; the
+    stepper (what the controller runs) agrees with the batch; the inverse undoes the forward."""
+    rng = np.random.default_rng(seed)
+    n, hi = 800, lo + width
+    lo = -math.inf if open_below else lo
+    dt = np.full(n, 1.0 / FS)
+    u = np.cumsum(rng.normal(0, 1.0, n))
+    s_static = -12.0 - 14.0 * rng.random() * (np.arange(n) > n // 3)
+    free = RL.make_block(120.0, 0.08, beta, -12.0)
+    held = _held(free, lo, hi)
+    assert RL.law_range(held) == (lo, hi)
+    x = RL.forward(u, dt, s_static, held)
+    np.testing.assert_allclose(x, RL.forward(u, dt, np.clip(s_static, lo, hi), free), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(RL.inverse(x, dt, s_static, held), u, rtol=1e-7, atol=1e-7 * (1 + np.abs(u).max()))
+    if np.all((s_static >= lo) & (s_static <= hi)):
+        np.testing.assert_array_equal(x, RL.forward(u, dt, s_static, free))
+    stepper = RL.RodLoadStepper(held, 1.0 / FS)
+    stepper.a_lp = 0.0                  # the static stress as given (the batch above takes it so)
+    steps = [(stepper.static(float(s)), stepper.forward(float(v)))[1] for s, v in zip(s_static, u)]
+    np.testing.assert_allclose(steps, x, rtol=1e-9, atol=1e-9 * (1 + np.abs(x).max()))
+
+
+def test_a_held_law_changes_the_resonance_only_beyond_its_range_and_round_trips(base):
+    t, u, s = _drive(3000)          # -14.5 MPa, then -20 MPa (with an inertial ripple)
+    free = _model(base)
+    held = _model(base, dynamics=_held(free.to_dict()["blocks"]["dynamics"], -16.0, math.inf))
+    y_free, y_held = free.simulate(t, u, s), held.simulate(t, u, s)
+    light = t < 0.5 * t[-1]         # the first load, inside the range (the low-pass settled before it changes)
+    np.testing.assert_allclose(y_held[light], y_free[light], rtol=1e-9, atol=1e-9)
+    assert np.max(np.abs(y_held[~light] - y_free[~light])) > 0.05     # at -20 MPa it is held: a different resonance
+    d = held.to_dict()
+    assert d["blocks"]["dynamics"]["law_held_below_MPa"] == -16.0 and "law_held_above_MPa" not in d["blocks"]["dynamics"]
+    np.testing.assert_allclose(model_from_dict(d).simulate(t, u, s), y_held, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("bad, says", [({"law_held_below_MPa": float("nan")}, "must be a finite stress"),
+                                       ({"law_held_above_MPa": "wide"}, "must be a finite stress"),
+                                       ({"law_held_below_MPa": None}, "must be a finite stress"),
+                                       ({"law_held_below_MPa": -12.0, "law_held_above_MPa": -16.0}, "must not be above")])
+def test_a_held_range_that_is_no_range_is_refused_by_name(base, bad, says):
+    d = _model(base).to_dict()
+    d["blocks"]["dynamics"].update(bad)
+    with pytest.raises(Exception, match=says):
+        model_from_dict(d)

@@ -18,6 +18,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from ..effects import rod_load as RL
+
 # The loads are cut into this many equal stress bins over the recordings' static stresses: fine
 # enough that a narrow band of loads shows as narrow, coarse enough that each bin of a recording
 # held at a load has thousands of samples.
@@ -67,19 +69,19 @@ def extrapolation_words(span: tuple[tuple[float, float], tuple[float, float]] | 
     far = lo if abs(lo - 0.5 * (a + b)) > abs(hi - 0.5 * (a + b)) else hi   # the loads' end farthest from it
     f_far = law_frequency(params, far)
     # half to twice the law's frequency there: a law that far off would be no law at all
-    sweep = (f"a sine swept from {0.5 * f_far:.3g} to {2.0 * f_far:.3g} Hz about the {f_far:.4g} Hz the law puts "
-             "there, or fast steps" if math.isfinite(f_far) else "fast steps, or a sine swept through the resonance")
+    sweep = f"a sine swept from {0.5 * f_far:.3g} to {2.0 * f_far:.3g} Hz about the {f_far:.4g} Hz the law puts there, or fast steps"
     return (f"mechanical_dynamics: the resonance improves the fit only at static stresses {_mpa(a)} to {_mpa(b)} of "
-            f"the recordings' {_mpa(lo)} to {_mpa(hi)}, so its shift with the load beyond them is extrapolated "
-            f"from the law's form, not measured; to measure it, record a drive that excites the resonance "
-            f"({sweep}) at {_mpa(far)}")
+            f"the recordings' {_mpa(lo)} to {_mpa(hi)}. Its shift with the load beyond them is extrapolated "
+            f"from the law's form, not measured. To measure it, record a drive that excites the resonance "
+            f"({sweep}) at {_mpa(far)}.")
 
 
 def law_frequency(params: Mapping[str, float], stress_MPa: float) -> float:
-    """The resonance frequency the fitted law gives at a static stress (NaN where it has none)."""
-    x = 1.0 + float(params.get("beta_per_MPa", 0.0)) * (float(params.get("stress_ref_MPa", stress_MPa)) - stress_MPa)
-    f_ref = float(params.get("f_ref_hz", math.nan))
-    return f_ref / math.sqrt(x) if x > 0.0 else math.nan
+    """The resonance frequency the fitted law gives at a static stress, as the model runs it
+    (`rod_load.resonance_hz`: held where the parameters hold it)."""
+    held = tuple(float(params.get(key, end)) for key, end in zip(RL.HELD_KEYS, (-math.inf, math.inf)))
+    return RL.resonance_hz(float(params["f_ref_hz"]), float(params.get("beta_per_MPa", 0.0)),
+                           float(params.get("stress_ref_MPa", stress_MPa)), stress_MPa, (held[0], held[1]))
 
 
 def _mpa(stress: float) -> str:

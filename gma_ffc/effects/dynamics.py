@@ -118,7 +118,7 @@ class Dynamics(EffectBase):
         with the resonance held where the data show it: at the stress where the drive excites it
         most (`_stress_excited`), or at either end (the fast drive may sit at one load only). Held
         at the least compressive end alone, frequency and law trade off along a narrow valley."""
-        fr, z, b = p
+        fr, z, b = p[:3]
 
         # steps halve per level (not a third): a sharp resonance's damping and load law are coupled to its
         # frequency, and the grid's coarse frequency first pins the damping far from its value
@@ -150,7 +150,7 @@ class Dynamics(EffectBase):
         """Fitted alone, a resonance beside eddy currents or a delay takes their phase lag as extra
         damping (a damping ratio of 0.38 where the rig's is 0.1): tried beside it, a lag or delay has
         the damping re-searched, scaled by k."""
-        fr, z, b = p
+        fr, z, b = p[:3]
         return (fr, min(z * k, MAX_ZETA), b)
 
     @classmethod
@@ -158,7 +158,7 @@ class Dynamics(EffectBase):
         """The zoom leaves the damping of a sharp resonance a few percent off, and its residual
         ringing is then several times the noise: a local search over log(frequency where the drive
         excites it), log(damping) and, for a load law, log(moving mass) finishes the job."""
-        fr, z, b = p
+        fr, z, b = p[:3]
         held = _stress_excited(fitter)
         f_held, s0 = _f_at(fr, b, fitter.stress_top, held), _mass_stress(b)
         law = fitter.stress_varies and not math.isinf(s0)
@@ -174,7 +174,7 @@ class Dynamics(EffectBase):
         """A resonance the data show peaks: a fit that runs to the heaviest damping searched (or to the
         highest frequency the sampling resolves) wants a low-pass, a lag that a leftover of eddy
         currents, a delay or the core's shape gives as well."""
-        f, zeta, _ = check.result.specs[2][cls.name]
+        f, zeta = check.result.specs[2][cls.name][:2]
         if zeta >= MAX_ZETA * (1.0 - 1e-9):
             return SignatureFailure(
                 f"its fit runs to the heaviest damping of a resonance that peaks (damping ratio {MAX_ZETA:.2g}): "
@@ -195,35 +195,59 @@ class Dynamics(EffectBase):
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
         """The load dynamics take every regressor so far (a term of the free stroke) except the offset
         (the dynamics are linear, and a unity-gain system at rest leaves a constant alone)."""
-        f, zeta, beta = p
+        f, zeta, beta = p[:3]
+        held = law_held(p)
         d = r.d
         idx = [j for j, name in enumerate(r.names) if name != "offset"]
-        P = fitter.cached_table(d, ("resonance", f, zeta, beta), lambda: RL.transitions(
-            d.dt, fitter.static_stress(d), f, zeta, beta, fitter.stress_top))    # shared by the specs of a search
+        P = fitter.cached_table(d, ("resonance", f, zeta, beta) + held, lambda: RL.transitions(
+            d.dt, fitter.static_stress(d), f, zeta, beta, fitter.stress_top, held))  # shared by a search's specs
         filt = RL.regressors(np.array([r.cols[j] for j in idx]), P)
         for k, j in enumerate(idx):
             r.cols[j] = filt[k]
 
     @classmethod
     def fitted_params(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, float]:
-        f, z, b = p
+        f, z, b = p[:3]
+        held = law_held(p)
         out = {"f_ref_hz": f, "zeta": z, "beta_per_MPa": b, "stress_ref_MPa": fitter.stress_top}
         if b > 0:
             s_lo = min(float(fitter.static_stress(d, clamped=True).min()) for d in fitter.data)  # the static stress
-            out["f_at_most_compressive_hz"] = f / math.sqrt(1 + b * (fitter.stress_top - s_lo))
+            out["f_at_most_compressive_hz"] = _f_at(f, b, fitter.stress_top, max(s_lo, held[0]))
+        out.update({key: end for key, end in zip(RL.HELD_KEYS, held) if math.isfinite(end)})
         return out
 
     @classmethod
     def fitted_blocks(cls, fitter: FitData, p: Any, coef: Mapping[str, float]) -> dict[str, dict[str, Any]]:
-        f, z, b = p
-        return {"dynamics": RL.make_block(f, z, b, fitter.stress_top)}       # the load dynamics (rod_load)
+        f, z, b = p[:3]
+        held = law_held(p)
+        return {"dynamics": RL.make_block(f, z, b, fitter.stress_top, held=held)}    # the load dynamics (rod_load)
 
     @staticmethod
     def describe(params: Mapping[str, float], unit: str) -> str:
         txt = f"a resonance at {params['f_ref_hz']:.4g} Hz (damping ratio {params['zeta']:.2g})"
         if "f_at_most_compressive_hz" in params:
             txt += f" that moves down to {params['f_at_most_compressive_hz']:.4g} Hz at the most compressive load"
+        if "law_held_below_MPa" in params:
+            txt += f", held at its value at {params['law_held_below_MPa']:.3g} MPa under more compressive loads"
+        if "law_held_above_MPa" in params:
+            txt += f", held at its value at {params['law_held_above_MPa']:.3g} MPa under less compressive loads"
         return txt
+
+
+FREE_LAW = (-math.inf, math.inf)    # the law over every load (no `law_held_*` keys)
+
+
+def law_held(p: Sequence[float]) -> tuple[float, float]:
+    """The static stresses a resonance parameter's law runs over: (f, zeta, beta) runs over every
+    load; (f, zeta, beta, lo, hi), which the diagnosis makes when the law was measured over a narrow
+    band of loads only (`diagnose.load_law`), holds it beyond lo..hi (`rod_load`; an infinite end
+    is not held)."""
+    return (float(p[3]), float(p[4])) if len(p) == 5 else FREE_LAW
+
+
+def with_law_held(p: Sequence[float], held: tuple[float, float]) -> tuple[float, ...]:
+    """Parameter p with its law held beyond the static stresses `held`."""
+    return tuple(float(v) for v in p[:3]) + (float(held[0]), float(held[1]))
 
 
 def _law_moves(fitter: FitData, p: tuple[float, float, float], zoom: Sequence[float]
@@ -268,7 +292,7 @@ def _mass_stress(beta: float) -> float:
 
 def _f_at(f_top: float, beta: float, stress_top: float, stress: float) -> float:
     """The law's resonance at a static stress, from the one at the least compressive load."""
-    return f_top / math.sqrt(1.0 + beta * (stress_top - stress))
+    return RL.resonance_hz(f_top, beta, stress_top, stress)
 
 
 def _point_held(fitter: FitData, f_held: float, held: float, zeta: float, mass_stress: float

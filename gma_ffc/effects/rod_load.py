@@ -38,9 +38,18 @@ Discretisation (`rod_load_kernels`): exact for an input held over each sample in
 form so position and velocity stay continuous when the load changes. Inverse: exact, causal
 (the free stroke that puts the load at the reference), see `RodLoadStepper.inverse`.
 
+Where the law was measured. A law fitted where the recordings excite the resonance over a narrow
+band of loads only is extrapolated beyond it from its form alone (the twenty-third never-tuned
+draw: fitted at 1.6 of 7.5 MPa, 3x too steep, a probe at the heaviest load 2.4x worse than the
+base). The optional ``law_held_below_MPa`` holds the resonance at every more compressive static
+stress at its value there, and ``law_held_above_MPa`` at every less compressive one: the static
+stress the law reads is clipped (the core still sees the static stress itself). Without them the
+law runs over every load, as before.
+
 Extended-model block (``blocks.dynamics``), told apart from the older output filter by ``form``::
 
-    {form: rod_load, f_ref_hz, zeta, beta_per_MPa, stress_ref_MPa, stress_lowpass_hz}
+    {form: rod_load, f_ref_hz, zeta, beta_per_MPa, stress_ref_MPa, stress_lowpass_hz
+     [, law_held_below_MPa][, law_held_above_MPa]}
 """
 
 from __future__ import annotations
@@ -55,6 +64,7 @@ from .base import is_number
 
 FORM = "rod_load"
 STATIC_STRESS_HZ = 1.0      # low-pass of the load-cell stress that leaves the load's weight (see above)
+HELD_KEYS = ("law_held_below_MPa", "law_held_above_MPa")     # where the law is held (see above)
 
 
 def is_rod_load(block: Mapping[str, Any] | None) -> bool:
@@ -63,9 +73,16 @@ def is_rod_load(block: Mapping[str, Any] | None) -> bool:
 
 
 def make_block(f_ref_hz: float, zeta: float, beta_per_MPa: float, stress_ref_MPa: float,
-               stress_lowpass_hz: float = STATIC_STRESS_HZ) -> dict[str, Any]:
-    return {"form": FORM, "f_ref_hz": float(f_ref_hz), "zeta": float(zeta), "beta_per_MPa": float(beta_per_MPa),
-            "stress_ref_MPa": float(stress_ref_MPa), "stress_lowpass_hz": float(stress_lowpass_hz)}
+               stress_lowpass_hz: float = STATIC_STRESS_HZ,
+               held: tuple[float, float] = (-math.inf, math.inf)) -> dict[str, Any]:
+    """The block; `held`: the static stresses the law runs over (`law_range`), an infinite end not held."""
+    block: dict[str, Any] = {"form": FORM, "f_ref_hz": float(f_ref_hz), "zeta": float(zeta),
+                             "beta_per_MPa": float(beta_per_MPa), "stress_ref_MPa": float(stress_ref_MPa),
+                             "stress_lowpass_hz": float(stress_lowpass_hz)}
+    for key, end in zip(HELD_KEYS, held):
+        if math.isfinite(end):
+            block[key] = float(end)
+    return block
 
 
 def check_block(block: Mapping[str, Any]) -> str:
@@ -78,7 +95,34 @@ def check_block(block: Mapping[str, Any]) -> str:
         v = block.get(key)
         if not is_number(v):
             return f"dynamics.{key} must be a finite number, got {v!r}"
+    for key in HELD_KEYS:
+        if key in block and not is_number(block[key]):
+            return f"dynamics.{key} must be a finite stress in MPa (or left out: the law not held), got {block[key]!r}"
+    lo, hi = law_range(block)
+    if lo > hi:
+        return (f"dynamics.law_held_below_MPa ({lo:g}) must not be above dynamics.law_held_above_MPa ({hi:g}): "
+                "the law runs between them")
     return ""
+
+
+def law_range(block: Mapping[str, Any]) -> tuple[float, float]:
+    """The static stresses the resonance law runs over (beyond them it is held): every load without the keys."""
+    below, above = (block.get(key) for key in HELD_KEYS)
+    return (-math.inf if below is None else float(below), math.inf if above is None else float(above))
+
+
+def law_stress(s_static: np.ndarray, held: tuple[float, float]) -> np.ndarray:
+    """The static stress the law reads: clipped to the range it runs over (a new array only when clipped)."""
+    s = np.ascontiguousarray(s_static, dtype=float)
+    return s if held == (-math.inf, math.inf) else np.clip(s, held[0], held[1])
+
+
+def resonance_hz(f_ref_hz: float, beta_per_MPa: float, stress_ref_MPa: float, s_static: float,
+                 held: tuple[float, float] = (-math.inf, math.inf)) -> float:
+    """The law's resonance at a static stress as the model runs it: held beyond `held`, the mass
+    factor floored at `rod_load_kernels.MIN_MASS_FACTOR` (`RodLoadStepper.static` the same, written out)."""
+    s = min(max(float(s_static), held[0]), held[1])
+    return RK.omega_at(2.0 * math.pi * f_ref_hz, beta_per_MPa, s, stress_ref_MPa) / (2.0 * math.pi)
 
 
 def static_stress(stress: np.ndarray, dt: np.ndarray, fc_hz: float = STATIC_STRESS_HZ) -> np.ndarray:
@@ -97,23 +141,23 @@ def _args(block: Mapping[str, Any]) -> tuple[float, float, float, float]:
 def forward(x_free: np.ndarray, dt: np.ndarray, s_static: np.ndarray, block: Mapping[str, Any]) -> np.ndarray:
     """Batch: load position for the free stroke, at rest at its first value."""
     x = np.ascontiguousarray(x_free, dtype=float)
-    return RK.forward(x, np.ascontiguousarray(dt, dtype=float), np.ascontiguousarray(s_static, dtype=float),
+    return RK.forward(x, np.ascontiguousarray(dt, dtype=float), law_stress(s_static, law_range(block)),
                       *_args(block), float(x[0]))
 
 
 def inverse(y: np.ndarray, dt: np.ndarray, s_static: np.ndarray, block: Mapping[str, Any]) -> np.ndarray:
     """Batch: exact inverse of `forward` (at rest at y[0])."""
     yy = np.ascontiguousarray(y, dtype=float)
-    return RK.inverse(yy, np.ascontiguousarray(dt, dtype=float), np.ascontiguousarray(s_static, dtype=float),
+    return RK.inverse(yy, np.ascontiguousarray(dt, dtype=float), law_stress(s_static, law_range(block)),
                       *_args(block), float(yy[0]))
 
 
 def transitions(dt: np.ndarray, s_static: np.ndarray, f_ref_hz: float, zeta: float, beta_per_MPa: float,
-                stress_ref_MPa: float) -> np.ndarray:
+                stress_ref_MPa: float, held: tuple[float, float] = (-math.inf, math.inf)) -> np.ndarray:
     """The load dynamics' state transition per sample, shape (4, samples): what `regressors` filters
     through. It depends on the dynamics and the recording alone, so a fit that filters several sets
-    of terms through the same dynamics computes it once."""
-    return RK.transitions(np.ascontiguousarray(dt, dtype=float), np.ascontiguousarray(s_static, dtype=float),
+    of terms through the same dynamics computes it once. `held`: the law's range (`law_range`)."""
+    return RK.transitions(np.ascontiguousarray(dt, dtype=float), law_stress(s_static, held),
                           2.0 * math.pi * f_ref_hz, zeta, beta_per_MPa, stress_ref_MPa)
 
 
@@ -133,6 +177,7 @@ class RodLoadStepper:
     def __init__(self, block: Mapping[str, Any], dt_s: float) -> None:
         self.dt = float(dt_s)
         self.w_ref, self.zeta, self.beta, self.s_ref = _args(block)
+        self.law_lo, self.law_hi = law_range(block)
         self.a_lp = math.exp(-self.dt * 2.0 * math.pi * float(block["stress_lowpass_hz"]))
         self.reset()
 
@@ -150,7 +195,8 @@ class RodLoadStepper:
         a = self.a_lp
         self.z1 = a * self.z1 + (1.0 - a) * s
         self.z2 = a * self.z2 + (1.0 - a) * self.z1
-        m = 1.0 + self.beta * (self.s_ref - self.z2)
+        s_law = min(max(self.z2, self.law_lo), self.law_hi)
+        m = 1.0 + self.beta * (self.s_ref - s_law)
         if m < RK.MIN_MASS_FACTOR:
             m = RK.MIN_MASS_FACTOR
         w = self.w_ref / math.sqrt(m)
