@@ -50,6 +50,8 @@ better look-alike refused only by the leave-one-out is now left undecided, and e
 is weighed against its own absence: GENERAL_TWENTY_SECOND_SEED draws a twenty-first on that diagnosis.
 Its play miss was not fixed; the background diagnosis gained a known start state (diagnose's
 --initial-state plays:, unused here): GENERAL_TWENTY_THIRD_SEED draws a twenty-second.
+Its resonance law, fitted at one load, is now held beyond the loads where it was measured:
+GENERAL_TWENTY_FOURTH_SEED draws a twenty-third.
 """
 
 from __future__ import annotations
@@ -112,6 +114,8 @@ GENERAL_TWENTY_SECOND_SEED = 20261309  # a twenty-first never-tuned draw (2026-1
                                        # undecided look-alikes and evidence against absence; committed before its first run
 GENERAL_TWENTY_THIRD_SEED = 20261310   # a twenty-second never-tuned draw (2026-12-01, thirty-second session):
                                        # the diagnosis as the twenty-first drew it; committed before its first run
+GENERAL_TWENTY_FOURTH_SEED = 20261311  # a twenty-third never-tuned draw (2026-12-01, thirty-third session):
+                                       # a resonance law held beyond its measured loads; committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
