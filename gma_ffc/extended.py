@@ -41,7 +41,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .effects import by_block_key
-from .effects.base import BatchSignals, Effect, EffectState, PlayStart, StepSignals, time_steps
+from .effects.base import BatchSignals, Effect, EffectState, PlayStart, StepSignals, refuse_unknown_keys, time_steps
 from .effects.static import StaticMap
 from .errors import ModelError
 from .model import refuse_stress_outside
@@ -68,6 +68,8 @@ def effects_from_blocks(blocks: Mapping[str, Any], base: Any) -> list[Effect]:
     unknown = set(blocks) - set(owners)
     if unknown:
         raise ModelError(f"extended model: unknown block(s) {sorted(unknown)}; known: {sorted(owners)}")
+    for key, block in blocks.items():
+        refuse_unknown_keys(key, block, owners[key].block_keys[key])
     out = []
     for cls in dict.fromkeys(owners[k] for k in blocks):
         eff = cls.from_blocks(blocks, base)

@@ -20,6 +20,7 @@ from gma_ffc.effects.base import (BatchSignals, EffectBase, FitData, Regressors,
 class MainsPickup(EffectBase):
     name: ClassVar[str] = "mains_pickup"
     keys: ClassVar[tuple[str, ...]] = ("mains_pickup",)
+    block_keys: ClassVar[Mapping[str, tuple[str, ...]]] = {"mains_pickup": ("f_hz", "sin_um", "cos_um")}
     stage: ClassVar[str] = "sum"
     position: ClassVar[int] = 55
     inverted: ClassVar[Mapping[str, str]] = {"mains_pickup": "exact (a known sinusoid, subtracted)"}

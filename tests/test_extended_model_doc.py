@@ -258,3 +258,61 @@ def test_the_refusal_quoted_is_the_loaders(base):
         model_from_dict(d, "extended_model.yaml")
     assert "dynamics.zeta" in str(exc.value)
     assert str(exc.value) in TEXT, f"the doc should quote the loader's own words: {exc.value}"
+
+
+def test_each_blocks_declared_keys_are_the_keys_documented_for_it():
+    """`block_keys` (what the loader accepts) is the union of a block's tables: the forms written and read."""
+    owners = {key: cls for cls in REGISTRY.values() for key in cls.keys}
+    for name, body in _block_sections().items():
+        documented = {key for _, rows in _tables(body) for key in rows}
+        assert set(owners[name].block_keys[name]) == documented, (name, sorted(documented))
+
+
+@pytest.mark.parametrize("block, key, value, says", [
+    ("dynamics", "law_held_belwo_MPa", -20.0, "unknown key 'dynamics.law_held_belwo_MPa' (did you mean "
+                                              "'dynamics.law_held_below_MPa'?): rename it"),
+    ("static", "gian", 1.1, "unknown key 'static.gian' (did you mean 'static.gain'?)"),
+    ("creep", "colour", "red", "unknown key 'creep.colour': the creep block reads only gain, tau_s; remove it"),
+])
+def test_a_key_no_block_reads_is_refused_not_ignored(base, block, key, value, says):
+    """A misspelt optional key used to be ignored: the model ran on its default (the law not held,
+    the gain 1), and nothing said so."""
+    d = {**_example(), "base": base.to_dict()}
+    d["blocks"][block][key] = value
+    with pytest.raises(ModelError) as exc:
+        model_from_dict(d, "extended_model.yaml")
+    assert says in str(exc.value)
+
+
+@pytest.mark.parametrize("block, says", [
+    ({"f_ref_hz": 150.0, "zeta": 0.05, "beta_per_MPa": "0.3"}, "dynamics.beta_per_MPa must be a finite number"),
+    ({"f_ref_hz": 150.0, "zeta": 0.05, "stress_ref_MPa": float("nan")}, "dynamics.stress_ref_MPa must be a finite"),
+    ({"form": "rodload", "f_ref_hz": 150.0, "zeta": 0.05}, "dynamics.form must be 'rod_load'"),
+])
+def test_a_damaged_dynamics_block_is_refused_by_name(base, block, says):
+    """The older form's beta read as text was a ValueError ('internal error'); a misspelt form
+    quietly loaded as the older filter."""
+    with pytest.raises(ModelError, match=re.escape(says)):
+        model_from_dict(_file(base.to_dict(), {"dynamics": block}), "extended_model.yaml")
+
+
+def test_a_saturation_range_upside_down_is_refused(base):
+    block = {"lo": 3.0, "hi": 0.0, "lin_lo": 0.1, "quad_lo": 0.0, "lin_hi": -0.1, "quad_hi": 0.0}
+    with pytest.raises(ModelError, match=re.escape("saturation.lo (3) must not be above saturation.hi (0)")):
+        model_from_dict(_file(base.to_dict(), {"saturation": block}), "extended_model.yaml")
+
+
+def test_simulate_refuses_a_misspelt_key_in_one_line(base, tmp_path, capsys):
+    from gma_ffc.cli import main
+    from gma_ffc.recordings import Recording, write_recording
+
+    d = {**_example(), "base": base.to_dict()}
+    d["blocks"]["dynamics"]["law_held_belwo_MPa"] = -20.0
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump(d))
+    t = np.arange(200) / 1000.0
+    write_recording(tmp_path / "drive.csv", Recording({"time_s": t, "current_A": 1.0 + 0.5 * np.sin(20 * t),
+                                                       "stress_MPa": np.full(t.size, -15.0)}))
+    out = tmp_path / "sim.csv"
+    assert main(["simulate", "--model", str(tmp_path / "m.yaml"), str(tmp_path / "drive.csv"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "did you mean 'dynamics.law_held_below_MPa'" in err and not out.exists()

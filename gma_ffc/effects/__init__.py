@@ -26,10 +26,14 @@ REGISTRY: dict[str, type[Effect]] = {}
 
 
 def register(cls: type[Effect]) -> type[Effect]:
-    """Add an effect class (by its `name`); its block keys must be new. Returns the class (a decorator)."""
+    """Add an effect class (by its `name`); its block keys must be new, and each block's keys declared
+    (`block_keys`: a model file's key it does not read is refused, not ignored). Returns the class (a decorator)."""
     taken = {k for c in REGISTRY.values() for k in c.keys}
     if cls.name in REGISTRY or taken & set(cls.keys):
         raise ValueError(f"effect {cls.name!r} or one of its blocks {cls.keys} is registered already")
+    undeclared = [k for k in cls.keys if k not in getattr(cls, "block_keys", {})]
+    if undeclared:
+        raise ValueError(f"effect {cls.name!r}: declare the keys of its block(s) {undeclared} in block_keys")
     REGISTRY[cls.name] = cls
     return cls
 

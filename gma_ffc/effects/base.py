@@ -15,6 +15,7 @@ This package never imports `gma_ffc.diagnose`: the diagnosis hands its fitter in
 
 from __future__ import annotations
 
+import difflib
 import functools
 import math
 from dataclasses import dataclass
@@ -264,6 +265,7 @@ class Effect(Protocol):
 
     name: ClassVar[str]                     # the diagnosis' word for it, e.g. "rate_dependence"
     keys: ClassVar[tuple[str, ...]]         # its block(s) in model files, e.g. ("eddy_lag",)
+    block_keys: ClassVar[Mapping[str, tuple[str, ...]]]   # per block, every key it reads (docs/extended-model.md)
     stage: ClassVar[str]                    # one of STAGES
     position: ClassVar[int]                 # order along the signal path (lower: nearer the drive)
     inverted: ClassVar[Mapping[str, str]]   # per block key: how the inverse undoes it (written to files)
@@ -559,6 +561,20 @@ def time_steps(time_s: Any) -> tuple[np.ndarray, float]:
     d = np.diff(t)
     med = float(np.median(d))
     return np.concatenate(([med], d)), med
+
+
+def refuse_unknown_keys(name: str, block: Any, known: Sequence[str]) -> None:
+    """ModelError for a key of block `name` that its effect does not read: a misspelt optional key
+    ('law_held_belwo_MPa', 'gian') would be ignored, and the model would run without it."""
+    if not isinstance(block, Mapping):
+        return              # `block_of` names that fault
+    for key in block:
+        if key in known:
+            continue
+        close = difflib.get_close_matches(str(key), known, n=1, cutoff=0.6)
+        hint = f" (did you mean '{name}.{close[0]}'?): rename it" if close else \
+            f": the {name} block reads only {', '.join(known)}; remove it"
+        raise ModelError(f"extended model: unknown key '{name}.{key}'{hint} (docs/extended-model.md)")
 
 
 def block_of(blocks: Mapping[str, Any], key: str) -> dict[str, Any] | None:

@@ -18,6 +18,7 @@ MIN_CREEP_TAU_S = 1.0             # creep's central time constant (its component
 class Creep(EffectBase):
     name: ClassVar[str] = "creep"
     keys: ClassVar[tuple[str, ...]] = ("creep",)
+    block_keys: ClassVar[Mapping[str, tuple[str, ...]]] = {"creep": ("gain", "tau_s")}
     stage: ClassVar[str] = "sum"
     follows_drive: ClassVar[bool] = True    # lag(y_c) - y_c: at a loop's rate, a loss of gain the base absorbed
     position: ClassVar[int] = 60

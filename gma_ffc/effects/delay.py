@@ -21,6 +21,7 @@ MAX_DELAY_S = 60.0
 class Delay(EffectBase):
     name: ClassVar[str] = "time_delay"
     keys: ClassVar[tuple[str, ...]] = ("delay",)
+    block_keys: ClassVar[Mapping[str, tuple[str, ...]]] = {"delay": ("delay_s",)}
     stage: ClassVar[str] = "input"
     follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 20

@@ -19,7 +19,7 @@ from ..errors import ModelError
 from . import kernels as K
 from . import rod_load as RL
 from .base import (BatchSignals, EffectBase, FitData, Regressors, SignatureCheck, SignatureFailure, StepSignals,
-                   polish_factor, positive)
+                   is_number, polish_factor, positive)
 
 MAX_ZETA = 0.5   # a resonance must peak; heavier damping is a lag/delay look-alike and is left to those
 LAW_SWEEP = 1.2    # after the polish, moving masses over LAW_SPREAD's range about 20 % apart: with frequency and
@@ -35,6 +35,8 @@ TOP_OF_NYQUIST = 0.8   # the highest resonance searched, as a fraction of the Ny
 class Dynamics(EffectBase):
     name: ClassVar[str] = "mechanical_dynamics"
     keys: ClassVar[tuple[str, ...]] = ("dynamics",)
+    block_keys: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "dynamics": ("form", "f_ref_hz", "zeta", "beta_per_MPa", "stress_ref_MPa", "stress_lowpass_hz") + RL.HELD_KEYS}
     stage: ClassVar[str] = "filter"
     follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 70
@@ -70,9 +72,15 @@ class Dynamics(EffectBase):
         super().__init__(block)
         self.f_ref_hz = positive(block, "f_ref_hz", "dynamics")
         self.zeta = positive(block, "zeta", "dynamics")
+        if "form" in block and not RL.is_rod_load(block):
+            raise ModelError(f"extended model: dynamics.form must be '{RL.FORM}' (or left out: the older output "
+                             f"filter), got {block['form']!r}")
+        self.rod_load = RL.is_rod_load(block)      # False: the older output filter (files without 'form')
+        for key in ("beta_per_MPa", "stress_ref_MPa"):
+            if key in block and not is_number(block[key]):
+                raise ModelError(f"extended model: dynamics.{key} must be a finite number, got {block[key]!r}")
         self.beta = float(block.get("beta_per_MPa", 0.0))
         self.stress_ref = float(block.get("stress_ref_MPa", 0.0))
-        self.rod_load = RL.is_rod_load(block)      # False: the older output filter (files without 'form')
         if self.rod_load and RL.check_block(block):
             raise ModelError(f"extended model: {RL.check_block(block)}")
 

@@ -13,6 +13,7 @@ from .base import EffectBase, FitData, StepSignals, geom_refine, grid_ratio, pos
 class EddyLag(EffectBase):
     name: ClassVar[str] = "rate_dependence"
     keys: ClassVar[tuple[str, ...]] = ("eddy_lag",)
+    block_keys: ClassVar[Mapping[str, tuple[str, ...]]] = {"eddy_lag": ("tau_s",)}
     stage: ClassVar[str] = "input"
     follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 10

@@ -16,6 +16,7 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 
 from ..drive import drive_unit
+from ..errors import ModelError
 from . import kernels as K
 from .base import (BatchSignals, EffectBase, FitData, OwnPlays, PlayBankState, PlayStart, Regressors, SignatureCheck,
                    SignatureFailure, StepSignals, finite, play_weights)
@@ -103,6 +104,7 @@ def untestable_inside(fitter: FitData) -> str:
 class Saturation(EffectBase):
     name: ClassVar[str] = "saturation"
     keys: ClassVar[tuple[str, ...]] = ("saturation",)
+    block_keys: ClassVar[Mapping[str, tuple[str, ...]]] = {"saturation": KEYS + ("play_thresholds", "play_coefficients")}
     stage: ClassVar[str] = "sum"
     follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 50
@@ -117,6 +119,9 @@ class Saturation(EffectBase):
         super().__init__(block)
         self.lo, self.hi, self.lin_lo, self.quad_lo, self.lin_hi, self.quad_hi = \
             (finite(block, k, "saturation") for k in KEYS)
+        if self.lo > self.hi:
+            raise ModelError(f"extended model: saturation.lo ({self.lo:g}) must not be above saturation.hi "
+                             f"({self.hi:g}): they are the ends of the drive range the model was identified on")
         self.thresholds: np.ndarray
         self.coefficients: np.ndarray
         self.thresholds, self.coefficients = play_weights(

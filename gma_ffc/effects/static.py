@@ -26,6 +26,9 @@ STATIC_DEFAULTS = {"offset_um": 0.0, "gain": 1.0, "stress_gain_per_MPa": 0.0,
 class StaticMap(EffectBase):
     name: ClassVar[str] = "static_recalibration"
     keys: ClassVar[tuple[str, ...]] = ("static", "play_correction")
+    block_keys: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "static": ("offset_um", "gain", "stress_gain_per_MPa", "quadratic_per_um", "center_um", "stress_ref_MPa"),
+        "play_correction": ("thresholds", "coefficients")}
     stage: ClassVar[str] = "sum"
     position: ClassVar[int] = 30
     inverted: ClassVar[Mapping[str, str]] = {"static": "closed form (quadratic root)",

@@ -119,6 +119,9 @@ class WidenedInverseStepper(WidenedForwardStepper):
 class StressPlay(EffectBase):
     name: ClassVar[str] = "stress_dependent_play"
     keys: ClassVar[tuple[str, ...]] = ("stress_play", "loop_width", "stress_width")
+    block_keys: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "stress_play": ("thresholds", "coefficients_per_MPa"), "loop_width": ("kappa_per_MPa", "stress_ref_MPa"),
+        "stress_width": ("eps", "coef_per_MPa")}
     stage: ClassVar[str] = "sum"
     follows_drive: ClassVar[bool] = True
     position: ClassVar[int] = 40

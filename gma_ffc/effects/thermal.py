@@ -19,6 +19,7 @@ MIN_THERMAL_TAU_S = 10.0     # thermal time constant of a coil and rod: tens of 
 class Thermal(EffectBase):
     name: ClassVar[str] = "thermal_drift"
     keys: ClassVar[tuple[str, ...]] = ("thermal",)
+    block_keys: ClassVar[Mapping[str, tuple[str, ...]]] = {"thermal": ("tau_s", "gain_um_per_A2", "fast_tau_s", "fast_gain_um_per_A2")}
     stage: ClassVar[str] = "after"
     position: ClassVar[int] = 80
     inverted: ClassVar[Mapping[str, str]] = {"thermal": "offset model driven by the commanded drive of the previous sample"}
