@@ -255,7 +255,10 @@ def test_channels_on_two_devices(models, tmp_path):
     assert summary["ok"], summary["fault_messages"]
     rec = read_recording(cfg.telemetry["path"])
     assert np.median(rec.stress_MPa) == pytest.approx(-19.1, abs=0.3)   # from the second device
-    assert len(rig_amp.history("setpoint")) >= 40 and rig_amp.last_setpoint_A == 0.0
+    # every data row's command reached the amplifier's device (counted by rows, not by the wall clock:
+    # a busy machine ran 28 ticks of the 50 in this half second), and the safe current came last
+    assert len(rec.time_s) >= 5 and len(rig_amp.history("setpoint")) >= len(rec.time_s)
+    assert rig_amp.last_setpoint_A == 0.0
     assert rig_cell.history("setpoint") == []
 
 
