@@ -13,6 +13,7 @@ import pytest
 
 from gma_ffc.control.config import validate_config
 from gma_ffc.control.manager import ControllerManager
+from gma_ffc.control.law import start_stepper
 from gma_ffc.control.scheduler import SimulatedClock
 from gma_ffc.sil import cached_sdpi_and_mpi
 from gma_ffc.drivers import DriverError
@@ -475,3 +476,78 @@ def test_a_telemetry_write_that_fails_shows_in_the_status_while_the_run_goes_on(
     assert status["state"] == "running" and status["telemetry"]["error"] == "telemetry write failed: No space left on device"
     row = next(line for line in format_table(status).splitlines() if line.startswith("telemetry"))
     assert "No space left on device" in row and f"rows written to {cfg.telemetry['path']}" in row, row
+
+
+class SwitchingOffSim(LoggingSim):
+    """A driver whose safe() switches the output off (Modbus `disable_on_safe`): the coil carries 0 A."""
+
+    switches_off_on_safe = True
+
+    def safe(self, current_A):
+        self.log.append(("safe", current_A))
+        SimDriver.write(self, 0.0)
+
+
+def plays_through(plays, model, path):
+    """The forward plays (model units) after the coil carried each current of `path` in turn."""
+    p = np.array(plays, dtype=float)
+    for x in path:
+        p = np.clip(p, x - model.input_offset - model.play_thresholds, x - model.input_offset + model.play_thresholds)
+    return p
+
+
+@pytest.mark.parametrize("driver_class, path, forgets", [(SwitchingOffSim, (1.2, 0.0, 1.2), False),
+                                                          (LoggingSim, (1.2, 1.2), True)])
+def test_a_reconnect_carries_the_inverse_memory_through_the_currents_the_coil_carried(models, tmp_path,
+                                                                                     driver_class, path, forgets):
+    """With a non-zero safe current the inverse resumes with the coil's path in its memory. Where
+    the output stays on, the default start (used before) forgot the run before the fault. Where
+    safe() switches the output off, the coil went to 0 A and back: on this model that wipes the
+    plays as the default start assumes, and the memory carried must agree with it."""
+    seen = {}
+
+    def inject(tick, inputs):
+        if tick == 500:
+            seen["before"] = ctrl.setup.law.stepper.play_state().copy()
+            raise DriverError("link down", "timeout")
+        if tick == 501:
+            seen["after"] = ctrl.setup.law.stepper.play_state().copy()
+            seen["how"] = ctrl.setup.law.initial_state
+
+    cfg = validate_config({"rate_hz": RATE, "clock": "simulated", "model": "unused.yaml",
+                           "driver": {"kind": "sim", "load_mass_kg": 15.0},
+                           "reference": {"kind": "sine", "frequency_hz": 3.0, "amplitude_um": 12.0, "offset_um": 15.0},
+                           "limits": {"current_min_A": 0.0, "current_max_A": 3.0, "slew_A_per_s": SLEW,
+                                      "safe_current_A": 1.2},
+                           "telemetry": {"path": str(tmp_path / "run.csv")}})
+    driver = driver_class(cfg.driver, cfg.period_s, inject)
+    ctrl = ControllerManager(cfg, model=models[0], driver=driver)
+    s = ctrl.run(duration_s=1.0)
+    assert s["state"] == "stopped" and s["reconnects"] == 1, s["fault_messages"]
+    model = models[0]
+    expected = plays_through(seen["before"], model, path)
+    np.testing.assert_allclose(seen["after"], expected, atol=1e-9)
+    assert " -> ".join(f"{x:.4g}" for x in path) in seen["how"] and "reconnect" in seen["how"]
+    default = model.inverse_stepper(cfg.period_s)
+    start_stepper(default, model, 1.2)
+    assert (np.abs(default.play_state() - expected).max() > 0.05) == forgets
+
+
+def test_a_reconnect_after_a_failed_safe_write_takes_the_default_start(models, tmp_path):
+    """The safe write failed: what the coil carried until the link came back is not known."""
+    seen = {}
+
+    def inject(tick, inputs):
+        if tick == 500:
+            driver.safe = failing_once
+            raise DriverError("link down", "timeout")
+        if tick == 501:
+            seen["how"] = ctrl.setup.law.initial_state
+
+    def failing_once(current_A):
+        del driver.safe
+        raise DriverError("write setpoint: connection lost", "comms")
+
+    ctrl, driver, cfg = make(tmp_path, models, inject)
+    s = ctrl.run(duration_s=1.0)
+    assert s["reconnects"] == 1 and "continued" not in seen["how"] and "safe current" in seen["how"], seen

@@ -95,6 +95,26 @@ def test_a_carried_state_is_a_play_state_for_other_thresholds():
     assert carried_play_state(model, object(), other) is None        # not an SDPI stepper: nothing carried
 
 
+@settings(max_examples=40, deadline=None)
+@given(ticks=st.integers(1, 900), safe=st.floats(0.0, 3.0), off=st.booleans())
+def test_a_resumed_inverse_holds_the_plays_of_a_forward_model_driven_along_the_coils_path(ticks, safe, off):
+    """`resume` after a reconnect: the inverse's plays are those of a forward model driven by the
+    law's commands up to the fault, then by the safe current (and 0 A while the output was off)."""
+    model = load_model(MODEL)
+    law = law_on(model, Sine(3.0, 12.0, 20.0))
+    fwd = model.forward_stepper(1e-3)
+    fwd.reset(0.0, law.stepper.play_state())
+    for k in range(ticks):
+        fwd.step(law.update(k * 1e-3, -15.0), -15.0)
+    law.deactivate(ticks * 1e-3, "comms_timeout", freeze_learning=True)
+    path = (safe, 0.0) if off else (safe,)
+    law.resume(safe, path)
+    for x in path + (safe,):
+        fwd.step(x, -15.0)
+    assert law.active and "reconnect" in law.initial_state
+    np.testing.assert_allclose(law.stepper.play_state(), fwd._state[: model.n_play], atol=1e-9)
+
+
 # ---- the limiter says which limit bound ----------------------------------------------------------
 @given(lo=st.floats(-5, 0), span=st.floats(0.01, 10), slew=st.floats(0.1, 1e4), rate=st.floats(10, 1e4),
        targets=st.lists(st.floats(-1e3, 1e3), min_size=1, max_size=100), initial=st.floats(-1e3, 1e3))

@@ -66,6 +66,14 @@ class DriverSupervisor:
             except Exception:
                 pass
 
+    def coil_path_at_safe(self, safe_A: float) -> tuple[float, ...] | None:
+        """The currents the coil has carried since the last safe write, until the output goes on
+        again: the safe current, then 0 A when the driver's `safe()` switched the output off. None
+        when the last safe write did not get through: what the coil did meanwhile is not known."""
+        if not self.at_safe:
+            return None
+        return (safe_A, 0.0) if getattr(self.driver, "switches_off_on_safe", False) else (safe_A,)
+
     def reconnect(self, wait: Callable[[float], bool], safe_A: float | None = None) -> bool:
         """Reconnect with exponential backoff; True when the driver answers again. `wait(s)`
         sleeps on the runner's clock and says whether a stop came meanwhile. With `safe_A`, a safe

@@ -11,7 +11,9 @@ Its lifecycle follows a ros2_control controller's:
 * construct = configure: the reference, the inverse stepper, the learner and the drive range,
   all built from one model (`builder`);
 * `activate(drive)`: the inverse starts from the shared default start at that drive (the safe
-  current), at the start of each run and after a reconnect;
+  current), at the start of each run;
+* `resume(safe, coil_path)`: activation after a fault and a reconnect. The inverse's memory carries
+  on through the currents the coil carried meanwhile (0 A while the output was off);
 * `take_over(previous, drive)`: activation on a reload. The new inverse continues the old one's
   hysteresis memory at the command the amplifier holds, so the command and the tracking go on
   without a bump;
@@ -93,6 +95,24 @@ class FeedforwardController:
         else:
             self.stepper.reset(drive_A)
             self.initial_state = f"relaxed at the command {drive_A:.4g} (reload)"
+        self.active = True
+
+    def resume(self, safe_A: float, coil_path_A: tuple[float, ...] | None) -> None:
+        """Activate again at the safe current `safe_A` after a fault and a reconnect. The inverse's
+        hysteresis memory carries on through `coil_path_A`, the currents the coil carried since the
+        law's last command (the safe current, and 0 A while the output was off). None, when the
+        safe write did not get through and the coil's path is not known: the default start, as
+        `activate`. A stepper without play state starts relaxed at the safe current."""
+        plays = None if coil_path_A is None else carried_play_state(self.model, self.stepper, self.model)
+        if plays is None or coil_path_A is None or not isinstance(self.model, SDPIModel):
+            self.activate(safe_A)
+            return
+        offset, r = self.model.input_offset, self.model.play_thresholds
+        for x in coil_path_A + (safe_A,):          # each play follows the coil: p <- clip(p, x - r, x + r)
+            np.clip(plays, x - offset - r, x - offset + r, out=plays)
+        self.stepper.reset(safe_A, plays)          # type: ignore[call-arg]  # an SDPI stepper
+        path = " -> ".join(f"{x:.4g}" for x in coil_path_A + (safe_A,))
+        self.initial_state = f"continued through the coil's currents since the fault ({path} A; reconnect)"
         self.active = True
 
     def deactivate(self, t: float, why: str, freeze_learning: bool = True) -> None:

@@ -490,13 +490,14 @@ class ControllerManager:
         # policy): the watchdog, which guards against a loop that hangs, pauses until the next tick.
         self.watchdog.pause()
         self._go_safe()
+        coil_path = self.hardware.coil_path_at_safe(self.setup.safe_A)     # before a reconnect's safe write
         reconnect = action.then == "reconnect" and self._mode == RUNNING
         self.setup.law.deactivate(t, f"{name}: at the safe current" + (", reconnecting" if reconnect else ""),
                                   action.freeze_learning)
         if reconnect and self._relapsed_too_often(reason):
             reconnect, reason = False, self.faults.active[safety.RECONNECT_FAILED]
         if reconnect and self._reconnect(self.setup.safe_A):
-            self.setup.law.activate(self.setup.safe_A)
+            self.setup.law.resume(self.setup.safe_A, coil_path)
             self.setup.monitor.restart()
             self.setup.tracking.restart()
             self.state = State.RUNNING

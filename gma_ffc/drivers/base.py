@@ -178,6 +178,12 @@ class Driver(ABC):
         switch the output off too, and drivers without acknowledgements read it back."""
         self.write(current_A)
 
+    @property
+    def switches_off_on_safe(self) -> bool:
+        """Whether `safe()` switches the output off, so the coil carries 0 A until `activate()`
+        (an optional member: the controller's inverse follows the coil through it on a reconnect)."""
+        return False
+
     def deactivate(self) -> None:
         """Switch the output off at the end of a run, after the safe current was written. The
         default does nothing (no output switch)."""

@@ -332,6 +332,10 @@ class ModbusDriver(Driver):
                        words[0] if len(words) == 1 else words, device_id=ch.unit_id)
         self.enabled = on
 
+    @property
+    def switches_off_on_safe(self) -> bool:
+        return self._enable is not None and bool(self.cfg["disable_on_safe"])
+
     def _safe_once(self, current_A: float) -> None:
         """Setpoint to the safe current, then output off (when configured and present)."""
         self.write(current_A)

@@ -192,6 +192,10 @@ class SerialDriver(Driver):
             self._send(self.cfg["disable"].encode() + self.eol)
         self.enabled = False
 
+    @property
+    def switches_off_on_safe(self) -> bool:
+        return bool(self.cfg["disable"])
+
     def _safe_once(self, current_A: float) -> None:
         """Write, switch off, and read the setpoint back: a serial write has no acknowledgement,
         so only the read-back proves the amplifier took the safe current."""
