@@ -1,0 +1,83 @@
+"""How far the identification loops let a play model go on the probes (issue 31's 1.5x on play cases).
+
+Stress-dependent play stays below issue 31's 1.5x on its probes at other loads, rates and shapes.
+The effect-free twin's floor says the model class could do better. This asks two sharper questions,
+per probe held at one load (the other-rate and other-shape probes):
+
+* at-stress: the PI core identified on the one identification loop nearest the probe's stress, as a
+  lab would identify at that load. It knows the loop width there exactly, with no law across loads.
+* self-fit: the PI core identified on the probe itself, scored on it. What the class can reach on
+  that drive when it is fitted to it (a bound no model fitted elsewhere can be asked to reach).
+
+Where the diagnosis' extended model already beats at-stress, the loops the lab identified on do not
+fix the probe's minor loops: the gap to self-fit is the PI core's congruent minor loops, not the
+width law. Each case is diagnosed as `scripts/bench_diagnose.py --set general-DRAW` does.
+
+    python scripts/play_class_bound.py                          # the twenty-fourth draw's play cases
+    python scripts/play_class_bound.py --draw twenty-third fifth
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+PLAY = "stress_dependent_play"
+
+
+def draw_cases(draw: str) -> list:
+    """The play cases of a general draw by its name in `bench_diagnose.py --set general-NAME`."""
+    from benchmarks import general
+    seed = getattr(general, f"GENERAL_{draw.upper().replace('-', '_')}_SEED", None)
+    if seed is None:
+        raise SystemExit(f"play_class_bound: error: no draw '{draw}' in benchmarks/general.py "
+                         "(names as in bench_diagnose.py --set general-NAME, e.g. twenty-fourth)")
+    return [c for c in general.general_cases(seed, prefix=draw) if c.truth == (PLAY,)]
+
+
+def rms_settled(model, rec) -> float:
+    """The probe's RMS from where the model's state no longer depends on its unknown start."""
+    from benchmarks.probes import _prediction
+    from gma_ffc.initial_state import settled_index
+    start = min(settled_index(getattr(model, "base", model), rec.drive), rec.time_s.size - 1)
+    return float(np.sqrt(np.mean((_prediction(model, rec) - rec.displacement_um)[start:] ** 2)))
+
+
+def one_case(case) -> None:
+    from benchmarks.probes import case_recordings, probe_recordings
+    from gma_ffc.diagnose.engine import diagnose
+    from gma_ffc.identify import identify
+
+    model, ident, rec = case_recordings(case)
+    extended = diagnose(model, [rec], identification=ident).extended
+    for probe in probe_recordings(case):
+        if np.ptp(probe.stress_MPa) > 0.5:           # the history probe changes its load: no one loop is "at" it
+            continue
+        level = float(np.median(probe.stress_MPa))
+        nearest = min(ident, key=lambda r: abs(float(np.median(r.stress_MPa)) - level))
+        figures = {"base": rms_settled(model, probe), "extended": rms_settled(extended, probe),
+                   "at-stress": rms_settled(identify([nearest]), probe),
+                   "self-fit": rms_settled(identify([probe]), probe)}
+        print(f"{case.name:44s} {probe.name:22s} {level:7.2f} MPa ({nearest.name} at "
+              f"{float(np.median(nearest.stress_MPa)):6.2f})  "
+              + "  ".join(f"{k} {v:.3f}" for k, v in figures.items()), flush=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--draw", nargs="+", default=["twenty-fourth"], help="general draws by name")
+    args = ap.parse_args(argv)
+    print("RMS in um on each probe held at one load, from where the state is known")
+    for draw in args.draw:
+        for case in draw_cases(draw):
+            one_case(case)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
