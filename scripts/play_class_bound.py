@@ -40,16 +40,8 @@ def draw_cases(draw: str) -> list:
     return [c for c in general.general_cases(seed, prefix=draw) if c.truth == (PLAY,)]
 
 
-def rms_settled(model, rec) -> float:
-    """The probe's RMS from where the model's state no longer depends on its unknown start."""
-    from benchmarks.probes import _prediction
-    from gma_ffc.initial_state import settled_index
-    start = min(settled_index(getattr(model, "base", model), rec.drive), rec.time_s.size - 1)
-    return float(np.sqrt(np.mean((_prediction(model, rec) - rec.displacement_um)[start:] ** 2)))
-
-
 def one_case(case) -> None:
-    from benchmarks.probes import case_recordings, probe_recordings
+    from benchmarks.probes import case_recordings, probe_recordings, probe_scores
     from gma_ffc.diagnose.engine import diagnose
     from gma_ffc.identify import identify
 
@@ -60,9 +52,10 @@ def one_case(case) -> None:
             continue
         level = float(np.median(probe.stress_MPa))
         nearest = min(ident, key=lambda r: abs(float(np.median(r.stress_MPa)) - level))
-        figures = {"base": rms_settled(model, probe), "extended": rms_settled(extended, probe),
-                   "at-stress": rms_settled(identify([nearest]), probe),
-                   "self-fit": rms_settled(identify([probe]), probe)}
+        others = {"extended": extended, "at-stress": identify([nearest]), "self-fit": identify([probe])}
+        # each on the same samples: from where the base's state is known (`probe_scores`)
+        scores = {name: probe_scores(model, other, [probe])[0] for name, other in others.items()}
+        figures = {"base": scores["extended"].base_um, **{name: sc.extended_um for name, sc in scores.items()}}
         print(f"{case.name:44s} {probe.name:22s} {level:7.2f} MPa ({nearest.name} at "
               f"{float(np.median(nearest.stress_MPa)):6.2f})  "
               + "  ".join(f"{k} {v:.3f}" for k, v in figures.items()), flush=True)
@@ -72,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--draw", nargs="+", default=["twenty-fourth"], help="general draws by name")
     args = ap.parse_args(argv)
-    print("RMS in um on each probe held at one load, from where the state is known")
+    print("RMS in um on each probe held at one load, from where the base's state is known")
     for draw in args.draw:
         for case in draw_cases(draw):
             one_case(case)
