@@ -1,16 +1,20 @@
 """How far the identification loops let a play model go on the probes (issue 31's 1.5x on play cases).
 
 Stress-dependent play stays below issue 31's 1.5x on its probes at other loads, rates and shapes.
-The effect-free twin's floor says the model class could do better. This asks two sharper questions,
+The effect-free twin's floor says the model class could do better. This asks three sharper questions,
 per probe held at one load (the other-rate and other-shape probes):
 
 * at-stress: the PI core identified on the one identification loop nearest the probe's stress, as a
   lab would identify at that load. It knows the loop width there exactly, with no law across loads.
+* at-stress, rising: the PI core identified at the probe's load on a 3 Hz sine whose amplitude rises
+  from the drive's minimum to its peak and decays back (8 s), recorded from the case's actuator:
+  the standard identification experiment, with nested minor loops the full loops lack.
 * self-fit: the PI core identified on the probe itself, scored on it. What the class can reach on
   that drive when it is fitted to it (a bound no model fitted elsewhere can be asked to reach).
 
 Where the diagnosis' extended model already beats at-stress, the loops the lab identified on do not
-fix the probe's minor loops: the gap to self-fit is the PI core's congruent minor loops, not the
+fix the probe's minor loops; where at-stress rising does no better, neither do minor loops to fit on:
+the gap to self-fit is the PI core's congruent minor loops (Masing's rule), not the
 width law. Each case is diagnosed as `scripts/bench_diagnose.py --set general-DRAW` does.
 
     python scripts/play_class_bound.py                          # the twenty-fourth draw's play cases
@@ -20,6 +24,7 @@ width law. Each case is diagnosed as `scripts/bench_diagnose.py --set general-DR
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -40,6 +45,19 @@ def draw_cases(draw: str) -> list:
     return [c for c in general.general_cases(seed, prefix=draw) if c.truth == (PLAY,)]
 
 
+def rising_at(case, stress_MPa: float):
+    """A rising-and-decaying 3 Hz sine at the load that gives `stress_MPa`, from the case's actuator
+    (preconditioned, as the rising family's identification runs), as the case's user records it."""
+    from benchmarks.cases import FS, _variant, case_plant, record
+
+    cfg = case_plant(case)
+    t = np.arange(int(8.0 * FS)) / FS
+    i = np.sin(np.pi * t / t[-1]) ** 2 * 0.5 * case.id_max * (1 - np.cos(2 * np.pi * 3.0 * t))
+    rec = record(cfg, t, i, cfg.mass_for_stress(stress_MPa), "rising_at_stress.csv", case.seed * 10 + 9,
+                 preconditioned=True)
+    return _variant(rec, dataclasses.replace(case, falling=False) if case.voltage else case)   # as its loops
+
+
 def one_case(case) -> None:
     from benchmarks.probes import case_recordings, probe_recordings, probe_scores
     from gma_ffc.diagnose.engine import diagnose
@@ -52,7 +70,8 @@ def one_case(case) -> None:
             continue
         level = float(np.median(probe.stress_MPa))
         nearest = min(ident, key=lambda r: abs(float(np.median(r.stress_MPa)) - level))
-        others = {"extended": extended, "at-stress": identify([nearest]), "self-fit": identify([probe])}
+        others = {"extended": extended, "at-stress": identify([nearest]),
+                  "at-stress rising": identify([rising_at(case, level)]), "self-fit": identify([probe])}
         # each on the same samples: from where the base's state is known (`probe_scores`)
         scores = {name: probe_scores(model, other, [probe])[0] for name, other in others.items()}
         figures = {"base": scores["extended"].base_um, **{name: sc.extended_um for name, sc in scores.items()}}
