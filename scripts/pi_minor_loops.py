@@ -55,9 +55,10 @@ def two_tone(case) -> Recording:
     return probe.rows(keep, "two_tone")
 
 
-def relay_states(drive: np.ndarray, levels: int) -> np.ndarray:
-    """States (0 down, 1 up) of the Preisach relays alpha > beta on a `levels` grid, from rest."""
-    grid = np.linspace(drive.min(), drive.max(), levels)
+def relay_states(drive: np.ndarray, levels: int, span: tuple[float, float] | None = None) -> np.ndarray:
+    """States (0 down, 1 up) of the Preisach relays alpha > beta on a `levels` grid over `span`
+    (default: the drive's range), from rest."""
+    grid = np.linspace(*(span or (drive.min(), drive.max())), levels)
     up, down = np.meshgrid(grid, grid, indexing="ij")
     above = down < up
     up, down = up[above], down[above]

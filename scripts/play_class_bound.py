@@ -80,15 +80,21 @@ def one_case(case) -> None:
               + "  ".join(f"{k} {v:.3f}" for k, v in figures.items()), flush=True)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def each_play_case(doc: str, header: str, per_case, argv: list[str] | None = None) -> int:
+    """The command line both play scripts share: `--draw NAME ...`, then `per_case` on each play case."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--draw", nargs="+", default=["twenty-fourth"], help="general draws by name")
     args = ap.parse_args(argv)
-    print("RMS in um on each probe held at one load, from where the base's state is known")
+    print(header)
     for draw in args.draw:
         for case in draw_cases(draw):
-            one_case(case)
+            per_case(case)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return each_play_case(__doc__ or "", "RMS in um on each probe held at one load, from where the base's state is known",
+                          one_case, argv)
 
 
 if __name__ == "__main__":

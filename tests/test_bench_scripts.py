@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,3 +66,21 @@ def test_a_case_below_the_probe_target_at_the_effect_free_floor_is_counted_apart
     out = capsys.readouterr().out
     assert "at least 1.5x in 1/3 (target: all)" in out
     assert "(of those, 1 at the effect-free floor: at_floor; at least 1.5x or at the floor: 2/3)" in out
+
+
+
+def test_the_preisach_relays_of_the_play_scripts_follow_the_wiping_out_rule():
+    """scripts/play_minor_loops.py identifies a Preisach core on one drive and runs it on another, so
+    both share one grid (`span`). From rest at the minimum a relay (alpha, beta) switches up once the
+    drive reaches alpha and down once it falls to beta; the drive's extremes wipe out the past."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from pi_minor_loops import relay_states
+
+    drive = np.array([0.0, 0.5, 0.25, 1.0, 0.0, 0.6])
+    states = relay_states(drive, 5, (0.0, 1.0))     # grid 0, 0.25, 0.5, 0.75, 1: 10 relays alpha > beta
+    assert states.shape == (6, 10) and not states[0].any()
+    assert states[1].sum() == 3                       # up to 0.5: (0.25, 0), (0.5, 0), (0.5, 0.25)
+    assert states[2].sum() == 2                       # back to 0.25: (0.5, 0.25) switches down
+    assert states[3].all() and not states[4].any()   # the maximum, then the minimum, wipe out the past
+    wider = relay_states(drive, 5, (0.0, 2.0))        # grid 0, 0.5, 1, 1.5, 2 (another drive's span)
+    assert wider[3].sum() == 3                        # at 1.0: (0.5, 0), (1, 0), (1, 0.5); alphas above stay down
