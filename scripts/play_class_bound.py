@@ -85,10 +85,10 @@ def each_play_case(doc: str, header: str, per_case, argv: list[str] | None = Non
     ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--draw", nargs="+", default=["twenty-fourth"], help="general draws by name")
     args = ap.parse_args(argv)
+    cases = [case for draw in args.draw for case in draw_cases(draw)]     # a bad name stops before any output
     print(header)
-    for draw in args.draw:
-        for case in draw_cases(draw):
-            per_case(case)
+    for case in cases:
+        per_case(case)
     return 0
 
 
