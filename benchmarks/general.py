@@ -52,6 +52,8 @@ Its play miss was not fixed; the background diagnosis gained a known start state
 --initial-state plays:, unused here): GENERAL_TWENTY_THIRD_SEED draws a twenty-second.
 Its resonance law, fitted at one load, is now held beyond the loads where it was measured:
 GENERAL_TWENTY_FOURTH_SEED draws a twenty-third.
+Its misses (play on other drive shapes, heating at the floor) were not fixed; the diagnosis is the
+same: GENERAL_TWENTY_FIFTH_SEED draws a twenty-fourth.
 """
 
 from __future__ import annotations
@@ -116,6 +118,8 @@ GENERAL_TWENTY_THIRD_SEED = 20261310   # a twenty-second never-tuned draw (2026-
                                        # the diagnosis as the twenty-first drew it; committed before its first run
 GENERAL_TWENTY_FOURTH_SEED = 20261311  # a twenty-third never-tuned draw (2026-12-01, thirty-third session):
                                        # a resonance law held beyond its measured loads; committed before its first run
+GENERAL_TWENTY_FIFTH_SEED = 20261312   # a twenty-fourth never-tuned draw (2026-12-02, thirty-sixth session):
+                                       # the diagnosis as the twenty-fourth drew it; committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
