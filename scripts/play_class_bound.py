@@ -13,9 +13,10 @@ per probe held at one load (the other-rate and other-shape probes):
   that drive when it is fitted to it (a bound no model fitted elsewhere can be asked to reach).
 
 Where the diagnosis' extended model already beats at-stress, the loops the lab identified on do not
-fix the probe's minor loops; where at-stress rising does no better, neither do minor loops to fit on:
-the gap to self-fit is the PI core's congruent minor loops (Masing's rule), not the
-width law. Each case is diagnosed as `scripts/bench_diagnose.py --set general-DRAW` does.
+fix the probe's minor loops; where at-stress rising does no better, neither do minor loops to fit on.
+The gap to self-fit is then beyond any core identified on loops, not in the width law
+(`scripts/play_minor_loops.py`, `scripts/return_point_memory.py`). Each case is diagnosed as
+`scripts/bench_diagnose.py --set general-DRAW` does.
 
     python scripts/play_class_bound.py                          # the twenty-fourth draw's play cases
     python scripts/play_class_bound.py --draw twenty-third fifth
