@@ -36,14 +36,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 PLAY = "stress_dependent_play"
 
 
-def draw_cases(draw: str) -> list:
-    """The play cases of a general draw by its name in `bench_diagnose.py --set general-NAME`."""
+def draw_cases(draw: str, truths: tuple[tuple[str, ...], ...] = ((PLAY,),)) -> list:
+    """The cases of a general draw (by its name in `bench_diagnose.py --set general-NAME`) whose
+    missing physics is one of `truths` (default: the play cases)."""
     from benchmarks import general
     seed = getattr(general, f"GENERAL_{draw.upper().replace('-', '_')}_SEED", None)
     if seed is None:
-        raise SystemExit(f"play_class_bound: error: no draw '{draw}' in benchmarks/general.py "
+        raise SystemExit(f"{Path(sys.argv[0]).stem}: error: no draw '{draw}' in benchmarks/general.py "
                          "(names as in bench_diagnose.py --set general-NAME, e.g. twenty-fourth)")
-    return [c for c in general.general_cases(seed, prefix=draw) if c.truth == (PLAY,)]
+    return [c for c in general.general_cases(seed, prefix=draw) if c.truth in truths]
 
 
 def rising_at(case, stress_MPa: float):
@@ -81,12 +82,14 @@ def one_case(case) -> None:
               + "  ".join(f"{k} {v:.3f}" for k, v in figures.items()), flush=True)
 
 
-def each_play_case(doc: str, header: str, per_case, argv: list[str] | None = None) -> int:
-    """The command line both play scripts share: `--draw NAME ...`, then `per_case` on each play case."""
+def each_play_case(doc: str, header: str, per_case, argv: list[str] | None = None,
+                   truths: tuple[tuple[str, ...], ...] = ((PLAY,),)) -> int:
+    """The command line the play scripts share: `--draw NAME ...`, then `per_case` on each case of
+    those draws whose missing physics is one of `truths` (default: the play cases)."""
     ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--draw", nargs="+", default=["twenty-fourth"], help="general draws by name")
     args = ap.parse_args(argv)
-    cases = [case for draw in args.draw for case in draw_cases(draw)]     # a bad name stops before any output
+    cases = [case for draw in args.draw for case in draw_cases(draw, truths)]     # a bad name stops before any output
     print(header)
     for case in cases:
         per_case(case)

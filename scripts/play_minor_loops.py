@@ -22,43 +22,46 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from pi_minor_loops import relay_states  # noqa: E402  (all down at the start: a rod at rest at the minimum)
+from pi_minor_loops import other_shape_probe, relay_states  # noqa: E402
 
 LEVELS = 48            # relay grid: 16 levels left a staircase of 0.2 A steps (self-fit worse than the base)
 RIDGE = 1e-3           # of the mean diagonal of X'X: relays no sample tells apart stay small
-TRIANGLE_S = 8.0       # the probe's first part (benchmarks.probes._other_shape)
 
 
-def preisach_fit(u: np.ndarray, y: np.ndarray, lo: float, hi: float, start: int = 0) -> np.ndarray:
-    X = np.column_stack([np.ones(u.size), relay_states(u, LEVELS + 1, (lo, hi))])[start:]
+def relay_design(u: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """An offset column and the relays' states on the shared grid, all down at the start (a rod at
+    rest at the drive's minimum)."""
+    return np.column_stack([np.ones(u.size), relay_states(u, LEVELS + 1, (lo, hi))])
+
+
+def preisach_fit(X: np.ndarray, y: np.ndarray, start: int = 0) -> np.ndarray:
+    """Relay weights by ridge least squares on the rows from `start` on."""
+    X, y = X[start:], y[start:]
     G = X.T @ X
-    return np.linalg.solve(G + RIDGE * np.trace(G) / G.shape[0] * np.eye(G.shape[0]), X.T @ y[start:])
-
-
-def preisach_predict(w: np.ndarray, u: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    return np.column_stack([np.ones(u.size), relay_states(u, LEVELS + 1, (lo, hi))]) @ w
+    return np.linalg.solve(G + RIDGE * np.trace(G) / G.shape[0] * np.eye(G.shape[0]), X.T @ y)
 
 
 def one_case(case) -> None:
-    from benchmarks.probes import _prediction, case_recordings, probe_recordings
+    from benchmarks.probes import _prediction, case_recordings
     from gma_ffc.identify import identify
     from gma_ffc.initial_state import settled_index
     from play_class_bound import rising_at
 
     model, _, _ = case_recordings(case)
-    probe = next(p for p in probe_recordings(case) if p.name == "probe_other_shape.csv")
+    probe, two_tone = other_shape_probe(case)
     rising = rising_at(case, float(np.median(probe.stress_MPa)))
     lo, hi = min(rising.drive.min(), probe.drive.min()), max(rising.drive.max(), probe.drive.max())
     start = min(settled_index(model, probe.drive), probe.time_s.size - 1)
     y = probe.displacement_um
+    on_probe = relay_design(probe.drive, lo, hi)
     predictions = {
         "base": _prediction(model, probe),
         "PI rising": _prediction(identify([rising]), probe),
-        "Preisach rising": preisach_predict(preisach_fit(rising.drive, rising.displacement_um, lo, hi), probe.drive, lo, hi),
+        "Preisach rising": on_probe @ preisach_fit(relay_design(rising.drive, lo, hi), rising.displacement_um),
         "PI self-fit": _prediction(identify([probe]), probe),
-        "Preisach self-fit": preisach_predict(preisach_fit(probe.drive, y, lo, hi, start), probe.drive, lo, hi),
+        "Preisach self-fit": on_probe @ preisach_fit(on_probe, y, start),
     }
-    cut = int(np.searchsorted(probe.time_s, probe.time_s[0] + TRIANGLE_S))
+    cut = int(np.argmax(two_tone))
     for part, rows in (("whole", slice(start, None)), ("triangle", slice(start, cut)), ("two-tone", slice(cut, None))):
         cells = "  ".join(f"{k} {np.sqrt(np.mean((v - y)[rows] ** 2)):.3f}" for k, v in predictions.items())
         print(f"{case.name:44s} {part:9s} {cells}", flush=True)

@@ -19,13 +19,13 @@ case's base model (a PI core) is run on the same drive beside it.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from benchmarks.cases import FS  # noqa: E402  (the cases' sampling rate)
 
@@ -67,19 +67,10 @@ def one_case(case) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from benchmarks import general
+    from play_class_bound import PLAY, each_play_case
 
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--draw", nargs="+", default=["twenty-fourth"], help="general draws by name")
-    args = ap.parse_args(argv)
-    for draw in args.draw:
-        seed = getattr(general, f"GENERAL_{draw.upper().replace('-', '_')}_SEED", None)
-        if seed is None:
-            raise SystemExit(f"return_point_memory: error: no draw '{draw}' in benchmarks/general.py")
-        for case in general.general_cases(seed, prefix=draw):
-            if case.truth in ((), ("stress_dependent_play",)):
-                one_case(case)
-    return 0
+    return each_play_case(__doc__ or "", "the displacement at each return to the loops' turning point, um",
+                          one_case, argv, truths=((), (PLAY,)))
 
 
 if __name__ == "__main__":
