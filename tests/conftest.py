@@ -63,9 +63,10 @@ def session_folder(tmp_path_factory: pytest.TempPathFactory, worker_id: str):
 def diagnosed(session_folder):
     """diagnosed(case name, scale) -> (model, recording, diagnosis) of a benchmark case, with
     `diagnose`'s defaults: computed once per session (`session_cache`), a fresh copy for each test.
-    Its rounds' searches are the ones test_diagnose_thresholds' moves on the default path make
-    (`session_cache.memoised_score_round`): each is searched once for both."""
-    from session_cache import memoised_score_round, once_per_session
+    Its rounds' searches, and the core identified again through a named delay, are the ones
+    test_diagnose_thresholds' moves on the default path make (`session_cache.memoised_score_round`,
+    `memoised_reidentify`): each is computed once for both."""
+    from session_cache import memoised_reidentify, memoised_score_round, once_per_session
 
     def run(name: str, scale: float = 0.5):
         def compute():
@@ -75,12 +76,13 @@ def diagnosed(session_folder):
 
             case = {c.name: c for c in bench.cases()}[name]
             model, rec = bench.make_case(case, scale=scale)
-            search = selection.score_round
+            search, reidentify = selection.score_round, selection.reidentify_through
             selection.score_round = memoised_score_round(session_folder)
+            selection.reidentify_through = memoised_reidentify(session_folder)
             try:
                 return model, rec, diagnose(model, [rec])
             finally:
-                selection.score_round = search
+                selection.score_round, selection.reidentify_through = search, reidentify
         return once_per_session(session_folder, f"diagnosed {name} at {scale!r}", compute)
     return run
 

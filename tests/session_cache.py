@@ -44,3 +44,22 @@ def memoised_score_round(folder: Path) -> Callable[..., Any]:
         return once_per_session(folder / "rounds", repr(key),
                                 lambda: scoring.score_round(fitter, base, loss_without, names, rnd, workers))
     return score_round
+
+
+def memoised_reidentify(folder: Path) -> Callable[..., Any]:
+    """`selection.reidentify_through`, its cores computed once per session in `folder`. The core
+    identified again through a named delay or lag is a pure function of the base model, the input-side
+    effects with their fitted parameters, and the base's loops: the moves of test_diagnose_thresholds
+    that end on the same effects identify the same core (5-6 s each for the delay case, most of what
+    such a move cost once its rounds were memoised)."""
+    from gma_ffc.diagnose import rebase
+
+    def reidentify_through(model, inputs, loops):
+        digest = hashlib.sha256(repr((model.to_dict(), [e.to_blocks() for e in inputs])).encode())
+        for d in loops:
+            digest.update(d.name.encode() + repr(d.dt_med).encode())
+            for a in (d.t, d.u, d.y, d.s, d.dt):
+                digest.update(a.tobytes())
+        return once_per_session(folder / "cores", digest.hexdigest(),
+                                lambda: rebase.reidentify_through(model, inputs, loops))
+    return reidentify_through

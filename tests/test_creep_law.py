@@ -59,7 +59,7 @@ def test_the_creep_law_of_the_identification_loops_carries_to_a_later_session():
     assert math.isfinite(history.extended_um)
 
 
-@pytest.mark.slow
+@pytest.mark.nightly
 def test_a_creep_time_constant_the_identification_loops_cannot_tell_is_chosen_on_the_recording():
     """The sixth never-tuned draw's creep on a drawn actuator (looked at once, then fixed; it is no
     longer quoted as unseen). Its 3 s identification loops preferred creep's fastest time constant

@@ -84,7 +84,7 @@ def test_nothing_is_said_where_the_loss_share_the_signature_or_any_evidence_is_m
     assert _short(selector, near) != ""
 
 
-@pytest.mark.slow
+@pytest.mark.nightly
 def test_the_nineteenth_draws_play_is_named_or_said_to_be_short_of_the_evidence():
     """End to end, on the case that showed it: the nineteenth general draw's stress-dependent play on
     the default actuator, with its loops. Here its evidence is 5.98 nats of the 6 (a hair from being

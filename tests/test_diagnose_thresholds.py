@@ -44,11 +44,13 @@ def cases(session_folder):
 
 @pytest.fixture
 def memoised_rounds(monkeypatch, session_folder):
-    """The searches, shared by every move on every xdist worker, and with the `diagnosed` fixture's
-    diagnoses of the same cases (`session_cache.memoised_score_round`)."""
-    from session_cache import memoised_score_round
+    """The searches and the cores identified again through a named delay, shared by every move on
+    every xdist worker, and with the `diagnosed` fixture's diagnoses of the same cases
+    (`session_cache.memoised_score_round`, `memoised_reidentify`)."""
+    from session_cache import memoised_reidentify, memoised_score_round
 
     monkeypatch.setattr(selection, "score_round", memoised_score_round(session_folder))
+    monkeypatch.setattr(selection, "reidentify_through", memoised_reidentify(session_folder))
 
 
 def test_every_threshold_is_a_documented_constructor_argument():

@@ -108,7 +108,7 @@ def test_too_few_turns_show_no_gain():
     assert check.gain_from_fast_parts("x", turns_alone=True) is not None
 
 
-@pytest.mark.slow
+@pytest.mark.nightly
 def test_a_width_law_that_gains_at_the_turns_is_named_though_the_steps_keep_their_error():
     """The sixteenth never-tuned draw's stress-dependent play (development since it was looked at):
     the plant's loops widen 2.2x from -11.4 to -24 MPa. The width law cuts the error where the drive

@@ -18,7 +18,7 @@ from benchmarks.probes import pooled, probe_recordings, probe_scores
 from gma_ffc.diagnose.engine import diagnose
 
 
-@pytest.mark.slow
+@pytest.mark.nightly
 def test_a_map_the_loops_refuse_is_left_out_and_the_law_carries_to_other_conditions():
     """The seventeenth never-tuned draw's play (development since it was looked at). With the map
     fitted on the recording, its probes at other loads, rates and shapes gained 1.16x (0.720 ->

@@ -49,7 +49,7 @@ def test_no_wide_plays_where_the_drive_goes_beyond_by_too_little_to_tell_them_ap
     assert wide_thresholds(_Ranges(0.0, 1.5, -0.2, 1.7), 3).size == 3
 
 
-@pytest.mark.slow
+@pytest.mark.nightly
 def test_loops_wider_beyond_the_identified_range_are_saturation_and_carry_to_other_drives():
     """The seventh never-tuned draw's saturation on a drawn actuator (looked at once, then fixed; it
     is no longer quoted as unseen). The recalibration's curvature took 1.77 -> 0.29 um, a hinge
