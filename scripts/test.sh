@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Install gma-ffc with its test extras into .venv, type-check, and run the test suite on 3 workers.
 # `scripts/test.sh --nightly` runs the nightly tier too (.ci/nightly): the past never-tuned draws'
-# cases diagnosed end to end (pyproject.toml's `nightly` marker), 50-100 s each on 2 cores, which
+# cases diagnosed end to end (pyproject.toml's `nightly` marker), 30-100 s each on 2 cores, which
 # would take the suite past its 15 minutes. Other arguments go to pytest.
 set -euo pipefail
 tier=(-m "not nightly")
