@@ -17,29 +17,12 @@ SELECTOR = EffectSelector()
 
 
 def _sel(accepted, *rounds):
-    return SimpleNamespace(accepted=tuple(accepted), rounds=tuple(rounds))
+    trials = {effect: SimpleNamespace(effect=effect) for r in rounds for effect, _, _ in r.table}
+    return SimpleNamespace(accepted=tuple(accepted), rounds=tuple(rounds), trials=trials, fit=SimpleNamespace(specs=None))
 
 
-NAMED = RoundRecord(1, 900.0, 2.591, (("thermal_drift", 0.1111, 4000.0), ("creep", 0.1196, 3500.0)), "thermal_drift")
-
-
-def test_a_significant_runner_short_of_the_margin_is_named_with_its_figures():
-    last = RoundRecord(2, 900.0, 0.1111, (("creep", 0.0974, 72.0), ("rate_dependence", 0.1088, 9.0)), None)
-    note = short_of_the_margin(SELECTOR, _sel(["thermal_drift"], NAMED, last))
-    assert note.startswith("creep: a smaller effect may be there beside thermal_drift")
-    assert "0.1111 to 0.0974 um" in note and "72 nats" in note and "neither named nor in the extended model" in note
-    assert f"{1 - SELECTOR.min_mse_ratio:.0%}" in note
-
-
-def test_nothing_is_said_of_an_insignificant_or_worse_runner_or_without_a_named_effect():
-    weak = RoundRecord(2, 900.0, 0.1111, (("creep", 0.1100, SELECTOR.min_loglik_gain - 1),), None)
-    worse = RoundRecord(2, 900.0, 0.1111, (("creep", 0.1120, 50.0),), None)
-    assert short_of_the_margin(SELECTOR, _sel(["thermal_drift"], NAMED, weak)) == ""
-    assert short_of_the_margin(SELECTOR, _sel(["thermal_drift"], NAMED, worse)) == ""
-    accepted_last = RoundRecord(2, 900.0, 0.1111, (("creep", 0.05, 500.0),), "creep")
-    assert short_of_the_margin(SELECTOR, _sel(["thermal_drift", "creep"], NAMED, accepted_last)) == ""
-    null_round = RoundRecord(1, 900.0, 0.12, (("creep", 0.11, 20.0),), None)
-    assert short_of_the_margin(SELECTOR, _sel([], null_round)) == ""
+def _margin(selector, sel):
+    return short_of_the_margin(selector, SimpleNamespace(noise=0.03, fitter=None), sel)
 
 
 class _Signatures(EffectSelector):
@@ -51,6 +34,37 @@ class _Signatures(EffectSelector):
 
     def signature_failure(self, problem, base, trial):
         return SimpleNamespace(reason="no signature") if trial.effect in self.fails else None
+
+
+NAMED = RoundRecord(1, 900.0, 2.591, (("thermal_drift", 0.1111, 4000.0), ("creep", 0.1196, 3500.0)), "thermal_drift")
+
+
+def test_a_significant_runner_short_of_the_margin_is_named_with_its_figures():
+    last = RoundRecord(2, 900.0, 0.1111, (("creep", 0.0974, 72.0), ("rate_dependence", 0.1088, 9.0)), None)
+    note = _margin(_Signatures(), _sel(["thermal_drift"], NAMED, last))
+    assert note.startswith("creep: a smaller effect may be there beside thermal_drift")
+    assert "0.1111 to 0.0974 um" in note and "72 nats" in note and "neither named nor in the extended model" in note
+    assert f"{1 - SELECTOR.min_mse_ratio:.0%}" in note
+
+
+def test_a_runner_that_fails_its_own_signature_is_not_said_to_be_there():
+    """A 7.8 s heating recording: heating named, then creep beside it at -1.9 % of each step (it relaxes
+    against the drive's changes, which creep does not) lowered the held-out RMS 0.0904 -> 0.0854 um
+    with 7 nats. That fit is not creep, so it says nothing of whether creep is there."""
+    last = RoundRecord(2, 900.0, 0.0904, (("creep", 0.0854, 7.0),), None)
+    assert _margin(_Signatures(fails={"creep"}), _sel(["thermal_drift"], NAMED, last)) == ""
+    assert _margin(_Signatures(), _sel(["thermal_drift"], NAMED, last)).startswith("creep: a smaller effect")
+
+
+def test_nothing_is_said_of_an_insignificant_or_worse_runner_or_without_a_named_effect():
+    weak = RoundRecord(2, 900.0, 0.1111, (("creep", 0.1100, SELECTOR.min_loglik_gain - 1),), None)
+    worse = RoundRecord(2, 900.0, 0.1111, (("creep", 0.1120, 50.0),), None)
+    assert _margin(_Signatures(), _sel(["thermal_drift"], NAMED, weak)) == ""
+    assert _margin(_Signatures(), _sel(["thermal_drift"], NAMED, worse)) == ""
+    accepted_last = RoundRecord(2, 900.0, 0.1111, (("creep", 0.05, 500.0),), "creep")
+    assert _margin(_Signatures(), _sel(["thermal_drift", "creep"], NAMED, accepted_last)) == ""
+    null_round = RoundRecord(1, 900.0, 0.12, (("creep", 0.11, 20.0),), None)
+    assert _margin(_Signatures(), _sel([], null_round)) == ""
 
 
 def _short(selector, last, noise=0.03):

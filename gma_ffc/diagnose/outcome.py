@@ -171,7 +171,7 @@ def _cannot_conclude(selector: Any, problem: Problem, final: Final) -> list[str]
     the recordings' unscored starts and, without the identification recordings, what the effects
     could not do without them."""
     starts = unscored_starts_note(problem.data)
-    small = short_of_the_margin(selector, final.selection)
+    small = short_of_the_margin(selector, problem, final.selection)
     weak = short_of_the_evidence(selector, problem, final.selection)
     cannot = list(final.cannot) + [note for note in (small, weak, starts) if note]
     if not problem.identification.given:
@@ -187,15 +187,20 @@ def _last_round_unaccepted(sel: Selection) -> RoundRecord | None:
     return last if last is not None and last.accepted is None and last.table else None
 
 
-def short_of_the_margin(selector: Any, sel: Selection) -> str:
+def short_of_the_margin(selector: Any, problem: Problem, sel: Selection) -> str:
     """A note on the last round's best, when it is significant by the held-out likelihood and lowers
     the held-out RMS but takes less of the held-out loss than an effect must ('' otherwise): a
-    smaller effect may be there, and the user should hear of it rather than find it in a table."""
+    smaller effect may be there, and the user should hear of it rather than find it in a table. Not
+    when its fit fails its own signature (a creep that relaxes against the drive's changes): that
+    fit is not the effect, so it says nothing of whether the effect is there."""
     last = _last_round_unaccepted(sel)
     if last is None or not sel.accepted:
         return ""
     effect, rms, gain = last.table[0]
     if not (gain > selector.min_loglik_gain and rms < last.current_rms_um):
+        return ""
+    trial = sel.trials.get(effect)
+    if trial is not None and selector.signature_failure(problem, sel.fit.specs, trial) is not None:
         return ""
     return (f"{effect}: a smaller effect may be there beside {' and '.join(sel.accepted)}: it lowers the held-out "
             f"RMS from {last.current_rms_um:.4g} to {rms:.4g} um ({gain:.0f} nats of penalised held-out likelihood), "

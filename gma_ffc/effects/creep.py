@@ -115,7 +115,17 @@ class Creep(EffectBase):
         A fit whose central time constant runs to the fastest the search allows (its fastest part at
         0.1 s) wants a quicker relaxation than creep's: a lag look-alike that a leftover of eddy
         currents, a delay or the core's own shape gives as well, and a law not determined by the data.
-        On simulated actuators with nothing missing, creep fitted to rising-amplitude sines runs there."""
+        On simulated actuators with nothing missing, creep fitted to rising-amplitude sines runs there.
+
+        Creep goes on in the direction of the drive's last change (a positive gain: the displacement
+        reaches part of a step at once and the rest over time). A fit that overshoots each change and
+        relaxes back against it (a negative gain) is not creep: on a short run, heating's slow rise
+        fits that way (a 7.8 s heating recording was named creep at -2.3 % before this rule)."""
+        gain = float(check.params.get("gain", 0.0))
+        if gain < 0.0:
+            return SignatureFailure(
+                f"its fit relaxes against the drive's last change (a gain of {gain * 100:+.3g} % of each step), where "
+                "creep goes on in that direction: a slow drift of another cause (heating) or of the model's own shape")
         tau = central_tau(check.result.specs[2][cls.name])
         fastest = float(time_constants(check.fitter)[0])
         if tau <= fastest * (1.0 + 1e-9):
