@@ -54,6 +54,8 @@ Its resonance law, fitted at one load, is now held beyond the loads where it was
 GENERAL_TWENTY_FOURTH_SEED draws a twenty-third.
 Its misses (play on other drive shapes, heating at the floor) were not fixed; the diagnosis is the
 same: GENERAL_TWENTY_FIFTH_SEED draws a twenty-fourth.
+Creep fits that relax against the drive's changes are refused now: GENERAL_TWENTY_SIXTH_SEED draws
+a twenty-fifth.
 """
 
 from __future__ import annotations
@@ -120,6 +122,8 @@ GENERAL_TWENTY_FOURTH_SEED = 20261311  # a twenty-third never-tuned draw (2026-1
                                        # a resonance law held beyond its measured loads; committed before its first run
 GENERAL_TWENTY_FIFTH_SEED = 20261312   # a twenty-fourth never-tuned draw (2026-12-02, thirty-sixth session):
                                        # the diagnosis as the twenty-fourth drew it; committed before its first run
+GENERAL_TWENTY_SIXTH_SEED = 20261313   # a twenty-fifth never-tuned draw (2026-12-02, thirty-seventh session):
+                                       # creep's sign checked; committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
