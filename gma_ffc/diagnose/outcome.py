@@ -187,6 +187,13 @@ def _last_round_unaccepted(sel: Selection) -> RoundRecord | None:
     return last if last is not None and last.accepted is None and last.table else None
 
 
+def _fails_own_signature(selector: Any, problem: Problem, sel: Selection, effect: str) -> bool:
+    """Does the last round's `effect` fail its own signature check beside the final model's effects?
+    Its fit is then not that effect, and no note may say the effect may be there."""
+    trial = sel.trials.get(effect)
+    return trial is not None and selector.signature_failure(problem, sel.fit.specs, trial) is not None
+
+
 def short_of_the_margin(selector: Any, problem: Problem, sel: Selection) -> str:
     """A note on the last round's best, when it is significant by the held-out likelihood and lowers
     the held-out RMS but takes less of the held-out loss than an effect must ('' otherwise): a
@@ -199,8 +206,7 @@ def short_of_the_margin(selector: Any, problem: Problem, sel: Selection) -> str:
     effect, rms, gain = last.table[0]
     if not (gain > selector.min_loglik_gain and rms < last.current_rms_um):
         return ""
-    trial = sel.trials.get(effect)
-    if trial is not None and selector.signature_failure(problem, sel.fit.specs, trial) is not None:
+    if _fails_own_signature(selector, problem, sel, effect):
         return ""
     return (f"{effect}: a smaller effect may be there beside {' and '.join(sel.accepted)}: it lowers the held-out "
             f"RMS from {last.current_rms_um:.4g} to {rms:.4g} um ({gain:.0f} nats of penalised held-out likelihood), "
@@ -229,7 +235,7 @@ def short_of_the_evidence(selector: Any, problem: Problem, sel: Selection) -> st
         return ""
     if not selector.earns_place(rms ** 2, math.inf, last.current_rms_um ** 2, problem.noise):
         return ""            # short of the share of the loss too (`short_of_the_margin`'s case), or worse
-    if selector.signature_failure(problem, sel.fit.specs, trial) is not None:
+    if _fails_own_signature(selector, problem, sel, effect):
         return ""
     return (f"{effect}: may be what is missing: it lowers the held-out RMS from {last.current_rms_um:.4g} to "
             f"{rms:.4g} um, as much as an effect must, but its evidence is {gain:.3g} nats where "
