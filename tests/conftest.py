@@ -59,6 +59,20 @@ def session_folder(tmp_path_factory: pytest.TempPathFactory, worker_id: str):
     return (base if worker_id == "master" else base.parent) / "shared"
 
 
+@pytest.fixture
+def memoised_rounds(monkeypatch, session_folder):
+    """diagnose's round searches and the cores it identifies again through a named delay, shared by
+    every test that asks for them, on every xdist worker (`session_cache.memoised_score_round`,
+    `memoised_reidentify`): test_diagnose_thresholds' moves that take the default path, and two
+    diagnoses of the same recording and model through different doors (test_diagnose_cli)."""
+    from session_cache import memoised_reidentify, memoised_score_round
+
+    from gma_ffc.diagnose import selection
+
+    monkeypatch.setattr(selection, "score_round", memoised_score_round(session_folder))
+    monkeypatch.setattr(selection, "reidentify_through", memoised_reidentify(session_folder))
+
+
 @pytest.fixture(scope="session")
 def diagnosed(session_folder):
     """diagnosed(case name, scale) -> (model, recording, diagnosis) of a benchmark case, with

@@ -32,7 +32,7 @@ def _run(capsys, *argv: str) -> tuple[int, str, str]:
     return code, out, err
 
 
-def test_outputs_follow_the_spec(case_files, capsys, tmp_path):
+def test_outputs_follow_the_spec(case_files, capsys, tmp_path, memoised_rounds):
     out_dir = tmp_path / "diagnosis"
     code, out, err = _run(capsys, "diagnose", "--model", str(case_files / "model.yaml"),
                           str(case_files / "long_run.csv"), "--out", str(out_dir))
@@ -290,11 +290,13 @@ def test_a_displacement_in_another_unit_is_refused_naming_the_factor(case_files,
     assert not out_dir.exists()
 
 
-def test_an_extended_model_is_diagnosed_through_its_base_as_the_service_does(case_files, capsys, tmp_path):
+def test_an_extended_model_is_diagnosed_through_its_base_as_the_service_does(case_files, capsys, tmp_path,
+                                                                            memoised_rounds):
     """diagnose refused an extended model: 'diagnose its base sdpi/mpi model instead', advice a user
     holding only extended_model.yaml (a colleague's, a service's diagnosis folder) could not follow:
     no command writes the base out. The service's background diagnosis runs the base the extended model
-    keeps; the command now does the same, and says so."""
+    keeps; the command now does the same, and says so. The base and the recording are
+    test_outputs_follow_the_spec's: their round searches are computed once for both (`memoised_rounds`)."""
     from gma_ffc.extended import ExtendedModel
 
     base = load_model(case_files / "model.yaml")

@@ -19,7 +19,6 @@ import inspect
 
 import pytest
 
-from gma_ffc.diagnose import selection
 from gma_ffc.diagnose.selection import EffectSelector
 
 THRESHOLDS = ("min_mse_ratio", "min_loglik_gain", "noise_factor", "model_error_factor", "slow_ratio_max",
@@ -40,17 +39,6 @@ def cases(session_folder):
         by_name = {c.name: c for c in bench.cases()}
         return {name: bench.make_case(by_name[name], scale=0.5) + (by_name[name].truth,) for name in SUBSET}
     return once_per_session(session_folder, "threshold cases", make)
-
-
-@pytest.fixture
-def memoised_rounds(monkeypatch, session_folder):
-    """The searches and the cores identified again through a named delay, shared by every move on
-    every xdist worker, and with the `diagnosed` fixture's diagnoses of the same cases
-    (`session_cache.memoised_score_round`, `memoised_reidentify`)."""
-    from session_cache import memoised_reidentify, memoised_score_round
-
-    monkeypatch.setattr(selection, "score_round", memoised_score_round(session_folder))
-    monkeypatch.setattr(selection, "reidentify_through", memoised_reidentify(session_folder))
 
 
 def test_every_threshold_is_a_documented_constructor_argument():
