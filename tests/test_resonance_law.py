@@ -84,12 +84,18 @@ def test_a_law_fitted_where_one_load_alone_shows_the_resonance_is_said_to_be_ext
 def test_a_resonance_beside_eddy_currents_is_named_once_a_lag_is_in_the_model():
     """Eddy currents and a resonance together: the resonance's first fit runs to a lag's damping (its
     signature fails), and a delay stands in for the lag and part of the resonance. Once the delay is
-    in the model, the resonance is tried again, with the delay re-searched beside it, and named."""
+    in the model, the resonance is tried again, with the delay re-searched beside it, and named.
+
+    At 0.35-0.45 of the recording the first fit's polish stopped at damping 0.496, short of the cap
+    it is clipped at (0.5): it passed the signature, was named alone, and the lag was left out
+    (0.667 um held out, 4x what both leave). A fit within 3 % of the cap ran to it (`RUN_TO_BOUND`)."""
     case = {c.name: c for c in general_cases()}["gen:rate_dependence+mechanical_dynamics"]
-    model, ident, rec = case_recordings(case, scale=0.5)
+    model, ident, rec = case_recordings(case, scale=0.35)
     dg = diagnose(model, [rec], identification=ident)
-    assert "mechanical_dynamics" in dg.verdict
-    assert dg.rms_after_um < 0.2 * dg.rms_before_um
+    assert sorted(dg.verdict) == ["mechanical_dynamics", "rate_dependence"], dg.explanation
+    tau = {c.effect: c.params for c in dg.candidates}["rate_dependence"]["tau_s"]
+    assert tau == pytest.approx(case_plant(case).eddy.time_constant_ms * 1e-3, rel=0.15)    # as below
+    assert dg.rms_after_um < 0.1 * dg.rms_before_um     # 0.168 of 4.36 um with both, 0.667 with the resonance alone
 
 
 @pytest.mark.nightly
