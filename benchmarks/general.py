@@ -56,6 +56,8 @@ Its misses (play on other drive shapes, heating at the floor) were not fixed; th
 same: GENERAL_TWENTY_FIFTH_SEED draws a twenty-fourth.
 Creep fits that relax against the drive's changes are refused now: GENERAL_TWENTY_SIXTH_SEED draws
 a twenty-fifth.
+A resonance fitted within 3 % of the heaviest damping ran to it, a lag and no peak:
+GENERAL_TWENTY_SEVENTH_SEED draws a twenty-sixth.
 """
 
 from __future__ import annotations
@@ -124,6 +126,8 @@ GENERAL_TWENTY_FIFTH_SEED = 20261312   # a twenty-fourth never-tuned draw (2026-
                                        # the diagnosis as the twenty-fourth drew it; committed before its first run
 GENERAL_TWENTY_SIXTH_SEED = 20261313   # a twenty-fifth never-tuned draw (2026-12-02, thirty-seventh session):
                                        # creep's sign checked; committed before its first run
+GENERAL_TWENTY_SEVENTH_SEED = 20261314  # a twenty-sixth never-tuned draw (2026-12-02, thirty-eighth session):
+                                        # a resonance near the damping cap is a lag; committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
