@@ -37,7 +37,7 @@ def law_at_the_heavy_load(dg, plant) -> tuple[float, float]:
 @pytest.mark.slow
 def test_the_resonance_law_carries_to_a_load_the_diagnosis_never_held():
     case = {c.name: c for c in general_cases()}["gen:mechanical_dynamics@default"]
-    model, ident, rec = case_recordings(case, scale=0.5)
+    model, ident, rec = case_recordings(case, scale=0.35)     # the law 0.6 % off at the heavy load, as at 0.5
     plant = case_plant(case)
     dg = diagnose(model, [rec], identification=ident)
     assert "mechanical_dynamics" in dg.verdict
