@@ -234,6 +234,7 @@ def test_a_fit_at_the_heaviest_damping_or_the_highest_frequency_is_no_resonance(
     assert "heaviest damping" in _check(300.0, MAX_ZETA).reason
     # the polish stops short of the cap it is clipped at: 0.496 beside eddy currents whose lag it took
     assert "heaviest damping" in _check(300.0, 0.496).reason
+    assert "damping ratio 0.496, within 3% of the cap 0.5" in _check(300.0, 0.496).reason     # what it was fitted at
     assert "highest frequency" in _check(TOP_OF_NYQUIST * FS / 2, 0.1).reason
 
 

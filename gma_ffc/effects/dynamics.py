@@ -189,7 +189,8 @@ class Dynamics(EffectBase):
         f, zeta = check.result.specs[2][cls.name][:2]
         if zeta >= MAX_ZETA * (1.0 - RUN_TO_BOUND):
             return SignatureFailure(
-                f"its fit runs to the heaviest damping of a resonance that peaks (damping ratio {MAX_ZETA:.2g}): "
+                f"its fit runs to the heaviest damping of a resonance that peaks (damping ratio {zeta:.3g}, "
+                f"within {RUN_TO_BOUND:.0%} of the cap {MAX_ZETA:.2g}): "
                 "the gain is a low-pass's, a lag that a leftover of another effect gives as well")
         if f >= _f_max(check.fitter) * (1.0 - 1e-9):
             return SignatureFailure(
