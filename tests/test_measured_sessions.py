@@ -101,16 +101,16 @@ def test_no_resonance_is_named_at_the_heaviest_damping(whole_run):
     backward pass zoomed the resonance again without the delay dropped beside it, it ran to the
     bound, and no check saw it: 'a resonance at 8.824 Hz (damping ratio 0.5)' was named. Every step
     that searches an accepted effect again now keeps a fit only where its signature check holds."""
-    from gma_ffc.effects.dynamics import MAX_ZETA, RUN_TO_BOUND
+    from gma_ffc.effects.dynamics import MAX_ZETA, PEAK_ZETA_MAX
 
     folder, doc = whole_run
     model = yaml.safe_load((folder / "diag" / "extended_model.yaml").read_text())
     dyn = model["blocks"].get("dynamics")
     if dyn is not None:
-        assert dyn["zeta"] < MAX_ZETA * (1.0 - RUN_TO_BOUND), dyn
+        assert dyn["zeta"] < PEAK_ZETA_MAX, dyn
     for c in doc["candidates"]:
         if c["effect"] == "mechanical_dynamics" and c["accepted"]:
-            assert c["params"]["zeta"] < MAX_ZETA * (1.0 - RUN_TO_BOUND), c
+            assert c["params"]["zeta"] < PEAK_ZETA_MAX, c
     assert f"damping ratio {MAX_ZETA:.2g})" not in doc["explanation"]
 
 

@@ -26,6 +26,7 @@ RUN_TO_BOUND = 0.03   # a fit within 3 % of MAX_ZETA ran to it: the search's pol
                       # (diagnose.search.POLISH_STEP) and stops after a few evaluations, short of a bound it
                       # is clipped at (the development set's eddy-and-resonance pair at 0.4 of its length:
                       # damping 0.496, the rig's 0.232, the lag left out and 4x the error left)
+PEAK_ZETA_MAX = MAX_ZETA * (1.0 - RUN_TO_BOUND)   # the heaviest damping a fit that peaks may have
 LAW_SWEEP = 1.2    # after the polish, moving masses over LAW_SPREAD's range about 20 % apart: with frequency and
                    # damping close, the held-out error against the law has basins only +-20 % wide (the ninth
                    # general draw's resonance: 0.13 um at the plant's mass, 0.29 um 25 % above it)
@@ -187,7 +188,7 @@ class Dynamics(EffectBase):
         highest frequency the sampling resolves) wants a low-pass, a lag that a leftover of eddy
         currents, a delay or the core's shape gives as well."""
         f, zeta = check.result.specs[2][cls.name][:2]
-        if zeta >= MAX_ZETA * (1.0 - RUN_TO_BOUND):
+        if zeta >= PEAK_ZETA_MAX:
             return SignatureFailure(
                 f"its fit runs to the heaviest damping of a resonance that peaks (damping ratio {zeta:.3g}, "
                 f"within {RUN_TO_BOUND:.0%} of the cap {MAX_ZETA:.2g}): "
