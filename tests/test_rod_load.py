@@ -220,7 +220,7 @@ def _check(f_hz: float, zeta: float):
                                              0.02, 0.5, 3.0))
 
 
-@given(f=st.floats(5.0, 0.79 * FS / 2), zeta=st.floats(0.01, 0.48))     # 0.485 and up ran to the cap (RUN_TO_BOUND)
+@given(f=st.floats(5.0, 0.77 * FS / 2), zeta=st.floats(0.01, 0.48))     # within 3 % of a cap ran to it (RUN_TO_BOUND)
 @settings(max_examples=50, deadline=None)
 def test_a_resonance_inside_the_search_passes_its_signature(f, zeta):
     assert _check(f, zeta) is None
@@ -236,6 +236,7 @@ def test_a_fit_at_the_heaviest_damping_or_the_highest_frequency_is_no_resonance(
     assert "heaviest damping" in _check(300.0, 0.496).reason
     assert "damping ratio 0.496, within 3% of the cap 0.5" in _check(300.0, 0.496).reason     # what it was fitted at
     assert "highest frequency" in _check(TOP_OF_NYQUIST * FS / 2, 0.1).reason
+    assert "highest frequency" in _check(0.79 * FS / 2, 0.1).reason       # the polish stops short of this cap too
 
 
 def test_the_search_never_leaves_the_frequencies_the_sampling_resolves():

@@ -22,10 +22,11 @@ from .base import (BatchSignals, EffectBase, FitData, Regressors, SignatureCheck
                    is_number, polish_factor, positive)
 
 MAX_ZETA = 0.5   # a resonance must peak; heavier damping is a lag/delay look-alike and is left to those
-RUN_TO_BOUND = 0.03   # a fit within 3 % of MAX_ZETA ran to it: the search's polish starts with 3 % moves
-                      # (diagnose.search.POLISH_STEP) and stops after a few evaluations, short of a bound it
-                      # is clipped at (the development set's eddy-and-resonance pair at 0.4 of its length:
-                      # damping 0.496, the rig's 0.232, the lag left out and 4x the error left)
+RUN_TO_BOUND = 0.03   # a fit within 3 % of a bound it is clipped at (MAX_ZETA, _f_max) ran to it: the
+                      # search's polish starts with 3 % moves (diagnose.search.POLISH_STEP) and stops after a
+                      # few evaluations, short of the bound (the development set's eddy-and-resonance pair
+                      # at 0.4 of its length: damping 0.496, the rig's 0.232, the lag left out and 4x the
+                      # error left)
 PEAK_ZETA_MAX = MAX_ZETA * (1.0 - RUN_TO_BOUND)   # the heaviest damping a fit that peaks may have
 LAW_SWEEP = 1.2    # after the polish, moving masses over LAW_SPREAD's range about 20 % apart: with frequency and
                    # damping close, the held-out error against the law has basins only +-20 % wide (the ninth
@@ -193,10 +194,10 @@ class Dynamics(EffectBase):
                 f"its fit runs to the heaviest damping of a resonance that peaks (damping ratio {zeta:.3g}, "
                 f"within {RUN_TO_BOUND:.0%} of the cap {MAX_ZETA:.2g}): "
                 "the gain is a low-pass's, a lag that a leftover of another effect gives as well")
-        if f >= _f_max(check.fitter) * (1.0 - 1e-9):
+        if f >= _f_max(check.fitter) * (1.0 - RUN_TO_BOUND):
             return SignatureFailure(
-                f"its fit runs to the highest frequency the sampling resolves ({f:.4g} Hz, "
-                f"{TOP_OF_NYQUIST:.0%} of Nyquist): no peak is seen, only a lag")
+                f"its fit runs to the highest frequency the sampling resolves ({f:.4g} Hz, within "
+                f"{RUN_TO_BOUND:.0%} of {TOP_OF_NYQUIST:.0%} of Nyquist): no peak is seen, only a lag")
         return None
 
     @classmethod
