@@ -120,6 +120,28 @@ def test_extended_model_with_a_loop_width_inverts_exactly_through_a_load_change(
     np.testing.assert_array_equal(again.simulate(t, drive, s, initial_drive=x0), out)
 
 
+def test_a_run_far_from_the_reference_stress_starts_from_the_widened_loops_state() -> None:
+    """The start is estimated through the loops this core runs with at the run's stress. At 10 MPa
+    beyond the reference the loop is 1.8x wider: the plain core's estimate misses the whole run."""
+    model = _loop_model()
+    core = WidenedCore(model, 0.08, -12.0)
+    fwd = core.forward_stepper(initial_drive=0.0)
+    for v in np.r_[np.linspace(0.0, 2.0, 200), np.linspace(2.0, 0.6, 200)]:      # a history the file does not show
+        fwd.step(float(v), -22.0)
+    t = np.arange(2000) / 1000.0
+    x = 0.6 + 0.5 * np.sin(2 * np.pi * 2 * t)          # never spans twice the widest widened threshold
+    s = np.full(t.size, -22.0)
+    y = core.simulate(None, x, s, initial_drive=x[0], initial_play_state=fwd._state[: model.n_play].copy())
+
+    def rms_from(start) -> float:
+        return float(np.sqrt(np.mean((core.simulate(None, x, s, initial_play_state=start.play_state) - y) ** 2)))
+
+    assert rms_from(core.resolve_initial_state(x, s, "estimate", y, t)) < 1e-9 * np.ptp(y)
+    assert rms_from(model.resolve_initial_state(x, s, "estimate", y, t)) > 0.01 * np.ptp(y)
+    m = ExtendedModel(model, {"loop_width": {"kappa_per_MPa": 0.08, "stress_ref_MPa": -12.0}})
+    assert np.max(np.abs(m.simulate(t, x, s, measured_um=y) - y)) < 1e-9 * np.ptp(y)
+
+
 @pytest.mark.parametrize("block, words", [
     ({"kappa_per_MPa": "wide", "stress_ref_MPa": -15.0}, r"loop_width\.kappa_per_MPa"),
     ({"kappa_per_MPa": 0.05}, r"loop_width\.stress_ref_MPa"),
