@@ -58,6 +58,9 @@ Creep fits that relax against the drive's changes are refused now: GENERAL_TWENT
 a twenty-fifth.
 A resonance fitted within 3 % of the heaviest damping ran to it, a lag and no peak:
 GENERAL_TWENTY_SEVENTH_SEED draws a twenty-sixth.
+A resonance fitted within 3 % of the highest frequency the sampling resolves is a lag too, and a
+loop-width model starts from the loops at its run's stress (its other-rate probe's loss, looked at):
+GENERAL_TWENTY_EIGHTH_SEED draws a twenty-seventh.
 """
 
 from __future__ import annotations
@@ -128,6 +131,8 @@ GENERAL_TWENTY_SIXTH_SEED = 20261313   # a twenty-fifth never-tuned draw (2026-1
                                        # creep's sign checked; committed before its first run
 GENERAL_TWENTY_SEVENTH_SEED = 20261314  # a twenty-sixth never-tuned draw (2026-12-02, thirty-eighth session):
                                         # a resonance near the damping cap is a lag; committed before its first run
+GENERAL_TWENTY_EIGHTH_SEED = 20261315  # a twenty-seventh never-tuned draw (2026-12-03, fortieth session):
+                                       # a loop-width model's start at its run's stress; committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
