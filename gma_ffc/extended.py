@@ -145,10 +145,12 @@ class ExtendedModel:
 
     def resolve_initial_state(self, drive: Any, stress_MPa: Any = None, initial_state: Any = None,
                               measured_um: Any = None, time_s: Any = None) -> Any:
-        """The core's initial state (`gma_ffc.initial_state`) for the drive as the core sees it."""
+        """The core's initial state (`gma_ffc.initial_state`) for the drive and the stress as the core
+        sees them: the same start `simulate` resolves for itself."""
         t = np.arange(len(drive), dtype=float) if time_s is None else np.asarray(time_s, dtype=float)
         u3 = self.core_input(t, np.asarray(drive, dtype=float))
-        return self.core.resolve_initial_state(u3, stress_MPa, initial_state, measured_um, t)
+        seen = None if stress_MPa is None else self.seen_stress(t, stress_MPa)
+        return self.core.resolve_initial_state(u3, seen, initial_state, measured_um, t)
 
     def simulate(self, time_s: Any, drive: Any, stress_MPa: Any = None, initial_drive: float | None = None,
                  initial_state: Any = None, measured_um: Any = None) -> np.ndarray:
