@@ -120,6 +120,23 @@ def test_extended_model_with_a_loop_width_inverts_exactly_through_a_load_change(
     np.testing.assert_array_equal(again.simulate(t, drive, s, initial_drive=x0), out)
 
 
+@settings(max_examples=60, deadline=None)
+@given(model=sdpi_models(), hist=histories(), width=widths, where=st.floats(0.0, 1.0))
+def test_at_one_stress_the_widened_core_is_the_plain_core_with_its_thresholds_scaled(model: SDPIModel, hist, width,
+                                                                                   where: float) -> None:
+    """`at_stress`, through which a run's start is estimated, is the core this one is at that stress,
+    from the same play states (a history's, or relaxed at the first drive value)."""
+    x, _, prehistory = hist
+    core = WidenedCore(model, *width)
+    s = STRESS[0] + where * (STRESS[1] - STRESS[0])
+    y0 = _prehistory_state(core, prehistory)
+    if y0 is None:
+        y0 = np.full(model.n_play, x[0] - model.input_offset)
+    wide = core.simulate(None, x, s, initial_drive=x[0], initial_play_state=y0)
+    plain = core.at_stress(s).simulate(None, x, s, initial_drive=x[0], initial_play_state=y0)
+    assert np.max(np.abs(wide - plain)) <= 1e-9 * max(float(np.max(np.abs(wide))), 1.0)
+
+
 def test_a_run_far_from_the_reference_stress_starts_from_the_widened_loops_state() -> None:
     """The start is estimated through the loops this core runs with at the run's stress. At 10 MPa
     beyond the reference the loop is 1.8x wider: the plain core's estimate misses the whole run."""
