@@ -61,9 +61,9 @@ class WidenedCore(CoreAround):
         return st
 
     def at_stress(self, stress_MPa: float) -> Any:
-        """The plain core this one is at one (clamped) stress: every play threshold scaled by g."""
-        g = max(1.0 + self.kappa * (self.sigma_w - float(stress_MPa)), ops.WIDTH_MIN)
-        return widened_core(self.base, g - 1.0)
+        """The plain core this one is at one (clamped) stress: every play threshold scaled by g, the
+        kernels' own `width_factor`."""
+        return widened_core(self.base, ops.width_factor(float(stress_MPa), self.kappa, self.sigma_w) - 1.0)
 
     def resolve_initial_state(self, drive: Any, stress_MPa: Any = None, initial_state: Any = None,
                               measured_um: Any = None, time_s: Any = None) -> Any:
