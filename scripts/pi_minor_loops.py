@@ -17,6 +17,11 @@ in a slow large one. For each case this prints three RMS errors on that part, in
     Its minor loops need not be the major loop's (it obeys only congruency), so it tells whether
     a richer classical core would follow these loops. Its relays start from rest at the probe's
     minimum and run through the whole probe.
+
+`--duhem` prints instead whether a Duhem class (Bouc-Wen elements, no return-point memory, like
+the simulated rod's Jiles-Atherton magnetics) beside the plays would: fitted on the two-tone part
+itself, and fitted on the probe's rising triangle before it (after its first second) then judged
+on the two-tone part. A class that fits the loops only when it sees them is flexibility, not a law.
 """
 
 from __future__ import annotations
@@ -80,6 +85,62 @@ def preisach_self_fit(case, levels: int) -> float:
     return rms(cols @ weights - y)
 
 
+def bouc_wen(drive: np.ndarray, beta: float, gamma: float, substeps: int = 20) -> np.ndarray:
+    """A Bouc-Wen element (exponent 1, unit slope) from rest: dz = du - beta |du| z - gamma du |z|."""
+    z = np.zeros(drive.size)
+    for k in range(1, drive.size):
+        du = (drive[k] - drive[k - 1]) / substeps
+        zk = z[k - 1]
+        for _ in range(substeps):
+            zk += du - beta * abs(du) * zk - gamma * du * abs(zk)
+        z[k] = zk
+    return z
+
+
+def play_columns(drive: np.ndarray, n: int = 20) -> np.ndarray:
+    """n plays over half the drive's span, from its first value, and their squares (a PI core's
+    output map, as the SDPI's dead-zones give it)."""
+    span = float(np.ptp(drive))
+    out = np.empty((drive.size, n))
+    for j, r in enumerate(np.linspace(0.0, 0.45 * span, n)):
+        y = float(drive[0])
+        for k, u in enumerate(drive):
+            y = min(max(y, u - r), u + r)
+            out[k, j] = y
+    return np.column_stack([out, out ** 2 / span])
+
+
+def duhem_columns(drive: np.ndarray) -> np.ndarray:
+    """25 Bouc-Wen elements (rates 2-40 per drive span, five ratios of gamma to beta) and their squares."""
+    span = float(np.ptp(drive))
+    cols = []
+    for rate in (2, 5, 10, 20, 40):
+        for rho in (-0.9, -0.5, 0.0, 0.5, 0.9):
+            a = rate / span
+            cols.append(bouc_wen(drive, a * (1 - rho) / 2, a * (1 + rho) / 2))
+    z = np.column_stack(cols)
+    return np.column_stack([z, z ** 2 / span])
+
+
+def fitted_rms(cols: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray) -> float:
+    """RMS on `test` of a least-squares fit (with an offset) on `train`."""
+    a = np.column_stack([cols, np.ones(y.size)])
+    w = np.linalg.lstsq(a[train], y[train], rcond=None)[0]
+    return rms(a[test] @ w - y[test])
+
+
+def print_duhem(name: str, case) -> None:
+    """The plays alone and beside the Duhem elements: self-fit and carried from the triangle."""
+    probe, keep = other_shape_probe(case)
+    y = probe.displacement_um
+    triangle = (probe.time_s > probe.time_s[0] + 1.0) & ~keep
+    plays = play_columns(probe.drive)
+    both = np.column_stack([plays, duhem_columns(probe.drive)])
+    print(f"{name}: two-tone part, self-fit: plays {fitted_rms(plays, y, keep, keep):.3f}, plays + Duhem "
+          f"{fitted_rms(both, y, keep, keep):.3f} um; fitted on the triangle: plays {fitted_rms(plays, y, triangle, keep):.3f}, "
+          f"plays + Duhem {fitted_rms(both, y, triangle, keep):.3f} um", flush=True)
+
+
 def width_law_model(case, model, recordings):
     """The core identified on `recordings` through the plant's own width law, at the model's
     reference stress."""
@@ -114,12 +175,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("cases", nargs="*", default=list(DEFAULT))
     ap.add_argument("--pooled", action="store_true", help="pooled probe RMS of cores fitted on more data")
+    ap.add_argument("--duhem", action="store_true", help="a Duhem class beside the plays, self-fit and carried")
     args = ap.parse_args()
     by_name = {c.name: c for c in general_cases()}
     for name in args.cases:
         case = by_name[name]
         if args.pooled:
             print_pooled(name, case)
+            continue
+        if args.duhem:
+            print_duhem(name, case)
             continue
         model, ident, _ = case_recordings(case)
         part = two_tone(case)

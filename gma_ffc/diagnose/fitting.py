@@ -74,9 +74,10 @@ class Fitter:
         self._inputs = [c for c in self.effects if c.stage == "input"]
         # the identification loops first: an effect may reshape the core only where they are given
         self.identification = [d for d in self.anchor if d.extra.get("anchor_rule") == "estimate"]
-        self._core_fx = [c for c in self.effects if c.reshapes(self)]  # effects that reshape the core
         self._init_stress()
         self._init_caches()
+        # effects that reshape the core (after the caches: creep asks the loops whether they show it)
+        self._core_fx = [c for c in self.effects if c.reshapes(self)]
         self._init_rows()
         self.evaluations = 0
         self.delta: float | None = None   # Huber scale of the loss (None: plain least squares)

@@ -41,9 +41,10 @@ class Creep(EffectBase):
     # ---- diagnosis
     @classmethod
     def reshapes(cls, fitter: FitData) -> bool:
-        """With the identification loops, creep is material behaviour they show too: the core is
-        identified again through it (the base absorbed the loops' creep into their shape)."""
-        return bool(fitter.identification)
+        """With identification loops that show creep, it is material behaviour: the core is identified
+        again through it (the base absorbed the loops' creep into their shape). Loops that show none
+        leave its gain to the recordings diagnosed, as without them (`law_from_loops`)."""
+        return law_from_loops(fitter)
 
     @classmethod
     def grid(cls, fitter: FitData) -> Any:
@@ -53,18 +54,18 @@ class Creep(EffectBase):
         from 3 s (a drawn actuator's loops preferred the fastest by 4 % in RSS, where the plant's
         middle part is at 3 s), a recording tens of seconds long can."""
         taus = time_constants(fitter)
-        return [_with_loop_gain(fitter, float(t)) for t in taus] if fitter.identification else taus
+        return [_with_loop_gain(fitter, float(t)) for t in taus] if law_from_loops(fitter) else taus
 
     @classmethod
     def refine(cls, fitter: FitData, p: Any, level: int) -> list[Any] | None:
         """Around p by the spacing of creep's own grid, which follows the recording. With the loops,
         one zoom level (tau to about 10 %: a factor of three off still carried 4x on the probes), as
         each point there is an identification of the core."""
-        if fitter.identification and level > 1:
+        if law_from_loops(fitter) and level > 1:
             return None
         g = time_constants(fitter)
         taus = [max(q, MIN_CREEP_TAU_S) for q in geom_refine(central_tau(p), grid_ratio(g[0], g[-1], g.size), level)]
-        return [_with_loop_gain(fitter, t) for t in taus] if fitter.identification else taus
+        return [_with_loop_gain(fitter, t) for t in taus] if law_from_loops(fitter) else taus
 
     @classmethod
     def fit_core(cls, fitter: FitData, core: Any, p: Any) -> Any:
@@ -242,6 +243,8 @@ class CreepingCore(CoreAround):
 # of the best point of creep's own grid
 CREEP_GAIN_MAX = 0.5
 CREEP_GAIN_TOL = 1e-3             # a tenth of a percent of each step: far below what a probe can tell
+LOOPS_SHOW_NO_CREEP = 2 * CREEP_GAIN_TOL   # a loops' gain below it is zero within the bounded search's tolerance
+                                          # (it never evaluates the bound itself); hil_sim's default creep (3 x 0.01) is 15x it
 
 
 def loop_gain(fitter: FitData, tau: float) -> float:
@@ -255,6 +258,19 @@ def loop_gain(fitter: FitData, tau: float) -> float:
     38 % high on a drawn actuator)."""
     loops = fitter.cached(("creep_loops",), lambda: [_linear_family(fitter, d) for d in fitter.identification])
     return _gain_profile(loops, tau)[1]
+
+
+def law_from_loops(fitter: FitData) -> bool:
+    """Whether creep's law comes from the identification loops: they are given, and show creep at one
+    time constant of its grid at least. Loops recorded without it (an actuator identified before its
+    creep showed, or a simulated one with creep switched off there) give a gain within the gain
+    search's tolerance of zero at every one. Tied to those loops, creep could then not be named at
+    all, and a look-alike (heating) took its place; its gain is then fitted on the recordings
+    diagnosed, as without the loops."""
+    if not fitter.identification:
+        return False
+    return fitter.cached(("creep_in_loops",), lambda: max(
+        _with_loop_gain(fitter, float(t))[1] for t in time_constants(fitter)) > LOOPS_SHOW_NO_CREEP)
 
 
 def _with_loop_gain(fitter: FitData, tau: float) -> tuple[float, float]:
