@@ -184,6 +184,27 @@ def test_only_a_lead_is_a_timing_fault_a_lag_is_physics():
         assert (lead is None) if expected is None else (lead is not None and abs(lead.lead_s - expected) < 1e-12)
 
 
+def test_a_lag_on_a_periodic_drive_is_not_read_as_a_lead_of_a_period_less():
+    """On one sine a lag of d and a lead of a period minus d fit alike. hil_sim's realistic actuator
+    at 100 Hz (a 1 ms delay and eddy currents) was called 18.9 ms ahead, and its diagnosis a column
+    fault. A lead counts only where no lag fits as well; a real lead on the same sine still does."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.timing import displacement_lead
+
+    fs = 10_000.0
+    t = np.arange(30_000) / fs
+    p = np.sin(2 * np.pi * 100 * t)
+    noise = 0.01 * np.random.default_rng(3).normal(size=t.size)
+    for lag in (11, 25, 40):                        # 1.1-4 ms behind: a lead of 6-8.9 ms or 16-18.9 ms fits too
+        d = SimpleNamespace(name="r", y=np.roll(p, lag) + noise, dt_med=1 / fs, settled=0)
+        assert displacement_lead([d], [p]) is None, lag
+    broadband = p + 0.5 * np.sin(2 * np.pi * 7 * t) + 0.3 * np.sin(2 * np.pi * 31 * t)
+    d = SimpleNamespace(name="r", y=np.roll(broadband, -30) + noise, dt_med=1 / fs, settled=0)
+    lead = displacement_lead([d], [broadband])
+    assert lead is not None and abs(lead.lead_s - 0.003) < 1e-12
+
+
 def test_mains_hum_on_the_sensor_is_described_not_fitted_as_physics(diagnosed):
     """50 Hz pickup on the displacement channel, as lab cabling adds: no effect is named for it, and
     the unexplained residual is described as a line nothing in the drive puts there (the diagnosis
