@@ -41,6 +41,9 @@ effects (off unless --effects or the config switch them on; 'none' = all off, 'a
   noise      sensor noise and quantisation (displacement, current, load cell, temperature)
 
 The recordings never say which effects were on; DIR/manifest.yaml does.
+The effects are the actuator's: one actuator has the same ones in every run. Give the
+identification runs the diagnosis runs' --effects (or --config) to simulate one actuator; loops
+without an effect the later runs show are an actuator that changed since it was identified.
 
 examples:
   python -m hil_sim record --kind identification --out rec/ident --effects noise
