@@ -99,3 +99,20 @@ def test_creep_is_named_from_the_recordings_when_the_identification_loops_show_n
     assert gain > 10 * LOOPS_SHOW_NO_CREEP          # fitted on the run, not the loops' zero
     # within a factor of two of the plant's (0.040 against 0.057: its time constant trades with the gain)
     assert 0.5 < gain / (3 * 0.02 / (1 + 3 * 0.02)) < 2.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(duration=st.floats(5.0, 3600.0), dt=st.floats(1e-4, 0.01), where=st.floats(0.0, 1.0), level=st.integers(1, 3))
+def test_the_search_keeps_creep_within_what_the_recordings_can_tell(duration, dt, where, level):
+    """A central time constant beyond half the longest recording is a drift any slow effect gives:
+    a user's 240 s run of heating and creep got creep at 348 s, heating's drift taken as creep. The
+    zoom stays within the grid's span, as the grid does."""
+    from types import SimpleNamespace
+
+    from gma_ffc.effects.creep import MIN_CREEP_TAU_S, Creep, time_constants
+
+    fitter = SimpleNamespace(dt_min=dt, duration_max=duration, identification=[])
+    grid = time_constants(fitter)
+    tau = float(grid[0] * (grid[-1] / grid[0]) ** where)
+    for t in Creep.refine(fitter, tau, level):
+        assert MIN_CREEP_TAU_S <= t <= grid[-1] * (1 + 1e-12)

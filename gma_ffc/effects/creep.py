@@ -60,11 +60,14 @@ class Creep(EffectBase):
     def refine(cls, fitter: FitData, p: Any, level: int) -> list[Any] | None:
         """Around p by the spacing of creep's own grid, which follows the recording. With the loops,
         one zoom level (tau to about 10 %: a factor of three off still carried 4x on the probes), as
-        each point there is an identification of the core."""
+        each point there is an identification of the core. Within the grid's span: a central time
+        constant beyond half the longest recording is a drift the recordings cannot tell from any
+        other slow one (heating's)."""
         if law_from_loops(fitter) and level > 1:
             return None
         g = time_constants(fitter)
-        taus = [max(q, MIN_CREEP_TAU_S) for q in geom_refine(central_tau(p), grid_ratio(g[0], g[-1], g.size), level)]
+        taus = [min(max(q, MIN_CREEP_TAU_S), float(g[-1]))
+                for q in geom_refine(central_tau(p), grid_ratio(g[0], g[-1], g.size), level)]
         return [_with_loop_gain(fitter, t) for t in taus] if law_from_loops(fitter) else taus
 
     @classmethod
