@@ -37,6 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.cases import case_plant, case_recordings  # noqa: E402
 from benchmarks.general import general_cases  # noqa: E402
 from benchmarks.probes import _prediction, pooled, probe_recordings, probe_scores  # noqa: E402
+from gma_ffc.effects.kernels import play_bank  # noqa: E402
 from gma_ffc.extended import ExtendedModel  # noqa: E402
 from gma_ffc.identify import SDPIIdentifier  # noqa: E402
 from gma_ffc.recordings import Recording  # noqa: E402
@@ -101,12 +102,7 @@ def play_columns(drive: np.ndarray, n: int = 20) -> np.ndarray:
     """n plays over half the drive's span, from its first value, and their squares (a PI core's
     output map, as the SDPI's dead-zones give it)."""
     span = float(np.ptp(drive))
-    out = np.empty((drive.size, n))
-    for j, r in enumerate(np.linspace(0.0, 0.45 * span, n)):
-        y = float(drive[0])
-        for k, u in enumerate(drive):
-            y = min(max(y, u - r), u + r)
-            out[k, j] = y
+    out = play_bank(np.ascontiguousarray(drive, dtype=float), np.linspace(0.0, 0.45 * span, n), float(drive[0]))
     return np.column_stack([out, out ** 2 / span])
 
 
