@@ -63,12 +63,13 @@ class Creep(EffectBase):
         each point there is an identification of the core. Within the grid's span: a central time
         constant beyond half the longest recording is a drift the recordings cannot tell from any
         other slow one (heating's)."""
-        if law_from_loops(fitter) and level > 1:
+        from_loops = law_from_loops(fitter)
+        if from_loops and level > 1:
             return None
         g = time_constants(fitter)
         taus = [min(max(q, MIN_CREEP_TAU_S), float(g[-1]))
                 for q in geom_refine(central_tau(p), grid_ratio(g[0], g[-1], g.size), level)]
-        return [_with_loop_gain(fitter, t) for t in taus] if law_from_loops(fitter) else taus
+        return [_with_loop_gain(fitter, t) for t in taus] if from_loops else taus
 
     @classmethod
     def fit_core(cls, fitter: FitData, core: Any, p: Any) -> Any:
