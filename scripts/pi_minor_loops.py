@@ -77,13 +77,18 @@ def relay_states(drive: np.ndarray, levels: int, span: tuple[float, float] | Non
     return out
 
 
+def fitted_rms(cols: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray) -> float:
+    """RMS on `test` of a least-squares fit (with an offset) on `train`."""
+    a = np.column_stack([cols, np.ones(y.size)])
+    w = np.linalg.lstsq(a[train], y[train], rcond=None)[0]
+    return rms(a[test] @ w - y[test])
+
+
 def preisach_self_fit(case, levels: int) -> float:
     """RMS of a least-squares Preisach fit on the two-tone part (relays from the probe's start)."""
     probe, keep = other_shape_probe(case)
-    y = probe.displacement_um[keep]
-    cols = np.column_stack([relay_states(probe.drive, levels)[keep], probe.drive[keep], np.ones(y.size)])
-    weights = np.linalg.lstsq(cols, y, rcond=None)[0]
-    return rms(cols @ weights - y)
+    cols = np.column_stack([relay_states(probe.drive, levels), probe.drive])
+    return fitted_rms(cols, probe.displacement_um, keep, keep)
 
 
 def bouc_wen(drive: np.ndarray, beta: float, gamma: float, substeps: int = 20) -> np.ndarray:
@@ -116,13 +121,6 @@ def duhem_columns(drive: np.ndarray) -> np.ndarray:
             cols.append(bouc_wen(drive, a * (1 - rho) / 2, a * (1 + rho) / 2))
     z = np.column_stack(cols)
     return np.column_stack([z, z ** 2 / span])
-
-
-def fitted_rms(cols: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray) -> float:
-    """RMS on `test` of a least-squares fit (with an offset) on `train`."""
-    a = np.column_stack([cols, np.ones(y.size)])
-    w = np.linalg.lstsq(a[train], y[train], rcond=None)[0]
-    return rms(a[test] @ w - y[test])
 
 
 def print_duhem(name: str, case) -> None:
