@@ -205,6 +205,34 @@ def test_a_lag_on_a_periodic_drive_is_not_read_as_a_lead_of_a_period_less():
     assert lead is not None and abs(lead.lead_s - 0.003) < 1e-12
 
 
+def test_a_slow_run_ahead_of_a_model_whose_faster_runs_lag_is_not_a_column_fault():
+    """A lag that grows with the drive rate, in loops identified at one rate, is loop width there:
+    slower runs then lead the model and faster ones lag it. hil_sim's eddy currents and 1 ms delay,
+    identified at 3 Hz, put its 1 Hz run 1.9 ms ahead, and the diagnosis was called a column fault.
+    A late column shifts every run alike: a lead beside slower lags, or alone, is still one."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.timing import displacement_lead
+
+    fs = 2000.0
+    t = np.arange(8000) / fs
+    noise = 0.01 * np.random.default_rng(5).normal(size=t.size)
+
+    def run(name, hz, shift):                  # shift > 0: the measurement `shift` samples ahead
+        p = 1.5 - 1.5 * np.cos(2 * np.pi * hz * t) + 0.2 * np.sin(2 * np.pi * 2.3 * hz * t)
+        return SimpleNamespace(name=name, y=np.roll(p, -shift) + noise, u=p, dt_med=1 / fs, settled=0), p
+
+    slow_ahead, fast_behind, fast_ahead, slow_behind = (run("1Hz", 1, 4), run("10Hz", 10, -2),
+                                                        run("10Hz", 10, 4), run("1Hz", 1, -2))
+    pairs = [slow_ahead, fast_behind]
+    assert displacement_lead([d for d, _ in pairs], [p for _, p in pairs]) is None
+    lead = displacement_lead([slow_ahead[0]], [slow_ahead[1]])
+    assert lead is not None and lead.recording == "1Hz"
+    pairs = [slow_behind, fast_ahead]
+    lead = displacement_lead([d for d, _ in pairs], [p for _, p in pairs])
+    assert lead is not None and lead.recording == "10Hz"
+
+
 def test_mains_hum_on_the_sensor_is_described_not_fitted_as_physics(diagnosed):
     """50 Hz pickup on the displacement channel, as lab cabling adds: no effect is named for it, and
     the unexplained residual is described as a line nothing in the drive puts there (the diagnosis
