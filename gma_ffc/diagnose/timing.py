@@ -67,10 +67,9 @@ def displacement_lead(data: Sequence[RecData], predictions: Sequence[np.ndarray]
     if not leads:
         return None
     lag_rates = [_drive_rate(d) for d, sh in clear if sh.k < 0]
-    if lag_rates:
-        leads = [(d, sh) for d, sh in leads if not _lag_grows_with_rate(_drive_rate(d), lag_rates)]
-        if not leads:
-            return None
+    leads = [(d, sh) for d, sh in leads if not (lag_rates and _lag_grows_with_rate(_drive_rate(d), lag_rates))]
+    if not leads:
+        return None
     d, sh = max(leads, key=lambda pair: pair[1].share)
     return Lead(d.name, sh.k * d.dt_med, sh.share)
 
