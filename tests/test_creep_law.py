@@ -116,3 +116,41 @@ def test_the_search_keeps_creep_within_what_the_recordings_can_tell(duration, dt
     tau = float(grid[0] * (grid[-1] / grid[0]) ** where)
     for t in Creep.refine(fitter, tau, level):
         assert MIN_CREEP_TAU_S <= t <= grid[-1] * (1 + 1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(tau=st.floats(0.05, 50.0), n=st.integers(2, 400), seed=st.integers(0, 2**31 - 1))
+def test_creep_under_way_is_never_more_than_its_gain_times_the_stroke(tau, n, seed):
+    """Whatever history came before a recording, creep's term per unit gain stays within the core
+    output's range: the bound `start_beyond_reach` holds a fitted start to."""
+    rng = np.random.default_rng(seed)
+    yc = np.cumsum(rng.normal(size=n))
+    term = relaxation(yc, np.full(n, 1e-2), tau)
+    assert float(np.max(np.abs(term))) <= float(np.ptp(yc)) * (1.0 + 1e-12)
+
+
+def test_a_start_term_beyond_what_creep_can_hold_fails_creeps_signature():
+    """hil_sim's realistic actuator on steps: heating's rise after the unscored start was fitted as
+    creep dying away, -6.96 um against 3.8 um that creep of its gain can hold. A start within the
+    bound passes; beyond it, of either sign, fails and names the recording."""
+    from types import SimpleNamespace
+
+    from gma_ffc.effects.creep import start_beyond_reach
+    from gma_ffc.model_reach import model_reach_um
+
+    model, _, _ = case_recordings(general_cases()[0])
+    yc = np.linspace(0.0, 5.0, 200)
+    gain = 0.08
+    most = gain * max(5.0, model_reach_um(model))
+
+    def check(start):
+        result = SimpleNamespace(names=["creep_gain", "creep_start_0"], coef_all=np.array([gain, start]),
+                                 specs=(None, None, None))
+        fitter = SimpleNamespace(core=lambda spec: [(yc, yc)], data=[SimpleNamespace(name="steps.csv")])
+        return SimpleNamespace(result=result, fitter=fitter, model=model)
+
+    assert start_beyond_reach(check(0.9 * most), gain) is None
+    assert start_beyond_reach(check(-0.9 * most), gain) is None
+    for start in (1.1 * most, -1.1 * most):
+        beyond = start_beyond_reach(check(start), gain)
+        assert beyond is not None and beyond[0] == "steps.csv" and beyond[1] == start and beyond[2] == pytest.approx(most)
