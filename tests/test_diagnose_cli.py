@@ -38,6 +38,7 @@ def test_outputs_follow_the_spec(case_files, capsys, tmp_path, memoised_rounds):
                           str(case_files / "long_run.csv"), "--out", str(out_dir))
     assert code == 0, err
     assert "verdict: thermal_drift" in out
+    out_first = out
     doc = json.loads((out_dir / "diagnosis.json").read_text())
     _says_its_initial_state(doc, err, None, "estimated from the measured")
     for key, kind in (("verdict", list), ("explanation", str), ("located", list), ("located_after", list),
@@ -76,6 +77,12 @@ def test_outputs_follow_the_spec(case_files, capsys, tmp_path, memoised_rounds):
     rms = {n: float(np.sqrt(np.mean((read_recording(tmp_path / n).displacement_um - measured) ** 2)))
            for n in ("ext.csv", "base.csv")}
     assert rms["ext.csv"] < 0.5 * rms["base.csv"]
+    # the figure the command gives for the written model is what simulate gives over the scored samples
+    t = read_recording(case_files / "long_run.csv").time_s
+    scored = t >= t[0] + (doc["initial_state"][0]["not_scored_s"] or 0.0)
+    miss = read_recording(tmp_path / "ext.csv").displacement_um[scored] - measured[scored]
+    assert doc["rms_written_um"] == pytest.approx(float(np.sqrt(np.mean(miss ** 2))), rel=1e-4)
+    assert f"-> {doc['rms_written_um']:.4g} um over the scored samples" in out_first
     # and invert accepts it too
     t = np.arange(2000) / 1000.0
     ref = Recording({"time_s": t, "reference_um": 10 + 5 * np.sin(2 * np.pi * t), "stress_MPa": np.full(t.size, -15.0)},
@@ -134,6 +141,7 @@ def test_single_short_recording_says_what_cannot_be_concluded(case_files, capsys
     doc = json.loads((tmp_path / "o" / "diagnosis.json").read_text())
     assert doc["verdict"] == [] and doc["conclusive"] is False
     assert any("too little data" in s and "record" in s for s in doc["cannot_conclude"])
+    assert doc["rms_written_um"] is None and "run as `gma-ffc simulate`" not in out   # the base, as given
     assert (tmp_path / "o" / "extended_model.yaml").exists()
 
 

@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     from ..recordings import read_recording
     from ..diagnose.engine import diagnose
     from ..diagnose.report import write_outputs
-    from ..diagnose.results import rms_summary, verdict_words
+    from ..diagnose.results import rms_summary, verdict_words, written_summary
 
     if args.max_effects < 1:
         raise InputError(f"--max-effects must be at least 1, got {args.max_effects}")
@@ -100,6 +100,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"outcome: {doc['outcome']}: {words[doc['outcome']]}")
     print(f"verdict: {verdict_words(doc['verdict'], doc['tentative'])}")
     print(rms_summary(doc))
+    written = written_summary(doc)
+    if written:
+        print(written)
     print(f"identification recordings: {doc['identification']['note']}", file=sys.stderr)
     for state in doc["initial_state"]:
         print(f"initial state ({state['recording']}): {state['how']}", file=sys.stderr)

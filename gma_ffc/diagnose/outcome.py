@@ -3,13 +3,15 @@
 `assemble` reads the frozen `state.Problem` and `state.Final` and returns the `Diagnosis`: the
 outcome (`within_noise`, `effects_named`, `unexplained`, `inconclusive`), the candidates as the
 report lists them, where the named effects leave residual, the explanation and how it was
-validated. It fits nothing. Pure maths: no I/O.
+validated. It fits nothing, but for the start the written model is run from (`written.py`). Pure maths: no I/O.
 """
 
 from __future__ import annotations
 
 import math
 from typing import Any, Sequence
+
+import numpy as np
 
 from .. import effects as effect_registry
 from .anchor import anchor_words
@@ -22,6 +24,7 @@ from .results import Candidate, Diagnosis
 from .state import Final, Problem, RoundRecord, Selection
 from .polarity import displacement_inverted
 from .timing import displacement_lead
+from .written import written_rms
 
 
 def candidates(sel: Selection, unit: str = "A") -> dict[str, Candidate]:
@@ -109,12 +112,14 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
     ordered = sorted(cands.values(), key=lambda c: (not c.accepted, not c.testable,
                                                     c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
     rounds = [r.as_dict() for r in sel.rounds]
+    moved = any(not np.array_equal(yf, yb) for yf, yb in zip(final.final_pred, null.base_pred))
+    written = written_rms(final.extended, problem.data, selector.initial_state) if moved else math.nan
     return Diagnosis(outcome, verdict, explanation, list(null.located), ordered, null.rms_before,
                      math.sqrt(null.fit.cv_mse), math.sqrt(final.cv_mse), noise,
                      _validation(selector, problem, final, loo), conclusive,
                      cannot, final.extended, list(problem.data), list(null.base_pred), list(null.null_pred),
                      list(final.final_pred), rounds, rounds[0]["n_eff"] if rounds else float("nan"),
-                     str(selector.initial_state), after, problem.identification.to_json(), loo, tentative)
+                     str(selector.initial_state), after, problem.identification.to_json(), loo, tentative, written)
 
 
 def tentative_effects(verdict: list[str], outcome: str, sel: Selection, column_fault: bool) -> list[str]:

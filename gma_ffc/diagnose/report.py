@@ -21,7 +21,7 @@ import yaml
 from ..atomic import atomic_write_all
 from ..errors import FaultError
 from .data import unscored_spans
-from .results import Diagnosis, rms_summary
+from .results import Diagnosis, rms_summary, written_summary
 
 MODEL_FILE = "extended_model.yaml"
 
@@ -431,6 +431,9 @@ def render_html(dg: Diagnosis, doc: dict) -> str:
              f"<p><b>{e(summary[:1].upper() + summary[1:])}</b></p>"]
     if recalibrated:
         parts.append(f"<p><b>{e(recalibrated)}</b></p>")
+    written = written_summary(doc)
+    if written:
+        parts.append(f"<p>{e(written[:1].upper() + written[1:])}.</p>")
     # which recordings the base was identified on, and whether they were given: the command prints it
     # beside the outcome; a reader of the report alone would not know the data were the model's own
     parts.append(f"<p>Identification recordings: {e(doc['identification']['note'])}</p>")

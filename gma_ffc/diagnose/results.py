@@ -73,6 +73,7 @@ class Diagnosis:
     identification: dict = field(default_factory=dict)   # the identification recordings given (`--ident`), checked
     leave_one_out: dict = field(default_factory=dict)    # leave-one-recording-out figures (two or more recordings)
     tentative: list[str] = field(default_factory=list)   # the verdict's effects a look-alike fits as well (docs/cli.md)
+    rms_written_um: float = math.nan   # extended_model.yaml run as `simulate` runs it (`written.py`); NaN: it is the base
 
     def initial_states(self) -> list[dict]:
         """Per recording: the rule, how its state was chosen, and how long it is not scored."""
@@ -92,6 +93,7 @@ class Diagnosis:
             "rms_before_um": _round(self.rms_before_um),
             "rms_after_um": _round(self.rms_after_um),
             "rms_recalibrated_um": _round(self.rms_recalibrated_um),
+            "rms_written_um": _finite_or_none(self.rms_written_um),
             "noise_floor_um": _round(self.noise_um),
             "validation": self.validation,
             "conclusive": self.conclusive,
@@ -131,6 +133,15 @@ def rms_summary(doc: dict) -> str:
     if doc["initial_state"] and all(s["scored_share"] == 0 for s in doc["initial_state"]):
         return f"RMS {doc['rms_before_um']:.4g} um over every sample: none could be scored, so nothing was held out {floor}"
     return f"held-out RMS {doc['rms_before_um']:.4g} um -> {doc['rms_after_um']:.4g} um {floor}"
+
+
+def written_summary(doc: dict) -> str | None:
+    """How extended_model.yaml does as `gma-ffc simulate` runs it, or None when it is the base."""
+    if doc.get("rms_written_um") is None:
+        return None
+    return (f"extended_model.yaml, run as `gma-ffc simulate` runs it (from a start estimated on each recording, "
+            f"without the fit's per-recording terms): RMS {doc['rms_before_um']:.4g} um -> {doc['rms_written_um']:.4g} um "
+            "over the scored samples, not held out")
 
 
 def _finite_or_none(v: float) -> float | None:

@@ -1,0 +1,34 @@
+"""The extended model as written: how it does when run as `gma-ffc simulate` runs it.
+
+The selection judges each effect with terms a model file cannot carry: per recording, the creep
+its unknown history left under way at its start, each step of the sensor's zero, the start fitted
+through the effects. `extended_model.yaml` runs without them, from a start estimated on the
+measured displacement. `written_rms` is what a user then sees, over the samples the diagnosis
+scored, beside the base's own miss there ("before"). Pure maths: no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+
+from .data import RecData
+
+
+def written_rms(extended: Any, data: Sequence[RecData], rule: Any) -> float:
+    """RMS over the scored samples of `extended` simulated on each recording from the start `rule`
+    gives it (estimated on the measured displacement, as `gma-ffc simulate` does); NaN when no
+    sample is scored."""
+    squares, count = 0.0, 0
+    for d in data:
+        keep = d.mask
+        if not keep.any():
+            continue
+        stress = d.s if extended.stress_range_MPa is not None else None
+        start = extended.resolve_initial_state(d.u, stress, rule, d.y, d.t)
+        miss = (d.y - np.asarray(extended.simulate(d.t, d.u, stress, initial_state=start), dtype=float))[keep]
+        squares += float(np.dot(miss, miss))
+        count += int(miss.size)
+    return math.sqrt(squares / count) if count else math.nan
