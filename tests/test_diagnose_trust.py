@@ -334,3 +334,36 @@ def test_on_the_measured_piezo_a_later_session_is_predicted_no_worse_than_by_the
     assert rms["extended"] <= rms["base"] + 0.01 * float(np.ptp(y)), (dg.verdict, rms)
     if not dg.verdict:
         assert rms["extended"] == pytest.approx(rms["base"])
+
+
+def test_an_effect_the_leave_one_out_refused_is_said_with_the_run_that_would_test_it():
+    """hil_sim's realistic actuator, every kind of run together: heating took the held-out RMS from
+    0.877 to 0.493 um, and was refused as fitted without the one 240 s run it missed that run. The
+    outcome said nothing of heating. The note names that run, and for a slow effect whose time
+    constant is over half of every other run, asks for a second run as long; a fast effect's asks for
+    that run at other conditions. A round whose best was not refused says nothing."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.outcome import not_carried
+    from gma_ffc.diagnose.specs import LeaveOneOut
+    from gma_ffc.diagnose.state import LOO_REFUSED, RoundRecord
+
+    runs = [SimpleNamespace(name=name, t=np.array([0.0, seconds])) for name, seconds in
+            (("multifreq_3Hz.csv", 3.0), ("long_run.csv", 240.0), ("steps.csv", 72.0))]
+    without = LeaveOneOut(loss=(1.0, 1.0, 1.0), sse=(3.0, 240.0, 72.0), n=(3, 240, 72))
+    carried = LeaveOneOut(loss=(1.0, 9.0, 1.0), sse=(3.0, 240.0 * 16, 72.0), n=(3, 240, 72))
+
+    def note(effect, tau_s, decision):
+        record = RoundRecord(3, 100.0, 0.877, (("rate_dependence", 0.85, 163.0),), None,
+                             ((effect, 0.493, 3939.0, decision), ("rate_dependence", 0.85, 163.0, "not accepted")))
+        trial = SimpleNamespace(leave_one_out=carried, params={"tau_s": tau_s})
+        sel = SimpleNamespace(rounds=[record], trials={effect: trial}, leave_one_out=without)
+        return not_carried(SimpleNamespace(data=runs), sel)
+
+    slow = note("thermal_drift", 80.3, f"{LOO_REFUSED}: its law does not carry")
+    assert slow.startswith("thermal_drift: it takes the held-out RMS from 0.877 to 0.493 um")
+    assert "without long_run.csv it predicts long_run.csv worse" in slow and "(4 um against 1 um)" in slow
+    assert "over half of every other recording (the longest 72 s)" in slow and "a second run as long" in slow
+    fast = note("rate_dependence", 0.0, f"{LOO_REFUSED}: its law does not carry")
+    assert "a recording like long_run.csv at other conditions would test it" in fast and "second run" not in fast
+    assert note("thermal_drift", 80.3, "set aside, not its effect's signature: a drift") == ""

@@ -56,7 +56,7 @@ from .results import Diagnosis
 from .scoring import (Specs, build_extended, descend, effective_samples, loglik_gain, params_of, rezoom, score_round,
                       search_all)
 from .search import SearchResult, leave_one_out_search
-from .state import Final, Problem, RoundRecord, Selection, Trial
+from .state import LOO_REFUSED, Final, Problem, RoundRecord, Selection, Trial
 
 
 class EffectSelector:
@@ -854,7 +854,7 @@ def _restarted(core: Any, data: Sequence[Any], rule: Any) -> list[Any]:
 def _set_aside_words(failure: SignatureFailure, by_leave_one_out: bool) -> str:
     """What became of a round's winner set aside by a check, for the report's rounds table."""
     if by_leave_one_out:
-        return f"refused by the leave-one-recording-out: {failure.reason}"
+        return f"{LOO_REFUSED}: {failure.reason}"
     if failure.outside_class:
         return f"outside the model's class, so nothing is named: {failure.reason}"
     return f"set aside, not its effect's signature: {failure.reason}"

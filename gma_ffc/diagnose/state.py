@@ -84,6 +84,10 @@ class Trial:
         return self.result.cv_loss
 
 
+LOO_REFUSED = "refused by the leave-one-recording-out"
+"""How the decision on a round's winner the leave-one-recording-out refused begins (the note on it reads it)."""
+
+
 @dataclass(frozen=True)
 class RoundRecord:
     """What a round tried and decided (the report's table).
