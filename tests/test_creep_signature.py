@@ -26,6 +26,7 @@ class _Fit:
     dt_min = 1.0 / 2000.0
     duration_max = 30.0
     identification: tuple = ()          # no identification loops: creep's grid of twelve time constants
+    data: tuple = ()                    # no recording's start term to bound (`creep.start_beyond_reach`)
 
     def __init__(self, before: np.ndarray, after: np.ndarray) -> None:
         self.rate_rows = np.linspace(0.0, 10.0, N)     # the first 40 % of rows are the slowest
@@ -42,7 +43,7 @@ def _check(slow_cut: float, fast_cut: float, seed: int, tau_s: float = 3.0, gain
     after = before * np.where(slow, slow_cut, fast_cut)
     specs = ("after", "after", {Creep.name: tau_s})
     return Creep.signature(SignatureCheck(_Fit(before, after), None, ("before", "before", {}),
-                                          SimpleNamespace(specs=specs), {} if gain is None else {"gain": gain},
+                                          SimpleNamespace(specs=specs, names=[], coef_all=np.array([])), {} if gain is None else {"gain": gain},
                                           0.05, 0.8, 3.0))
 
 

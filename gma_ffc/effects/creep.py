@@ -167,15 +167,13 @@ def start_beyond_reach(check: SignatureCheck, gain: float) -> tuple[str, float, 
     creep) fitted -6.96 um at the start against 3.8 um at most, the heating's rise taken as creep
     dying away; the extended model file, which carries no start, then missed by 3.1 um."""
     coef = dict(zip(check.result.names, check.result.coef_all))
+    starts = [(d.name, float(coef.get(f"creep_start_{i}", 0.0))) for i, d in enumerate(check.fitter.data)]
+    name, start = max(starts, key=lambda pair: abs(pair[1]), default=("", 0.0))
+    if start == 0.0:
+        return None
     cores = check.fitter.core(check.result.specs[2])
-    stroke = max([float(np.ptp(yc)) for _, yc in cores if yc.size] + [_reach(check.model)])
-    most = abs(gain) * stroke
-    worst = None
-    for i, d in enumerate(check.fitter.data):
-        start = float(coef.get(f"creep_start_{i}", 0.0))
-        if abs(start) > most and (worst is None or abs(start) > abs(worst[1])):
-            worst = (d.name, start, most)
-    return worst
+    most = abs(gain) * max([float(np.ptp(yc)) for _, yc in cores if yc.size] + [_reach(check.model)])
+    return (name, start, most) if abs(start) > most else None
 
 
 def _reach(model: Any) -> float:
