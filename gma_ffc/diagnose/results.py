@@ -139,9 +139,9 @@ def written_summary(doc: dict) -> str | None:
     """How extended_model.yaml does as `gma-ffc simulate` runs it, or None when it is the base."""
     if doc.get("rms_written_um") is None:
         return None
-    return (f"extended_model.yaml, run as `gma-ffc simulate` runs it (from a start estimated on each recording, "
-            f"without the fit's per-recording terms): RMS {doc['rms_before_um']:.4g} um -> {doc['rms_written_um']:.4g} um "
-            "over the scored samples, not held out")
+    return ("the written model (extended_model.yaml), run as `gma-ffc simulate` runs it (from a start estimated on "
+            "each recording, without the fit's per-recording terms): "
+            f"RMS {doc['rms_before_um']:.4g} um -> {doc['rms_written_um']:.4g} um over the scored samples, not held out")
 
 
 def _finite_or_none(v: float) -> float | None:
