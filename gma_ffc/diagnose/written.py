@@ -1,8 +1,8 @@
 """The extended model as written: how it does when run as `gma-ffc simulate` runs it.
 
-The selection judges each effect with terms a model file cannot carry: per recording, the creep
-its unknown history left under way at its start, each step of the sensor's zero, the start fitted
-through the effects. `extended_model.yaml` runs without them, from a start estimated on the
+The selection judges each effect with terms a model file cannot carry: per recording, its
+sensor's zero and each step of it, the creep its unknown history left under way at its start, the
+start fitted through the effects. A drift the model lacks (heating) goes partly into them. `extended_model.yaml` runs without them, from a start estimated on the
 measured displacement. `written_rms` is what a user then sees, over the samples the diagnosis
 scored, beside the base's own miss there ("before"). Pure maths: no I/O.
 """
