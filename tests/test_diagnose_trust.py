@@ -220,7 +220,7 @@ def test_a_slow_run_ahead_of_a_model_whose_faster_runs_lag_is_not_a_column_fault
 
     def run(name, hz, shift):                  # shift > 0: the measurement `shift` samples ahead
         p = 1.5 - 1.5 * np.cos(2 * np.pi * hz * t) + 0.2 * np.sin(2 * np.pi * 2.3 * hz * t)
-        return SimpleNamespace(name=name, y=np.roll(p, -shift) + noise, u=p, dt_med=1 / fs, settled=0), p
+        return SimpleNamespace(name=name, y=np.roll(p, -shift) + noise, u=p, t=t, dt_med=1 / fs, settled=0), p
 
     slow_ahead, fast_behind, fast_ahead, slow_behind = (run("1Hz", 1, 4), run("10Hz", 10, -2),
                                                         run("10Hz", 10, 4), run("1Hz", 1, -2))

@@ -11,8 +11,6 @@ from __future__ import annotations
 import math
 from typing import Any, Sequence
 
-import numpy as np
-
 from .. import effects as effect_registry
 from .anchor import anchor_words
 from .data import none_scored, unscored_starts_note
@@ -112,8 +110,7 @@ def assemble(selector: Any, problem: Problem, final: Final) -> Diagnosis:
     ordered = sorted(cands.values(), key=lambda c: (not c.accepted, not c.testable,
                                                     c.cv_mse if math.isfinite(c.cv_mse) else math.inf))
     rounds = [r.as_dict() for r in sel.rounds]
-    moved = any(not np.array_equal(yf, yb) for yf, yb in zip(final.final_pred, null.base_pred))
-    written = written_rms(final.extended, problem.data, selector.initial_state) if moved else math.nan
+    written = math.nan if final.base_kept else written_rms(final.extended, problem.data, selector.initial_state)
     return Diagnosis(outcome, verdict, explanation, list(null.located), ordered, null.rms_before,
                      math.sqrt(null.fit.cv_mse), math.sqrt(final.cv_mse), noise,
                      _validation(selector, problem, final, loo), conclusive,
@@ -216,11 +213,14 @@ def not_carried(problem: Problem, sel: Selection) -> str:
         return ""
     effect, rms = refused[0][0], refused[0][1]
     without, carried = sel.leave_one_out, trial.leave_one_out
-    k = max(range(len(problem.data)), key=lambda i: carried.sse[i] - without.sse[i])
+    judged = [i for i in range(len(problem.data)) if carried.n[i] > 0 and without.n[i] > 0]
+    if not judged:
+        return ""
+    k = max(judged, key=lambda i: carried.sse[i] - without.sse[i])
     name = problem.data[k].name
     words = (f"{effect}: it takes the held-out RMS from {last.current_rms_um:.4g} to {rms:.4g} um, but fitted without "
-             f"{name} it predicts {name} worse than the model without it ({_root_mean(carried.sse[k], carried.n[k]):.4g} um "
-             f"against {_root_mean(without.sse[k], without.n[k]):.4g} um): its law is not shown to carry, so it is not named")
+             f"{name} it predicts {name} worse than the model without it ({_rms(carried.sse[k], carried.n[k]):.4g} um "
+             f"against {_rms(without.sse[k], without.n[k]):.4g} um): its law is not shown to carry, so it is not named")
     durations = [float(d.t[-1] - d.t[0]) for d in problem.data]
     tau = float(trial.params.get("tau_s", 0.0))
     others = max((dur for i, dur in enumerate(durations) if i != k), default=0.0)
@@ -229,10 +229,6 @@ def not_carried(problem: Problem, sel: Selection) -> str:
                 f"{others:.3g} s), so {name} ({durations[k]:.3g} s) alone sets it: record a second run as long, at "
                 "another drive level, to test its law on a run it was not fitted on")
     return words + f"; a recording like {name} at other conditions would test it"
-
-
-def _root_mean(sse: float, n: int) -> float:
-    return math.sqrt(sse / max(n, 1))
 
 
 def short_of_the_margin(selector: Any, problem: Problem, sel: Selection) -> str:

@@ -14,6 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..drive import loop_frequency_hz
 from .data import RecData
 
 LEAD_MIN_SAMPLES = 2
@@ -66,8 +67,9 @@ def displacement_lead(data: Sequence[RecData], predictions: Sequence[np.ndarray]
     leads = [(d, sh) for d, sh in clear if sh.k > 0]
     if not leads:
         return None
-    lag_rates = [_drive_rate(d) for d, sh in clear if sh.k < 0]
-    leads = [(d, sh) for d, sh in leads if not (lag_rates and _lag_grows_with_rate(_drive_rate(d), lag_rates))]
+    lag_rates = [loop_frequency_hz(d.t, d.u) for d, sh in clear if sh.k < 0]
+    if lag_rates:
+        leads = [(d, sh) for d, sh in leads if not _lag_grows_with_rate(loop_frequency_hz(d.t, d.u), lag_rates)]
     if not leads:
         return None
     d, sh = max(leads, key=lambda pair: pair[1].share)
@@ -79,16 +81,9 @@ def _lag_grows_with_rate(rate: float, lag_rates: Sequence[float]) -> bool:
     (eddy currents, a delay) is read as loop width by an identification at one rate: recordings
     slower than the loops then lead the model, faster ones lag it (hil_sim's eddy currents and 1 ms
     delay, identified at 3 Hz: 1 Hz 1.9 ms ahead, 10-50 Hz 0.8-1 ms behind). A late drive column
-    shifts every recording the same way, so a lead beside faster lags is not one."""
+    shifts every recording the same way, so a lead beside faster lags is not one. Rates are loops a
+    second (`drive.loop_frequency_hz`); a NaN one (fewer than two turns) is neither faster nor slower."""
     return any(r > rate for r in lag_rates)
-
-
-def _drive_rate(d: RecData) -> float:
-    """How fast the drive moves: spans a second (its mean |du/dt| over its peak-to-peak; a 0-3 A sine
-    at f Hz gives 2f)."""
-    u = np.asarray(d.u, dtype=float)
-    span = float(np.ptp(u)) if u.size else 0.0
-    return float(np.mean(np.abs(np.diff(u)))) / d.dt_med / span if span > 0 else 0.0
 
 
 def _best_shift(d: RecData, p: np.ndarray) -> _Shift | None:

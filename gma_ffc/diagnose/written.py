@@ -27,8 +27,8 @@ def written_rms(extended: Any, data: Sequence[RecData], rule: Any) -> float:
         if not keep.any():
             continue
         stress = d.s if extended.stress_range_MPa is not None else None
-        start = extended.resolve_initial_state(d.u, stress, rule, d.y, d.t)
-        miss = (d.y - np.asarray(extended.simulate(d.t, d.u, stress, initial_state=start), dtype=float))[keep]
+        predicted = extended.simulate(d.t, d.u, stress, initial_state=rule, measured_um=d.y)
+        miss = (d.y - np.asarray(predicted, dtype=float))[keep]
         squares += float(np.dot(miss, miss))
         count += int(miss.size)
     return math.sqrt(squares / count) if count else math.nan
