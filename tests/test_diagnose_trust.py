@@ -367,3 +367,64 @@ def test_an_effect_the_leave_one_out_refused_is_said_with_the_run_that_would_tes
     fast = note("rate_dependence", 0.0, f"{LOO_REFUSED}: its law does not carry")
     assert "a recording like long_run.csv at other conditions would test it" in fast and "second run" not in fast
     assert note("thermal_drift", 80.3, "set aside, not its effect's signature: a drift") == ""
+
+
+def _runs(*spans):
+    from types import SimpleNamespace
+    return tuple(SimpleNamespace(name=name, duration_s=seconds) for name, seconds in spans)
+
+
+def test_a_slow_effects_law_is_judged_without_the_fold_only_one_run_is_long_enough_to_set(monkeypatch):
+    """hil_sim's realistic actuator, every kind of run: heating (80 s) fitted without the one 240 s run
+    extrapolated its time constant and missed that run by 5.96 um; the others are at most 73 s. That
+    fold tests nothing, so the law is judged on the others. Where two runs can set the time constant,
+    or the effect is not slow, every fold still counts and the same figures refuse it."""
+    from types import SimpleNamespace
+
+    import gma_ffc.diagnose.selection as selection
+    from gma_ffc.diagnose.specs import LeaveOneOut
+    from gma_ffc.diagnose.state import Problem, Trial
+    from gma_ffc.effects import REGISTRY
+
+    without = LeaveOneOut(loss=(3.0, 240.0, 72.0), sse=(3.0, 240.0, 72.0), n=(3, 240, 72))
+    carried = LeaveOneOut(loss=(2.0, 240.0 * 36, 40.0), sse=(2.0, 240.0 * 36, 40.0), n=(3, 240, 72))
+    monkeypatch.setattr(selection, "leave_one_out_search", lambda *args: carried)
+    for cls in REGISTRY.values():
+        monkeypatch.setattr(cls, "grid", classmethod(lambda cls, fitter: []))
+
+    def judged(effect, tau_s, *spans):
+        problem = SimpleNamespace(data=_runs(*spans), fitter=None)
+        problem.sole_setter = lambda tau: Problem.sole_setter(problem, tau)
+        trial = Trial(effect, SimpleNamespace(specs=(None, None, None)), {"tau_s": tau_s}, 3)
+        return selection.EffectSelector()._carries_over(problem, SimpleNamespace(leave_one_out=without), trial)
+
+    one_long = (("multifreq_3Hz.csv", 3.0), ("long_run.csv", 240.0), ("steps.csv", 72.0))
+    trial, why = judged("thermal_drift", 80.3, *one_long)
+    assert why == "" and trial.untested_fold == 1 and trial.leave_one_out.n == (3, 0, 72)
+    two_long = (("multifreq_3Hz.csv", 3.0), ("long_run.csv", 240.0), ("steps.csv", 180.0))
+    trial, why = judged("thermal_drift", 80.3, *two_long)
+    assert "does not carry" in why and trial.untested_fold is None
+    trial, why = judged("rate_dependence", 80.3, *one_long)
+    assert "does not carry" in why and trial.untested_fold is None
+
+
+def test_a_named_slow_effect_whose_law_one_run_alone_could_set_says_so():
+    """The leave-one-out skipped that run's fold: the report says the law was tested on the others
+    only, and asks for a second run as long. A time constant two runs can set says nothing."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.outcome import untested_folds
+    from gma_ffc.diagnose.specs import LeaveOneOut
+    from gma_ffc.diagnose.state import Problem
+
+    def notes(tau_s, *spans):
+        problem = SimpleNamespace(data=_runs(*spans))
+        problem.sole_setter = lambda tau: Problem.sole_setter(problem, tau)
+        trial = SimpleNamespace(params={"tau_s": tau_s})
+        sel = SimpleNamespace(accepted=("time_delay", "thermal_drift"), trials={"thermal_drift": trial},
+                              leave_one_out=LeaveOneOut((1.0,), (1.0,), (1,)))
+        return untested_folds(problem, SimpleNamespace(selection=sel, base_kept=False))
+
+    said = notes(80.3, ("steps.csv", 72.0), ("long_run.csv", 240.0))
+    assert len(said) == 1 and "other than long_run.csv only" in said[0] and "a second run as long" in said[0]
+    assert notes(30.0, ("steps.csv", 72.0), ("long_run.csv", 240.0)) == []

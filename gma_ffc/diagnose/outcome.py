@@ -176,7 +176,8 @@ def _cannot_conclude(selector: Any, problem: Problem, final: Final) -> list[str]
     small = short_of_the_margin(selector, problem, final.selection)
     weak = short_of_the_evidence(selector, problem, final.selection)
     uncarried = not_carried(problem, final.selection)
-    cannot = list(final.cannot) + [note for note in (uncarried, small, weak, starts) if note]
+    cannot = list(final.cannot) + untested_folds(problem, final) + [
+        note for note in (uncarried, small, weak, starts) if note]
     if not problem.identification.given:
         lost = [(cls.name, cls.lost_without_identification(problem.fitter)) for cls in effect_registry.candidates()]
         cannot += [f"{name}: {why}" for name, why in lost if why]
@@ -229,6 +230,29 @@ def not_carried(problem: Problem, sel: Selection) -> str:
                 f"{others:.3g} s), so {name} ({durations[k]:.3g} s) alone sets it: record a second run as long, at "
                 "another drive level, to test its law on a run it was not fitted on")
     return words + f"; a recording like {name} at other conditions would test it"
+
+
+def untested_folds(problem: Problem, final: Final) -> list[str]:
+    """A note per named slow effect whose leave-one-recording-out skipped a fold: one recording alone
+    is long enough to set its time constant (`Problem.sole_setter`), so its law was tested on the
+    other recordings only. The user hears which, and the run that would test it."""
+    sel = final.selection
+    if final.base_kept or sel.leave_one_out is None:
+        return []
+    notes = []
+    for name in sel.accepted:
+        trial = sel.trials.get(name)
+        if trial is None or not effect_registry.REGISTRY[name].slow:
+            continue
+        tau = float(trial.params.get("tau_s", math.inf))
+        k = problem.sole_setter(tau)
+        if k is not None:
+            d = problem.data[k]
+            notes.append(f"{name}: its law was tested on the recordings other than {d.name} only. That run "
+                         f"({d.duration_s:.3g} s) alone lasts two of its time constants ({tau:.3g} s), so fitted "
+                         "without it the time constant is extrapolated, not tested. Record a second run as long, "
+                         "at another drive level, to test the law on a run it was not fitted on")
+    return notes
 
 
 def short_of_the_margin(selector: Any, problem: Problem, sel: Selection) -> str:

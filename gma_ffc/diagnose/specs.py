@@ -129,6 +129,12 @@ class LeaveOneOut:
     def mse(self) -> float:
         return sum(self.sse) / max(sum(self.n), 1)
 
+    def without(self, k: int) -> "LeaveOneOut":
+        """The same figures with recording `k`'s left out of the pool (a recording whose fold tests
+        nothing: see `Problem.sole_setter`)."""
+        drop = lambda xs, zero: tuple(zero if i == k else x for i, x in enumerate(xs))  # noqa: E731
+        return LeaveOneOut(drop(self.loss, 0.0), drop(self.sse, 0.0), drop(self.n, 0), self.params)
+
     @classmethod
     def of(cls, parts: Sequence[LeftOut], params: Sequence[Any] = ()) -> "LeaveOneOut":
         return cls(tuple(p.loss for p in parts), tuple(p.sse for p in parts), tuple(p.n for p in parts),
