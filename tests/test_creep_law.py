@@ -154,3 +154,32 @@ def test_a_start_term_beyond_what_creep_can_hold_fails_creeps_signature():
     for start in (1.1 * most, -1.1 * most):
         beyond = start_beyond_reach(check(start), gain)
         assert beyond is not None and beyond[0] == "steps.csv" and beyond[1] == start and beyond[2] == pytest.approx(most)
+
+
+def test_creep_beside_heating_searches_heatings_time_constant_again(monkeypatch):
+    """Beside creep, heating keeps one time constant: its faster part and creep are look-alikes. A
+    heating fitted before creep joined had split into a slow part (343 s) and a part 8x faster (43 s,
+    the plant's 60 s); left at 343 s, creep beside it was worse than none (0.148 against 0.100 um held
+    out) and was never named. Creep's search now tries heating's time constant from its faster
+    part's to its own, and never faster than heating can be."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose import scoring
+    from gma_ffc.diagnose.specs import Spec
+    from gma_ffc.effects import REGISTRY
+    from gma_ffc.effects.thermal import MIN_THERMAL_TAU_S, THERMAL_FAST_RATIO
+
+    seen = {}
+
+    def fake_search(fitter, base, make, grid, refine=None, *args, **kwargs):
+        seen["specs"] = [make(base[2], p) for p in grid]
+        return SimpleNamespace(specs=base)
+
+    monkeypatch.setattr(scoring, "search", fake_search)
+    monkeypatch.setattr(REGISTRY["creep"], "grid", classmethod(lambda cls, fitter: [3.0, 30.0]))
+    for heating_tau in (343.0, 40.0):
+        heated = Spec({"thermal_drift": heating_tau})
+        scoring._search_one(SimpleNamespace(), (heated, heated, heated), "creep", 1)
+        taus = {s["thermal_drift"] for s in seen["specs"]}
+        assert {s["creep"] for s in seen["specs"]} == {3.0, 30.0}
+        assert heating_tau in taus and min(taus) == max(heating_tau * THERMAL_FAST_RATIO, MIN_THERMAL_TAU_S)

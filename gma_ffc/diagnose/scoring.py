@@ -107,9 +107,10 @@ def search_all(fitter: Fitter, base: Specs, names: list[str], workers: int) -> d
 
 
 def _search_one(fitter: Fitter, base: Specs, name: str, workers: int) -> SearchResult:
-    """One effect searched on top of `base`: its own search, or jointly with a look-alike already in it."""
+    """One effect searched on top of `base`: its own search, or jointly with a look-alike already in it
+    (or an effect whose fit its arrival reshapes: `rescales`)."""
     cls = REGISTRY[name]
-    partner = next((p for p in cls.joint_with if p in base[2]), None)
+    partner = next((p for p in cls.joint_with + cls.rescales if p in base[2]), None)
     if partner is None:
         return _own_search(fitter, base, name, workers)
 

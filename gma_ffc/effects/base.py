@@ -281,6 +281,9 @@ class Effect(Protocol):
                                             # or slow state, held at its reference on those loops
     joint_with: ClassVar[tuple[str, ...]]   # look-alikes: the first accepted has its parameter re-searched with this one
                                             # (scaled by the look-alike's `scaled_for_partner`)
+    rescales: ClassVar[tuple[str, ...]]     # not look-alikes, but accepted effects whose fit changes shape when this
+                                            # one joins: their parameter is re-searched with it, as a look-alike's is
+                                            # (no swap-pass rivalry follows from it)
     joint_scales: ClassVar[tuple[float, ...]]   # the grid's scales of that parameter (the zoom refines them)
     joint_refit: ClassVar[bool]             # True: beside a look-alike tried with it, its own parameters are
                                             # searched again as well (`scoring._descend`): one scale is not enough
@@ -434,6 +437,7 @@ class EffectBase:
     slow: ClassVar[bool] = False
     follows_drive: ClassVar[bool] = False
     joint_with: ClassVar[tuple[str, ...]] = ()
+    rescales: ClassVar[tuple[str, ...]] = ()
     joint_scales: ClassVar[tuple[float, ...]] = (0.3, 0.55, 0.8, 1.0)   # the look-alike's parameter, scaled
     joint_refit: ClassVar[bool] = False
     deciders: ClassVar[Mapping[str, str]] = {}

@@ -69,6 +69,11 @@ class Thermal(EffectBase):
         return [max(q, MIN_THERMAL_TAU_S) for q in geom_refine(p, grid_ratio(1, 10, 12), level)]
 
     @classmethod
+    def scaled_for_partner(cls, p: Any, k: float) -> Any:
+        """Its time constant scaled by k beside creep (`Creep.rescales`), no faster than heating is."""
+        return max(p * k, MIN_THERMAL_TAU_S)
+
+    @classmethod
     def columns(cls, fitter: FitData, r: Regressors, p: Any) -> None:
         d = r.d
         r.cols.append(K.lag_filter(d.u * d.u, d.dt, p, 0.0))
