@@ -340,8 +340,9 @@ def test_an_effect_the_leave_one_out_refused_is_said_with_the_run_that_would_tes
     """hil_sim's realistic actuator, every kind of run together: heating took the held-out RMS from
     0.877 to 0.493 um, and was refused as fitted without the one 240 s run it missed that run. The
     outcome said nothing of heating. The note names that run, and for a slow effect whose time
-    constant is over half of every other run, asks for a second run as long; a fast effect's asks for
-    that run at other conditions. A round whose best was not refused says nothing."""
+    constant is over half of every run, asks for a run of two of them; otherwise (and for a fast
+    effect) for that run at other conditions. A round whose best was not refused says nothing. (That
+    240 s run's fold is no longer counted: the next test.)"""
     from types import SimpleNamespace
 
     from gma_ffc.diagnose.outcome import not_carried
@@ -360,10 +361,12 @@ def test_an_effect_the_leave_one_out_refused_is_said_with_the_run_that_would_tes
         sel = SimpleNamespace(rounds=[record], trials={effect: trial}, leave_one_out=without)
         return not_carried(SimpleNamespace(data=runs), sel)
 
-    slow = note("thermal_drift", 80.3, f"{LOO_REFUSED}: its law does not carry")
+    slow = note("thermal_drift", 150.0, f"{LOO_REFUSED}: its law does not carry")
     assert slow.startswith("thermal_drift: it takes the held-out RMS from 0.877 to 0.493 um")
     assert "without long_run.csv it predicts long_run.csv worse" in slow and "(4 um against 1 um)" in slow
-    assert "over half of every other recording (the longest 72 s)" in slow and "a second run as long" in slow
+    assert "over half of every recording (the longest 240 s)" in slow and "a run of 300 s or more" in slow
+    settable = note("thermal_drift", 80.3, f"{LOO_REFUSED}: its law does not carry")
+    assert "at other conditions would test it" in settable and "or more" not in settable
     fast = note("rate_dependence", 0.0, f"{LOO_REFUSED}: its law does not carry")
     assert "a recording like long_run.csv at other conditions would test it" in fast and "second run" not in fast
     assert note("thermal_drift", 80.3, "set aside, not its effect's signature: a drift") == ""
@@ -395,7 +398,7 @@ def test_a_slow_effects_law_is_judged_without_the_fold_only_one_run_is_long_enou
     def judged(effect, tau_s, *spans):
         problem = SimpleNamespace(data=_runs(*spans), fitter=None)
         problem.sole_setter = lambda tau: Problem.sole_setter(problem, tau)
-        trial = Trial(effect, SimpleNamespace(specs=(None, None, None)), {"tau_s": tau_s}, 3)
+        trial = Trial(effect, SimpleNamespace(specs=(None, None, {effect: tau_s})), {"tau_s": tau_s}, 3)
         return selection.EffectSelector()._carries_over(problem, SimpleNamespace(leave_one_out=without), trial)
 
     one_long = (("multifreq_3Hz.csv", 3.0), ("long_run.csv", 240.0), ("steps.csv", 72.0))

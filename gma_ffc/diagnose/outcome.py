@@ -202,11 +202,10 @@ def not_carried(problem: Problem, sel: Selection) -> str:
     """A note on the last round's best fit when the leave-one-recording-out refused it ('' otherwise):
     it fitted the held-out blocks better than what the round kept, but fitted without one recording it
     predicted that one worse. The user hears which recording, and what would test the law. A slow
-    effect whose time constant is over half of every other recording is set by that one alone (the
-    grid rule of creep: a time constant beyond half a recording is a drift it cannot tell from
-    another): fitted without it, the law is extrapolated, not tested. hil_sim's realistic actuator,
-    every kind of run together: heating took 0.877 -> 0.493 um held out, refused as its 80 s time
-    constant, fitted without the one 240 s run, missed that run; nothing said so."""
+    effect whose time constant is over half of every recording is set by none of them (the grid rule
+    of creep: a time constant beyond half a recording is a drift it cannot tell from another): the
+    note asks for a run that lasts two of them. (A run that alone lasts two is not a test of the law
+    when left out, and its fold is not counted: `Problem.sole_setter`.)"""
     last = _last_round_unaccepted(sel)
     refused = [row for row in (last.scored if last else ()) if row[3].startswith(LOO_REFUSED)]
     trial = sel.trials.get(refused[0][0]) if refused else None
@@ -222,13 +221,11 @@ def not_carried(problem: Problem, sel: Selection) -> str:
     words = (f"{effect}: it takes the held-out RMS from {last.current_rms_um:.4g} to {rms:.4g} um, but fitted without "
              f"{name} it predicts {name} worse than the model without it ({_rms(carried.sse[k], carried.n[k]):.4g} um "
              f"against {_rms(without.sse[k], without.n[k]):.4g} um): its law is not shown to carry, so it is not named")
-    durations = [float(d.t[-1] - d.t[0]) for d in problem.data]
+    longest = max(float(d.t[-1] - d.t[0]) for d in problem.data)
     tau = float(trial.params.get("tau_s", 0.0))
-    others = max((dur for i, dur in enumerate(durations) if i != k), default=0.0)
-    if effect_registry.REGISTRY[effect].slow and tau > 0.5 * others:
-        return (words + f". Its time constant ({tau:.3g} s) is over half of every other recording (the longest "
-                f"{others:.3g} s), so {name} ({durations[k]:.3g} s) alone sets it: record a second run as long, at "
-                "another drive level, to test its law on a run it was not fitted on")
+    if effect_registry.REGISTRY[effect].slow and 2.0 * tau > longest:
+        return (words + f". Its time constant ({tau:.3g} s) is over half of every recording (the longest "
+                f"{longest:.3g} s), so none of them sets it: record a run of {2.0 * tau:.3g} s or more to test its law")
     return words + f"; a recording like {name} at other conditions would test it"
 
 

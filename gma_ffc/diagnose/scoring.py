@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 from scipy import special
@@ -106,13 +106,23 @@ def search_all(fitter: Fitter, base: Specs, names: list[str], workers: int) -> d
         return dict(zip(names, pool.map(one, names)))
 
 
-def _search_one(fitter: Fitter, base: Specs, name: str, workers: int) -> SearchResult:
+def search_variant(fitter: Fitter, base: Specs, name: str, variant: Callable[[Any], Any], workers: int) -> SearchResult:
+    """`name` searched on top of `base` again, every point of its grid in the form `variant` gives
+    (`SignatureFailure.variant`: creep from rest); made once per fitter, as every search is."""
+    return fitter.searched(("search", base, name, variant),
+                           lambda: _search_one(fitter, base, name, workers, variant))
+
+
+def _search_one(fitter: Fitter, base: Specs, name: str, workers: int,
+                variant: Callable[[Any], Any] | None = None) -> SearchResult:
     """One effect searched on top of `base`: its own search, or jointly with a look-alike already in it
-    (or an effect whose fit its arrival reshapes: `rescales`)."""
+    (or an effect whose fit its arrival reshapes: `rescales`); each grid point in the form `variant`
+    gives, when given (its refine keeps that form)."""
     cls = REGISTRY[name]
+    own_grid = [variant(p) for p in cls.grid(fitter)] if variant is not None else list(cls.grid(fitter))
     partner = next((p for p in cls.joint_with + cls.rescales if p in base[2]), None)
     if partner is None:
-        return _own_search(fitter, base, name, workers)
+        return _own_search(fitter, base, name, workers, points=own_grid)
 
     # look-alikes trade off against each other: re-search the accepted one's value with the new one
     def make_joint(s: Spec, p: Any) -> Spec:
@@ -123,21 +133,22 @@ def _search_one(fitter: Fitter, base: Specs, name: str, workers: int) -> SearchR
         out = [(q, p[1]) for q in own] if own is not None else []
         return out + [(p[0], min(p[1] * m, 1.5)) for m in geom_refine(1.0, 1.6, level)]
 
-    grid = [(p, k) for p in cls.grid(fitter) for k in cls.joint_scales]
+    grid = [(p, k) for p in own_grid for k in cls.joint_scales]
     found = search(fitter, base, make_joint, grid, refine, workers=workers)
     return _descend(fitter, base, found, name, partner, workers) if REGISTRY[partner].joint_refit else found
 
 
 def _own_search(fitter: Fitter, base: Specs, name: str, workers: int, start: Any = None,
-                grid: bool = True) -> SearchResult:
-    """One effect's own search on top of `base` (its grid, zoom and polish), from `start` as well
-    when given; without its grid, the zoom from `start` alone."""
+                grid: bool = True, points: Sequence[Any] | None = None) -> SearchResult:
+    """One effect's own search on top of `base` (its grid, or the `points` given, then zoom and
+    polish), from `start` as well when given; without its grid, the zoom from `start` alone."""
     cls = REGISTRY[name]
 
     def make(s: Spec, p: Any) -> Spec:
         return s.with_(name, p)
 
-    points = ([] if start is None else [start]) + (list(cls.grid(fitter)) if grid else [])
+    own = list(cls.grid(fitter)) if points is None else list(points)
+    points = ([] if start is None else [start]) + (own if grid else [])
     return search(fitter, base, make, points, cls.refine, cls.zoom_levels, cls.polish, workers, cls.after_polish)
 
 

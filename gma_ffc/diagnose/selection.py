@@ -54,7 +54,7 @@ from .problem import setup
 from .rebase import reidentify_through
 from .results import Diagnosis
 from .scoring import (Specs, build_extended, descend, effective_samples, loglik_gain, params_of, rezoom, score_round,
-                      search_all)
+                      search_all, search_variant)
 from .search import SearchResult, leave_one_out_search
 from .state import LOO_REFUSED, Final, Problem, RoundRecord, Selection, Trial
 
@@ -297,6 +297,15 @@ class EffectSelector:
         # once another effect is accepted, it is tried again on top of it
         while ok:
             failure = self.signature_failure(problem, sel.fit.specs, best)
+            if failure is not None and failure.variant is not None:     # its fit in another form first
+                retried = self._retried(problem, sel, best, failure.variant, n_eff)
+                trials = sorted([retried] + trials[1:], key=lambda t: t.cv_loss)
+                scored = tuple(sorted((retried if t.effect == retried.effect else t for t in scored),
+                                      key=lambda t: t.cv_loss))
+                sel = dataclasses.replace(sel, trials={**sel.trials, retried.effect: retried})
+                best = trials[0]
+                ok = self.accepts(best, sel.cur_loss, problem.noise)
+                continue
             if failure is None:
                 best, why = self._carries_over(problem, sel, best)
                 trials = [best] + trials[1:]
@@ -328,6 +337,17 @@ class EffectSelector:
         return dataclasses.replace(sel.readmitted(), accepted=sel.accepted + (best.effect,), fit=best.result,
                                    ambiguous=ambiguous, undecided=sel.undecided + _undecided(best, refused),
                                    leave_one_out=problem.leave_one_out(best.result.specs[2])), True
+
+    def _retried(self, problem: Problem, sel: Selection, trial: Trial, variant: Callable[[Any], Any],
+                 n_eff: float) -> Trial:
+        """A round's trial whose fit failed its signature in a way another form of its search point
+        avoids (`SignatureFailure.variant`), searched again in that form and scored as the round
+        scores: creep whose start terms held a drift, from rest."""
+        fitter = problem.fitter
+        result = search_variant(fitter, sel.fit.specs, trial.effect, variant, self.threads_)
+        gain = loglik_gain(n_eff, sel.cur_loss, result.cv_loss, REGISTRY[trial.effect].count_params(fitter))
+        params = params_of(fitter, trial.effect, result.specs[2], result.coef_all, result.names)
+        return Trial(trial.effect, result, params, trial.round, gain)
 
     def _alike(self, best: Trial, runner_up: Trial) -> bool:
         """Is a round's runner-up significant and within `ambiguous_nats` of its best (a look-alike the
@@ -456,7 +476,8 @@ class EffectSelector:
         cls = REGISTRY[best.effect]
         # on the round's fit of it: a look-alike it was searched jointly with (`joint_with`) as rescaled there
         loo = leave_one_out_search(problem.fitter, best.result.specs[2], lambda s, p: s.with_(best.effect, p),
-                                   cls.grid(problem.fitter), cls.refine, getattr(cls, "zoom_levels", 3))
+                                   cls.grid_like(problem.fitter, best.result.specs[2][best.effect]), cls.refine,
+                                   getattr(cls, "zoom_levels", 3))
         without = sel.leave_one_out
         skip = problem.sole_setter(float(best.params.get("tau_s", math.inf))) if cls.slow else None
         if skip is not None:              # that fold extrapolates a time constant; the others test the law

@@ -9,6 +9,7 @@ selection pass between them.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, Iterable, Iterator, Mapping, Sequence
@@ -22,6 +23,8 @@ def _plain(p: Any) -> Any:
         return bool(p)
     if isinstance(p, (tuple, list, np.ndarray)):
         return tuple(float(v) for v in p)
+    if dataclasses.is_dataclass(p) and not isinstance(p, type):    # a point's form (creep from rest): its fields plain
+        return dataclasses.replace(p, **{f.name: _plain(getattr(p, f.name)) for f in dataclasses.fields(p)})
     return float(p)
 
 

@@ -258,6 +258,9 @@ class SignatureFailure:
 
     reason: str
     outside_class: bool = False
+    # a form of the effect's search point the fit may take instead, searched again before the effect is
+    # set aside (creep from rest, `creep.FromRest`); None: none
+    variant: Callable[[Any], Any] | None = None
 
 
 class Effect(Protocol):
@@ -335,6 +338,10 @@ class Effect(Protocol):
     @classmethod
     def count_params(cls, fitter: FitData) -> int:
         """Parameters the block adds on this diagnosis (nonlinear and gains): the likelihood penalty."""
+
+    @classmethod
+    def grid_like(cls, fitter: FitData, p: Any) -> Any:
+        """Its grid in the form of the search point `p` (a variant's, see `SignatureFailure.variant`)."""
 
     @classmethod
     def lost_without_identification(cls, fitter: FitData) -> str:
@@ -491,6 +498,16 @@ class EffectBase:
     def count_params(cls, fitter: FitData) -> int:
         """Parameters the block adds on this diagnosis (the likelihood penalty): `n_params`."""
         return cls.n_params
+
+    @classmethod
+    def grid(cls, fitter: FitData) -> Any:
+        """Its search points: every candidate effect gives its own."""
+        raise NotImplementedError(f"{cls.__name__} has no search grid")
+
+    @classmethod
+    def grid_like(cls, fitter: FitData, p: Any) -> Any:
+        """Its grid in the form of the search point `p` (a variant's, see `SignatureFailure.variant`)."""
+        return cls.grid(fitter)
 
     @classmethod
     def lost_without_identification(cls, fitter: FitData) -> str:
