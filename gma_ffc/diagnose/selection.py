@@ -482,7 +482,7 @@ class EffectSelector:
         skip = problem.sole_setter(float(best.params.get("tau_s", math.inf))) if cls.slow else None
         if skip is not None:              # that fold extrapolates a time constant; the others test the law
             without, loo = without.without(skip), loo.without(skip)
-        best = dataclasses.replace(best, leave_one_out=loo, untested_fold=skip)
+        best = dataclasses.replace(best, leave_one_out=loo)
         if loo.loss_per_sample < without.loss_per_sample:
             return best, ""
         return best, (f"fitted on the other recordings, it does not improve the one left out (leave-one-recording-"

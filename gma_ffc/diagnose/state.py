@@ -84,8 +84,6 @@ class Trial:
     round: int
     loglik_gain: float = math.nan
     leave_one_out: LeaveOneOut | None = None     # its law judged on each recording it was not fitted on
-    untested_fold: int | None = None             # the one recording whose fold could not test its law (a
-    # slow effect's time constant only it is long enough to set: `Problem.sole_setter`)
 
     @property
     def cv_mse(self) -> float:

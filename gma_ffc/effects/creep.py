@@ -10,10 +10,10 @@ import numpy as np
 from scipy import optimize
 
 from ..model_reach import model_reach_um
-from .thermal import THERMAL_FAST_RATIO
 from . import kernels as K
 from .base import (BatchSignals, CoreAround, EffectBase, FitData, Regressors, SignatureCheck, SignatureFailure,
                    StepSignals, finite, geom_refine, grid_ratio, positive, time_steps)
+from .thermal import THERMAL_FAST_RATIO
 
 CREEP_SPREAD = (0.1, 1.0, 10.0)   # time constants relative to tau_s: a distributed (log-like) relaxation
 MIN_CREEP_TAU_S = 1.0             # creep's central time constant (its components span 0.1x..10x of it)
@@ -50,7 +50,8 @@ class Creep(EffectBase):
     # part 8x faster; left at the slow one, creep could not join: hil_sim's heating (60 s) and creep
     # on one 240 s run, heating at 343 s plus 43 s, was 0.100 um held out, and 0.148-0.45 um with
     # creep beside its slow part alone. So heating's time constant is searched again with creep, from
-    # its faster part's (1/8) to its own.
+    # its faster part's (1/8) to its own, with the two's geometric middle (0.35) between; the zoom
+    # refines the scale.
     rescales: ClassVar[tuple[str, ...]] = ("thermal_drift",)
     joint_scales: ClassVar[tuple[float, ...]] = (THERMAL_FAST_RATIO, 0.35, 1.0)
 
