@@ -349,7 +349,7 @@ def test_an_effect_the_leave_one_out_refused_is_said_with_the_run_that_would_tes
     from gma_ffc.diagnose.specs import LeaveOneOut
     from gma_ffc.diagnose.state import LOO_REFUSED, RoundRecord
 
-    runs = [SimpleNamespace(name=name, t=np.array([0.0, seconds])) for name, seconds in
+    runs = [SimpleNamespace(name=name, duration_s=seconds) for name, seconds in
             (("multifreq_3Hz.csv", 3.0), ("long_run.csv", 240.0), ("steps.csv", 72.0))]
     without = LeaveOneOut(loss=(1.0, 1.0, 1.0), sse=(3.0, 240.0, 72.0), n=(3, 240, 72))
     carried = LeaveOneOut(loss=(1.0, 9.0, 1.0), sse=(3.0, 240.0 * 16, 72.0), n=(3, 240, 72))

@@ -221,7 +221,7 @@ def not_carried(problem: Problem, sel: Selection) -> str:
     words = (f"{effect}: it takes the held-out RMS from {last.current_rms_um:.4g} to {rms:.4g} um, but fitted without "
              f"{name} it predicts {name} worse than the model without it ({_rms(carried.sse[k], carried.n[k]):.4g} um "
              f"against {_rms(without.sse[k], without.n[k]):.4g} um): its law is not shown to carry, so it is not named")
-    longest = max(float(d.t[-1] - d.t[0]) for d in problem.data)
+    longest = max(d.duration_s for d in problem.data)
     tau = float(trial.params.get("tau_s", 0.0))
     if effect_registry.REGISTRY[effect].slow and 2.0 * tau > longest:
         return (words + f". Its time constant ({tau:.3g} s) is over half of every recording (the longest "
