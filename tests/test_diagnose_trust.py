@@ -233,6 +233,35 @@ def test_a_slow_run_ahead_of_a_model_whose_faster_runs_lag_is_not_a_column_fault
     assert lead is not None and lead.recording == "10Hz"
 
 
+def test_runs_ahead_by_the_same_share_of_each_period_are_a_loop_width_not_a_late_column():
+    """A loop narrower than the model's leads each run by the same share of its period; a late column
+    leads every run by the same time. hil_sim's stress-dependent play (identified across loads, run
+    unloaded at 1-30 Hz: 8.4, 2.8, 0.9, 0.3 ms ahead) was called a column fault, and its diagnosis
+    with it. One rate alone cannot tell the two apart, and the words say so."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.timing import displacement_lead
+
+    fs = 2000.0
+    t = np.arange(8000) / fs
+    noise = 0.01 * np.random.default_rng(7).normal(size=t.size)
+
+    def run(hz, shift):                        # shift > 0: the measurement `shift` samples ahead
+        p = 1.5 - 1.5 * np.cos(2 * np.pi * hz * t) + 0.2 * np.sin(2 * np.pi * 2.3 * hz * t)
+        return SimpleNamespace(name=f"{hz}Hz", y=np.roll(p, -shift) + noise, u=p, t=t, dt_med=1 / fs, settled=0), p
+
+    def lead_of(runs):
+        return displacement_lead([d for d, _ in runs], [p for _, p in runs])
+
+    assert lead_of([run(1, 20), run(3, 7), run(10, 2)]) is None      # 1 % of each period
+    late = [run(1, 6), run(3, 6), run(10, 6)]                          # 3 ms each
+    lead = lead_of(late)
+    assert lead is not None and lead.rates_agree and abs(lead.lead_s - 0.003) < 1e-12
+    assert "tells the two apart" not in lead.words()
+    alone = lead_of(late[:1])
+    assert alone is not None and not alone.rates_agree and "tells the two apart" in alone.words()
+
+
 def test_mains_hum_on_the_sensor_is_described_not_fitted_as_physics(diagnosed):
     """50 Hz pickup on the displacement channel, as lab cabling adds: no effect is named for it, and
     the unexplained residual is described as a line nothing in the drive puts there (the diagnosis

@@ -27,6 +27,14 @@ mean square: the timing fault is then most of what is wrong, not a detail of it.
 this share of what the best lag (or no shift) leaves: on a periodic drive a lag of d and a lead of
 one period minus d fit alike (a 100 Hz sine lagging 1.1 ms through a delay and eddy currents was
 called 18.9 ms ahead, and the whole diagnosis a column fault)."""
+WIDTH_SLOPE = -0.5
+"""Leads at several drive rates: the slope of log(lead) against log(rate). A late column leads every
+run by the same time (slope 0); a loop narrower than the model's leads each by the same share of its
+period (slope -1: hil_sim's stress-dependent play, 0.1 of a period at 1, 3, 10 and 30 Hz, was called
+2.9 ms ahead at 3 Hz). Halfway between decides."""
+WIDTH_RATE_SPAN = 3.0
+"""The slope is read only over rates this far apart: a lead is known to one sample, so two runs
+2 samples ahead and 3 ahead read as a slope of log(1.5) / log(3) = 0.37 at most, short of WIDTH_SLOPE."""
 
 
 @dataclass(frozen=True)
@@ -34,13 +42,19 @@ class Lead:
     recording: str
     lead_s: float
     share_removed: float   # of the base model's residual mean square, over the scored samples
+    rates_agree: bool = False   # runs at drive rates WIDTH_RATE_SPAN apart lead by the same time
 
     def words(self) -> str:
-        return (f"{self.recording}: the measured displacement runs {self.lead_s * 1e3:.3g} ms ahead of the model "
+        said = (f"{self.recording}: the measured displacement runs {self.lead_s * 1e3:.3g} ms ahead of the model "
                 f"(shifting the model by that removes {self.share_removed:.0%} of its residual). No physical effect "
                 "makes a displacement lead its drive: the drive column is probably late (a current measured "
                 "through a filter, or sampled after the displacement) or the time columns are misaligned; align "
                 "them and run again")
+        if self.rates_agree:
+            return said
+        return (said + ". A loop narrower than the model's also leads, by the same share of each period: a run at "
+                "a drive rate three times faster or slower tells the two apart (a late column leads it by the same "
+                "time)")
 
 
 @dataclass(frozen=True)
@@ -61,7 +75,8 @@ def displacement_lead(data: Sequence[RecData], predictions: Sequence[np.ndarray]
     For each shift k of up to LEAD_MAX_S, the mean square of y[t] - p[t + k] over the same scored
     samples; k > 0 (the measurement ahead) by LEAD_MIN_SAMPLES or more that removes LEAD_SHARE of
     the unshifted residual, and of the best lag's, is a lead. It is not a column fault where a
-    recording with a faster drive clearly lags (`_lag_grows_with_rate`)."""
+    recording with a faster drive clearly lags (`_lag_grows_with_rate`), nor where runs at rates apart
+    lead by the same share of a period, not the same time (`WIDTH_SLOPE`)."""
     shifts = [(d, _best_shift(d, np.asarray(p, dtype=float))) for d, p in zip(data, predictions)]
     clear = [(d, sh) for d, sh in shifts if sh is not None and sh.clear]
     leads = [(d, sh) for d, sh in clear if sh.k > 0]
@@ -72,8 +87,21 @@ def displacement_lead(data: Sequence[RecData], predictions: Sequence[np.ndarray]
         leads = [(d, sh) for d, sh in leads if not _lag_grows_with_rate(loop_frequency_hz(d.t, d.u), lag_rates)]
     if not leads:
         return None
+    slope = _lead_rate_slope([(loop_frequency_hz(d.t, d.u), sh.k * d.dt_med) for d, sh in leads]) \
+        if len(leads) > 1 else None
+    if slope is not None and slope < WIDTH_SLOPE:
+        return None              # the same share of each period: a loop width, not the columns' timing
     d, sh = max(leads, key=lambda pair: pair[1].share)
-    return Lead(d.name, sh.k * d.dt_med, sh.share)
+    return Lead(d.name, sh.k * d.dt_med, sh.share, rates_agree=slope is not None)
+
+
+def _lead_rate_slope(rate_leads: Sequence[tuple[float, float]]) -> float | None:
+    """The least-squares slope of log(lead) against log(drive rate) over the leading runs, or None
+    when their rates (loops a second) do not span WIDTH_RATE_SPAN."""
+    pairs = np.array([(r, lead) for r, lead in rate_leads if np.isfinite(r) and r > 0])
+    if len(pairs) < 2 or pairs[:, 0].max() < WIDTH_RATE_SPAN * pairs[:, 0].min():
+        return None
+    return float(np.polyfit(np.log(pairs[:, 0]), np.log(pairs[:, 1]), 1)[0])
 
 
 def _lag_grows_with_rate(rate: float, lag_rates: Sequence[float]) -> bool:
