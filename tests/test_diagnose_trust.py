@@ -460,3 +460,33 @@ def test_a_named_slow_effect_whose_law_one_run_alone_could_set_says_so():
     said = notes(80.3, ("steps.csv", 72.0), ("long_run.csv", 240.0))
     assert len(said) == 1 and "other than long_run.csv only" in said[0] and "a second run as long" in said[0]
     assert notes(30.0, ("steps.csv", 72.0), ("long_run.csv", 240.0)) == []
+
+
+def test_the_pooled_leave_one_out_figures_leave_out_the_run_that_tests_nothing():
+    """hil_sim's heating and amplifier lag with --ident: the final model's leave-one-recording-out
+    read 5.74 um against 0.74 um for the recalibrated base, all of it the one 240 s run left out,
+    where heating's time constant is extrapolated. That row says so, and the pooled figures are
+    those of the runs that test the law; a time constant two runs can set pools every run."""
+    from types import SimpleNamespace
+
+    from gma_ffc.diagnose.outcome import leave_one_out_figures
+    from gma_ffc.diagnose.specs import LeaveOneOut
+    from gma_ffc.diagnose.state import Problem
+
+    def figures(tau_s):
+        problem = SimpleNamespace(data=_runs(("multifreq_3Hz.csv", 3.0), ("long_run.csv", 240.0)), too_little=False)
+        problem.sole_setter = lambda tau: Problem.sole_setter(problem, tau)
+        null = LeaveOneOut((0.0, 0.0), sse=(0.04 * 300, 0.64 * 2400), n=(300, 2400))
+        sel = SimpleNamespace(accepted=("thermal_drift",), trials={"thermal_drift": SimpleNamespace(
+            params={"tau_s": tau_s})}, leave_one_out=null, null_leave_one_out=null)
+        final = SimpleNamespace(selection=sel, base_kept=False,
+                                leave_one_out=LeaveOneOut((0.0, 0.0), sse=(0.01 * 300, 36.0 * 2400), n=(300, 2400)))
+        return leave_one_out_figures(problem, final)
+
+    loo = figures(84.8)
+    assert loo["pooled_without"] == ["long_run.csv"]
+    assert abs(loo["rms_after_um"] - 0.1) < 1e-9 and abs(loo["rms_recalibrated_um"] - 0.2) < 1e-9
+    long_row = loo["per_recording"][1]
+    assert long_row["untested_for"] == ["thermal_drift"] and abs(long_row["rms_after_um"] - 6.0) < 1e-9
+    loo = figures(200.0)                      # no run lasts two time constants: nothing to leave out
+    assert "pooled_without" not in loo and loo["rms_after_um"] > 5.0

@@ -233,10 +233,23 @@ def untested_folds(problem: Problem, final: Final) -> list[str]:
     """A note per named slow effect whose leave-one-recording-out skipped a fold: one recording alone
     is long enough to set its time constant (`Problem.sole_setter`), so its law was tested on the
     other recordings only. The user hears which, and the run that would test it."""
+    notes = []
+    for name, (k, tau) in _untested(problem, final).items():
+        d = problem.data[k]
+        notes.append(f"{name}: its law was tested on the recordings other than {d.name} only. That run "
+                     f"({d.duration_s:.3g} s) alone lasts two of its time constants ({tau:.3g} s), so fitted "
+                     "without it the time constant is extrapolated, not tested. Record a second run as long, "
+                     "at another drive level, to test the law on a run it was not fitted on")
+    return notes
+
+
+def _untested(problem: Problem, final: Final) -> dict[str, tuple[int, float]]:
+    """Each named slow effect whose time constant one recording alone sets (`Problem.sole_setter`):
+    that recording's index, and the time constant."""
     sel = final.selection
     if final.base_kept or sel.leave_one_out is None:
-        return []
-    notes = []
+        return {}
+    found = {}
     for name in sel.accepted:
         trial = sel.trials.get(name)
         if trial is None or not effect_registry.REGISTRY[name].slow:
@@ -244,12 +257,8 @@ def untested_folds(problem: Problem, final: Final) -> list[str]:
         tau = float(trial.params.get("tau_s", math.inf))
         k = problem.sole_setter(tau)
         if k is not None:
-            d = problem.data[k]
-            notes.append(f"{name}: its law was tested on the recordings other than {d.name} only. That run "
-                         f"({d.duration_s:.3g} s) alone lasts two of its time constants ({tau:.3g} s), so fitted "
-                         "without it the time constant is extrapolated, not tested. Record a second run as long, "
-                         "at another drive level, to test the law on a run it was not fitted on")
-    return notes
+            found[name] = (k, tau)
+    return found
 
 
 def short_of_the_margin(selector: Any, problem: Problem, sel: Selection) -> str:
@@ -316,7 +325,10 @@ def _validation(selector: Any, problem: Problem, final: Final, loo: dict[str, An
                        "error on the recording left out, or it was not accepted; leave-one-recording-out RMS "
                        f"{loo['rms_recalibrated_um']} um for the recalibrated base, "
                        f"{loo['rms_after_um'] if loo['rms_after_um'] is not None else 'unchanged'} um for the "
-                       "final model (its nonlinear parameters as selected, its gains fitted without the recording).")
+                       "final model (its nonlinear parameters as selected, its gains fitted without the recording)")
+        without = loo.get("pooled_without")
+        validation += (f", pooled without {', '.join(without)}: the one run long enough to set a named slow "
+                       "effect's time constant, which left out is extrapolated, not tested." if without else ".")
     if fitter.anchor_on:
         validation += anchor_words(problem.model, [] if final.base_kept else
                                    fitter.anchor_deviation(sel.fit.specs[2], sel.fit.coef_all),
@@ -326,7 +338,10 @@ def _validation(selector: Any, problem: Problem, final: Final, loo: dict[str, An
 
 def leave_one_out_figures(problem: Problem, final: Final) -> dict[str, Any]:
     """diagnosis.json's leave-one-recording-out figures: per recording, the null's and the final
-    model's RMS when that recording was left out of the fit (its own zero fitted on it)."""
+    model's RMS when that recording was left out of the fit (its own zero fitted on it). A recording
+    that alone sets a named slow effect's time constant tests nothing when left out (`_untested`):
+    its row says which effects (`untested_for`), and the pooled figures leave it out
+    (`pooled_without`), as the selection's judgement of those effects did."""
     null, after = final.selection.null_leave_one_out, final.leave_one_out
     if null is None:
         why = ("too little data" if problem.too_little else
@@ -336,13 +351,23 @@ def leave_one_out_figures(problem: Problem, final: Final) -> dict[str, Any]:
     after = after or null                       # nothing kept beyond the base: as the null
     if final.base_kept:
         after = None
+    untested: dict[int, list[str]] = {}
+    for name, (k, _) in _untested(problem, final).items():
+        untested.setdefault(k, []).append(name)
     rows = []
     for k, d in enumerate(problem.data):
-        rows.append({"recording": d.name, "rms_recalibrated_um": _rms(null.sse[k], null.n[k]),
-                     "rms_after_um": _rms(after.sse[k], after.n[k]) if after is not None else None})
-    return {"applies": True, "rms_recalibrated_um": _rms(sum(null.sse), sum(null.n)),
-            "rms_after_um": _rms(sum(after.sse), sum(after.n)) if after is not None else None,
-            "per_recording": rows}
+        row = {"recording": d.name, "rms_recalibrated_um": _rms(null.sse[k], null.n[k]),
+               "rms_after_um": _rms(after.sse[k], after.n[k]) if after is not None else None}
+        rows.append({**row, "untested_for": untested[k]} if k in untested else row)
+    pooled = [k for k in range(len(problem.data)) if k not in untested]
+    figures = {"applies": True, "rms_recalibrated_um": _rms(sum(null.sse[k] for k in pooled),
+                                                            sum(null.n[k] for k in pooled)),
+               "rms_after_um": (_rms(sum(after.sse[k] for k in pooled), sum(after.n[k] for k in pooled))
+                                if after is not None else None),
+               "per_recording": rows}
+    if untested:
+        figures["pooled_without"] = [problem.data[k].name for k in sorted(untested)]
+    return figures
 
 
 def _rms(sse: float, n: int) -> float | None:
