@@ -150,6 +150,12 @@ def samples_timing(verdict: list[str], cands: dict[str, Candidate], data: Sequen
             f"the {period * 1e3:.3g} ms sample period), within which a drive held over each sample interval and one "
             "moving through it differ in timing; record at "
             f"{1.0 / delay_s:.3g} Hz or faster to tell a transport delay from the samples' timing")
+    lag = cands.get("rate_dependence")
+    # the delay also stands in for a lag: hil_sim's eddy currents (0.1 ms) beside a resonance, run at 2 and
+    # 10 kHz, were fitted as a 0.076 ms delay, and the lag was named nowhere
+    if lag is not None and lag.testable and "rate_dependence" not in verdict:
+        note += (f". It may also be a first-order lag as short (eddy currents: rate_dependence, not named), which "
+                 f"only a drive near {1.0 / (2.0 * math.pi * delay_s):.3g} Hz tells from a delay")
     return [name for name in verdict if name != "time_delay"], note
 
 
