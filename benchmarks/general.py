@@ -61,6 +61,9 @@ GENERAL_TWENTY_SEVENTH_SEED draws a twenty-sixth.
 A resonance fitted within 3 % of the highest frequency the sampling resolves is a lag too, and a
 loop-width model starts from the loops at its run's stress (its other-rate probe's loss, looked at):
 GENERAL_TWENTY_EIGHTH_SEED draws a twenty-seventh.
+A slow effect's law is judged on the runs that can test it, creep is searched beside heating and
+from rest, and a loop narrower than the model's is not a late column: GENERAL_TWENTY_NINTH_SEED
+draws a twenty-eighth.
 """
 
 from __future__ import annotations
@@ -133,6 +136,8 @@ GENERAL_TWENTY_SEVENTH_SEED = 20261314  # a twenty-sixth never-tuned draw (2026-
                                         # a resonance near the damping cap is a lag; committed before its first run
 GENERAL_TWENTY_EIGHTH_SEED = 20261315  # a twenty-seventh never-tuned draw (2026-12-03, fortieth session):
                                        # a loop-width model's start at its run's stress; committed before its first run
+GENERAL_TWENTY_NINTH_SEED = 20261316   # a twenty-eighth never-tuned draw (2026-12-03, forty-fourth session):
+                                       # slow effects judged on runs that can test them; committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 
