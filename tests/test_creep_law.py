@@ -229,3 +229,28 @@ def test_heating_and_creep_on_steps_from_rest_are_both_named():
     creep = next(c for c in dg.candidates if c.effect == "creep")
     assert creep.params.get("from_rest") == 1.0
     assert dg.rms_written_um < 2.0 * dg.rms_after_um < 0.1 * dg.rms_before_um
+
+
+def test_creeps_start_terms_stay_only_where_they_earn_their_place_as_an_effect_must(monkeypatch):
+    """A model file runs from rest, so start terms must pay for themselves as an effect does, against
+    creep from rest, one parameter a recording. hil_sim's creep and eddy currents (multifreq and
+    steps runs): 0.0740 um held out with them, 0.0752 from rest, and the model file ran at 0.138 um
+    with them, 0.078 um from rest. Where the start holds creep under way, they stay."""
+    from types import SimpleNamespace
+
+    import gma_ffc.diagnose.selection as selection
+    from gma_ffc.diagnose.state import Trial
+    from gma_ffc.effects.creep import FromRest
+
+    selector = selection.EffectSelector()
+    problem = SimpleNamespace(data=[object()] * 8, noise=0.0212, fitter=None)
+
+    def chosen(with_start_rms, rest_rms, effect="creep"):
+        trial = Trial(effect, SimpleNamespace(cv_loss=with_start_rms ** 2, specs=(None, None, {effect: 3.3})), {}, 1)
+        rest = Trial(effect, SimpleNamespace(cv_loss=rest_rms ** 2, specs=(None, None, {effect: FromRest(3.8)})), {}, 1)
+        monkeypatch.setattr(selector, "_retried", lambda problem, sel, t, form, n_eff: rest)
+        return selector._start_earned(problem, None, trial, 5000.0)
+
+    assert chosen(0.0740, 0.0752).result.cv_loss == 0.0752 ** 2          # a sliver: from rest
+    assert chosen(0.0740, 0.2000).result.cv_loss == 0.0740 ** 2          # creep under way at the starts: kept
+    assert chosen(0.0740, 0.0752, "thermal_drift").result.cv_loss == 0.0740 ** 2   # no start form: as fitted

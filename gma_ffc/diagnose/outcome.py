@@ -366,11 +366,11 @@ def leave_one_out_figures(problem: Problem, final: Final) -> dict[str, Any]:
                "rms_after_um": _rms(after.sse[k], after.n[k]) if after is not None else None}
         rows.append({**row, "untested_for": untested[k]} if k in untested else row)
     pooled = [k for k in range(len(problem.data)) if k not in untested]
-    figures = {"applies": True, "rms_recalibrated_um": _rms(sum(null.sse[k] for k in pooled),
-                                                            sum(null.n[k] for k in pooled)),
-               "rms_after_um": (_rms(sum(after.sse[k] for k in pooled), sum(after.n[k] for k in pooled))
-                                if after is not None else None),
-               "per_recording": rows}
+    figures: dict[str, Any] = {
+        "applies": True, "rms_recalibrated_um": _rms(sum(null.sse[k] for k in pooled), sum(null.n[k] for k in pooled)),
+        "rms_after_um": (_rms(sum(after.sse[k] for k in pooled), sum(after.n[k] for k in pooled))
+                         if after is not None else None),
+        "per_recording": rows}
     if untested:
         figures["pooled_without"] = [problem.data[k].name for k in sorted(untested)]
     return figures

@@ -288,6 +288,8 @@ class Effect(Protocol):
                                             # one joins: their parameter is re-searched with it, as a look-alike's is
                                             # (no swap-pass rivalry follows from it)
     joint_scales: ClassVar[tuple[float, ...]]   # the grid's scales of that parameter (the zoom refines them)
+    rest_form: ClassVar[Callable[[Any], Any] | None]   # a search point's form with nothing under way at any
+                                            # recording's start (creep's `FromRest`); None: no start terms
     joint_refit: ClassVar[bool]             # True: beside a look-alike tried with it, its own parameters are
                                             # searched again as well (`scoring._descend`): one scale is not enough
     deciders: ClassVar[Mapping[str, str]]   # per look-alike: the experiment that tells the two apart
@@ -446,6 +448,7 @@ class EffectBase:
     joint_with: ClassVar[tuple[str, ...]] = ()
     rescales: ClassVar[tuple[str, ...]] = ()
     joint_scales: ClassVar[tuple[float, ...]] = (0.3, 0.55, 0.8, 1.0)   # the look-alike's parameter, scaled
+    rest_form: ClassVar[Callable[[Any], Any] | None] = None
     joint_refit: ClassVar[bool] = False
     deciders: ClassVar[Mapping[str, str]] = {}
     told_by_frequency: ClassVar[bool] = False

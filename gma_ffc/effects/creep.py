@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping
 
 import numpy as np
 from scipy import optimize
@@ -54,6 +54,7 @@ class Creep(EffectBase):
     # refines the scale.
     rescales: ClassVar[tuple[str, ...]] = ("thermal_drift",)
     joint_scales: ClassVar[tuple[float, ...]] = (THERMAL_FAST_RATIO, 0.35, 1.0)
+    rest_form: ClassVar[Callable[[Any], Any] | None] = FromRest
 
     def __init__(self, block: Mapping[str, Any]) -> None:
         super().__init__(block)
