@@ -95,9 +95,13 @@ def test_a_loop_width_that_changes_with_load_is_not_also_called_creep():
 def test_heating_at_the_noise_floor_of_a_rising_sine_is_not_called_creep():
     """The rising-amplitude development case of heating, whose drift (0.12 um before, 0.11 um on its
     effect-free twin) sits at the floor: creep won it, fitted at its fastest time constant (1 s), as
-    it does on these drives with nothing missing. Creep is not named now; nothing else need be."""
+    it does on these drives with nothing missing. Creep is not named now; nothing else need be. With
+    its start terms it failed its signature (the fastest time constant); from rest, where they do
+    not earn their place, it falls short of the acceptance rule (a fifth of the loss). Either way
+    the report says why."""
     model, rec = bench.make_case({c.name: c for c in bench.rising_cases()}["rising:thermal_drift"], scale=1.0)
     dg = diagnose(model, [rec])
     assert "creep" not in dg.verdict
     creep = next(c for c in dg.candidates if c.effect == "creep")
-    assert "fastest time constant" in creep.reason
+    decisions = [decision for r in dg.rounds for name, *_, decision in r["scored"] if name == "creep"]
+    assert "fastest time constant" in creep.reason or any(d.startswith("not accepted") for d in decisions)

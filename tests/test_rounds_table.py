@@ -46,6 +46,7 @@ def one_round(monkeypatch) -> Selection:
                         if t.effect == "mechanical_dynamics" else None)
     monkeypatch.setattr(selector, "_carries_over", lambda _p, _s, t: (t, NOT_CARRIED if t.effect == "thermal_drift"
                                                                       else ""))
+    monkeypatch.setattr(selector, "_start_earned", lambda _p, _s, t, _n: t)     # creep as fitted, its start kept
     problem = SimpleNamespace(fitter=None, noise=NOISE_UM, leave_one_out=lambda _spec: None)
     names = frozenset(t.effect for t in trials)
     sel, more = selector._round(problem, Selection(_result(START_RMS_UM), names, {}), 1, lambda _msg: None)

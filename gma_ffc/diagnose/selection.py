@@ -355,9 +355,9 @@ class EffectSelector:
 
     def _retried(self, problem: Problem, sel: Selection, trial: Trial, variant: Callable[[Any], Any],
                  n_eff: float) -> Trial:
-        """A round's trial whose fit failed its signature in a way another form of its search point
-        avoids (`SignatureFailure.variant`), searched again in that form and scored as the round
-        scores: creep whose start terms held a drift, from rest."""
+        """A round's trial searched again in another form of its search point, and scored as the
+        round scores: creep from rest, where its start terms do not earn their place
+        (`_start_earned`) or held a drift its signature refuses (`SignatureFailure.variant`)."""
         fitter = problem.fitter
         result = search_variant(fitter, sel.fit.specs, trial.effect, variant, self.threads_)
         gain = loglik_gain(n_eff, sel.cur_loss, result.cv_loss, REGISTRY[trial.effect].count_params(fitter))

@@ -21,11 +21,13 @@ MIN_CREEP_TAU_S = 1.0             # creep's central time constant (its component
 
 @dataclass(frozen=True)
 class FromRest:
-    """A creep search point with no creep under way at any recording's start: the form creep's fit
-    takes when the start terms hold more than creep of its gain can (`start_beyond_reach`). Such a
-    start is another slow drift, and a recording from rest holds no start at all. hil_sim's heating
-    and creep on steps: the start took heating's rise (-2.31 um, where 1.66 um is the most), and
-    creep was set aside; from rest, both are named, 0.066 -> 0.021 um held out."""
+    """A creep search point with no creep under way at any recording's start (`rest_form`): the
+    form creep's fit takes unless the start terms earn their place as an effect must
+    (`EffectSelector._start_earned`), or when they hold more than creep of its gain can
+    (`start_beyond_reach`). Such a start is another slow drift, and a recording from rest holds no
+    start at all. hil_sim's heating and creep on steps: the start took heating's rise (-2.31 um,
+    where 1.66 um is the most), and creep was set aside; from rest, both are named, 0.066 -> 0.021
+    um held out."""
 
     inner: Any        # the point itself: a central time constant, or (tau, gain) with the loops' law
 
