@@ -3,8 +3,9 @@
 The selection judges each effect with terms a model file cannot carry: per recording, its
 sensor's zero and each step of it, the creep its unknown history left under way at its start, the
 start fitted through the effects. A drift the model lacks (heating) goes partly into them.
-`extended_model.yaml` runs without them, from a start estimated on the measured displacement. `written_rms` is what a user then sees, over the samples the diagnosis
-scored, beside the base's own miss there ("before"). Pure maths: no I/O.
+`extended_model.yaml` runs without them, from a start estimated on the measured displacement.
+`written_rms` is what a user then sees, over the samples the diagnosis scored, beside the base's
+own miss there ("before"). Pure maths: no I/O.
 """
 
 from __future__ import annotations

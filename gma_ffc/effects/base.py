@@ -343,7 +343,7 @@ class Effect(Protocol):
 
     @classmethod
     def grid_like(cls, fitter: FitData, p: Any) -> Any:
-        """Its grid in the form of the search point `p` (a variant's, see `SignatureFailure.variant`)."""
+        """Its grid in the form of the search point `p` (its `rest_form`, or a `SignatureFailure.variant`)."""
 
     @classmethod
     def lost_without_identification(cls, fitter: FitData) -> str:
@@ -509,7 +509,7 @@ class EffectBase:
 
     @classmethod
     def grid_like(cls, fitter: FitData, p: Any) -> Any:
-        """Its grid in the form of the search point `p` (a variant's, see `SignatureFailure.variant`)."""
+        """Its grid in the form of the search point `p` (its `rest_form`, or a `SignatureFailure.variant`)."""
         return cls.grid(fitter)
 
     @classmethod

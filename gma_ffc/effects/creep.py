@@ -180,7 +180,7 @@ class Creep(EffectBase):
             return SignatureFailure(
                 f"its fit puts {start:+.3g} um of creep under way at the start of {name}, more than creep of that gain "
                 f"can hold ({most:.3g} um, over the model's whole stroke): a slow drift of another cause (heating) "
-                "fitted as creep left by the recording's unknown history", variant=FromRest)
+                "fitted as creep left by the recording's unknown history", variant=cls.rest_form)
         tau = central_tau(check.result.specs[2][cls.name])
         fastest = float(time_constants(check.fitter)[0])
         if tau <= fastest * (1.0 + 1e-9):
@@ -196,8 +196,9 @@ class Creep(EffectBase):
         text = (f"creep of {params['gain'] * 100:+.3g} % of each step relaxing over time constants around "
                 f"{params['tau_s']:.3g} s (0.1x to 10x)")
         if params.get("from_rest"):
-            text += (", fitted from rest: with creep under way at the start, that start held more than creep "
-                     "of its gain can, a slow drift of another cause")
+            text += (", fitted from rest, as a model file runs it: creep under way at the runs' starts did "
+                     "not earn its place in the fit, or held more than creep of its gain can (a slow drift of "
+                     "another cause)")
         return text
 
 
