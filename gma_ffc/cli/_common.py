@@ -164,22 +164,46 @@ def _noise_clamped(model: Model, rec: Recording, s: np.ndarray) -> np.ndarray:
     (said on stderr); any other stress as it is, for the model to judge. A model that reads the load
     cell through its own dynamics (an extended model's rod_load) gets the same: it low-passes the
     readings to the load's static stress, so readings clamped by noise keep that inside the range
-    (left raw, they were refused where the plain model ran); inertial force past the noise stays raw."""
+    (left raw, they were refused where the plain model ran). Readings further out whose static stress
+    stays inside are the load's inertial force about a load the model knows, and are clamped too."""
     from ..diagnose.noise import second_difference_sigma
 
     rng = model.stress_range_MPa
     if rng is None or not np.all(np.isfinite(s)):
         return s
     lo, hi = rng
-    beyond = max(lo - float(s.min()), float(s.max()) - hi, 0.0)
+    beyond = _beyond(s, lo, hi)
     noise = second_difference_sigma(np.asarray(s, dtype=float))
-    if beyond == 0.0 or beyond > READING_NOISE_MARGIN * noise:
+    if beyond == 0.0:
         return s
-    outside = int(np.count_nonzero((s < lo) | (s > hi)))
-    print(f"note: {rec.name}: {outside} stress readings lie up to {beyond:.2g} MPa outside the model's identified "
-          f"range {lo:.4g}..{hi:.4g} MPa, within {READING_NOISE_MARGIN:g} x the load cell's noise "
-          f"({noise:.2g} MPa): clamped into it", file=sys.stderr)
+    outside = f"note: {rec.name}: {int(np.count_nonzero((s < lo) | (s > hi)))} stress readings lie up to " \
+              f"{beyond:.2g} MPa outside the model's identified range {lo:.4g}..{hi:.4g} MPa"
+    if beyond <= READING_NOISE_MARGIN * noise:
+        print(f"{outside}, within {READING_NOISE_MARGIN:g} x the load cell's noise ({noise:.2g} MPa): clamped into it",
+              file=sys.stderr)
+        return np.clip(s, lo, hi)
+    from ..effects.rod_load import STATIC_STRESS_HZ
+
+    if rec.time_s.size < 2 or _beyond(_static(rec, s), lo, hi) > READING_NOISE_MARGIN * noise:
+        return s
+    print(f"{outside}, but the load's static stress (the readings low-passed at {STATIC_STRESS_HZ:g} Hz) stays "
+          "within it: they are the load's inertial force, as when the drive rings a resonance, not another load; "
+          "clamped into it", file=sys.stderr)
     return np.clip(s, lo, hi)
+
+
+def _beyond(s: np.ndarray, lo: float, hi: float) -> float:
+    """How far stresses `s` reach outside lo..hi (0 inside)."""
+    return max(lo - float(np.min(s)), float(np.max(s)) - hi, 0.0)
+
+
+def _static(rec: Recording, s: np.ndarray) -> np.ndarray:
+    """The load's static stress under readings `s` (`rod_load.static_stress`), on the recording's own steps."""
+    from ..effects.rod_load import static_stress
+
+    dt = np.diff(rec.time_s, prepend=rec.time_s[0])
+    dt[0] = dt[1]
+    return static_stress(np.asarray(s, dtype=float), dt)
 
 
 def beyond_drive_range(model: Model, rec: Recording) -> str | None:
