@@ -64,6 +64,8 @@ GENERAL_TWENTY_EIGHTH_SEED draws a twenty-seventh.
 A slow effect's law is judged on the runs that can test it, creep is searched beside heating and
 from rest, and a loop narrower than the model's is not a late column: GENERAL_TWENTY_NINTH_SEED
 draws a twenty-eighth.
+A resonance's law reaches loads a hundred times its moving mass: GENERAL_THIRTIETH_SEED draws a
+twenty-ninth.
 """
 
 from __future__ import annotations
@@ -138,6 +140,8 @@ GENERAL_TWENTY_EIGHTH_SEED = 20261315  # a twenty-seventh never-tuned draw (2026
                                        # a loop-width model's start at its run's stress; committed before its first run
 GENERAL_TWENTY_NINTH_SEED = 20261316   # a twenty-eighth never-tuned draw (2026-12-03, forty-fourth session):
                                        # slow effects judged on runs that can test them; committed before its first run
+GENERAL_THIRTIETH_SEED = 20261317      # a twenty-ninth never-tuned draw (2026-12-03, forty-fifth session):
+                                       # a resonance law's reach to heavy loads; committed before its first run
 VARIANTS = ("plain", "cut", "voltage", "falling")
 
 

@@ -50,6 +50,7 @@ before/after per case. Usage:
     .venv/bin/python scripts/bench_diagnose.py --set general-twenty-seventh  # a twenty-sixth, a resonance near its damping cap is a lag
     .venv/bin/python scripts/bench_diagnose.py --set general-twenty-eighth  # a twenty-seventh, a loop-width model starts at its run's stress
     .venv/bin/python scripts/bench_diagnose.py --set general-twenty-ninth  # a twenty-eighth, slow effects judged on runs that test them
+    .venv/bin/python scripts/bench_diagnose.py --set general-thirtieth     # a twenty-ninth, a resonance law's reach to heavy loads
 
 Beside the held-out blocks, every case is also judged on probes (`benchmarks.probes`): the same
 simulated actuator recorded again at loads, rates and drive shapes diagnose never saw; the extended
@@ -87,7 +88,7 @@ from benchmarks.general import (GENERAL_EIGHTH_SEED, GENERAL_FIFTH_SEED, GENERAL
                                 GENERAL_TWENTY_FIRST_SEED, GENERAL_TWENTY_SECOND_SEED, GENERAL_TWENTY_THIRD_SEED,
                                 GENERAL_TWENTY_FOURTH_SEED, GENERAL_TWENTY_FIFTH_SEED, GENERAL_TWENTY_SIXTH_SEED,
                                 GENERAL_TWENTY_SEVENTH_SEED, GENERAL_TWENTY_EIGHTH_SEED, GENERAL_TWENTY_NINTH_SEED,
-                                general_cases)
+                                GENERAL_THIRTIETH_SEED, general_cases)
 from benchmarks.probes import pooled, probe_bound, probe_recordings, probe_scores
 
 # the never-tuned general draws after the first, each drawn after the misses named were fixed
@@ -136,7 +137,9 @@ LATER_DRAWS = (("fresh", "a second", GENERAL_FRESH_SEED, "the first draw's misse
                ("twenty-eighth", "a twenty-eighth", GENERAL_TWENTY_EIGHTH_SEED,
                 "a resonance at the highest frequency is a lag; a loop-width model starts at its run's stress"),
                ("twenty-ninth", "a twenty-ninth", GENERAL_TWENTY_NINTH_SEED,
-                "slow effects judged on the runs that can test them; creep beside heating and from rest"))
+                "slow effects judged on the runs that can test them; creep beside heating and from rest"),
+               ("thirtieth", "a thirtieth", GENERAL_THIRTIETH_SEED,
+                "a resonance law that reaches loads a hundred times its moving mass"))
 
 # the held-out-condition targets (issue 31), on the probes diagnose never saw
 PROBE_GAIN_EACH = 1.5        # every effect case at least this much better than the base
