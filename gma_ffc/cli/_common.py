@@ -120,7 +120,7 @@ def stress_for(model: Model, rec: Recording, override: float | None) -> np.ndarr
         check_stress_option(model, float(override))
         return float(override)
     if rec.stress_MPa is not None:
-        return _noise_clamped(model, rec, rec.stress_MPa)
+        return _clamped_to_known_load(model, rec, rec.stress_MPa)
     if model.stress_range_MPa is not None:
         lo, hi = model.stress_range_MPa
         raise InputError(f"{rec.source}: no stress_MPa column, and this {model.kind} model depends on stress "
@@ -159,7 +159,7 @@ def recorded_stress(rec: Recording, stress: Any, override: float | None) -> np.n
     return np.broadcast_to(np.asarray(written, float), rec.time_s.shape)
 
 
-def _noise_clamped(model: Model, rec: Recording, s: np.ndarray) -> np.ndarray:
+def _clamped_to_known_load(model: Model, rec: Recording, s: np.ndarray) -> np.ndarray:
     """`s` with the readings that leave the model's stress range by noise alone clamped into it
     (said on stderr); any other stress as it is, for the model to judge. A model that reads the load
     cell through its own dynamics (an extended model's rod_load) gets the same: it low-passes the
@@ -176,8 +176,8 @@ def _noise_clamped(model: Model, rec: Recording, s: np.ndarray) -> np.ndarray:
     noise = second_difference_sigma(np.asarray(s, dtype=float))
     if beyond == 0.0:
         return s
-    outside = f"note: {rec.name}: {int(np.count_nonzero((s < lo) | (s > hi)))} stress readings lie up to " \
-              f"{beyond:.2g} MPa outside the model's identified range {lo:.4g}..{hi:.4g} MPa"
+    outside = (f"note: {rec.name}: {int(np.count_nonzero((s < lo) | (s > hi)))} stress readings lie up to "
+               f"{beyond:.2g} MPa outside the model's identified range {lo:.4g}..{hi:.4g} MPa")
     if beyond <= READING_NOISE_MARGIN * noise:
         print(f"{outside}, within {READING_NOISE_MARGIN:g} x the load cell's noise ({noise:.2g} MPa): clamped into it",
               file=sys.stderr)
