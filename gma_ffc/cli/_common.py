@@ -115,7 +115,8 @@ the command says so; a reading further out is another load, and refused."""
 
 def stress_for(model: Model, rec: Recording, override: float | None) -> np.ndarray | float | None:
     """The stress to run `model` at for `rec`: --stress wins, else the recording's column (its
-    readings just beyond the identified range by noise clamped into it: `READING_NOISE_MARGIN`)."""
+    readings beyond the identified range by noise, or by the load's inertial force, clamped into it:
+    `_clamped_to_known_load`)."""
     if override is not None:
         check_stress_option(model, float(override))
         return float(override)
