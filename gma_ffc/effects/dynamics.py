@@ -36,9 +36,10 @@ LAW_SPREAD = (0.01, 0.05, 0.15, 0.5, 1.5, 5.0)   # moving masses tried from a lo
                                                  # fixture (frequency ratio 0.1 end to end) to loads that barely
                                                  # move it (0.91); hil_sim's own rig, 1.5 kg under loads to 50 kg,
                                                  # is 0.17, beyond the 0.05 (0.22) this began at
-MIN_LOAD_RATIO = 0.1   # the lowest heaviest/lightest frequency ratio a law may take (LAW_SPREAD's first): with the
-                       # resonance at the lightest load beyond what the sampling resolves, a fit runs the law
-                       # steeper than the rig's (hil_sim's rig: 0.107 for its 0.17, the top held at _f_max)
+# the lowest heaviest/lightest frequency ratio a law may take: LAW_SPREAD's lightest mass's, sqrt(m / (m + 1)) in
+# units of the extent (0.0995). With the resonance at the lightest load beyond what the sampling resolves, a fit
+# runs the law steeper than the rig's (hil_sim's rig: 0.107 for its 0.17, the top held at _f_max)
+MIN_LOAD_RATIO = math.sqrt(min(LAW_SPREAD) / (min(LAW_SPREAD) + 1.0))
 TOP_OF_NYQUIST = 0.8   # the highest resonance searched, as a fraction of the Nyquist frequency: above
                        # it a few samples per period cannot show a peak, only a lag
 
