@@ -200,11 +200,10 @@ def _beyond(s: np.ndarray, lo: float, hi: float) -> float:
 
 def _static(rec: Recording, s: np.ndarray) -> np.ndarray:
     """The load's static stress under readings `s` (`rod_load.static_stress`), on the recording's own steps."""
+    from ..effects.base import time_steps
     from ..effects.rod_load import static_stress
 
-    dt = np.diff(rec.time_s, prepend=rec.time_s[0])
-    dt[0] = dt[1]
-    return static_stress(np.asarray(s, dtype=float), dt)
+    return static_stress(np.asarray(s, dtype=float), time_steps(rec.time_s)[0])
 
 
 def beyond_drive_range(model: Model, rec: Recording) -> str | None:
