@@ -174,9 +174,9 @@ def _clamped_to_known_load(model: Model, rec: Recording, s: np.ndarray) -> np.nd
         return s
     lo, hi = rng
     beyond = _beyond(s, lo, hi)
-    noise = second_difference_sigma(np.asarray(s, dtype=float))
     if beyond == 0.0:
         return s
+    noise = second_difference_sigma(np.asarray(s, dtype=float))
     outside = (f"note: {rec.name}: {int(np.count_nonzero((s < lo) | (s > hi)))} stress readings lie up to "
                f"{beyond:.2g} MPa outside the model's identified range {lo:.4g}..{hi:.4g} MPa")
     if beyond <= READING_NOISE_MARGIN * noise:
