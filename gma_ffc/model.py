@@ -73,6 +73,12 @@ def stress_sign_advice(stress: np.ndarray, stress_range: tuple[float, float]) ->
             "if the load cell logs compression as positive, negate the stress_MPa column")
 
 
+def stress_beyond(stress: np.ndarray, lo: float, hi: float) -> float:
+    """How far stresses reach outside lo..hi, in MPa (0 when all are inside)."""
+    s = np.asarray(stress, dtype=float)
+    return max(lo - float(s.min()), float(s.max()) - hi, 0.0)
+
+
 def refuse_stress_outside(stress: np.ndarray, stress_range: tuple[float, float]) -> None:
     """ModelError when `stress` leaves `stress_range` (beyond a rounding's tolerance): how far, in
     four digits (three made -11.3 look inside -24.3..-11.3), and what to do (every model kind's words)."""
@@ -81,7 +87,7 @@ def refuse_stress_outside(stress: np.ndarray, stress_range: tuple[float, float])
     tol = 1e-6 * max(1.0, abs(lo), abs(hi))
     if s.size == 0 or (s.min() >= lo - tol and s.max() <= hi + tol):
         return
-    beyond = max(lo - float(s.min()), float(s.max()) - hi)
+    beyond = stress_beyond(s, lo, hi)
     raise ModelError(
         f"stress {s.min():.4g}..{s.max():.4g} MPa reaches {beyond:.2g} MPa outside the model's identified "
         f"range {lo:.4g}..{hi:.4g} MPa; {stress_sign_advice(s, (lo, hi)) or 'identify with recordings covering it'}")

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..drive import drive_unit
 from ..errors import InputError
+from ..model import stress_beyond
 from ..protocols import Model
 from ..atomic import check_folder_writable, refuse_overwrite
 from ..recordings import Recording, check_output_name, gap_note, read_recording
@@ -173,7 +174,7 @@ def _clamped_to_known_load(model: Model, rec: Recording, s: np.ndarray) -> np.nd
     if rng is None or not np.all(np.isfinite(s)):
         return s
     lo, hi = rng
-    beyond = _beyond(s, lo, hi)
+    beyond = stress_beyond(s, lo, hi)
     if beyond == 0.0:
         return s
     noise = second_difference_sigma(np.asarray(s, dtype=float))
@@ -185,17 +186,12 @@ def _clamped_to_known_load(model: Model, rec: Recording, s: np.ndarray) -> np.nd
         return np.clip(s, lo, hi)
     from ..effects.rod_load import STATIC_STRESS_HZ
 
-    if rec.time_s.size < 2 or _beyond(_static(rec, s), lo, hi) > READING_NOISE_MARGIN * noise:
+    if rec.time_s.size < 2 or stress_beyond(_static(rec, s), lo, hi) > READING_NOISE_MARGIN * noise:
         return s
     print(f"{outside}, but the load's static stress (the readings low-passed at {STATIC_STRESS_HZ:g} Hz) stays "
           "within it: they are the load's inertial force, as when the drive rings a resonance, not another load; "
           "clamped into it", file=sys.stderr)
     return np.clip(s, lo, hi)
-
-
-def _beyond(s: np.ndarray, lo: float, hi: float) -> float:
-    """How far stresses `s` reach outside lo..hi (0 inside)."""
-    return max(lo - float(np.min(s)), float(np.max(s)) - hi, 0.0)
 
 
 def _static(rec: Recording, s: np.ndarray) -> np.ndarray:
